@@ -1,0 +1,265 @@
+"""Airframe description: mass, inertia, rotor geometry (contract §3).
+
+An :class:`Airframe` holds the known physical constants of a vehicle and the initial
+guesses of the parameters to fit. It is read from TOML with :func:`load_airframe`; every
+mistake in the file is reported as one :class:`~greybox.errors.GreyboxInputError` naming
+the file and the key.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .errors import GreyboxInputError
+
+__all__ = ["Rotor", "Airframe", "load_airframe", "airframe_from_dict", "rotors_for_layout"]
+
+_AIRFRAME_KEYS = {
+    "name", "mass", "inertia", "arm_length", "layout", "rotor_inertia", "gravity", "ground_z",
+}
+_ROTOR_KEYS = {"position", "spin"}
+
+
+@dataclass(frozen=True)
+class Rotor:
+    """One rotor: position in the body frame (FRD, m) and spin direction (+1/-1).
+
+    The rotor's reaction torque on the body is ``spin * b * w**2`` about body +z.
+    """
+
+    position: tuple[float, float, float]
+    spin: int
+
+
+def rotors_for_layout(layout: str, arm_length: float) -> list[Rotor]:
+    """Rotor positions and spins of the contract's standard layouts ``plus`` and ``x``."""
+    l = float(arm_length)
+    if layout == "plus":
+        pos = [(l, 0.0, 0.0), (0.0, l, 0.0), (-l, 0.0, 0.0), (0.0, -l, 0.0)]
+        spin = [-1, 1, -1, 1]
+    elif layout == "x":
+        a = l / math.sqrt(2.0)
+        pos = [(a, a, 0.0), (-a, -a, 0.0), (a, -a, 0.0), (-a, a, 0.0)]
+        spin = [1, 1, -1, -1]
+    else:
+        raise GreyboxInputError(f"unknown layout {layout!r}: use 'plus', 'x' or [[rotor]] tables")
+    return [Rotor(p, s) for p, s in zip(pos, spin)]
+
+
+@dataclass
+class Airframe:
+    """Known constants of a multirotor and initial parameter guesses.
+
+    Attributes:
+        name: free text.
+        mass: kg.
+        inertia: 3x3 inertia matrix about the centre of gravity, body axes, kg m^2.
+        rotors: rotor positions and spins.
+        rotor_inertia: J_r, kg m^2, of one rotor about its axis.
+        gravity: m/s^2.
+        ground_z: world NED z of the ground plane (height above ground is ground_z - z).
+        arm_length: m (informative when explicit rotors are given).
+        layout: "plus", "x" or "custom".
+        parameters: initial guesses of model parameters by name (values or lists).
+        source: file the airframe was read from, if any.
+    """
+
+    mass: float
+    inertia: np.ndarray
+    rotors: list[Rotor]
+    name: str = "airframe"
+    rotor_inertia: float = 0.0
+    gravity: float = 9.81
+    ground_z: float = 0.0
+    arm_length: float = 0.0
+    layout: str = "custom"
+    parameters: dict[str, Any] = field(default_factory=dict)
+    source: str | None = None
+
+    @property
+    def n_rotors(self) -> int:
+        return len(self.rotors)
+
+    @property
+    def rotor_positions(self) -> np.ndarray:
+        """(N, 3) rotor positions in the body frame."""
+        return np.array([r.position for r in self.rotors], dtype=float)
+
+    @property
+    def spins(self) -> np.ndarray:
+        return np.array([r.spin for r in self.rotors], dtype=float)
+
+    def allocation_matrix(self) -> np.ndarray:
+        """Geometric map G from squared rotor speeds to [thrust, roll, pitch, yaw] / coefficient.
+
+        ``[U1, U2, U3, U4] = diag(K_T, K_T, K_T, b) @ G @ w**2`` for the base model.
+        Rows: total thrust, roll torque (-y_i), pitch torque (+x_i), yaw torque (spin_i).
+        """
+        P = self.rotor_positions
+        return np.vstack([np.ones(self.n_rotors), -P[:, 1], P[:, 0], self.spins])
+
+    def to_toml(self) -> str:
+        """The airframe as TOML text in the contract's format (explicit rotors if custom)."""
+        lines = ["[airframe]", f'name = "{self.name}"', f"mass = {self.mass!r}"]
+        J = self.inertia
+        if np.allclose(J, np.diag(np.diag(J))):
+            lines.append(f"inertia = [{', '.join(repr(float(v)) for v in np.diag(J))}]")
+        else:
+            rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in J)
+            lines.append(f"inertia = [{rows}]")
+        lines.append(f"arm_length = {self.arm_length!r}")
+        if self.layout in ("plus", "x"):
+            lines.append(f'layout = "{self.layout}"')
+        lines += [f"rotor_inertia = {self.rotor_inertia!r}", f"gravity = {self.gravity!r}",
+                  f"ground_z = {self.ground_z!r}"]
+        if self.layout not in ("plus", "x"):
+            for r in self.rotors:
+                lines += ["", "[[rotor]]", f"position = [{', '.join(repr(float(v)) for v in r.position)}]",
+                          f"spin = {r.spin}"]
+        if self.parameters:
+            lines += ["", "[parameters]"]
+            for k, v in self.parameters.items():
+                if isinstance(v, (list, tuple, np.ndarray)):
+                    lines.append(f"{k} = [{', '.join(repr(float(x)) for x in v)}]")
+                else:
+                    lines.append(f"{k} = {float(v)!r}")
+        return "\n".join(lines) + "\n"
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise GreyboxInputError(f"{where} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise GreyboxInputError(f"{where} must be finite, got {value!r}")
+    return float(value)
+
+
+def _vector(value: Any, n: int, where: str) -> list[float]:
+    if not isinstance(value, list):
+        raise GreyboxInputError(f"{where} must be a list of {n} numbers, got {value!r}")
+    if len(value) != n:
+        raise GreyboxInputError(f"{where} must have {n} entries, got {len(value)}")
+    return [_number(v, f"{where}[{i}]") for i, v in enumerate(value)]
+
+
+def _inertia(value: Any, where: str) -> np.ndarray:
+    if isinstance(value, list) and value and all(isinstance(r, list) for r in value):
+        if len(value) != 3:
+            raise GreyboxInputError(f"{where} must be 3 numbers or a 3x3 matrix, got {len(value)} rows")
+        J = np.array([_vector(r, 3, f"{where}[{i}]") for i, r in enumerate(value)])
+        if not np.allclose(J, J.T, rtol=1e-9, atol=1e-12):
+            raise GreyboxInputError(f"{where} is not symmetric: {J.tolist()}")
+    else:
+        J = np.diag(_vector(value, 3, where))
+    eig = np.linalg.eigvalsh(J)
+    if np.any(eig <= 0):
+        raise GreyboxInputError(f"{where} must be positive definite (all moments > 0), "
+                                f"eigenvalues {eig.tolist()}")
+    # A rigid body's principal moments obey the triangle inequality.
+    e = np.sort(eig)
+    if e[0] + e[1] < e[2] * (1 - 1e-9):
+        raise GreyboxInputError(f"{where} is not physical: principal moments {e.tolist()} violate "
+                                "J1 + J2 >= J3")
+    return J
+
+
+def airframe_from_dict(doc: Mapping[str, Any], source: str = "<airframe>") -> Airframe:
+    """Build and validate an :class:`Airframe` from a parsed TOML document."""
+    unknown_top = set(doc) - {"airframe", "rotor", "parameters"}
+    if unknown_top:
+        raise GreyboxInputError(f"{source}: unknown table(s) {sorted(unknown_top)}; "
+                                "expected [airframe], [[rotor]], [parameters]")
+    if "airframe" not in doc or not isinstance(doc["airframe"], dict):
+        raise GreyboxInputError(f"{source}: missing [airframe] table")
+    a = doc["airframe"]
+    unknown = set(a) - _AIRFRAME_KEYS
+    if unknown:
+        raise GreyboxInputError(f"{source}: unknown key(s) in [airframe]: {sorted(unknown)}; "
+                                f"allowed: {sorted(_AIRFRAME_KEYS)}")
+    for key in ("mass", "inertia"):
+        if key not in a:
+            raise GreyboxInputError(f"{source}: [airframe] is missing '{key}'")
+    mass = _number(a["mass"], f"{source}: airframe.mass")
+    if mass <= 0:
+        raise GreyboxInputError(f"{source}: airframe.mass must be positive, got {mass}")
+    J = _inertia(a["inertia"], f"{source}: airframe.inertia")
+    arm = _number(a.get("arm_length", 0.0), f"{source}: airframe.arm_length")
+    g = _number(a.get("gravity", 9.81), f"{source}: airframe.gravity")
+    if g <= 0:
+        raise GreyboxInputError(f"{source}: airframe.gravity must be positive, got {g}")
+    j_r = _number(a.get("rotor_inertia", 0.0), f"{source}: airframe.rotor_inertia")
+    if j_r < 0:
+        raise GreyboxInputError(f"{source}: airframe.rotor_inertia must be >= 0, got {j_r}")
+    ground_z = _number(a.get("ground_z", 0.0), f"{source}: airframe.ground_z")
+    name = a.get("name", Path(source).stem)
+    if not isinstance(name, str):
+        raise GreyboxInputError(f"{source}: airframe.name must be a string")
+
+    layout = a.get("layout")
+    rotor_tables = doc.get("rotor")
+    if layout is not None and rotor_tables is not None:
+        raise GreyboxInputError(f"{source}: give either airframe.layout or [[rotor]] tables, not both")
+    if layout is not None:
+        if not isinstance(layout, str):
+            raise GreyboxInputError(f"{source}: airframe.layout must be a string")
+        if arm <= 0:
+            raise GreyboxInputError(f"{source}: airframe.arm_length must be positive for layout "
+                                    f"{layout!r}, got {arm}")
+        try:
+            rotors = rotors_for_layout(layout, arm)
+        except GreyboxInputError as e:
+            raise GreyboxInputError(f"{source}: airframe.layout: {e}") from None
+    elif rotor_tables is not None:
+        if not isinstance(rotor_tables, list) or not rotor_tables:
+            raise GreyboxInputError(f"{source}: [[rotor]] must be one or more tables")
+        rotors = []
+        for i, rt in enumerate(rotor_tables, start=1):
+            where = f"{source}: rotor {i}"
+            extra = set(rt) - _ROTOR_KEYS
+            if extra:
+                raise GreyboxInputError(f"{where}: unknown key(s) {sorted(extra)}; allowed: position, spin")
+            if "position" not in rt or "spin" not in rt:
+                raise GreyboxInputError(f"{where}: needs 'position' and 'spin'")
+            pos = _vector(rt["position"], 3, f"{where} position")
+            spin = rt["spin"]
+            if spin not in (-1, 1) or isinstance(spin, bool):
+                raise GreyboxInputError(f"{where}: spin must be +1 or -1, got {spin!r}")
+            rotors.append(Rotor(tuple(pos), int(spin)))
+        layout = "custom"
+        if arm <= 0:
+            arm = float(np.mean([np.hypot(r.position[0], r.position[1]) for r in rotors]))
+    else:
+        raise GreyboxInputError(f"{source}: give airframe.layout ('plus' or 'x') or [[rotor]] tables")
+
+    params = doc.get("parameters", {})
+    if not isinstance(params, dict):
+        raise GreyboxInputError(f"{source}: [parameters] must be a table")
+    clean: dict[str, Any] = {}
+    for k, v in params.items():
+        if isinstance(v, list):
+            clean[k] = [_number(x, f"{source}: parameters.{k}[{i}]") for i, x in enumerate(v)]
+        else:
+            clean[k] = _number(v, f"{source}: parameters.{k}")
+    return Airframe(mass=mass, inertia=J, rotors=rotors, name=name, rotor_inertia=j_r, gravity=g,
+                    ground_z=ground_z, arm_length=arm, layout=layout, parameters=clean, source=source)
+
+
+def load_airframe(path: str | Path) -> Airframe:
+    """Read and validate an airframe TOML file (contract §3)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise GreyboxInputError(f"{path}: airframe file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise GreyboxInputError(f"{path}: cannot read airframe file: {e}") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise GreyboxInputError(f"{path}: not valid TOML: {e}") from None
+    return airframe_from_dict(doc, source=str(path))

@@ -1,0 +1,255 @@
+"""The ``greybox`` command line (contract §5): a thin layer over the library.
+
+User mistakes print one ``greybox: error: ...`` line and exit with status 2; results given
+with ``--json`` are written atomically.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from importlib import resources
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from . import __version__
+from . import effects as fx
+from .airframe import load_airframe
+from .data import FlightLog, atomic_write, read_csv_table, save_log
+from .errors import GreyboxError, GreyboxInputError
+from .integrate import simulate
+from .model import QuadrotorModel
+
+__all__ = ["main"]
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # argparse's own usage errors: exit 2 as well
+        self.print_usage(sys.stderr)
+        raise GreyboxInputError(message)
+
+
+def write_json(path: str | Path, obj: object) -> None:
+    """Write ``obj`` as JSON atomically (NaN is not valid JSON: it is refused, not written)."""
+    atomic_write(path, json.dumps(obj, indent=2, allow_nan=False) + "\n")
+
+
+def parse_sets(items: Sequence[str] | None) -> dict[str, list[float]]:
+    """``["K_T=2.4e-5", "Kd=0.2,0.2,0.3"]`` -> ``{"K_T": [2.4e-5], "Kd": [0.2, 0.2, 0.3]}``."""
+    out: dict[str, list[float]] = {}
+    for item in items or []:
+        if "=" not in item:
+            raise GreyboxInputError(f"--set {item!r}: expected NAME=VALUE")
+        name, _, text = item.partition("=")
+        try:
+            out[name.strip()] = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise GreyboxInputError(f"--set {item!r}: {text!r} is not a number or a comma list") from None
+    return out
+
+
+def build_model(airframe_path: str, effects: str | None = None, without: str | None = None,
+                inputs: str = "rotor_speeds") -> QuadrotorModel:
+    """The base model of an airframe file, plus ``effects``, minus ``without`` (comma lists)."""
+    af = load_airframe(airframe_path)
+    model = QuadrotorModel(af, inputs=inputs)
+    for name in fx.parse_effect_names(effects):
+        if name not in model.effects:
+            model = model + fx.by_name(name)
+    drop = fx.parse_effect_names(without)
+    if drop:
+        model = model.without(*drop)
+    return model
+
+
+def _parse_x0(text: str | None) -> list[float] | None:
+    if text is None:
+        return None
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise GreyboxInputError(f"--x0 {text!r}: expected 12 comma-separated numbers") from None
+    if len(vals) != 12:
+        raise GreyboxInputError(f"--x0 needs 12 values (x,y,z,phi,theta,psi,vx,vy,vz,p,q,r), got {len(vals)}")
+    return vals
+
+
+def _read_inputs(path: str, model: QuadrotorModel) -> tuple[np.ndarray, np.ndarray]:
+    header, data = read_csv_table(path)
+    names = ["t"] + model.input_names
+    for n in names:
+        if n not in header:
+            raise GreyboxInputError(f"{path}: missing required column {n!r}")
+    if data.shape[0] == 0:
+        raise GreyboxInputError(f"{path}: no data rows after the header")
+    M = data[:, [header.index(n) for n in names]]
+    bad = np.argwhere(np.isnan(M))
+    if bad.size:
+        r, c = bad[0]
+        raise GreyboxInputError(f"{path}: row {r + 2}, column {names[c]!r}: missing value")
+    t = M[:, 0]
+    k = np.flatnonzero(np.diff(t) <= 0)
+    if k.size:
+        raise GreyboxInputError(f"{path}: row {k[0] + 3}, column 't': time is not strictly increasing")
+    U = M[:, 1:]
+    if model.inputs == "rotor_speeds":
+        from .data import MAX_ROTOR_SPEED
+        over = np.argwhere(np.abs(U) > MAX_ROTOR_SPEED)
+        if over.size:
+            r, c = over[0]
+            raise GreyboxInputError(f"{path}: row {r + 2}, column {model.input_names[c]!r}: rotor speed "
+                                    f"{U[r, c]:g} is not plausible in rad/s; is it RPM? rad/s = RPM * pi/30")
+    return t, U
+
+
+# ---------------------------------------------------------------------------- commands
+def cmd_simulate(args: argparse.Namespace) -> int:
+    model = build_model(args.airframe, args.effects, args.without)
+    p = model.parameter_vector(parse_sets(args.set))
+    t, U = _read_inputs(args.inputs, model)
+    sim = simulate(model, t, U, p, _parse_x0(args.x0), method=args.integrator)
+    log = FlightLog(t, U, model.input_names, sim.outputs, list(model.output_names))
+    save_log(log, args.out)
+    print(f"simulated {len(t)} samples ({t[-1] - t[0]:.3f} s), effects {','.join(model.effect_names)}"
+          f" -> {args.out}", file=sys.stderr)
+    if args.json:
+        write_json(args.json, {"samples": int(len(t)), "effects": model.effect_names,
+                               "parameters": model.parameter_dict(p),
+                               "final_state": dict(zip(model.state_names, map(float, sim.states[-1]))),
+                               "out": str(args.out)})
+    return 0
+
+
+def cmd_synth(args: argparse.Namespace) -> int:
+    from .synth import SensorSpec, model_with_hidden_effects, synthesize
+    base = build_model(args.airframe, None, args.without)
+    hidden = fx.parse_effect_names(args.effects)
+    model, p = model_with_hidden_effects(base, hidden, parse_sets(args.set))
+    sensors = SensorSpec(rate=args.rate, vision_rate=args.vision_rate, pos_noise=args.pos_noise,
+                         att_noise=args.att_noise, gyro_noise=args.gyro_noise,
+                         input_noise=args.input_noise, dropout=args.dropout)
+    man = [m.strip() for m in args.manoeuvres.split(",") if m.strip()]
+    res = synthesize(model, p, args.duration, sensors, man, args.seed, args.excitation, args.altitude)
+    save_log(res.log, args.out)
+    print(f"synthesised {len(res.log)} samples ({args.duration:g} s, seed {args.seed}), effects "
+          f"{','.join(model.effect_names)} -> {args.out}", file=sys.stderr)
+    if args.json:
+        write_json(args.json, res.truth())
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .synth import SensorSpec, synthesize
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    af_path = resources.files("greybox") / "data" / "airframes" / "paper.toml"
+    with resources.as_file(af_path) as path:
+        model = build_model(str(path))
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"greybox demo: airframe {model.airframe.name!r}, effects {', '.join(model.effect_names)}")
+    res = synthesize(model, duration=args.duration, sensors=SensorSpec(), seed=args.seed,
+                     manoeuvres=["hover", "step_x", "step_y", "step_z", "yaw"])
+    save_log(res.log, out / "demo_flight.csv")
+    # the same inputs open loop through the model: the simulation reproduces the flight
+    sim = simulate(model, res.log.t, res.log.inputs, res.parameters, res.states[0])
+    err = np.abs(sim.outputs[:, :6] - res.outputs_true[:, :6]).max(axis=0)
+    print(f"  {len(res.log)} samples at {res.sensors.rate:g} Hz, vision {res.sensors.vision_rate:g} Hz "
+          f"({res.info['vision_samples']} frames)")
+    print("  open-loop replay of the logged rotor speeds vs the flown trajectory, max |error|:")
+    print("   " + "  ".join(f"{n}={e:.2e}" for n, e in zip(model.output_names[:6], err)))
+    fig, axs = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for i, n in enumerate("xyz"):
+        axs[0].plot(res.log.t, res.log.output(n), ".", ms=1, label=f"{n} measured")
+        axs[0].plot(sim.t, sim.output(n), "-", lw=0.8, label=f"{n} model")
+    axs[0].set_ylabel("position (m, NED)")
+    axs[0].legend(ncol=3, fontsize=7)
+    for i in range(model.nu):
+        axs[1].plot(res.log.t, res.log.inputs[:, i], lw=0.5, label=model.input_names[i])
+    axs[1].set_ylabel("rotor speed (rad/s)")
+    axs[1].set_xlabel("t (s)")
+    axs[1].legend(ncol=4, fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "demo_flight.png", dpi=110)
+    plt.close(fig)
+    print(f"  wrote {out / 'demo_flight.csv'} and {out / 'demo_flight.png'}")
+    if args.json:
+        write_json(args.json, {"samples": len(res.log), "max_replay_error": dict(zip(model.output_names[:6], map(float, err)))})
+    return 0
+
+
+# ---------------------------------------------------------------------------- parser
+def _parser() -> argparse.ArgumentParser:
+    ap = _Parser(prog="greybox", description="Grey-box system identification of quadrotors.")
+    ap.add_argument("--version", action="version", version=f"greybox {__version__}")
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    s = sub.add_parser("simulate", help="simulate the model open loop from rotor speeds",
+                       description="Simulate the model open loop from the rotor speeds in an inputs CSV "
+                                   "(columns t,w1..w4) and write a flight log of the noise-free outputs.")
+    s.add_argument("--airframe", required=True, help="airframe TOML")
+    s.add_argument("--inputs", required=True, help="CSV with columns t,w1..wN (rad/s)")
+    s.add_argument("--out", required=True, help="flight log CSV to write")
+    s.add_argument("--effects", help="comma list of effects to add to the base model")
+    s.add_argument("--without", help="comma list of effects to remove from the base model")
+    s.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="parameter value, e.g. K_T=2.4e-5 or Kd=0.2,0.2,0.3 (repeatable)")
+    s.add_argument("--x0", help="initial state x,y,z,phi,theta,psi,vx,vy,vz,p,q,r (default rest at origin)")
+    s.add_argument("--integrator", choices=["rk4", "cvodes"], default="rk4",
+                   help="rk4: fixed step <= 1 ms (default); cvodes: adaptive, tight tolerances")
+    s.add_argument("--json", help="write a machine-readable summary here")
+    s.set_defaults(func=cmd_simulate)
+
+    y = sub.add_parser("synth", help="make a synthetic closed-loop flight log",
+                       description="Fly the model (with hidden effects) closed loop through varied "
+                                   "manoeuvres and log it with sensor noise, multi-rate vision and dropouts.")
+    y.add_argument("--airframe", required=True)
+    y.add_argument("--out", required=True, help="flight log CSV to write")
+    y.add_argument("--effects", help="hidden effects to add (comma list); unset parameters take plausible magnitudes")
+    y.add_argument("--without", help="effects to remove from the base model")
+    y.add_argument("--set", action="append", metavar="NAME=VALUE", help="true parameter value (repeatable)")
+    y.add_argument("--seed", type=int, default=0)
+    y.add_argument("--duration", type=float, default=50.0, help="s (default 50)")
+    y.add_argument("--rate", type=float, default=1000.0, help="log / IMU rate, Hz (default 1000)")
+    y.add_argument("--vision-rate", type=float, default=60.0, help="position rate, Hz (default 60)")
+    y.add_argument("--pos-noise", type=float, default=0.003, help="m (default 0.003)")
+    y.add_argument("--att-noise", type=float, default=0.003, help="rad (default 0.003)")
+    y.add_argument("--gyro-noise", type=float, default=0.005, help="rad/s; 0 leaves p,q,r out (default 0.005)")
+    y.add_argument("--input-noise", type=float, default=0.0, help="rad/s on logged rotor speeds")
+    y.add_argument("--dropout", type=float, default=0.05, help="probability of a missing vision frame")
+    y.add_argument("--excitation", type=float, default=0.03, help="relative RMS rotor-speed excitation")
+    y.add_argument("--altitude", type=float, default=1.0, help="hover height above ground, m")
+    y.add_argument("--manoeuvres", default=",".join(("hover", "step_x", "step_y", "step_z", "yaw", "fast", "ground")),
+                   help="comma list from hover,step_x,step_y,step_z,yaw,fast,ground")
+    y.add_argument("--json", help="write the truth (effects, parameters, seed) here")
+    y.set_defaults(func=cmd_synth)
+
+    d = sub.add_parser("demo", help="the greybox story on bundled data",
+                       description="Simulate the bundled airframe through a short manoeuvre and plot it.")
+    d.add_argument("--out-dir", default="greybox-demo", help="folder for the outputs (default greybox-demo)")
+    d.add_argument("--duration", type=float, default=15.0)
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--json")
+    d.set_defaults(func=cmd_demo)
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = _parser()
+    try:
+        args = ap.parse_args(argv)
+        return int(args.func(args) or 0)
+    except GreyboxInputError as e:
+        print(f"greybox: error: {e}", file=sys.stderr)
+        return 2
+    except GreyboxError as e:
+        print(f"greybox: failed: {e}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,327 @@
+"""Flight logs (contract §2): load, validate, save, split, resample.
+
+A log is one CSV with a header row. Inputs (``w1..wN`` rad/s, or ``u1..u4``) and ``t``
+are present on every row; output columns (``x,y,z`` world NED, ``phi,theta,psi``, optional
+``p,q,r``) may be empty or ``nan`` where a sensor gave no sample (multi-rate logs).
+Every problem with a file is one :class:`~greybox.errors.GreyboxInputError` naming the
+file, the row (1-based line number in the file) and the column.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import re
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from .errors import GreyboxInputError
+
+__all__ = ["FlightLog", "load_log", "save_log", "read_csv_table", "atomic_write",
+           "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED"]
+
+REQUIRED_OUTPUTS = ["x", "y", "z", "phi", "theta", "psi"]
+OPTIONAL_OUTPUTS = ["p", "q", "r"]
+MAX_ROTOR_SPEED = 8000.0
+"""rad/s (about 76,000 RPM). Faster "rotor speeds" are taken for RPM or another unit."""
+MIN_FIT_SAMPLES = 50
+
+
+@dataclass
+class FlightLog:
+    """A (possibly multi-rate) flight log.
+
+    Attributes:
+        t: (n,) sample times, s, strictly increasing.
+        inputs: (n, nu) rotor speeds (rad/s) or control inputs, never missing.
+        input_names: ``w1..wN`` or ``u1..u4``.
+        outputs: (n, ny) measurements, NaN where not measured.
+        output_names: subset of ``x,y,z,phi,theta,psi,p,q,r`` in that order.
+        extras: other columns (e.g. ``vbat``, or ``u1..u4`` beside rotor speeds).
+        notes: remarks made while loading (ignored columns...).
+        source: file name, if read from one.
+    """
+
+    t: np.ndarray
+    inputs: np.ndarray
+    input_names: list[str]
+    outputs: np.ndarray
+    output_names: list[str]
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        self.t = np.asarray(self.t, dtype=float).ravel()
+        self.inputs = np.asarray(self.inputs, dtype=float).reshape(self.t.size, -1)
+        self.outputs = np.asarray(self.outputs, dtype=float).reshape(self.t.size, -1)
+
+    def __len__(self) -> int:
+        return self.t.size
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self) else 0.0
+
+    def output(self, name: str) -> np.ndarray:
+        """One output column (NaN where not measured)."""
+        try:
+            return self.outputs[:, self.output_names.index(name)]
+        except ValueError:
+            raise GreyboxInputError(f"{self.source or 'log'}: has no output column {name!r}") from None
+
+    def input(self, name: str) -> np.ndarray:
+        return self.inputs[:, self.input_names.index(name)]
+
+    def rate(self, name: str) -> float:
+        """Mean measurement rate of a channel (Hz), counting only measured samples."""
+        y = self.output(name)
+        k = np.flatnonzero(np.isfinite(y))
+        if k.size < 2:
+            return 0.0
+        return float((k.size - 1) / (self.t[k[-1]] - self.t[k[0]]))
+
+    def slice(self, start: int, stop: int) -> "FlightLog":
+        """Rows ``start:stop`` as a new log (times kept as they are)."""
+        return FlightLog(self.t[start:stop].copy(), self.inputs[start:stop].copy(),
+                         list(self.input_names), self.outputs[start:stop].copy(),
+                         list(self.output_names),
+                         {k: v[start:stop].copy() for k, v in self.extras.items()},
+                         list(self.notes), self.source)
+
+    def split(self, fraction: float = 0.8) -> tuple["FlightLog", "FlightLog"]:
+        """Estimation part (first ``fraction`` of the samples) and validation part (the rest).
+
+        The two share the boundary sample, so the validation part starts where the
+        estimation part ends.
+        """
+        if not 0 < fraction < 1:
+            raise GreyboxInputError(f"split fraction must be in (0, 1), got {fraction}")
+        k = int(round(fraction * (len(self) - 1)))
+        return self.slice(0, k + 1), self.slice(k, len(self))
+
+    def resample(self, dt: float, max_gap: float | None = None) -> "FlightLog":
+        """The log on a uniform grid of step ``dt``.
+
+        Inputs are zero-order held (as the model sees them). Each output is linearly
+        interpolated between its own measured samples where they are at most ``max_gap``
+        apart (default: 3 times that channel's median spacing); elsewhere NaN. To decimate
+        a fast channel without interpolating, use a ``dt`` that is a multiple of its period.
+        """
+        if dt <= 0:
+            raise GreyboxInputError(f"resample step must be positive, got {dt}")
+        tn = np.arange(self.t[0], self.t[-1] + 1e-9 * dt, dt)
+        idx = np.clip(np.searchsorted(self.t, tn, side="right") - 1, 0, len(self) - 1)
+        U = self.inputs[idx]
+        Y = np.full((tn.size, len(self.output_names)), np.nan)
+        for j in range(len(self.output_names)):
+            k = np.flatnonzero(np.isfinite(self.outputs[:, j]))
+            if k.size < 2:
+                continue
+            tk, yk = self.t[k], self.outputs[k, j]
+            gap = max_gap if max_gap is not None else 3 * float(np.median(np.diff(tk)))
+            yi = np.interp(tn, tk, yk)
+            pos = np.clip(np.searchsorted(tk, tn), 1, tk.size - 1)
+            near_exact = np.isclose(tn, tk[pos - 1], atol=1e-9 * dt) | np.isclose(tn, tk[pos], atol=1e-9 * dt)
+            ok = ((tk[pos] - tk[pos - 1] <= gap) & (tn >= tk[0] - 1e-12) & (tn <= tk[-1] + 1e-12)) | near_exact
+            Y[ok, j] = yi[ok]
+        extras = {k: v[idx] for k, v in self.extras.items()}
+        return FlightLog(tn, U, list(self.input_names), Y, list(self.output_names), extras,
+                         list(self.notes), self.source)
+
+    def check_fittable(self, min_samples: int = MIN_FIT_SAMPLES) -> None:
+        """Raise a clear error if the log is too short or too sparse to fit a model to."""
+        where = self.source or "log"
+        if len(self) < min_samples:
+            raise GreyboxInputError(f"{where}: log too short to fit: {len(self)} samples, need at "
+                                    f"least {min_samples}")
+        for name in REQUIRED_OUTPUTS:
+            est, _ = self.split()
+            n = int(np.isfinite(est.output(name)).sum())
+            if n < 5:
+                raise GreyboxInputError(f"{where}: log too short to fit: column {name!r} has only {n} "
+                                        "measurements in the estimation part (first 80 %), need 5")
+
+
+def atomic_write(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename: readers never see a
+    half-written file, and a crash leaves the old file (or none)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
+    """Header and float matrix of a numeric CSV file; empty cells and ``nan`` become NaN.
+
+    Errors name the file, the line number and the column of the first bad cell.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise GreyboxInputError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise GreyboxInputError(f"{path}: cannot read: {e}") from None
+    rows = list(csv.reader(io.StringIO(text)))
+    while rows and not any(c.strip() for c in rows[-1]):
+        rows.pop()
+    if not rows:
+        raise GreyboxInputError(f"{path}: empty file (no header row)")
+    header = [h.strip() for h in rows[0]]
+    if any(not h for h in header):
+        raise GreyboxInputError(f"{path}: row 1: empty column name in the header "
+                                f"(column {header.index('') + 1})")
+    seen = set()
+    for h in header:
+        if h in seen:
+            raise GreyboxInputError(f"{path}: row 1: column {h!r} appears twice")
+        seen.add(h)
+    if all(_is_number(h) for h in header):
+        raise GreyboxInputError(f"{path}: row 1 is numbers, not a header of column names")
+    data = np.empty((len(rows) - 1, len(header)))
+    for i, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise GreyboxInputError(f"{path}: row {i}: {len(row)} cells, the header has {len(header)}")
+        for j, cell in enumerate(row):
+            c = cell.strip()
+            if c == "" or c.lower() == "nan":
+                data[i - 2, j] = np.nan
+                continue
+            try:
+                v = float(c)
+            except ValueError:
+                raise GreyboxInputError(f"{path}: row {i}, column {header[j]!r}: not a number: {c!r}") from None
+            if math.isinf(v):
+                raise GreyboxInputError(f"{path}: row {i}, column {header[j]!r}: infinite value {c!r}")
+            data[i - 2, j] = v
+    return header, data
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+_W = re.compile(r"^w(\d+)$")
+_U = re.compile(r"^u([1-4])$")
+
+
+def load_log(path: str | Path, inputs: str = "auto") -> FlightLog:
+    """Read and validate a flight log CSV (contract §2).
+
+    Args:
+        inputs: ``"rotor_speeds"`` (require ``w1..wN``), ``"controls"`` (require ``u1..u4``) or
+            ``"auto"`` (rotor speeds when present, else controls).
+    """
+    path = Path(path)
+    header, data = read_csv_table(path)
+    col = {h: j for j, h in enumerate(header)}
+    if "t" not in col:
+        raise GreyboxInputError(f"{path}: missing required column 't'")
+    w_cols = sorted((int(m.group(1)), h) for h in header if (m := _W.match(h)))
+    u_cols = sorted((int(m.group(1)), h) for h in header if (m := _U.match(h)))
+    if inputs == "auto":
+        inputs = "rotor_speeds" if w_cols else "controls" if u_cols else "rotor_speeds"
+    if inputs == "rotor_speeds":
+        if not w_cols:
+            raise GreyboxInputError(f"{path}: missing required rotor speed columns 'w1'..'w4'")
+        idx = [i for i, _ in w_cols]
+        if idx != list(range(1, len(idx) + 1)):
+            missing = sorted(set(range(1, max(idx) + 1)) - set(idx))
+            raise GreyboxInputError(f"{path}: missing required column 'w{missing[0]}' "
+                                    f"(rotor speeds must be w1..wN without gaps)")
+        in_names = [h for _, h in w_cols]
+    elif inputs == "controls":
+        if [i for i, _ in u_cols] != [1, 2, 3, 4]:
+            have = {i for i, _ in u_cols}
+            miss = next(i for i in range(1, 5) if i not in have)
+            raise GreyboxInputError(f"{path}: missing required column 'u{miss}'")
+        in_names = ["u1", "u2", "u3", "u4"]
+    else:
+        raise GreyboxInputError(f"inputs must be 'auto', 'rotor_speeds' or 'controls', got {inputs!r}")
+    for name in REQUIRED_OUTPUTS:
+        if name not in col:
+            raise GreyboxInputError(f"{path}: missing required column {name!r}")
+    out_names = REQUIRED_OUTPUTS + [n for n in OPTIONAL_OUTPUTS if n in col]
+
+    if data.shape[0] == 0:
+        raise GreyboxInputError(f"{path}: no data rows after the header")
+    t = data[:, col["t"]]
+    for name in ["t"] + in_names:
+        bad = np.flatnonzero(np.isnan(data[:, col[name]]))
+        if bad.size:
+            raise GreyboxInputError(f"{path}: row {bad[0] + 2}, column {name!r}: missing value "
+                                    "(time and inputs may never be missing)")
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        k = bad[0]
+        raise GreyboxInputError(f"{path}: row {k + 3}, column 't': time {t[k + 1]!r} is not after the "
+                                f"previous row's {t[k]!r} (t must be strictly increasing)")
+    U = data[:, [col[n] for n in in_names]]
+    if inputs == "rotor_speeds":
+        over = np.argwhere(np.abs(U) > MAX_ROTOR_SPEED)
+        if over.size:
+            r, c = over[0]
+            raise GreyboxInputError(
+                f"{path}: row {r + 2}, column {in_names[c]!r}: rotor speed {U[r, c]:g} is not "
+                f"plausible in rad/s (above {MAX_ROTOR_SPEED:g}); is it RPM? rad/s = RPM * pi/30")
+    Y = data[:, [col[n] for n in out_names]]
+    used = {"t", *in_names, *out_names}
+    extra_names = [h for h in header if h not in used]
+    extras = {h: data[:, col[h]] for h in extra_names}
+    notes = []
+    if extra_names:
+        notes.append(f"{path}: ignored extra column(s) {', '.join(extra_names)} (kept as extras)")
+    return FlightLog(t, U, in_names, Y, out_names, extras, notes, str(path))
+
+
+def _fmt(v: float) -> str:
+    return "" if np.isnan(v) else repr(float(v))
+
+
+def save_log(log: FlightLog, path: str | Path, extras: bool = True) -> None:
+    """Write a flight log CSV atomically; NaN outputs become empty cells."""
+    names = ["t"] + list(log.input_names) + list(log.output_names)
+    cols = [log.t[:, None], log.inputs, log.outputs]
+    if extras and log.extras:
+        names += list(log.extras)
+        cols += [np.column_stack(list(log.extras.values()))]
+    M = np.hstack(cols)
+    buf = io.StringIO()
+    buf.write(",".join(names) + "\n")
+    for row in M:
+        buf.write(",".join(_fmt(v) for v in row) + "\n")
+    atomic_write(path, buf.getvalue())
+
+
+def log_from_arrays(t: Iterable[float], inputs: np.ndarray, outputs: np.ndarray,
+                    input_names: list[str] | None = None,
+                    output_names: list[str] | None = None) -> FlightLog:
+    """Convenience constructor used by simulations and tests."""
+    inputs = np.asarray(inputs, dtype=float)
+    input_names = input_names or [f"w{i + 1}" for i in range(inputs.shape[1])]
+    output_names = output_names or REQUIRED_OUTPUTS + OPTIONAL_OUTPUTS
+    return FlightLog(np.asarray(t, dtype=float), inputs, input_names, outputs, output_names)
+
+
+__all__.append("log_from_arrays")

@@ -1,0 +1,19 @@
+"""Errors greybox raises for user mistakes and for solver failures.
+
+A :class:`GreyboxInputError` is a user mistake (a bad file, a bad option): the CLI prints
+its message alone and exits with status 2, never a traceback. A :class:`SolverError`
+is a numerical failure that is reported, not hidden.
+"""
+from __future__ import annotations
+
+
+class GreyboxError(Exception):
+    """Base class of greybox's own errors."""
+
+
+class GreyboxInputError(GreyboxError, ValueError):
+    """Bad input from the user: the message names the file, row, column or parameter."""
+
+
+class SolverError(GreyboxError, RuntimeError):
+    """A numerical solver failed; the message carries the solver's own reason."""

@@ -1,0 +1,333 @@
+"""The symbolic quadrotor model: rigid body + rotor thrust + composable effects.
+
+States (world NED position, ZYX Euler angles, world velocity, body rates)::
+
+    x, y, z, phi, theta, psi, vx, vy, vz, p, q, r   [+ effect states, e.g. w_eff1..N]
+
+Inputs are the rotor speeds ``w1..wN`` (rad/s) or, as the alternative of the seed paper's
+Fig. 3, the control inputs ``u1..u4`` = total thrust (N) and roll/pitch/yaw torques (N m).
+Outputs are what a vision + IMU set-up measures: ``x, y, z, phi, theta, psi, p, q, r``.
+
+The model is built once, symbolically, into CasADi ``Function`` objects
+(:attr:`QuadrotorModel.rhs`, :attr:`QuadrotorModel.output`) that are then evaluated or
+mapped over data many times.
+
+Departures from the seed paper's printed equations (see ``ERRATA.md``): the rotation
+matrix and Euler-rate matrix are the correct ZYX ones, thrust acts along body -z rotated
+to the world (eq. 4 holds only level), the yaw Coriolis term is ``(J_x - J_y) p q`` (in
+general ``-omega x J omega`` with the full inertia matrix), and the gyroscopic torque
+follows contract §1 (the paper's pitch term has the wrong sign).
+"""
+from __future__ import annotations
+
+from typing import Iterable, Mapping
+
+import casadi as ca
+import numpy as np
+
+from . import effects as fx
+from .airframe import Airframe
+from .errors import GreyboxInputError
+from .parameters import Parameter, flat_names
+
+__all__ = ["QuadrotorModel", "BASE_STATES", "OUTPUTS", "rotation_matrix", "euler_rate_matrix"]
+
+BASE_STATES = ["x", "y", "z", "phi", "theta", "psi", "vx", "vy", "vz", "p", "q", "r"]
+OUTPUTS = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
+
+THRUST = Parameter("K_T", 1, 2e-5, "N/(rad/s)^2", 0.0, np.inf, 1e-5, 0.0, True,
+                   "rotor thrust coefficient", "base")
+
+
+def rotation_matrix(phi, theta, psi):
+    """R = Rz(psi) Ry(theta) Rx(phi): body (FRD) vectors to world (NED). Works on SX or floats."""
+    cph, sph = ca.cos(phi), ca.sin(phi)
+    cth, sth = ca.cos(theta), ca.sin(theta)
+    cps, sps = ca.cos(psi), ca.sin(psi)
+    return ca.vertcat(
+        ca.horzcat(cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps),
+        ca.horzcat(cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps),
+        ca.horzcat(-sth, sph * cth, cph * cth),
+    )
+
+
+def euler_rate_matrix(phi, theta):
+    """W with d/dt [phi, theta, psi] = W [p, q, r] (ZYX Euler angles, body rates)."""
+    cph, sph = ca.cos(phi), ca.sin(phi)
+    cth, tth = ca.cos(theta), ca.tan(theta)
+    return ca.vertcat(
+        ca.horzcat(1, sph * tth, cph * tth),
+        ca.horzcat(0, cph, -sph),
+        ca.horzcat(0, sph / cth, cph / cth),
+    )
+
+
+class QuadrotorModel:
+    """A multirotor ODE assembled from an airframe and a set of effects.
+
+    Args:
+        airframe: the vehicle's known constants and parameter guesses.
+        effects: effects or effect names; default the seed paper's base model
+            (``yaw_torque``, ``linear_drag``, ``gyroscopic``).
+        inputs: ``"rotor_speeds"`` (``w1..wN``) or ``"controls"`` (``u1..u4``).
+
+    Models are immutable: ``model + effect`` and ``model.without(name)`` return new ones.
+    """
+
+    def __init__(self, airframe: Airframe, effects: Iterable[fx.Effect | str] | None = None,
+                 inputs: str = "rotor_speeds"):
+        if inputs not in ("rotor_speeds", "controls"):
+            raise GreyboxInputError(f"inputs must be 'rotor_speeds' or 'controls', got {inputs!r}")
+        if effects is None:
+            effects = fx.BASE_EFFECTS
+        objs = [fx.by_name(e) if isinstance(e, str) else e for e in effects]
+        lib = fx.EffectLibrary(objs)
+        # apply in catalogue order, so the result does not depend on how it was composed
+        order = list(fx.CATALOGUE)
+        self.effects = fx.EffectLibrary(sorted(lib, key=lambda e: order.index(e.name)
+                                               if e.name in order else len(order)))
+        self.airframe = airframe
+        self.inputs = inputs
+        self._functions: tuple[ca.Function, ca.Function] | None = None
+        self._check_airframe_parameters()
+
+    # ------------------------------------------------------------------ composition
+    def __add__(self, other: fx.Effect | fx.EffectLibrary | Iterable[fx.Effect]) -> "QuadrotorModel":
+        return QuadrotorModel(self.airframe, list(self.effects + other), self.inputs)
+
+    def without(self, *names: str) -> "QuadrotorModel":
+        """The same model with the named effects removed."""
+        for n in names:
+            if n not in self.effects:
+                raise GreyboxInputError(f"cannot remove {n!r}: the model has effects "
+                                        f"{self.effect_names}")
+        return QuadrotorModel(self.airframe, [e for e in self.effects if e.name not in names],
+                              self.inputs)
+
+    def with_inputs(self, inputs: str) -> "QuadrotorModel":
+        """The same model with another input choice (``rotor_speeds`` or ``controls``)."""
+        return QuadrotorModel(self.airframe, list(self.effects), inputs)
+
+    @property
+    def effect_names(self) -> list[str]:
+        return self.effects.names
+
+    def __repr__(self) -> str:
+        return (f"QuadrotorModel({self.airframe.name!r}, effects={self.effect_names}, "
+                f"inputs={self.inputs!r})")
+
+    # ------------------------------------------------------------------ names and sizes
+    @property
+    def parameters(self) -> list[Parameter]:
+        """Model parameters in vector order: ``K_T`` then each effect's."""
+        out = [THRUST]
+        for e in self.effects:
+            out += e.parameters(self.airframe)
+        return out
+
+    @property
+    def param_names(self) -> list[str]:
+        """Flat component names of the parameter vector (``K_T``, ``b``, ``Kd[0]``...)."""
+        return flat_names(self.parameters)
+
+    @property
+    def state_names(self) -> list[str]:
+        out = list(BASE_STATES)
+        for e in self.effects:
+            out += e.state_names(self.airframe)
+        return out
+
+    @property
+    def input_names(self) -> list[str]:
+        if self.inputs == "controls":
+            return ["u1", "u2", "u3", "u4"]
+        return [f"w{i + 1}" for i in range(self.airframe.n_rotors)]
+
+    output_names = OUTPUTS
+
+    @property
+    def nx(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def nu(self) -> int:
+        return len(self.input_names)
+
+    @property
+    def ny(self) -> int:
+        return len(OUTPUTS)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.param_names)
+
+    # ------------------------------------------------------------------ parameter values
+    def _check_airframe_parameters(self) -> None:
+        known = {THRUST.name: THRUST}
+        for cls in fx.CATALOGUE.values():
+            for p in cls().parameters(self.airframe):
+                known[p.name] = p
+        for name, value in self.airframe.parameters.items():
+            if name not in known:
+                raise GreyboxInputError(
+                    f"{self.airframe.source or 'airframe'}: unknown parameter {name!r} in "
+                    f"[parameters]; known: {', '.join(known)}")
+            n = np.size(value)
+            if n not in (1, known[name].size):
+                raise GreyboxInputError(
+                    f"{self.airframe.source or 'airframe'}: parameter {name!r} needs "
+                    f"{known[name].size} values, got {n}")
+
+    def default_parameters(self) -> np.ndarray:
+        """Flat parameter vector: the airframe's ``[parameters]`` where given, else defaults."""
+        vals = []
+        for p in self.parameters:
+            v = self.airframe.parameters.get(p.name, p.default)
+            v = np.atleast_1d(np.asarray(v, dtype=float))
+            vals.append(np.full(p.size, v[0]) if v.size == 1 else v)
+        return np.concatenate(vals)
+
+    def parameter_vector(self, values: Mapping[str, float | Iterable[float]] | None = None,
+                         base: np.ndarray | None = None) -> np.ndarray:
+        """A flat parameter vector from ``base`` (default: :meth:`default_parameters`) with
+        some parameters replaced by name (``{"K_T": 2.4e-5, "Kd": [.2, .2, .3]}`` or
+        component names such as ``"Kd[2]"``)."""
+        out = self.default_parameters() if base is None else np.array(base, dtype=float)
+        names = self.param_names
+        for key, val in (values or {}).items():
+            arr = np.atleast_1d(np.asarray(val, dtype=float))
+            if key in names:
+                if arr.size != 1:
+                    raise GreyboxInputError(f"parameter {key!r} takes one value, got {arr.size}")
+                out[names.index(key)] = arr[0]
+                continue
+            par = next((p for p in self.parameters if p.name == key), None)
+            if par is None:
+                raise GreyboxInputError(f"unknown parameter {key!r} for this model; its parameters "
+                                        f"are {', '.join(p.name for p in self.parameters)}")
+            idx = [names.index(c) for c in par.component_names]
+            if arr.size == 1:
+                arr = np.full(par.size, arr[0])
+            if arr.size != par.size:
+                raise GreyboxInputError(f"parameter {key!r} needs {par.size} values, got {arr.size}")
+            out[idx] = arr
+        return out
+
+    def parameter_dict(self, vector: np.ndarray) -> dict[str, float]:
+        """``{component name: value}`` of a flat parameter vector."""
+        return dict(zip(self.param_names, map(float, vector)))
+
+    # ------------------------------------------------------------------ states
+    def initial_state(self, x0: Iterable[float] | None = None,
+                      u0: Iterable[float] | None = None, p: np.ndarray | None = None) -> np.ndarray:
+        """Full initial state from the 12 base states (default: rest at the origin, level)
+        and the first input (for effect states such as motor speeds)."""
+        base = np.zeros(12) if x0 is None else np.asarray(list(x0), dtype=float)
+        if base.shape != (12,):
+            raise GreyboxInputError(f"x0 needs 12 values ({','.join(BASE_STATES)}), got {base.size}")
+        u0 = np.zeros(self.nu) if u0 is None else np.asarray(list(u0), dtype=float)
+        w0 = self.rotor_speeds_from_inputs(u0, p) if self.inputs == "controls" else u0
+        parts = [base] + [e.initial_state(self.airframe, w0) for e in self.effects]
+        return np.concatenate(parts)
+
+    def rotor_speeds_from_inputs(self, u: np.ndarray, p: np.ndarray | None = None) -> np.ndarray:
+        """Rotor speeds that realise control inputs u1..u4 (numeric, for ``controls`` models)."""
+        p = self.default_parameters() if p is None else p
+        f = ca.Function("w_of_u", [self._u_sym, self._p_sym], [self._w_from_u])
+        return np.asarray(f(u, p)).ravel()
+
+    # ------------------------------------------------------------------ symbolic build
+    def _build(self) -> tuple[ca.Function, ca.Function]:
+        af = self.airframe
+        n = af.n_rotors
+        x = ca.SX.sym("x", self.nx)
+        u = ca.SX.sym("u", self.nu)
+        p = ca.SX.sym("p", self.n_params)
+        t = ca.SX.sym("t")
+        params: dict[str, ca.SX] = {}
+        k = 0
+        for par in self.parameters:
+            params[par.name] = p[k:k + par.size]
+            k += par.size
+        extra: dict[str, ca.SX] = {}
+        k = 12
+        for e in self.effects:
+            m = len(e.state_names(af))
+            extra[e.name] = x[k:k + m]
+            k += m
+
+        pos, euler, v, omega = x[0:3], x[3:6], x[6:9], x[9:12]
+        R = rotation_matrix(euler[0], euler[1], euler[2])
+        K_T = params["K_T"]
+        if self.inputs == "controls":
+            # w^2 = pinv(G) diag(1/K_T, 1/K_T, 1/K_T, 1/b) U: the speeds that realise U with
+            # the nominal coefficients; every effect then acts on rotors as usual.
+            b = params["b"] if "b" in params else float(np.atleast_1d(
+                af.parameters.get("b", fx.YawTorque().parameters(af)[0].default))[0])
+            Ginv = ca.DM(np.linalg.pinv(af.allocation_matrix()))
+            wsq = Ginv @ (u / ca.vertcat(K_T, K_T, K_T, b))
+            w_cmd = ca.sqrt(ca.fmax(wsq, 1e-9))
+        else:
+            w_cmd = u
+        self._u_sym, self._p_sym, self._w_from_u = u, p, w_cmd
+
+        ctx = fx.ModelContext(
+            airframe=af, t=t, pos=pos, euler=euler, v=v, omega=omega, R=R, w=w_cmd,
+            params=params, extra_states=extra, w_command=w_cmd,
+            thrust_scale=ca.SX.ones(n), torque_scale=ca.SX.ones(n),
+            rotor_pos=ca.SX(ca.DM(af.rotor_positions)), v_air=v,
+            force_world=ca.SX.zeros(3), torque_body=ca.SX.zeros(3))
+        for e in self.effects:
+            e.modify(ctx)
+
+        # rotor thrust along body -z, and its moment about the centre of gravity
+        ctx.rotor_thrust = K_T * ctx.thrust_scale * ctx.w ** 2
+        thrust_body = ca.vertcat(0, 0, -ca.sum1(ctx.rotor_thrust))
+        torque = ca.SX.zeros(3)
+        for i in range(n):
+            torque += ca.cross(ctx.rotor_pos[i, :].T, ca.vertcat(0, 0, -ctx.rotor_thrust[i]))
+        for e in self.effects:
+            e.add_forces(ctx)
+
+        m, g = af.mass, af.gravity
+        J = ca.DM(af.inertia)
+        Jinv = ca.DM(np.linalg.inv(af.inertia))
+        acc = ca.vertcat(0, 0, g) + (R @ thrust_body + ctx.force_world) / m
+        tau = torque + ctx.torque_body
+        omega_dot = Jinv @ (tau - ca.cross(omega, J @ omega))
+        euler_dot = euler_rate_matrix(euler[0], euler[1]) @ omega
+        xdot_parts = [v, euler_dot, acc, omega_dot]
+        for e in self.effects:
+            xdot_parts.append(e.state_derivative(ctx))
+        xdot = ca.vertcat(*xdot_parts)
+
+        ctx.acc_world = acc
+        y = {name: x[BASE_STATES.index(name)] for name in OUTPUTS}
+        for e in self.effects:
+            e.modify_measurement(ctx, y)
+        yv = ca.vertcat(*[y[name] for name in OUTPUTS])
+
+        rhs = ca.Function("rhs", [x, u, p, t], [xdot], ["x", "u", "p", "t"], ["xdot"])
+        out = ca.Function("output", [x, u, p, t], [yv], ["x", "u", "p", "t"], ["y"])
+        return rhs, out
+
+    def _ensure_built(self) -> tuple[ca.Function, ca.Function]:
+        if self._functions is None:
+            self._functions = self._build()
+        return self._functions
+
+    @property
+    def rhs(self) -> ca.Function:
+        """CasADi ``Function`` ``rhs(x, u, p, t) -> xdot``."""
+        return self._ensure_built()[0]
+
+    @property
+    def output(self) -> ca.Function:
+        """CasADi ``Function`` ``output(x, u, p, t) -> y`` (``OUTPUTS`` order)."""
+        return self._ensure_built()[1]
+
+    def hover_speed(self, p: np.ndarray | None = None) -> float:
+        """Equal rotor speed that balances gravity with the nominal ``K_T`` (level, no effects)."""
+        p = self.default_parameters() if p is None else p
+        kt = p[self.param_names.index("K_T")]
+        return float(np.sqrt(self.airframe.mass * self.airframe.gravity / (self.airframe.n_rotors * kt)))
