@@ -187,13 +187,13 @@ def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
     if any(not h for h in header):
         raise GreyboxInputError(f"{path}: row 1: empty column name in the header "
                                 f"(column {header.index('') + 1})")
+    if all(_is_number(h) for h in header):
+        raise GreyboxInputError(f"{path}: row 1 is numbers, not a header of column names")
     seen = set()
     for h in header:
         if h in seen:
             raise GreyboxInputError(f"{path}: row 1: column {h!r} appears twice")
         seen.add(h)
-    if all(_is_number(h) for h in header):
-        raise GreyboxInputError(f"{path}: row 1 is numbers, not a header of column names")
     data = np.empty((len(rows) - 1, len(header)))
     for i, row in enumerate(rows[1:], start=2):
         if len(row) != len(header):

@@ -1,0 +1,121 @@
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel, load_airframe
+from greybox.airframe import airframe_from_dict
+from greybox.errors import GreyboxInputError
+
+GOOD = """
+[airframe]
+name = "t"
+mass = 1.0
+inertia = [0.0082, 0.0082, 0.0149]
+arm_length = 0.17
+layout = "plus"
+"""
+
+
+def write(tmp_path, text):
+    p = tmp_path / "a.toml"
+    p.write_text(text)
+    return p
+
+
+def test_contract_example_loads(tmp_path):
+    af = load_airframe(write(tmp_path, GOOD + '\n[parameters]\nK_T = 2.0e-5\nb = 5.0e-7\nKd = [0.1, 0.1, 0.1]\n'))
+    assert af.n_rotors == 4 and af.mass == 1.0 and af.gravity == 9.81 and af.ground_z == 0.0
+    np.testing.assert_allclose(af.rotor_positions[0], [0.17, 0, 0])
+    np.testing.assert_array_equal(af.spins, [-1, 1, -1, 1])
+    assert af.parameters["Kd"] == [0.1, 0.1, 0.1]
+
+
+def test_x_layout_geometry():
+    af = airframe_from_dict({"airframe": {"mass": 1, "inertia": [1, 1, 1.5], "arm_length": np.sqrt(2),
+                                          "layout": "x"}})
+    np.testing.assert_allclose(af.rotor_positions[:, :2], [[1, 1], [-1, -1], [1, -1], [-1, 1]])
+    np.testing.assert_array_equal(af.spins, [1, 1, -1, -1])
+
+
+def test_explicit_hexarotor(tmp_path):
+    text = GOOD.replace('layout = "plus"\n', "")
+    for k in range(6):
+        a = k * np.pi / 3
+        text += f"\n[[rotor]]\nposition = [{0.2 * np.cos(a)}, {0.2 * np.sin(a)}, 0.0]\nspin = {1 if k % 2 else -1}\n"
+    af = load_airframe(write(tmp_path, text))
+    assert af.n_rotors == 6 and af.layout == "custom"
+    m = QuadrotorModel(af)
+    assert m.input_names == [f"w{i}" for i in range(1, 7)]
+    x = np.zeros(12)
+    w = m.hover_speed()
+    assert w == pytest.approx(np.sqrt(9.81 / (6 * 2e-5)))
+    np.testing.assert_allclose(np.asarray(m.rhs(x, [w] * 6, m.default_parameters(), 0)).ravel(), 0, atol=1e-10)
+
+
+def test_full_inertia_matrix(tmp_path):
+    af = load_airframe(write(tmp_path, GOOD.replace("[0.0082, 0.0082, 0.0149]",
+                                                    "[[0.0082, 0.0001, 0], [0.0001, 0.0082, 0], [0, 0, 0.0149]]")))
+    assert af.inertia[0, 1] == 0.0001
+
+
+def test_roundtrip_to_toml(tmp_path):
+    af = load_airframe(write(tmp_path, GOOD + "\n[parameters]\nK_T = 2.0e-5\n"))
+    af2 = load_airframe(write(tmp_path, af.to_toml()))
+    np.testing.assert_allclose(af2.rotor_positions, af.rotor_positions)
+    assert af2.parameters == af.parameters and af2.layout == "plus"
+
+
+@pytest.mark.parametrize("change, message", [
+    (("mass = 1.0", "mass = -1.0"), "mass must be positive"),
+    (("mass = 1.0", 'mass = "heavy"'), "mass must be a number"),
+    (("mass = 1.0", "mass = 1.0\ncolour = 3"), "unknown key.*colour"),
+    (("[0.0082, 0.0082, 0.0149]", "[0.0082, 0.0082]"), "inertia must have 3 entries"),
+    (("[0.0082, 0.0082, 0.0149]", "[0.0082, -0.0082, 0.0149]"), "positive definite"),
+    (("[0.0082, 0.0082, 0.0149]", "[0.0082, 0.0082, 0.0]"), "positive definite"),
+    (("[0.0082, 0.0082, 0.0149]", "[[0.01, 0.002, 0], [0, 0.01, 0], [0, 0, 0.02]]"), "not symmetric"),
+    (("[0.0082, 0.0082, 0.0149]", "[0.001, 0.001, 0.0149]"), "not physical"),
+    (('layout = "plus"', 'layout = "hexa"'), "unknown layout 'hexa'"),
+    (("arm_length = 0.17", "arm_length = 0.0"), "arm_length must be positive"),
+    (("mass = 1.0", "mass = 1.0\nrotor_inertia = -1e-6"), "rotor_inertia must be >= 0"),
+    (("[airframe]", "[airframe]\n"), None),
+])
+def test_bad_airframes(tmp_path, change, message):
+    text = GOOD.replace(*change)
+    if message is None:
+        load_airframe(write(tmp_path, text))
+        return
+    with pytest.raises(GreyboxInputError, match=message) as e:
+        load_airframe(write(tmp_path, text))
+    assert "a.toml" in str(e.value)
+
+
+def test_bad_rotor_tables(tmp_path):
+    base = GOOD.replace('layout = "plus"\n', "")
+    with pytest.raises(GreyboxInputError, match="rotor 1 position must have 3 entries"):
+        load_airframe(write(tmp_path, base + "[[rotor]]\nposition = [0.1, 0]\nspin = 1\n"))
+    with pytest.raises(GreyboxInputError, match="spin must be"):
+        load_airframe(write(tmp_path, base + "[[rotor]]\nposition = [0.1, 0, 0]\nspin = 2\n"))
+    with pytest.raises(GreyboxInputError, match="either airframe.layout or"):
+        load_airframe(write(tmp_path, GOOD + "[[rotor]]\nposition = [0.1, 0, 0]\nspin = 1\n"))
+    with pytest.raises(GreyboxInputError, match="give airframe.layout"):
+        load_airframe(write(tmp_path, base))
+
+
+def test_file_errors(tmp_path):
+    with pytest.raises(GreyboxInputError, match="not found"):
+        load_airframe(tmp_path / "nope.toml")
+    with pytest.raises(GreyboxInputError, match="not valid TOML"):
+        load_airframe(write(tmp_path, "[airframe\nmass = 1"))
+    with pytest.raises(GreyboxInputError, match="missing \\[airframe\\]"):
+        load_airframe(write(tmp_path, "[parameters]\nK_T = 1e-5\n"))
+
+
+def test_parameter_names_and_sizes_are_checked(tmp_path):
+    af = load_airframe(write(tmp_path, GOOD + "\n[parameters]\nK_TT = 2e-5\n"))
+    with pytest.raises(GreyboxInputError, match="unknown parameter 'K_TT'"):
+        QuadrotorModel(af)
+    af = load_airframe(write(tmp_path, GOOD + "\n[parameters]\nKd = [0.1, 0.2]\n"))
+    with pytest.raises(GreyboxInputError, match="'Kd' needs 3 values"):
+        QuadrotorModel(af)
+    # guesses for effects not (yet) in the model are allowed: the diagnosis uses them
+    af = load_airframe(write(tmp_path, GOOD + "\n[parameters]\nk_ge = 1e-4\n"))
+    assert "k_ge" not in QuadrotorModel(af).param_names

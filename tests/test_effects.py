@@ -1,0 +1,246 @@
+"""Every effect: one case whose effect on the motion or measurement is known analytically,
+plus composition rules."""
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel, effects, simulate
+from greybox.errors import GreyboxInputError
+
+from conftest import make_airframe
+
+G = 9.81
+
+
+def hover_state(z=-1.0):
+    x = np.zeros(12)
+    x[2] = z
+    return x
+
+
+def rhs(model, x, u, p, t=0.0):
+    return np.asarray(model.rhs(x, u, p, t)).ravel()
+
+
+def out(model, x, u, p, t=0.0):
+    return dict(zip(model.output_names, np.asarray(model.output(x, u, p, t)).ravel()))
+
+
+@pytest.fixture
+def base(plus_airframe):
+    return QuadrotorModel(plus_airframe)
+
+
+def test_catalogue_is_the_contracts():
+    assert set(effects.CATALOGUE) >= {
+        "yaw_torque", "linear_drag", "gyroscopic", "quadratic_drag", "rotor_drag", "ground_effect",
+        "motor_lag", "cog_offset", "motor_asymmetry", "wind", "thrust_drift", "position_delay",
+        "attitude_bias"}
+    for name, cls in effects.CATALOGUE.items():
+        e = cls()
+        assert e.name == name and cls.__doc__ and cls.summary
+
+
+def test_every_effect_vanishes_at_its_null_values(base):
+    """At every parameter's null value the extended model equals the base model."""
+    x = hover_state()
+    x[6:12] = [0.5, -0.3, 0.2, 0.1, -0.2, 0.3]
+    x[3:6] = [0.05, -0.04, 0.3]
+    u = base.hover_speed() * np.array([1.02, 0.97, 1.01, 0.99])
+    ref_xd = rhs(base, x, u, base.default_parameters())
+    ref_y = np.asarray(base.output(x, u, base.default_parameters(), 1.0)).ravel()
+    for name in effects.CATALOGUE:
+        if name in base.effects or name == "motor_lag":
+            continue
+        m = base + effects.by_name(name)
+        p = m.default_parameters()
+        for par in m.parameters:
+            if par.effect == name:
+                p = m.parameter_vector({par.name: par.null}, p)
+        np.testing.assert_allclose(rhs(m, x, u, p, 1.0)[:12], ref_xd, atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(np.asarray(m.output(x, u, p, 1.0)).ravel(), ref_y, atol=1e-12, err_msg=name)
+
+
+def test_gyroscopic_torque_contract_signs(plus_airframe):
+    m = QuadrotorModel(plus_airframe)
+    jr = 3e-5
+    p = m.parameter_vector({"J_r": jr})
+    w = m.hover_speed()
+    u = np.array([w, w + 30, w, w + 30])  # Omega_r = sum(spin_i w_i) = +60
+    x = hover_state()
+    x[9:12] = [0.0, 1.0, 0.0]                      # pure q: roll torque +J_r*q*Omega_r
+    xd = rhs(m, x, u, p) - rhs(m, x, u, m.parameter_vector({"J_r": 0.0}))
+    assert xd[9] == pytest.approx(jr * 1.0 * 60 / 0.0082, rel=1e-12)
+    x[9:12] = [1.0, 0.0, 0.0]                      # pure p: pitch torque -J_r*p*Omega_r
+    xd = rhs(m, x, u, p) - rhs(m, x, u, m.parameter_vector({"J_r": 0.0}))
+    assert xd[10] == pytest.approx(-jr * 1.0 * 60 / 0.0082, rel=1e-12)
+
+
+def test_quadratic_drag_velocity_decay(plus_airframe):
+    m = QuadrotorModel(plus_airframe).without("linear_drag") + effects.QuadraticDrag()
+    kq = 0.05
+    p = m.parameter_vector({"Kq": [kq, kq, kq]})
+    x0 = hover_state()
+    x0[6] = 4.0
+    t = np.linspace(0, 2, 201)
+    sim = simulate(m, t, np.full((t.size, 4), m.hover_speed()), p, x0)
+    # m dv/dt = -kq v^2  =>  v = v0 / (1 + kq v0 t / m)
+    np.testing.assert_allclose(sim.state("vx"), 4.0 / (1 + kq * 4.0 * t / 1.0), rtol=1e-8)
+
+
+def test_rotor_drag_opposes_body_velocity_and_scales_with_rotor_speed(base):
+    m = base.without("linear_drag") + effects.RotorDrag()
+    k = 1e-4
+    p = m.parameter_vector({"k_rd": k})
+    w = m.hover_speed()
+    x = hover_state()
+    x[5] = np.pi / 2          # facing east, flying north: a sideways body velocity
+    x[6] = 2.0
+    xd = rhs(m, x, [w] * 4, p)
+    assert xd[6] == pytest.approx(-k * 4 * w * 2.0 / 1.0, rel=1e-9)
+    assert abs(xd[7]) < 1e-12 and abs(xd[8]) < 1e-9
+    xd2 = rhs(m, x, [2 * w] * 4, p)       # twice the rotor speed, twice the drag
+    assert xd2[6] == pytest.approx(2 * xd[6], rel=1e-9)
+    x[6], x[8] = 0.0, 2.0                 # vertical velocity: no rotor drag
+    assert rhs(m, x, [w] * 4, p)[8] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_ground_effect_cheeseman_bennett(base):
+    m = base + effects.GroundEffect()
+    k = 0.02 ** 2
+    p = m.parameter_vector({"k_ge": k})
+    w = m.hover_speed()
+    for h in [0.1, 0.2, 0.5, 2.0]:
+        xd = rhs(m, hover_state(-h), [w] * 4, p)
+        assert xd[8] == pytest.approx(G * (1 - 1 / (1 - k / h ** 2)), rel=1e-9)
+    # the ground plane comes from the airframe
+    m2 = QuadrotorModel(make_airframe("plus", ground_z=0.5)) + effects.GroundEffect()
+    xd = rhs(m2, hover_state(0.5 - 0.2), [w] * 4, m2.parameter_vector({"k_ge": k}))
+    assert xd[8] == pytest.approx(G * (1 - 1 / (1 - k / 0.04)), rel=1e-9)
+
+
+def test_motor_lag_first_order_step(base):
+    m = base + effects.MotorLag()
+    tau = 0.04
+    p = m.parameter_vector({"tau_m": tau})
+    assert m.state_names[12:] == ["w_eff1", "w_eff2", "w_eff3", "w_eff4"]
+    w0 = m.hover_speed()
+    t = np.linspace(0, 0.2, 201)
+    U = np.full((t.size, 4), w0)
+    U[1:] *= 1.1                           # step at t = 0+ (input k acts on [t_k, t_k+1))
+    x0 = m.initial_state(hover_state(), U[0], p)
+    U[0] *= 1.1
+    sim = simulate(m, t, U, p, x0)
+    expect = 1.1 * w0 + (w0 - 1.1 * w0) * np.exp(-t / tau)
+    np.testing.assert_allclose(sim.state("w_eff1"), expect, rtol=1e-8)
+
+
+def test_cog_offset_pitches_at_equal_rotor_speeds(base):
+    m = base + effects.CogOffset()
+    dx, dy = 0.01, -0.02
+    p = m.parameter_vector({"r_cog": [dx, dy]})
+    w = m.hover_speed()
+    xd = rhs(m, hover_state(), [w] * 4, p)
+    # torque = sum (r_i - c) x (-T_i e_z), equal T_i = m g / 4: pitch -dx m g, roll +dy m g
+    assert xd[10] == pytest.approx(-dx * 1.0 * G / 0.0082, rel=1e-9)
+    assert xd[9] == pytest.approx(dy * 1.0 * G / 0.0082, rel=1e-9)
+    assert xd[8] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_motor_asymmetry_keeps_mean_thrust_and_creates_torque(base):
+    m = base + effects.MotorAsymmetry()
+    d = [-0.1, 0.02, 0.03]
+    p = m.parameter_vector({"K_T_dev": d})
+    w = m.hover_speed()
+    xd = rhs(m, hover_state(), [w] * 4, p)
+    T = 2e-5 * w ** 2
+    d4 = -sum(d)
+    assert xd[8] == pytest.approx(0.0, abs=1e-12)                       # total thrust unchanged
+    assert xd[10] == pytest.approx(0.17 * T * (d[0] - d[2]) / 0.0082, rel=1e-9)   # pitch: rotors 1-3
+    assert xd[9] == pytest.approx(0.17 * T * (d4 - d[1]) / 0.0082, rel=1e-9)      # roll: rotors 4-2
+    b = 5e-7
+    assert xd[11] == pytest.approx(b * w ** 2 * (-(1 + d[0]) + (1 + d[1]) - (1 + d[2]) + (1 + d4)) / 0.0149,
+                                   rel=1e-9)
+
+
+def test_wind_pushes_a_hovering_vehicle_downwind(base):
+    m = base + effects.Wind()
+    p = m.parameter_vector({"wind": [2.0, -1.0]})
+    xd = rhs(m, hover_state(), [m.hover_speed()] * 4, p)
+    np.testing.assert_allclose(xd[6:8], [0.1 * 2.0, 0.1 * -1.0], rtol=1e-12)
+    x = hover_state()
+    x[6:8] = [2.0, -1.0]    # moving with the air: no drag
+    np.testing.assert_allclose(rhs(m, x, [m.hover_speed()] * 4, p)[6:8], 0, atol=1e-12)
+
+
+def test_thrust_drift_is_linear_in_time(base):
+    m = base + effects.ThrustDrift()
+    c = -0.002
+    p = m.parameter_vector({"K_T_drift": c})
+    w = m.hover_speed()
+    for t in [0.0, 10.0, 40.0]:
+        assert rhs(m, hover_state(), [w] * 4, p, t)[8] == pytest.approx(-G * c * t, abs=1e-12)
+
+
+def test_position_delay_reports_the_past_position(base):
+    m = base + effects.PositionDelay()
+    tau = 0.05
+    p = m.parameter_vector({"tau_pos": tau})
+    w = m.hover_speed()
+    x0 = hover_state()
+    x0[6] = 1.0                 # cruising at 1 m/s: p(t - tau) = p(t) - tau*v (+ tiny drag term)
+    t = np.linspace(0, 1, 101)
+    sim = simulate(m, t, np.full((t.size, 4), w), p, x0)
+    true_past = 1.0 / 0.1 * (1 - np.exp(-0.1 * (t - tau)))   # x(t - tau) under linear drag
+    np.testing.assert_allclose(sim.output("x"), true_past, atol=1e-6)
+    np.testing.assert_allclose(sim.output("z"), -1.0, atol=1e-12)
+
+
+def test_attitude_bias_offsets_roll_and_pitch_readings(base):
+    m = base + effects.AttitudeBias()
+    p = m.parameter_vector({"att_bias": [0.02, -0.01]})
+    x = hover_state()
+    x[3:6] = [0.1, 0.2, 0.3]
+    y = out(m, x, [m.hover_speed()] * 4, p)
+    assert (y["phi"], y["theta"], y["psi"]) == pytest.approx((0.12, 0.19, 0.3))
+
+
+def test_composition_add_and_without(base):
+    lib = effects.GroundEffect() + effects.Wind()
+    assert isinstance(lib, effects.EffectLibrary) and lib.names == ["ground_effect", "wind"]
+    m = base + lib
+    assert m.effect_names == ["yaw_torque", "linear_drag", "gyroscopic", "ground_effect", "wind"]
+    assert "k_ge" in m.param_names and "wind[1]" in m.param_names
+    assert (base + effects.Wind() + effects.GroundEffect()).effect_names == m.effect_names
+    m2 = m.without("yaw_torque", "wind")
+    assert m2.effect_names == ["linear_drag", "gyroscopic", "ground_effect"]
+    assert "b" not in m2.param_names
+    assert base.effect_names == ["yaw_torque", "linear_drag", "gyroscopic"]  # unchanged
+    with pytest.raises(GreyboxInputError, match="already in the model"):
+        m + effects.Wind()
+    with pytest.raises(GreyboxInputError, match="cannot remove 'motor_lag'"):
+        base.without("motor_lag")
+    with pytest.raises(GreyboxInputError, match="unknown effect 'gust'"):
+        effects.by_name("gust")
+
+
+def test_parameters_have_units_bounds_scales(base):
+    m = base
+    for name in effects.CATALOGUE:
+        if name not in m.effects:
+            m = m + effects.by_name(name)
+    assert len(m.param_names) == m.n_params == m.default_parameters().size
+    for par in m.parameters:
+        assert par.unit and par.scale > 0 and par.lower < par.upper and par.description
+        assert np.all(par.lower <= par.default_vector()) and np.all(par.default_vector() <= par.upper)
+
+
+def test_parameter_vector_by_name_and_component(base):
+    p = base.parameter_vector({"K_T": 2.4e-5, "Kd": [0.2, 0.2, 0.3]})
+    d = base.parameter_dict(p)
+    assert d["K_T"] == 2.4e-5 and d["Kd[2]"] == 0.3
+    p = base.parameter_vector({"Kd[1]": 0.5}, p)
+    assert base.parameter_dict(p)["Kd[1]"] == 0.5
+    with pytest.raises(GreyboxInputError, match="unknown parameter 'k_ge'"):
+        base.parameter_vector({"k_ge": 1.0})
+    with pytest.raises(GreyboxInputError, match="needs 3 values"):
+        base.parameter_vector({"Kd": [1, 2]})
