@@ -1,0 +1,737 @@
+"""Multiple-shooting least-squares fitting of grey-box parameters.
+
+The problem: find the free parameters ``theta`` and the states ``s_j`` at shooting nodes
+(every ``interval`` samples) that minimise the weighted measurement residuals at every
+measured sample of every channel, subject to continuity: integrating the model (RK4, input
+held) from ``s_j`` over interval j must land on ``s_{j+1}``.
+
+How it is solved (a structure-exploiting constrained Gauss–Newton, see
+``shared/MEASURED.md`` for why):
+
+* One CasADi function per interval folds over the interval's samples and returns the
+  interval's end state, the Jacobian of that end state with respect to ``z_j = (s_j, theta)``
+  and the Gauss–Newton blocks ``H_j = J_j^T J_j``, ``g_j = J_j^T e_j`` of its residuals —
+  formed inside the function, so only small blocks ever leave CasADi. It is ``map``-ped over
+  all intervals and compiled to C (cached on disk, :mod:`greybox.codegen`).
+* The parameters are carried as constant extra states of every node (``theta_j =
+  theta_{j+1}``), which keeps the KKT system of each Gauss–Newton step banded; it is solved
+  with LAPACK's banded LU (``scipy.linalg.solve_banded``).
+* Steps are damped Levenberg–Marquardt style and accepted by a backtracking line search on
+  an l1 merit function (cost + weighted continuity gaps).
+* Uncertainty: at the solution, the parameter block of the inverse KKT matrix is the
+  Gauss–Newton covariance of the constrained problem; it is scaled by the residual variance.
+  Channel noise levels are estimated from the data (robust second differences) and
+  re-estimated from the residuals after a first solve.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Iterable, Mapping, Sequence
+
+import casadi as ca
+import numpy as np
+from scipy.linalg import solve_banded
+from scipy.signal import savgol_filter
+
+from .codegen import compiled
+from .data import FlightLog
+from .errors import GreyboxInputError, SolverError
+from .integrate import n_substeps, rk4_step
+from .model import OUTPUTS, QuadrotorModel, euler_rate_matrix
+
+__all__ = ["fit", "FitResult", "GreyBoxEstimator", "estimate_noise", "initial_node_states",
+           "DEFAULT_INTERVAL", "MANOEUVRE_ADVICE"]
+
+DEFAULT_INTERVAL = 50
+"""Samples per shooting interval (chosen by ``experiments/bench_fit.py``)."""
+
+PSI = OUTPUTS.index("psi")
+
+MANOEUVRE_ADVICE = {
+    "K_T": "vertical steps (step_z) and climbs at varied thrust",
+    "b": "yaw steps (yaw) with large rotor-speed differences",
+    "Kd": "fast translations (fast) along each axis, and vertical steps for Kd[2]",
+    "J_r": "fast roll/pitch motions with high rotor speeds",
+    "Kq": "translations at several different speeds (fast)",
+    "k_rd": "horizontal flight at different thrust levels (fast, step_z while moving)",
+    "k_ge": "a slow pass close to the ground (ground)",
+    "tau_m": "rapid rotor-speed changes (steps, excitation)",
+    "r_cog": "hover and attitude steps",
+    "K_T_dev": "roll and pitch steps with varied thrust",
+    "wind": "horizontal flight in several directions",
+    "K_T_drift": "a longer flight, repeating the same manoeuvres early and late",
+    "tau_pos": "fast translations (fast)",
+    "att_bias": "hover and slow translations",
+}
+
+
+# ------------------------------------------------------------------------------ noise
+def estimate_noise(y: np.ndarray) -> float:
+    """Noise standard deviation of a (possibly sparse) channel from robust second
+    differences of its measured samples: for white noise ``var(y[k+1]-2y[k]+y[k-1]) = 6 s^2``.
+    """
+    v = y[np.isfinite(y)]
+    if v.size < 5:
+        return float("nan")
+    d2 = v[2:] - 2 * v[1:-1] + v[:-2]
+    mad = np.median(np.abs(d2 - np.median(d2)))
+    s = 1.4826 * mad / math.sqrt(6.0)
+    if s <= 0:
+        s = float(np.std(d2)) / math.sqrt(6.0)
+    return float(s)
+
+
+# ------------------------------------------------------------------------------ initial states
+def _fill(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    k = np.isfinite(y)
+    if k.sum() == 0:
+        return np.zeros_like(y)
+    if k.sum() == 1:
+        return np.full_like(y, y[k][0])
+    return np.interp(t, t[k], y[k])
+
+
+def _smooth(t: np.ndarray, y: np.ndarray, window_s: float, deriv: int = 0) -> np.ndarray:
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    win = int(round(window_s / dt)) | 1
+    win = max(5, min(win, (t.size - 1) | 1 if t.size % 2 == 0 else t.size))
+    if win > t.size:
+        win = t.size if t.size % 2 else t.size - 1
+    if win < 5:
+        return np.gradient(y, t) if deriv else y.copy()
+    return savgol_filter(y, win, 2, deriv=deriv, delta=dt, mode="interp")
+
+
+def initial_node_states(model: QuadrotorModel, log: FlightLog, idx: np.ndarray,
+                        p: np.ndarray | None = None) -> np.ndarray:
+    """State guesses at samples ``idx`` from the measurements: positions and angles
+    interpolated and smoothed, velocities and (without gyro) body rates from smoothed
+    numerical derivatives, effect states from the logged inputs. Returns (len(idx), nx)."""
+    t = log.t
+    X = np.zeros((t.size, 12))
+    for i, name in enumerate(["x", "y", "z"]):
+        yi = _fill(t, log.output(name))
+        X[:, i] = _smooth(t, yi, 0.1)
+        X[:, 6 + i] = _smooth(t, yi, 0.2, deriv=1)
+    ang = np.column_stack([_fill(t, log.output(n)) for n in ("phi", "theta", "psi")])
+    ang[:, 2] = np.unwrap(ang[:, 2])
+    for i in range(3):
+        X[:, 3 + i] = _smooth(t, ang[:, i], 0.03)
+    if all(n in log.output_names for n in ("p", "q", "r")) and np.isfinite(log.output("p")).sum() > 5:
+        for i, n in enumerate(("p", "q", "r")):
+            X[:, 9 + i] = _smooth(t, _fill(t, log.output(n)), 0.03)
+    else:
+        rates = np.column_stack([_smooth(t, ang[:, i], 0.06, deriv=1) for i in range(3)])
+        ph, th = X[:, 3], X[:, 4]
+        # omega = E(phi, theta) * euler_dot, E the inverse of the Euler-rate matrix
+        X[:, 9] = rates[:, 0] - np.sin(th) * rates[:, 2]
+        X[:, 10] = np.cos(ph) * rates[:, 1] + np.sin(ph) * np.cos(th) * rates[:, 2]
+        X[:, 11] = -np.sin(ph) * rates[:, 1] + np.cos(ph) * np.cos(th) * rates[:, 2]
+    out = np.zeros((idx.size, model.nx))
+    out[:, :12] = X[idx]
+    if model.nx > 12:
+        for r, k in enumerate(idx):
+            out[r] = model.initial_state(out[r, :12], log.inputs[k], p)
+    return out
+
+
+# ------------------------------------------------------------------------------ result
+@dataclass
+class FitResult:
+    """The outcome of :func:`fit`.
+
+    ``parameters`` holds every model parameter (fitted or fixed) by component name;
+    ``std`` and ``correlation`` refer to the free ones (``free_names`` order).
+    """
+
+    model: QuadrotorModel
+    p: np.ndarray                       # full flat parameter vector
+    free_names: list[str]
+    std: np.ndarray                     # standard deviations of the free parameters
+    covariance: np.ndarray
+    correlation: np.ndarray
+    converged: bool
+    status: str
+    iterations: int
+    cost: float                         # 0.5 * sum of squared weighted residuals
+    n_residuals: int
+    sigma: dict[str, float]             # channel noise levels used as weights
+    residual_rms: dict[str, float]      # RMS residual per channel (units of the channel)
+    node_states: list[np.ndarray]       # per flight, (M+1, nx)
+    node_index: list[np.ndarray]        # per flight, sample index of each node
+    warnings: list[str] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+    evaluator: str = ""
+    interval: int = DEFAULT_INTERVAL
+
+    @property
+    def parameters(self) -> dict[str, dict[str, float | None]]:
+        """``{name: {"value": v, "std": s or None (fixed)}}`` for every component."""
+        out: dict[str, dict[str, float | None]] = {}
+        for name, v in zip(self.model.param_names, self.p):
+            s = None
+            if name in self.free_names:
+                s = float(self.std[self.free_names.index(name)])
+            out[name] = {"value": float(v), "std": s}
+        return out
+
+    def value(self, name: str) -> float:
+        return float(self.p[self.model.param_names.index(name)])
+
+    def summary(self) -> str:
+        """A readable table of the fitted parameters."""
+        lines = [f"{'parameter':<12} {'value':>13} {'std':>11} {'rel':>7}"]
+        for name in self.free_names:
+            v, s = self.value(name), float(self.std[self.free_names.index(name)])
+            rel = f"{abs(s / v) * 100:6.2f}%" if v != 0 else "     - "
+            lines.append(f"{name:<12} {v:13.6g} {s:11.3g} {rel:>7}")
+        lines.append(f"status: {self.status}; {self.iterations} iterations; "
+                     f"evaluator: {self.evaluator}")
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------ problem
+class _ShootingProblem:
+    """CasADi functions for the interval blocks of a given model, free set and interval.
+
+    The per-sample step functions (small) are compiled to C and cached; the fold over an
+    interval's samples and the map over intervals stay CasADi constructs around them.
+    """
+
+    def __init__(self, model: QuadrotorModel, free_idx: list[int], N: int, n_sub: int,
+                 compile_mode: str):
+        self.model, self.free_idx, self.N = model, free_idx, N
+        nx, nu, ny, npar = model.nx, model.nu, model.ny, model.n_params
+        nth = len(free_idx)
+        nz = nx + nth
+        self.nx, self.nth, self.nz, self.ny = nx, nth, nz, ny
+        step = rk4_step(model, n_sub)
+        x = ca.SX.sym("x", nx)
+        S = ca.SX.sym("S", nx, nz)
+        H = ca.SX.sym("H", nz, nz)
+        g = ca.SX.sym("g", nz)
+        c = ca.SX.sym("c", ny)
+        u = ca.SX.sym("u", nu)
+        t = ca.SX.sym("t")
+        h = ca.SX.sym("h")
+        ym = ca.SX.sym("ym", ny)
+        w = ca.SX.sym("w", ny)
+        th = ca.SX.sym("th", nth)          # scaled free parameters
+        sc = ca.SX.sym("scale", nth)
+        pfix = ca.SX.sym("pfix", npar)
+        p = ca.SX(pfix)
+        for i, k in enumerate(free_idx):
+            p[k] = th[i] * sc[i]
+        y = model.output(x, u, p, t)
+        d = ym - y
+        d[PSI] = ca.atan2(ca.sin(d[PSI]), ca.cos(d[PSI]))  # yaw residual wrapped to (-pi, pi]
+        e = w * d
+        xn = step(x, u, p, t, h)
+        z = ca.vertcat(x, th)
+        E0 = ca.horzcat(ca.SX.zeros(nth, nx), ca.SX.eye(nth))  # d theta / d z
+        Jy = ca.jacobian(y, z)
+        Jx = ca.jacobian(xn, z)
+        Je = -w * (Jy[:, :nx] @ S + Jy[:, nx:] @ E0)   # (ny, nz); w broadcasts over rows
+        Sn = Jx[:, :nx] @ S + Jx[:, nx:] @ E0
+        step_blk = ca.Function("gb_step_blocks", [x, S, H, g, c, u, t, h, ym, w, th, sc, pfix],
+                               [xn, Sn, H + Je.T @ Je, g + Je.T @ e, c + e * e])
+        step_val = ca.Function("gb_step_value", [x, c, u, t, h, ym, w, th, sc, pfix], [xn, c + e * e])
+        self.how = "virtual machine"
+        if compile_mode != "never":
+            af = model.airframe
+            key = repr((af.mass, af.inertia.tolist(), af.rotor_positions.tolist(), af.spins.tolist(),
+                        af.gravity, af.ground_z, af.rotor_inertia,
+                        af.parameters if model.inputs == "controls" else None,
+                        model.effect_names, model.inputs, free_idx, n_sub))
+            step_blk, self.how = compiled(step_blk, key + "blocks")
+            step_val, _ = compiled(step_val, key + "value")
+
+        # fold over the interval's samples; theta, scale and fixed parameters are repeated
+        acc_b = step_blk.mapaccum("acc", N, [0, 1, 2, 3, 4], [0, 1, 2, 3, 4])
+        acc_v = step_val.mapaccum("accv", N, [0, 1], [0, 1])
+        xs = ca.MX.sym("s", nx)
+        ths = ca.MX.sym("th", nth)
+        scs = ca.MX.sym("scale", nth)
+        pf = ca.MX.sym("pfix", npar)
+        U = ca.MX.sym("U", nu, N)
+        T = ca.MX.sym("T", 1, N)
+        Hs = ca.MX.sym("h", 1, N)
+        Y = ca.MX.sym("Y", ny, N)
+        W = ca.MX.sym("W", ny, N)
+        const = [ca.repmat(ths, 1, N), ca.repmat(scs, 1, N), ca.repmat(pf, 1, N)]
+        S0 = ca.horzcat(ca.MX.eye(nx), ca.MX.zeros(nx, nth))
+        r = acc_b(xs, S0, ca.MX.zeros(nz, nz), ca.MX.zeros(nz, 1), ca.MX.zeros(ny, 1), U, T, Hs, Y, W, *const)
+        ins = [xs, ths, scs, pf, U, T, Hs, Y, W]
+        self.blocks = ca.Function("gb_interval_blocks", ins,
+                                  [r[0][:, -1], r[1][:, -nz:], r[2][:, -nz:], r[3][:, -1], r[4][:, -1]])
+        rv = acc_v(xs, ca.MX.zeros(ny, 1), U, T, Hs, Y, W, *const)
+        self.value = ca.Function("gb_interval_value", ins, [rv[0][:, -1], rv[1][:, -1]])
+        self._maps: dict[int, tuple[ca.Function, ca.Function]] = {}
+
+    def mapped(self, M: int) -> tuple[ca.Function, ca.Function]:
+        if M not in self._maps:
+            self._maps[M] = (self.blocks.map(M, "thread", 2), self.value.map(M, "thread", 2))
+        return self._maps[M]
+
+
+@dataclass
+class _Data:
+    """One or several flights laid out as padded intervals."""
+
+    U: np.ndarray      # (nu, M*N)
+    T: np.ndarray
+    Hs: np.ndarray
+    Y: np.ndarray      # (ny, M*N), NaN -> 0
+    W: np.ndarray      # (ny, M*N) weights (1/sigma, 0 where missing)
+    mask: np.ndarray   # (ny, M*N) measured
+    flights: list[tuple[int, int]]   # per flight: first interval, number of intervals
+    node_index: list[np.ndarray]
+
+
+def _layout(model: QuadrotorModel, logs: Sequence[FlightLog], N: int, sigma: np.ndarray) -> _Data:
+    Us, Ts, Hs, Ys, Ms, flights, node_index = [], [], [], [], [], [], []
+    j0 = 0
+    for log in logs:
+        n = len(log)
+        M = math.ceil(n / N)
+        pad = M * N - n
+        h = np.append(np.diff(log.t), 0.0)
+        Y = np.full((n, model.ny), np.nan)
+        for c, name in enumerate(OUTPUTS):
+            if name in log.output_names:
+                Y[:, c] = log.output(name)
+        Us.append(np.vstack([log.inputs, np.repeat(log.inputs[-1:], pad, 0)]))
+        Ts.append(np.append(log.t, np.full(pad, log.t[-1])))
+        Hs.append(np.append(h, np.zeros(pad)))
+        Ys.append(np.vstack([Y, np.full((pad, model.ny), np.nan)]))
+        flights.append((j0, M))
+        node_index.append(np.minimum(np.arange(M + 1) * N, n - 1))
+        j0 += M
+    Y = np.vstack(Ys).T
+    mask = np.isfinite(Y)
+    W = np.where(mask, 1.0 / sigma[:, None], 0.0)
+    return _Data(np.vstack(Us).T, np.concatenate(Ts)[None, :], np.concatenate(Hs)[None, :],
+                 np.where(mask, Y, 0.0), W, mask, flights, node_index)
+
+
+class _KKT:
+    """Index pattern of the banded KKT system of all flights' nodes and constraints."""
+
+    def __init__(self, flights: list[tuple[int, int]], nx: int, nth: int):
+        nz = nx + nth
+        self.nz, self.nx, self.nth = nz, nx, nth
+        # variable ordering: per flight z_0, lam_0, z_1, lam_1, ..., z_M, [link lam], next flight
+        zoff, loff, link = [], [], []
+        pos = 0
+        for f, (_, M) in enumerate(flights):
+            zf, lf = [], []
+            for j in range(M + 1):
+                zf.append(pos)
+                pos += nz
+                if j < M:
+                    lf.append(pos)
+                    pos += nz
+            if f < len(flights) - 1:
+                link.append(pos)
+                pos += nth
+            zoff.append(np.array(zf))
+            loff.append(np.array(lf))
+        self.n = pos
+        self.zoff, self.loff, self.link = zoff, loff, link
+        self.znodes = np.concatenate(zoff)           # offsets of all nodes, flight by flight
+        self.lams = np.concatenate(loff)              # offsets of interval multipliers
+        # interval j (global) connects node zi[j] -> zi[j] + 1 (index into znodes)
+        zi, k = [], 0
+        for f, (_, M) in enumerate(flights):
+            zi += list(range(k, k + M))
+            k += M + 1
+        self.zi = np.array(zi)
+        self.bw = 2 * nz
+
+    def solve(self, H: np.ndarray, g: np.ndarray, G: np.ndarray, c: np.ndarray, mu: float,
+              rhs_extra: np.ndarray | None = None) -> np.ndarray:
+        """Solve the KKT system. H: (n_nodes, nz, nz) (zero for nodes without data),
+        g: (n_nodes, nz), G: (n_int, nz, nz) interval constraint Jacobians, c: (n_int, nz)
+        gaps. Returns the solution vector (or matrix for ``rhs_extra``)."""
+        nz, nth, nx = self.nz, self.nth, self.nx
+        l = u = self.bw
+        ab = np.zeros((l + u + 1, self.n))
+        ar = np.arange(nz)
+
+        def put(r0, c0, blk):  # blk: (k, a, b); r0, c0: (k,)
+            a, b = blk.shape[1:]
+            rows = r0[:, None, None] + np.arange(a)[None, :, None]
+            cols = c0[:, None, None] + np.arange(b)[None, None, :]
+            ab[u + rows - cols, cols] = blk
+
+        d = np.einsum("kii->ki", H)
+        floor = 1e-10 * max(float(d.max()), 1.0)
+        Hd = H.copy()
+        Hd[:, ar, ar] += mu * d + floor
+        put(self.znodes, self.znodes, Hd)
+        nI = G.shape[0]
+        zfrom = self.znodes[self.zi]
+        zto = self.znodes[self.zi + 1]
+        put(self.lams, zfrom, G)
+        put(zfrom, self.lams, np.transpose(G, (0, 2, 1)))
+        negI = np.broadcast_to(-np.eye(nz), (nI, nz, nz))
+        put(self.lams, zto, negI)
+        put(zto, self.lams, negI)
+        if self.link:
+            L = np.zeros((nth, nz))
+            L[:, nx:] = np.eye(nth)
+            lk = np.array(self.link)
+            last = np.array([zf[-1] for zf in self.zoff[:-1]])
+            first = np.array([zf[0] for zf in self.zoff[1:]])
+            k = len(lk)
+            put(lk, last, np.broadcast_to(L, (k, nth, nz)))
+            put(last, lk, np.broadcast_to(L.T, (k, nz, nth)))
+            put(lk, first, np.broadcast_to(-L, (k, nth, nz)))
+            put(first, lk, np.broadcast_to(-L.T, (k, nz, nth)))
+        if rhs_extra is not None:
+            rhs = rhs_extra
+        else:
+            rhs = np.zeros(self.n)
+            rhs[(self.znodes[:, None] + ar).ravel()] = -g.ravel()
+            rhs[(self.lams[:, None] + ar).ravel()] = -c.ravel()
+        try:
+            return solve_banded((l, u), ab, rhs, check_finite=False)
+        except (np.linalg.LinAlgError, ValueError) as e:
+            raise SolverError(f"Gauss-Newton step: singular KKT system ({e})") from None
+
+
+# ------------------------------------------------------------------------------ fit
+def _free_indices(model: QuadrotorModel, free: Iterable[str] | None,
+                  fixed: Iterable[str] | None) -> list[int]:
+    names = model.param_names
+
+    def expand(items):
+        out = []
+        for it in items:
+            if it in names:
+                out.append(it)
+                continue
+            par = next((p for p in model.parameters if p.name == it), None)
+            if par is None:
+                raise GreyboxInputError(f"unknown parameter {it!r}; the model's parameters are "
+                                        f"{', '.join(p.name for p in model.parameters)}")
+            out += par.component_names
+        return out
+
+    if free is not None:
+        chosen = set(expand(free))
+    else:
+        chosen = {n for p in model.parameters if p.free for n in p.component_names}
+    chosen -= set(expand(fixed or []))
+    if not chosen:
+        raise GreyboxInputError("no free parameters to fit")
+    return [i for i, n in enumerate(names) if n in chosen]
+
+
+def _bounds(model: QuadrotorModel) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = [], []
+    for p in model.parameters:
+        lo += [p.lower] * p.size
+        hi += [p.upper] * p.size
+    return np.array(lo), np.array(hi)
+
+
+def _progress_printer(stream=None) -> Callable[[str], None]:
+    stream = stream or sys.stderr
+
+    def say(msg: str) -> None:
+        print(msg, file=stream, flush=True)
+    return say
+
+
+def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free: Iterable[str] | None = None,
+        fixed: Iterable[str] | None = None, p0: np.ndarray | Mapping[str, float] | None = None,
+        interval: int = DEFAULT_INTERVAL, noise: Mapping[str, float] | None = None,
+        max_iter: int = 60, tol: float = 1e-7, reweight: bool = True, compile: str = "auto",
+        progress: bool | Callable[[str], None] = False, initial_states: Sequence[np.ndarray] | None = None
+        ) -> FitResult:
+    """Fit the free parameters of ``model`` to one or several flight logs.
+
+    Args:
+        model: the grey-box model (its effects decide the parameters).
+        logs: one log or a list of logs (several flights share the parameters; each has its
+            own states). Fit on the estimation part yourself (``log.split()``) — or use
+            :func:`greybox.validation.fit_and_validate`.
+        free / fixed: parameter (or component) names to estimate / hold. Default: every
+            parameter whose ``Parameter.free`` is set (``J_r`` is fixed by default).
+        p0: starting values (flat vector or ``{name: value}``); default the airframe's guesses.
+        interval: samples per shooting interval.
+        noise: channel noise standard deviations ``{"x": 0.003, ...}``; others are estimated.
+        reweight: re-estimate channel noise from the residuals and solve again.
+        compile: ``"auto"`` (compile the interval function to C when a compiler exists) or ``"never"``.
+        progress: True to print iterations to stderr, or a callable taking a line of text.
+        initial_states: per flight (M+1, nx) node state guesses (default: from the data).
+    """
+    t_start = time.perf_counter()
+    say = _progress_printer() if progress is True else (progress or (lambda _m: None))
+    logs = [logs] if isinstance(logs, FlightLog) else list(logs)
+    if not logs:
+        raise GreyboxInputError("no flight logs to fit")
+    if interval < 1:
+        raise GreyboxInputError(f"interval must be >= 1 sample, got {interval}")
+    for log in logs:
+        if log.input_names != model.input_names:
+            raise GreyboxInputError(f"{log.source or 'log'}: inputs {log.input_names} do not match the "
+                                    f"model's {model.input_names}")
+        log.check_fittable(min_samples=max(2 * interval, 20))
+    if isinstance(p0, Mapping):
+        p = model.parameter_vector(p0)
+    else:
+        p = model.default_parameters() if p0 is None else np.array(p0, dtype=float)
+    free_idx = _free_indices(model, free, fixed)
+    free_names = [model.param_names[i] for i in free_idx]
+    params_by_comp = {n: par for par in model.parameters for n in par.component_names}
+    scale = np.array([max(abs(p[i]), params_by_comp[model.param_names[i]].scale) for i in free_idx])
+    lo, hi = _bounds(model)
+    lo_s, hi_s = lo[free_idx] / scale, hi[free_idx] / scale
+
+    # channel noise levels
+    sigma = np.ones(model.ny)
+    given = dict(noise or {})
+    for c, name in enumerate(OUTPUTS):
+        if name in given:
+            sigma[c] = float(given[name])
+            continue
+        vals = [estimate_noise(l.output(name)) for l in logs if name in l.output_names]
+        vals = [v for v in vals if np.isfinite(v)]
+        sigma[c] = float(np.median(vals)) if vals else 1.0
+    floor = {"x": 1e-4, "y": 1e-4, "z": 1e-4, "phi": 1e-4, "theta": 1e-4, "psi": 1e-4,
+             "p": 1e-3, "q": 1e-3, "r": 1e-3}
+    sigma = np.maximum(sigma, [floor[n] for n in OUTPUTS])
+
+    h_max = max(float(np.diff(l.t).max()) for l in logs)
+    t0 = time.perf_counter()
+    prob = _ShootingProblem(model, free_idx, interval, n_substeps(h_max), compile)
+    t_build = time.perf_counter() - t0
+    say(f"fit: {len(logs)} flight(s), {sum(len(l) for l in logs)} samples, {len(free_idx)} free "
+        f"parameters, interval {interval} samples; interval function: {prob.how} ({t_build:.1f} s)")
+
+    data = _layout(model, logs, interval, sigma)
+    n_int = sum(M for _, M in data.flights)
+    F_blocks, F_value = prob.mapped(n_int)
+    kkt = _KKT(data.flights, model.nx, len(free_idx))
+    nx, nth, nz = model.nx, len(free_idx), prob.nz
+
+    if initial_states is not None:
+        nodes = [np.array(s, dtype=float) for s in initial_states]
+    else:
+        nodes = [initial_node_states(model, log, idx, p) for log, idx in zip(logs, data.node_index)]
+    X = np.vstack(nodes)                      # (n_nodes, nx)
+    th = p[free_idx] / scale
+    pfix = p.copy()
+    start_of = np.concatenate([[True] + [False] * M for _, M in data.flights])  # nodes starting a flight
+
+    def evaluate(X, th, blocks=True):
+        xs = X[~_last_mask].T  # nodes that start an interval
+        args = (xs, th, scale, pfix, data.U, data.T, data.Hs, data.Y, data.W)
+        if blocks:
+            xe, S, H, g, c = F_blocks(*args)
+            S = np.asarray(S).reshape(nx, n_int, nz).transpose(1, 0, 2)
+            H = np.asarray(H).reshape(nz, n_int, nz).transpose(1, 0, 2)
+            return np.asarray(xe).T, S, H, np.asarray(g).T, np.asarray(c)
+        xe, c = F_value(*args)
+        return np.asarray(xe).T, np.asarray(c)
+
+    _last_mask = np.zeros(X.shape[0], dtype=bool)
+    k = 0
+    for _, M in data.flights:
+        _last_mask[k + M] = True
+        k += M + 1
+    nxt = kkt.zi + 1
+
+    def gaps(X, xe):
+        return xe - X[nxt]
+
+    def solve_problem(X, th, mu, max_iter):
+        rho = np.zeros((n_int, nx))
+        xe, S, Hb, g, cch = evaluate(X, th)
+        cost = 0.5 * float(cch.sum())
+        it, status, converged = 0, "maximum iterations reached", False
+        for it in range(1, max_iter + 1):
+            c = gaps(X, xe)
+            H = np.zeros((X.shape[0], nz, nz))
+            gg = np.zeros((X.shape[0], nz))
+            H[~_last_mask] = Hb
+            gg[~_last_mask] = g
+            G = np.zeros((n_int, nz, nz))
+            G[:, :nx, :] = S
+            G[:, nx:, nx:] = np.eye(nth)
+            cz = np.zeros((n_int, nz))
+            cz[:, :nx] = c
+            sol = kkt.solve(H, gg, G, cz, mu)
+            dz = sol[(kkt.znodes[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
+            lam = sol[(kkt.lams[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
+            dX, dth = dz[:, :nx], dz[0, nx:]
+            rho = np.maximum(rho, 2.0 * np.abs(lam[:, :nx]) + 1e-8)
+            merit0 = cost + float((rho * np.abs(c)).sum())
+            slope = float((gg * dz).sum()) - float((rho * np.abs(c)).sum())
+            alpha, accepted = 1.0, False
+            # keep parameters inside their bounds
+            with np.errstate(divide="ignore", invalid="ignore"):
+                lim = np.where(dth > 0, (hi_s - th) / dth, np.where(dth < 0, (lo_s - th) / dth, np.inf))
+            alpha = min(1.0, 0.99 * float(np.min(lim)) if np.isfinite(np.min(lim)) else 1.0)
+            alpha = max(alpha, 0.0)
+            trial_blocks = None
+            for ls in range(12):
+                Xt, tht = X + alpha * dX, th + alpha * dth
+                if ls == 0:  # the full step is usually taken: its blocks serve the next iteration
+                    trial_blocks = evaluate(Xt, tht)
+                    xe_t, c_t = trial_blocks[0], trial_blocks[4]
+                else:
+                    trial_blocks = None
+                    xe_t, c_t = evaluate(Xt, tht, blocks=False)
+                cost_t = 0.5 * float(c_t.sum())
+                merit_t = cost_t + float((rho * np.abs(gaps(Xt, xe_t))).sum())
+                if np.isfinite(merit_t) and merit_t <= merit0 + 1e-4 * alpha * min(slope, 0.0):
+                    accepted = True
+                    break
+                alpha *= 0.5
+            step_size = float(np.max(np.abs(alpha * dth))) if nth else 0.0
+            if not accepted:
+                if mu > 1e6:
+                    status = "line search failed: no decrease along the Gauss-Newton direction"
+                    break
+                mu = max(mu * 10, 1e-3)
+                say(f"  iter {it:3d}  step rejected, damping -> {mu:.1e}")
+                continue
+            X, th = Xt, tht
+            mu = mu / 3 if alpha == 1.0 else min(mu * 2, 1e8)
+            mu = max(mu, 1e-10)
+            xe, S, Hb, g, cch = trial_blocks if trial_blocks is not None else evaluate(X, th)
+            new_cost = 0.5 * float(cch.sum())
+            gap = float(np.abs(gaps(X, xe)).max())
+            say(f"  iter {it:3d}  cost {new_cost:12.6g}  max gap {gap:9.2e}  step {step_size:9.2e}  alpha {alpha:.3f}")
+            rel = abs(cost - new_cost) / max(new_cost, 1e-300)
+            cost = new_cost
+            if step_size < tol and rel < 1e-6 and gap < 1e-6 * (1 + float(np.abs(X).max())):
+                converged, status = True, "converged"
+                break
+        if not np.all(np.isfinite(X)) or not np.all(np.isfinite(th)):
+            raise SolverError("fit diverged: non-finite states or parameters")
+        return X, th, mu, it, converged, status, (xe, S, Hb, g, cch)
+
+    t0 = time.perf_counter()
+    X, th, mu, iters, converged, status, last = solve_problem(X, th, 1e-3, max_iter)
+    total_iters = iters
+    if reweight and converged:
+        # channel noise re-estimated from the residuals: weights match the data
+        cch = last[4].sum(axis=1)
+        n_c = data.mask.sum(axis=1)
+        rms_w = np.sqrt(np.where(n_c > 0, cch / np.maximum(n_c, 1), 1.0))
+        if np.any(np.abs(rms_w[n_c > 0] - 1) > 0.05):
+            sigma = sigma * np.where(n_c > 0, rms_w, 1.0)
+            data.W = np.where(data.mask, 1.0 / sigma[:, None], 0.0)
+            say(f"fit: noise re-estimated from residuals: " +
+                ", ".join(f"{n}={s:.3g}" for n, s, k in zip(OUTPUTS, sigma, n_c) if k))
+            X, th, mu, iters, converged, status, last = solve_problem(X, th, 1e-4, max_iter)
+            total_iters += iters
+    t_solve = time.perf_counter() - t0
+    xe, S, Hb, g, cch = last
+
+    # covariance: parameter block of the inverse KKT matrix (no damping), scaled by s^2
+    H = np.zeros((X.shape[0], nz, nz))
+    H[~_last_mask] = Hb
+    G = np.zeros((n_int, nz, nz))
+    G[:, :nx, :] = S
+    G[:, nx:, nx:] = np.eye(nth)
+    rhs = np.zeros((kkt.n, nth))
+    rhs[kkt.znodes[0] + nx + np.arange(nth), np.arange(nth)] = 1.0
+    P = kkt.solve(H, np.zeros((X.shape[0], nz)), G, np.zeros((n_int, nz)), 0.0, rhs_extra=rhs)
+    P = P[kkt.znodes[0] + nx + np.arange(nth)]
+    P = 0.5 * (P + P.T)
+    n_res = int(data.mask.sum())
+    dof = max(n_res - nth - nx * len(logs), 1)
+    cost = 0.5 * float(cch.sum())
+    s2 = 2 * cost / dof
+    cov = s2 * P * np.outer(scale, scale)
+    var = np.diag(cov)
+    warnings: list[str] = []
+    if np.any(var <= 0) or not np.all(np.isfinite(var)):
+        warnings.append("information matrix is singular: some parameters are not identifiable from these data")
+    std = np.sqrt(np.abs(var))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = cov / np.outer(std, std)
+    corr = np.nan_to_num(corr)
+    p_out = p.copy()
+    p_out[free_idx] = th * scale
+    warnings += _identifiability_warnings(free_names, p_out[free_idx], std, corr, P)
+    if not converged:
+        warnings.insert(0, f"solver did not converge: {status}")
+
+    cc = cch.sum(axis=1)
+    n_c = data.mask.sum(axis=1)
+    resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
+    node_states, k = [], 0
+    for _, M in data.flights:
+        node_states.append(X[k:k + M + 1].copy())
+        k += M + 1
+    timings = {"build": t_build, "solve": t_solve, "total": time.perf_counter() - t_start}
+    say(f"fit: {status} after {total_iters} iterations in {timings['total']:.2f} s")
+    return FitResult(model, p_out, free_names, std, cov, corr, converged, status, total_iters, cost,
+                     n_res, {n: float(sigma[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, resid_rms,
+                     node_states, data.node_index, warnings, timings, prob.how, interval)
+
+
+def _identifiability_warnings(names: list[str], values: np.ndarray, std: np.ndarray, corr: np.ndarray,
+                              P: np.ndarray) -> list[str]:
+    out = []
+
+    def advice(n: str) -> str:
+        base = n.split("[")[0]
+        return MANOEUVRE_ADVICE.get(base, "more varied manoeuvres")
+
+    n = len(names)
+    for i in range(n):
+        for j in range(i + 1, n):
+            if abs(corr[i, j]) > 0.95:
+                out.append(f"{names[i]} and {names[j]} are strongly correlated (r = {corr[i, j]:+.3f}): "
+                           f"the data hardly tell them apart; fly {advice(names[i])} / {advice(names[j])}")
+    for i in range(n):
+        if values[i] != 0 and std[i] > 0.5 * abs(values[i]):
+            out.append(f"{names[i]} is poorly determined ({std[i]:.3g} on {values[i]:.3g}); "
+                       f"fly {advice(names[i])}")
+    # near-singular information: the weakest direction of the scaled covariance
+    w, V = np.linalg.eigh(0.5 * (P + P.T))
+    if w.size and w[-1] > 0 and w[0] > 0 and w[-1] / w[0] > 1e10:
+        v = V[:, -1]
+        top = [names[k] for k in np.argsort(-np.abs(v))[:3] if abs(v[k]) > 0.3]
+        out.append(f"near-singular information (condition {w[-1] / w[0]:.1e}); weakest combination "
+                   f"involves {', '.join(top)}")
+    return out
+
+
+class GreyBoxEstimator:
+    """scikit-learn style wrapper of :func:`fit`.
+
+    >>> est = GreyBoxEstimator(model).fit(est_log)       # doctest: +SKIP
+    >>> est.params_, est.std_, est.predict(val_log)       # doctest: +SKIP
+    """
+
+    def __init__(self, model: QuadrotorModel, **fit_options):
+        self.model = model
+        self.fit_options = fit_options
+
+    def fit(self, logs: FlightLog | Sequence[FlightLog]) -> "GreyBoxEstimator":
+        self.result_ = fit(self.model, logs, **self.fit_options)
+        self.params_ = self.result_.model.parameter_dict(self.result_.p)
+        self.std_ = dict(zip(self.result_.free_names, map(float, self.result_.std)))
+        return self
+
+    def predict(self, log: FlightLog, horizon: float = 1.0):
+        """k-step-ahead predictions on ``log`` (see :func:`greybox.validation.predict`)."""
+        from .validation import predict
+        return predict(self.model, self.result_.p, log, horizon=horizon)
+
+    def score(self, log: FlightLog, horizon: float = 1.0) -> float:
+        """Validation ``nrmse`` (lower is better) of the fitted model on ``log``."""
+        from .validation import nrmse
+        return nrmse(self.model, self.result_.p, log, horizon=horizon)["nrmse"]
