@@ -182,6 +182,65 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict:
+    """The contract's fit JSON, with extra detail (status, correlations, warnings)."""
+    params = {}
+    for name, v in res.parameters.items():
+        entry = {"value": v["value"], "std": v["std"] if v["std"] is not None else 0.0}
+        if v["std"] is None:
+            entry["fixed"] = True
+        params[name] = entry
+    out = {"parameters": params, "effects": model.effect_names}
+    if validation is not None:
+        out["validation"] = validation
+    out.update({"converged": res.converged, "status": res.status, "iterations": res.iterations,
+                "free": res.free_names, "correlation": res.correlation.tolist(),
+                "noise": res.sigma, "residual_rms": res.residual_rms, "warnings": res.warnings,
+                "time_s": res.timings.get("total")})
+    return out
+
+
+def _load_fit_inputs(args: argparse.Namespace):
+    from .data import load_log
+    model = build_model(args.airframe, args.effects, args.without)
+    log = load_log(args.log, inputs="rotor_speeds")
+    for note in log.notes:
+        print(f"note: {note}", file=sys.stderr)
+    if log.input_names != model.input_names:
+        raise GreyboxInputError(f"{args.log}: has rotor speeds {','.join(log.input_names)} but the airframe "
+                                f"has {model.airframe.n_rotors} rotors")
+    log.check_fittable()
+    return model, log
+
+
+def _names(text: str | None) -> list[str] | None:
+    return [s.strip() for s in text.split(",") if s.strip()] if text else None
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from .fitting import fit
+    from .validation import compare_plot, predict, residual_plot
+    model, log = _load_fit_inputs(args)
+    est, val = log.split(0.8)
+    p0 = model.parameter_vector(parse_sets(args.set))
+    res = fit(model, est, free=_names(args.free), fixed=_names(args.fixed), p0=p0,
+              interval=args.interval, progress=not args.quiet)
+    if not res.converged:
+        raise GreyboxError(f"fit did not converge: {res.status}")
+    pred = predict(model, res.p, val, horizon=args.horizon)
+    print(res.summary())
+    print(f"validation ({args.horizon:g} s-ahead, last 20 %): nrmse {pred.total:.4f}  " +
+          "  ".join(f"{c}={v:.3f}" for c, v in pred.nrmse.items()))
+    if args.plots:
+        out = Path(args.plots)
+        compare_plot(pred, out / "compare.png")
+        residual_plot(pred, out / "residuals.png")
+        print(f"plots: {out / 'compare.png'}, {out / 'residuals.png'}")
+    if args.json:
+        write_json(args.json, fit_result_json(model, res, {**pred.as_dict()}))
+    return 0
+
+
 # ---------------------------------------------------------------------------- parser
 def _parser() -> argparse.ArgumentParser:
     ap = _Parser(prog="greybox", description="Grey-box system identification of quadrotors.")
@@ -227,6 +286,23 @@ def _parser() -> argparse.ArgumentParser:
                    help="comma list from hover,step_x,step_y,step_z,yaw,fast,ground")
     y.add_argument("--json", help="write the truth (effects, parameters, seed) here")
     y.set_defaults(func=cmd_synth)
+
+    f = sub.add_parser("fit", help="fit the model's parameters to a flight log",
+                       description="Fit the free parameters by multiple-shooting least squares on the "
+                                   "first 80 %% of the log and validate on the last 20 %%.")
+    f.add_argument("log", help="flight log CSV")
+    f.add_argument("--airframe", required=True)
+    f.add_argument("--effects", help="comma list of effects to add to the base model")
+    f.add_argument("--without", help="comma list of effects to remove from the base model")
+    f.add_argument("--set", action="append", metavar="NAME=VALUE", help="starting value (repeatable)")
+    f.add_argument("--free", help="comma list of parameters to fit (default: all that are free by default)")
+    f.add_argument("--fixed", help="comma list of parameters to hold at their starting values")
+    f.add_argument("--interval", type=int, help="samples per shooting interval (default: nearest 50 ms)")
+    f.add_argument("--horizon", type=float, default=1.0, help="validation prediction horizon, s (default 1)")
+    f.add_argument("--plots", help="folder for compare/residual plots")
+    f.add_argument("--quiet", action="store_true", help="no progress lines")
+    f.add_argument("--json", help="write the result here")
+    f.set_defaults(func=cmd_fit)
 
     d = sub.add_parser("demo", help="the greybox story on bundled data",
                        description="Simulate the bundled airframe through a short manoeuvre and plot it.")

@@ -43,10 +43,17 @@ from .integrate import n_substeps, rk4_step
 from .model import OUTPUTS, QuadrotorModel, euler_rate_matrix
 
 __all__ = ["fit", "FitResult", "GreyBoxEstimator", "estimate_noise", "initial_node_states",
-           "DEFAULT_INTERVAL", "MANOEUVRE_ADVICE"]
+           "DEFAULT_INTERVAL_S", "default_interval", "MANOEUVRE_ADVICE"]
 
-DEFAULT_INTERVAL = 50
-"""Samples per shooting interval (chosen by ``experiments/bench_fit.py``)."""
+DEFAULT_INTERVAL_S = 0.05
+"""Default shooting interval in seconds: 50 samples at 1 kHz, chosen by
+``experiments/bench_fit.py``; at other rates the nearest whole number of samples."""
+
+
+def default_interval(logs: "Sequence[FlightLog]") -> int:
+    """Samples per shooting interval closest to :data:`DEFAULT_INTERVAL_S`."""
+    dt = float(np.median(np.concatenate([np.diff(l.t) for l in logs])))
+    return max(1, int(round(DEFAULT_INTERVAL_S / dt)))
 
 PSI = OUTPUTS.index("psi")
 
@@ -165,7 +172,7 @@ class FitResult:
     warnings: list[str] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
     evaluator: str = ""
-    interval: int = DEFAULT_INTERVAL
+    interval: int = 50
 
     @property
     def parameters(self) -> dict[str, dict[str, float | None]]:
@@ -450,7 +457,7 @@ def _progress_printer(stream=None) -> Callable[[str], None]:
 
 def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free: Iterable[str] | None = None,
         fixed: Iterable[str] | None = None, p0: np.ndarray | Mapping[str, float] | None = None,
-        interval: int = DEFAULT_INTERVAL, noise: Mapping[str, float] | None = None,
+        interval: int | None = None, noise: Mapping[str, float] | None = None,
         max_iter: int = 60, tol: float = 1e-7, reweight: bool = True, compile: str = "auto",
         progress: bool | Callable[[str], None] = False, initial_states: Sequence[np.ndarray] | None = None
         ) -> FitResult:
@@ -464,7 +471,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         free / fixed: parameter (or component) names to estimate / hold. Default: every
             parameter whose ``Parameter.free`` is set (``J_r`` is fixed by default).
         p0: starting values (flat vector or ``{name: value}``); default the airframe's guesses.
-        interval: samples per shooting interval.
+        interval: samples per shooting interval (default: the number nearest 50 ms).
         noise: channel noise standard deviations ``{"x": 0.003, ...}``; others are estimated.
         reweight: re-estimate channel noise from the residuals and solve again.
         compile: ``"auto"`` (compile the interval function to C when a compiler exists) or ``"never"``.
@@ -476,6 +483,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     logs = [logs] if isinstance(logs, FlightLog) else list(logs)
     if not logs:
         raise GreyboxInputError("no flight logs to fit")
+    if interval is None:
+        interval = default_interval(logs)
     if interval < 1:
         raise GreyboxInputError(f"interval must be >= 1 sample, got {interval}")
     for log in logs:
@@ -567,22 +576,32 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             G[:, nx:, nx:] = np.eye(nth)
             cz = np.zeros((n_int, nz))
             cz[:, :nx] = c
-            sol = kkt.solve(H, gg, G, cz, mu)
-            dz = sol[(kkt.znodes[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
+            # parameters on a bound whose step points outward are held (active set)
+            frozen = np.zeros(nth, dtype=bool)
+            for _ in range(nth + 1):
+                Hf = H
+                if frozen.any():
+                    Hf = H.copy()
+                    big = 1e12 * (1.0 + np.abs(np.einsum("kii->ki", H)).max())
+                    Hf[0, nx + np.flatnonzero(frozen), nx + np.flatnonzero(frozen)] += big
+                sol = kkt.solve(Hf, gg, G, cz, mu)
+                dz = sol[(kkt.znodes[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
+                dth = dz[0, nx:]
+                out = ((th <= lo_s + 1e-12) & (dth < 0)) | ((th >= hi_s - 1e-12) & (dth > 0))
+                if not (out & ~frozen).any():
+                    break
+                frozen |= out
+            dth = np.where(frozen, 0.0, dth)
             lam = sol[(kkt.lams[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
-            dX, dth = dz[:, :nx], dz[0, nx:]
+            dX = dz[:, :nx]
             rho = np.maximum(rho, 2.0 * np.abs(lam[:, :nx]) + 1e-8)
             merit0 = cost + float((rho * np.abs(c)).sum())
             slope = float((gg * dz).sum()) - float((rho * np.abs(c)).sum())
             alpha, accepted = 1.0, False
-            # keep parameters inside their bounds
-            with np.errstate(divide="ignore", invalid="ignore"):
-                lim = np.where(dth > 0, (hi_s - th) / dth, np.where(dth < 0, (lo_s - th) / dth, np.inf))
-            alpha = min(1.0, 0.99 * float(np.min(lim)) if np.isfinite(np.min(lim)) else 1.0)
-            alpha = max(alpha, 0.0)
             trial_blocks = None
-            for ls in range(12):
-                Xt, tht = X + alpha * dX, th + alpha * dth
+            for ls in range(14):
+                # projected step: parameters are clipped onto their bounds
+                Xt, tht = X + alpha * dX, np.clip(th + alpha * dth, lo_s, hi_s)
                 if ls == 0:  # the full step is usually taken: its blocks serve the next iteration
                     trial_blocks = evaluate(Xt, tht)
                     xe_t, c_t = trial_blocks[0], trial_blocks[4]
@@ -595,7 +614,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
                     accepted = True
                     break
                 alpha *= 0.5
-            step_size = float(np.max(np.abs(alpha * dth))) if nth else 0.0
+            step_size = float(np.max(np.abs(tht - th))) if nth else 0.0
             if not accepted:
                 if mu > 1e6:
                     status = "line search failed: no decrease along the Gauss-Newton direction"

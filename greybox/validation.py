@@ -1,0 +1,274 @@
+"""Validation: k-step-ahead prediction, ``nrmse``, ``compare`` and residual plots.
+
+How a prediction window is initialised (documented contract of ``nrmse``): the validation
+log is cut into consecutive windows of ``horizon`` seconds (default 1 s). The state at the
+start of each window is a *moving-horizon estimate* from the ``init_window`` seconds of
+measurements just before it (default 0.5 s): a small Gauss–Newton fit of the state at the
+start of that stretch, with the model's parameters held, propagated to the window start.
+Only past data enter the initial state; the model then predicts the whole window open loop
+from the logged inputs, and the prediction errors over the window are scored.
+
+``nrmse`` of a channel is the RMS of its prediction errors (over every measured sample in
+every window) divided by the RMS of the measured signal's variation about its mean over the
+same samples; the total ``nrmse`` is the mean over the channels. ``fit`` percent is
+MATLAB's ``100 * (1 - nrmse)``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+
+from .data import FlightLog
+from .errors import GreyboxInputError
+from .fitting import _ShootingProblem, estimate_noise, initial_node_states
+from .integrate import n_substeps, rk4_step
+from .model import OUTPUTS, QuadrotorModel
+
+__all__ = ["Prediction", "predict", "nrmse", "compare_plot", "residual_plot", "estimate_states",
+           "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW"]
+
+DEFAULT_HORIZON = 1.0
+DEFAULT_INIT_WINDOW = 0.5
+PSI = OUTPUTS.index("psi")
+
+
+@dataclass
+class Prediction:
+    """k-step-ahead predictions of a model on a log."""
+
+    log: FlightLog
+    predicted: np.ndarray            # (n, 9) predictions, NaN outside windows
+    windows: list[tuple[int, int]]   # [start, stop) sample indices
+    channels: list[str]              # channels scored (measured in the log)
+    nrmse: dict[str, float]          # per channel
+    total: float                     # mean over channels
+    horizon: float
+    errors: np.ndarray = field(repr=False, default=None)   # (n, 9) measured - predicted (psi wrapped)
+
+    @property
+    def fit_percent(self) -> dict[str, float]:
+        return {c: 100.0 * (1.0 - v) for c, v in self.nrmse.items()}
+
+    def as_dict(self) -> dict:
+        return {"nrmse": self.total, "channels": dict(self.nrmse), "horizon": self.horizon,
+                "windows": len(self.windows)}
+
+
+def _windows(t: np.ndarray, L: int, horizon: float) -> list[tuple[int, int]]:
+    out = []
+    k = L
+    while k < t.size - 2:
+        ke = int(np.searchsorted(t, t[k] + horizon - 1e-9, side="right"))
+        ke = min(max(ke, k + 2), t.size)
+        out.append((k, ke))
+        k = ke
+    return out
+
+
+def _sigma(log: FlightLog) -> np.ndarray:
+    s = np.ones(len(OUTPUTS))
+    for c, name in enumerate(OUTPUTS):
+        if name in log.output_names:
+            v = estimate_noise(log.output(name))
+            s[c] = v if np.isfinite(v) and v > 0 else 1.0
+    return np.maximum(s, 1e-4)
+
+
+def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts: Sequence[int],
+                    L: int, sigma: np.ndarray | None = None, iterations: int = 10,
+                    compile: str = "auto") -> np.ndarray:
+    """Moving-horizon state estimates at samples ``starts``: for each, the state at
+    ``start - L`` is fitted (parameters held) to the ``L`` samples before ``start`` and
+    integrated to ``start``. Returns (len(starts), nx)."""
+    starts = np.asarray(starts, dtype=int)
+    if np.any(starts < L):
+        raise GreyboxInputError("state estimation needs L samples before every start")
+    sigma = _sigma(log) if sigma is None else sigma
+    n_sub = n_substeps(float(np.diff(log.t).max()))
+    prob = _ShootingProblem(model, [], L, n_sub, compile)
+    nW = starts.size
+    Fb, Fv = prob.mapped(nW)
+    idx = (starts[:, None] - L + np.arange(L)[None, :]).ravel()
+    Y = np.full((idx.size, model.ny), np.nan)
+    for c, name in enumerate(OUTPUTS):
+        if name in log.output_names:
+            Y[:, c] = log.output(name)[idx]
+    mask = np.isfinite(Y)
+    W = np.where(mask, 1.0 / sigma[None, :], 0.0).T
+    Y = np.where(mask, Y, 0.0).T
+    U = log.inputs[idx].T
+    T = log.t[idx][None, :]
+    h = (log.t[idx + 1] - log.t[idx])[None, :]
+    args = (np.zeros(0), np.zeros(0), p, U, T, h, Y, W)
+    X = initial_node_states(model, log, starts - L, p)
+    nx = model.nx
+    mu = np.full(nW, 1e-3)
+    xe, S, H, g, c = Fb(X.T, *args)
+    H = np.asarray(H).reshape(nx, nW, nx).transpose(1, 0, 2)
+    g = np.asarray(g).T
+    cost = np.asarray(c).sum(axis=0)
+    xe = np.asarray(xe).T
+    for _ in range(iterations):
+        d = np.einsum("kii->ki", H)
+        A = H + (mu[:, None] * d + 1e-9 * (1 + d.max(axis=1, keepdims=True)))[:, :, None] * np.eye(nx)
+        dx = -np.linalg.solve(A, g[:, :, None])[:, :, 0]
+        Xt = X + dx
+        xe_t, S_t, H_t, g_t, c_t = Fb(Xt.T, *args)
+        cost_t = np.asarray(c_t).sum(axis=0)
+        ok = np.isfinite(cost_t) & (cost_t <= cost)
+        X[ok] = Xt[ok]
+        cost[ok] = cost_t[ok]
+        H_t = np.asarray(H_t).reshape(nx, nW, nx).transpose(1, 0, 2)
+        H[ok], g[ok] = H_t[ok], np.asarray(g_t).T[ok]
+        xe[ok] = np.asarray(xe_t).T[ok]
+        mu = np.where(ok, np.maximum(mu / 5, 1e-9), mu * 10)
+    return xe
+
+
+def _prediction_function(model: QuadrotorModel, n_steps: int, n_sub: int, n_windows: int) -> ca.Function:
+    step = rk4_step(model, n_sub)
+    x = ca.SX.sym("x", model.nx)
+    u = ca.SX.sym("u", model.nu)
+    p = ca.SX.sym("p", model.n_params)
+    t = ca.SX.sym("t")
+    h = ca.SX.sym("h")
+    f = ca.Function("pred_step", [x, u, p, t, h], [step(x, u, p, t, h), model.output(x, u, p, t)])
+    acc = f.mapaccum("pred", n_steps, [0], [0])
+    X0 = ca.MX.sym("x0", model.nx)
+    U = ca.MX.sym("U", model.nu, n_steps)
+    P = ca.MX.sym("p", model.n_params)
+    T = ca.MX.sym("T", 1, n_steps)
+    Hs = ca.MX.sym("h", 1, n_steps)
+    _, Y = acc(X0, U, ca.repmat(P, 1, n_steps), T, Hs)
+    return ca.Function("predict", [X0, U, P, T, Hs], [Y]).map(n_windows, "thread", 2)
+
+
+def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,
+            init_window: float = DEFAULT_INIT_WINDOW, sigma: np.ndarray | None = None,
+            compile: str = "auto") -> Prediction:
+    """k-step-ahead prediction of ``model`` with parameters ``p`` on ``log`` (see module doc)."""
+    if log.input_names != model.input_names:
+        raise GreyboxInputError(f"{log.source or 'log'}: inputs {log.input_names} do not match the "
+                                f"model's {model.input_names}")
+    p = np.asarray(p, dtype=float)
+    t = log.t
+    dt = float(np.median(np.diff(t)))
+    L = max(int(round(init_window / dt)), 3)
+    wins = _windows(t, L, horizon)
+    if not wins:
+        raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
+                                f"{init_window + 2 * dt:.3f} s")
+    starts = np.array([a for a, _ in wins])
+    x0 = estimate_states(model, p, log, starts, L, sigma, compile=compile)
+    n_steps = max(b - a for a, b in wins)
+    n_sub = n_substeps(float(np.diff(t).max()))
+    F = _prediction_function(model, n_steps, n_sub, len(wins))
+    idx = np.array([np.minimum(a + np.arange(n_steps), t.size - 1) for a, _ in wins])   # (nW, n_steps)
+    nxt = np.minimum(idx + 1, t.size - 1)
+    h = t[nxt] - t[idx]
+    U = log.inputs[idx.ravel()].T
+    Yp = np.asarray(F(x0.T, U, p, t[idx.ravel()][None, :], h.ravel()[None, :]))   # (ny, nW*n_steps)
+    Yp = Yp.reshape(model.ny, len(wins), n_steps)
+    pred = np.full((t.size, model.ny), np.nan)
+    for w, (a, b) in enumerate(wins):
+        pred[a:b] = Yp[:, w, :b - a].T
+    meas = np.full((t.size, model.ny), np.nan)
+    for c, name in enumerate(OUTPUTS):
+        if name in log.output_names:
+            meas[:, c] = log.output(name)
+    err = meas - pred
+    err[:, PSI] = np.arctan2(np.sin(err[:, PSI]), np.cos(err[:, PSI]))
+    scores, channels = {}, []
+    for c, name in enumerate(OUTPUTS):
+        k = np.isfinite(err[:, c])
+        if k.sum() < 3:
+            continue
+        ref = meas[k, c]
+        if c == PSI:
+            ref = np.unwrap(ref)
+        spread = float(np.sqrt(np.mean((ref - ref.mean()) ** 2)))
+        rms = float(np.sqrt(np.mean(err[k, c] ** 2)))
+        scores[name] = rms / spread if spread > 0 else float("inf")
+        channels.append(name)
+    if not scores:
+        raise GreyboxInputError(f"{log.source or 'log'}: no measured channel to validate against")
+    total = float(np.mean(list(scores.values())))
+    return Prediction(log, pred, wins, channels, scores, total, horizon, err)
+
+
+def nrmse(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,
+          **kw) -> dict:
+    """``{"nrmse": total, "channels": {name: value}}`` of the k-step-ahead prediction."""
+    pr = predict(model, p, log, horizon, **kw)
+    return {"nrmse": pr.total, "channels": dict(pr.nrmse)}
+
+
+# ------------------------------------------------------------------------------ plots
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def compare_plot(pred: Prediction | Sequence[Prediction], path: str | Path,
+                 labels: Sequence[str] | None = None, title: str = "") -> Path:
+    """Measured vs predicted per channel (MATLAB's ``compare``), written to ``path`` (PNG)."""
+    plt = _plt()
+    preds = [pred] if isinstance(pred, Prediction) else list(pred)
+    labels = list(labels or [f"model {i + 1}" for i in range(len(preds))])
+    chans = preds[0].channels
+    fig, axs = plt.subplots(len(chans), 1, figsize=(10, 1.7 * len(chans) + 0.8), sharex=True)
+    axs = np.atleast_1d(axs)
+    log = preds[0].log
+    for ax, ch in zip(axs, chans):
+        c = OUTPUTS.index(ch)
+        y = log.output(ch)
+        k = np.isfinite(y)
+        ax.plot(log.t[k], y[k], ".", ms=1.5, color="0.4", label="measured")
+        for pr, lab in zip(preds, labels):
+            ax.plot(log.t, pr.predicted[:, c], lw=1.0,
+                    label=f"{lab} (fit {pr.fit_percent.get(ch, float('nan')):.1f} %)")
+        for a, _ in preds[0].windows:
+            ax.axvline(log.t[a], color="0.85", lw=0.5, zorder=0)
+        ax.set_ylabel(ch)
+        ax.legend(fontsize=7, loc="upper right")
+    axs[-1].set_xlabel("t (s)")
+    fig.suptitle(title or f"{preds[0].horizon:g} s-ahead prediction vs measurement "
+                 "(grey lines: window starts)", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def residual_plot(pred: Prediction, path: str | Path) -> Path:
+    """Prediction errors against time, and their histograms, per channel."""
+    plt = _plt()
+    chans = pred.channels
+    fig, axs = plt.subplots(len(chans), 2, figsize=(10, 1.6 * len(chans) + 0.8),
+                            gridspec_kw={"width_ratios": [4, 1]})
+    axs = np.atleast_2d(axs)
+    for row, ch in zip(axs, chans):
+        c = OUTPUTS.index(ch)
+        e = pred.errors[:, c]
+        k = np.isfinite(e)
+        row[0].plot(pred.log.t[k], e[k], lw=0.6)
+        row[0].axhline(0, color="k", lw=0.5)
+        row[0].set_ylabel(f"{ch} error")
+        row[1].hist(e[k], bins=40, orientation="horizontal", color="C1")
+    axs[-1, 0].set_xlabel("t (s)")
+    fig.suptitle("prediction residuals (measured - predicted)", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -1,0 +1,164 @@
+"""Multiple-shooting fitting: recovered parameters, honest uncertainties, failures reported."""
+import json
+
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel
+from greybox.cli import main
+from greybox.data import save_log
+from greybox.errors import GreyboxInputError
+from greybox.fitting import GreyBoxEstimator, estimate_noise, fit
+from greybox.synth import SensorSpec, model_with_hidden_effects, synthesize
+from greybox.validation import compare_plot, predict, residual_plot
+
+from conftest import AIRFRAMES, make_airframe
+
+OFF = {"K_T": 2.395e-5 * 1.35, "b": 6.8429e-7 * 0.65, "Kd": [0.14, 0.06, 0.2]}
+
+
+@pytest.fixture(scope="module")
+def paper_model():
+    from greybox import load_airframe
+    return QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+
+
+@pytest.fixture(scope="module")
+def flight(paper_model):
+    return synthesize(paper_model, duration=16.0, seed=11)
+
+
+def test_estimate_noise_of_white_noise_on_a_smooth_signal():
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 10, 5000)
+    y = np.sin(t) + 0.01 * rng.standard_normal(t.size)
+    y[::3] = np.nan
+    assert estimate_noise(y) == pytest.approx(0.01, rel=0.08)
+
+
+def test_fit_recovers_base_parameters_from_far_off(paper_model, flight):
+    est, _ = flight.log.split()
+    res = fit(paper_model, est, p0=OFF)
+    truth = paper_model.parameter_dict(flight.parameters)
+    assert res.converged and res.free_names == ["K_T", "b", "Kd[0]", "Kd[1]", "Kd[2]"]
+    for name, tol in [("K_T", 0.01), ("b", 0.01), ("Kd[0]", 0.10), ("Kd[1]", 0.10), ("Kd[2]", 0.10)]:
+        v, s = res.value(name), res.std[res.free_names.index(name)]
+        assert abs(v - truth[name]) < tol * abs(truth[name]), name
+        assert abs(v - truth[name]) < 4.5 * s, (name, v, truth[name], s)   # honest std
+    assert res.sigma["x"] == pytest.approx(0.003, rel=0.2)
+    assert res.parameters["J_r"]["std"] is None        # fixed by default
+    assert np.allclose(np.diag(res.correlation), 1.0)
+
+
+def test_several_flights_share_parameters(paper_model, flight):
+    other = synthesize(paper_model, duration=10.0, seed=12)
+    one = fit(paper_model, flight.log.split()[0], p0=OFF)
+    both = fit(paper_model, [flight.log.split()[0], other.log], p0=OFF)
+    assert both.converged and len(both.node_states) == 2
+    assert np.all(both.std < one.std)                 # more data, smaller uncertainty
+    assert both.value("K_T") == pytest.approx(2.395e-5, rel=0.005)
+
+
+def test_fixed_and_free_parameters(paper_model, flight):
+    est, _ = flight.log.split()
+    res = fit(paper_model, est, fixed=["Kd"], p0={"Kd": [0.1, 0.1, 0.15]})
+    assert res.free_names == ["K_T", "b"]
+    assert res.value("Kd[2]") == 0.15
+    res = fit(paper_model, est, free=["K_T", "Kd[2]"])
+    assert res.free_names == ["K_T", "Kd[2]"]
+    with pytest.raises(GreyboxInputError, match="unknown parameter 'K_TT'"):
+        fit(paper_model, est, free=["K_TT"])
+
+
+def test_fit_a_hidden_effect_parameter(paper_model):
+    truth, p = model_with_hidden_effects(paper_model, ["ground_effect"])
+    log = synthesize(truth, p, duration=14.0, seed=5, manoeuvres=["ground", "step_x", "step_z"]).log
+    res = fit(truth, log)
+    k_true = truth.parameter_dict(p)["k_ge"]
+    assert res.value("k_ge") == pytest.approx(k_true, rel=0.05)
+    assert res.value("K_T") == pytest.approx(2.395e-5, rel=0.01)
+
+
+def test_fit_at_100_hz_with_sub_steps(paper_model):
+    s = SensorSpec(rate=100.0, vision_rate=50.0, dropout=0.0)
+    log = synthesize(paper_model, duration=20.0, seed=3, sensors=s).log
+    res = fit(paper_model, log, p0=OFF)
+    assert res.converged
+    assert res.value("K_T") == pytest.approx(2.395e-5, rel=0.01)
+    assert res.value("b") == pytest.approx(6.8429e-7, rel=0.03)
+
+
+def test_hover_only_flight_warns_about_drag(paper_model):
+    log = synthesize(paper_model, duration=8.0, seed=2, manoeuvres=["hover"], excitation=0.01).log
+    res = fit(paper_model, log)
+    text = " ".join(res.warnings)
+    assert "Kd" in text and ("poorly determined" in text or "correlated" in text)
+
+
+def test_solver_failure_is_reported(paper_model, flight, tmp_path, capsys):
+    res = fit(paper_model, flight.log, p0=OFF, max_iter=1, reweight=False)
+    assert not res.converged and "maximum iterations" in res.status
+    assert any("did not converge" in w for w in res.warnings)
+
+
+def test_prediction_scores_true_model_better_than_wrong(paper_model, flight, tmp_path):
+    _, val = flight.log.split()
+    good = predict(paper_model, flight.parameters, val)
+    wrong = predict(paper_model, paper_model.parameter_vector({"K_T": 2.395e-5 * 1.1}), val)
+    assert good.total < 0.5 * wrong.total
+    # the true model predicts attitude to within the sensor noise (0.003 rad)
+    e = good.errors[:, 3]
+    assert np.sqrt(np.nanmean(e ** 2)) == pytest.approx(0.003, rel=0.25)
+    assert len(good.windows) >= 2
+    assert set(good.channels) == {"x", "y", "z", "phi", "theta", "psi", "p", "q", "r"}
+    assert compare_plot([good, wrong], tmp_path / "c.png", ["truth", "K_T +10%"]).stat().st_size > 10000
+    assert residual_plot(good, tmp_path / "r.png").exists()
+
+
+def test_estimator_api(paper_model, flight):
+    est, val = flight.log.split()
+    e = GreyBoxEstimator(paper_model, p0=OFF).fit(est)
+    assert e.params_["K_T"] == pytest.approx(2.395e-5, rel=0.01) and "Kd[0]" in e.std_
+    assert e.score(val) < 0.5
+
+
+def test_fit_cli_json_contract(paper_model, flight, tmp_path, paper_airframe_path):
+    save_log(flight.log, tmp_path / "f.csv")
+    rc = main(["fit", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--quiet",
+               "--set", "K_T=3e-5", "--json", str(tmp_path / "r.json"), "--plots", str(tmp_path / "plots")])
+    assert rc == 0
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert set(r) >= {"parameters", "validation", "effects"}
+    assert r["effects"] == ["yaw_torque", "linear_drag", "gyroscopic"]
+    assert r["parameters"]["K_T"]["value"] == pytest.approx(2.395e-5, rel=0.01)
+    assert r["parameters"]["K_T"]["std"] > 0
+    assert {"Kd[0]", "Kd[1]", "Kd[2]"} <= set(r["parameters"])
+    assert set(r["validation"]["channels"]) >= {"x", "y", "z", "phi", "theta", "psi"}
+    assert r["validation"]["nrmse"] == pytest.approx(np.mean(list(r["validation"]["channels"].values())))
+    assert (tmp_path / "plots" / "compare.png").exists()
+
+
+@pytest.mark.parametrize("rows, message", [
+    (30, "too short to fit: 30 samples"),
+])
+def test_fit_cli_too_short(tmp_path, flight, paper_airframe_path, capsys, rows, message):
+    save_log(flight.log.slice(0, rows), tmp_path / "f.csv")
+    rc = main(["fit", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--json", str(tmp_path / "r.json")])
+    assert rc == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_fit_cli_bad_log(tmp_path, paper_airframe_path, capsys):
+    (tmp_path / "f.csv").write_text("t,w1,w2,w3,w4,x,y,z,phi,theta\n0,1,1,1,1,0,0,0,0,0\n")
+    rc = main(["fit", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--json", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "missing required column 'psi'" in err and "Traceback" not in err
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_fit_cli_wrong_rotor_count(tmp_path, flight, capsys):
+    (tmp_path / "hex.toml").write_text("[airframe]\nmass=1\ninertia=[0.01,0.01,0.02]\n" + "".join(
+        f"[[rotor]]\nposition=[{np.cos(k):.3f},{np.sin(k):.3f},0]\nspin={(-1) ** k}\n" for k in range(6)))
+    save_log(flight.log, tmp_path / "f.csv")
+    rc = main(["fit", str(tmp_path / "f.csv"), "--airframe", str(tmp_path / "hex.toml")])
+    assert rc == 2 and "6 rotors" in capsys.readouterr().err
