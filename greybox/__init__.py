@@ -13,7 +13,10 @@ from .data import FlightLog, load_log, save_log  # noqa: E402
 from .errors import GreyboxError, GreyboxInputError, SolverError  # noqa: E402
 from .integrate import simulate  # noqa: E402
 from .model import QuadrotorModel  # noqa: E402
+from .fitting import FitResult, GreyBoxEstimator, fit  # noqa: E402
+from .validation import Prediction, compare_plot, nrmse, predict, residual_plot  # noqa: E402
 
 __all__ = ["effects", "Airframe", "load_airframe", "FlightLog", "load_log", "save_log",
            "GreyboxError", "GreyboxInputError", "SolverError", "simulate", "QuadrotorModel",
-           "__version__"]
+           "fit", "FitResult", "GreyBoxEstimator", "Prediction", "predict", "nrmse", "compare_plot",
+           "residual_plot", "__version__"]

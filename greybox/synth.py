@@ -209,7 +209,8 @@ def model_with_hidden_effects(base: QuadrotorModel, hidden: Iterable[str],
 
 def synthesize(model: QuadrotorModel, parameters: np.ndarray | None = None, duration: float = 50.0,
                sensors: SensorSpec | None = None, manoeuvres: Sequence[str] = MANOEUVRES,
-               seed: int = 0, excitation: float = 0.03, altitude: float = 1.0) -> SynthResult:
+               seed: int = 0, excitation: float = 0.03, altitude: float = 1.0,
+               noise_seed: int | None = None) -> SynthResult:
     """Fly ``model`` (with true ``parameters``) closed loop and log it with sensor noise.
 
     Args:
@@ -219,6 +220,8 @@ def synthesize(model: QuadrotorModel, parameters: np.ndarray | None = None, dura
         sensors: rates and noise levels.
         manoeuvres: the manoeuvres to cycle through (see :data:`MANOEUVRES`).
         seed: seeds every random choice (manoeuvre order, excitation, noise, dropouts).
+        noise_seed: if given, sensor noise and dropouts come from this seed instead, so that
+            several noise realisations of the same flight can be drawn.
         excitation: RMS of the relative rotor-speed excitation added to the commands.
         altitude: hover height above the ground plane, m.
     """
@@ -269,6 +272,8 @@ def synthesize(model: QuadrotorModel, parameters: np.ndarray | None = None, dura
     Y = np.asarray(model.output.map(n)(X.T, W.T, np.tile(p[:, None], (1, n)), t[None, :])).T
 
     # sensors
+    if noise_seed is not None:
+        rng = np.random.default_rng([seed, noise_seed])
     Ymeas = Y.copy()
     Ymeas[:, 0:3] += sensors.pos_noise * rng.standard_normal((n, 3))
     Ymeas[:, 3:6] += sensors.att_noise * rng.standard_normal((n, 3))
