@@ -216,6 +216,16 @@ def _plt():
     return plt
 
 
+def _save(fig, path: str | Path) -> Path:
+    """Lay out, write (PNG) and close a figure."""
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    _plt().close(fig)
+    return path
+
+
 def compare_plot(pred: Prediction | Sequence[Prediction], path: str | Path,
                  labels: Sequence[str] | None = None, title: str = "") -> Path:
     """Measured vs predicted per channel (MATLAB's ``compare``), written to ``path`` (PNG)."""
@@ -241,12 +251,7 @@ def compare_plot(pred: Prediction | Sequence[Prediction], path: str | Path,
     axs[-1].set_xlabel("t (s)")
     fig.suptitle(title or f"{preds[0].horizon:g} s-ahead prediction vs measurement "
                  "(grey lines: window starts)", fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def residual_plot(pred: Prediction, path: str | Path) -> Path:
@@ -266,9 +271,4 @@ def residual_plot(pred: Prediction, path: str | Path) -> Path:
         row[1].hist(e[k], bins=40, orientation="horizontal", color="C1")
     axs[-1, 0].set_xlabel("t (s)")
     fig.suptitle("prediction residuals (measured - predicted)", fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
