@@ -224,7 +224,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     est, val = log.split(0.8)
     p0 = model.parameter_vector(parse_sets(args.set))
     res = fit(model, est, free=_names(args.free), fixed=_names(args.fixed), p0=p0,
-              interval=args.interval, progress=not args.quiet)
+              interval=args.interval, max_iter=args.max_iter, progress=not args.quiet)
     if not res.converged:
         raise GreyboxError(f"fit did not converge: {res.status}")
     pred = predict(model, res.p, val, horizon=args.horizon)
@@ -298,6 +298,7 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--free", help="comma list of parameters to fit (default: all that are free by default)")
     f.add_argument("--fixed", help="comma list of parameters to hold at their starting values")
     f.add_argument("--interval", type=int, help="samples per shooting interval (default: nearest 50 ms)")
+    f.add_argument("--max-iter", type=int, default=60, help="Gauss-Newton iteration limit (default 60)")
     f.add_argument("--horizon", type=float, default=1.0, help="validation prediction horizon, s (default 1)")
     f.add_argument("--plots", help="folder for compare/residual plots")
     f.add_argument("--quiet", action="store_true", help="no progress lines")

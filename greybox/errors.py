@@ -17,3 +17,7 @@ class GreyboxInputError(GreyboxError, ValueError):
 
 class SolverError(GreyboxError, RuntimeError):
     """A numerical solver failed; the message carries the solver's own reason."""
+
+
+class ConvergenceWarning(UserWarning):
+    """A fit stopped before converging; its result says why (``FitResult.status``)."""

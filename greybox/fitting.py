@@ -38,7 +38,7 @@ from scipy.signal import savgol_filter
 
 from .codegen import compiled
 from .data import FlightLog
-from .errors import GreyboxInputError, SolverError
+from .errors import ConvergenceWarning, GreyboxInputError, SolverError
 from .integrate import n_substeps, rk4_step
 from .model import OUTPUTS, QuadrotorModel, euler_rate_matrix
 
@@ -685,6 +685,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     warnings += _identifiability_warnings(free_names, p_out[free_idx], std, corr, P)
     if not converged:
         warnings.insert(0, f"solver did not converge: {status}")
+        import warnings as _w
+        _w.warn(f"fit did not converge: {status}", ConvergenceWarning, stacklevel=2)
 
     cc = cch.sum(axis=1)
     n_c = data.mask.sum(axis=1)

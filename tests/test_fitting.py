@@ -96,7 +96,9 @@ def test_hover_only_flight_warns_about_drag(paper_model):
 
 
 def test_solver_failure_is_reported(paper_model, flight, tmp_path, capsys):
-    res = fit(paper_model, flight.log, p0=OFF, max_iter=1, reweight=False)
+    from greybox.errors import ConvergenceWarning
+    with pytest.warns(ConvergenceWarning, match="maximum iterations"):
+        res = fit(paper_model, flight.log, p0=OFF, max_iter=1, reweight=False)
     assert not res.converged and "maximum iterations" in res.status
     assert any("did not converge" in w for w in res.warnings)
 
@@ -162,3 +164,12 @@ def test_fit_cli_wrong_rotor_count(tmp_path, flight, capsys):
     save_log(flight.log, tmp_path / "f.csv")
     rc = main(["fit", str(tmp_path / "f.csv"), "--airframe", str(tmp_path / "hex.toml")])
     assert rc == 2 and "6 rotors" in capsys.readouterr().err
+
+
+def test_fit_cli_non_convergence_is_an_error(tmp_path, flight, paper_airframe_path, capsys):
+    save_log(flight.log, tmp_path / "f.csv")
+    rc = main(["fit", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--quiet",
+               "--set", "K_T=3.2e-5", "--max-iter", "1", "--json", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "did not converge: maximum iterations reached" in err and "Traceback" not in err
+    assert not (tmp_path / "r.json").exists()
