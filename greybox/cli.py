@@ -241,6 +241,32 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_linearize(args: argparse.Namespace) -> int:
+    from .linearize import hover_trim, linearize
+    model = build_model(args.airframe, args.effects, args.without)
+    p = model.parameter_vector(parse_sets(args.set))
+    at = [0.0, 0.0, None] if args.at is None else _floats(args.at, 3, "--at")
+    x_t, u_t = hover_trim(model, p, position=at, psi=args.psi)
+    lin = linearize(model, p, x_t, u_t)
+    out = {"states": lin.state_names, "inputs": lin.input_names, "x_trim": x_t.tolist(),
+           "u_trim": u_t.tolist(), "A": lin.A.tolist(), "B": lin.B.tolist(),
+           "outputs": lin.output_names, "C": lin.C.tolist(), "D": lin.D.tolist(),
+           "effects": model.effect_names, "parameters": model.parameter_dict(p)}
+    print("hover trim: " + ", ".join(f"{n}={v:.6g}" for n, v in zip(lin.input_names, u_t)), file=sys.stderr)
+    write_json(args.json, out)
+    return 0
+
+
+def _floats(text: str, n: int, opt: str) -> list[float]:
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise GreyboxInputError(f"{opt} {text!r}: expected {n} comma-separated numbers") from None
+    if len(vals) != n:
+        raise GreyboxInputError(f"{opt} needs {n} values, got {len(vals)}")
+    return vals
+
+
 # ---------------------------------------------------------------------------- parser
 def _parser() -> argparse.ArgumentParser:
     ap = _Parser(prog="greybox", description="Grey-box system identification of quadrotors.")
@@ -304,6 +330,18 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--quiet", action="store_true", help="no progress lines")
     f.add_argument("--json", help="write the result here")
     f.set_defaults(func=cmd_fit)
+
+    z = sub.add_parser("linearize", help="hover trim and continuous-time Jacobians",
+                       description="Hover trim of the composed model and its continuous-time Jacobians "
+                                   "A = df/dx, B = df/du (and C, D of the measurement map).")
+    z.add_argument("--airframe", required=True)
+    z.add_argument("--effects", help="comma list of effects to add to the base model")
+    z.add_argument("--without", help="comma list of effects to remove from the base model")
+    z.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter value (repeatable)")
+    z.add_argument("--at", help="hover position x,y,z (NED; default 0,0 and 1 m above the ground plane)")
+    z.add_argument("--psi", type=float, default=0.0, help="hover heading, rad (default 0)")
+    z.add_argument("--json", required=True, help="write the result here")
+    z.set_defaults(func=cmd_linearize)
 
     d = sub.add_parser("demo", help="the greybox story on bundled data",
                        description="Simulate the bundled airframe through a short manoeuvre and plot it.")

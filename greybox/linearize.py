@@ -1,0 +1,135 @@
+"""Trim and symbolic linearisation of a composed model.
+
+:func:`hover_trim` finds rotor speeds (and the roll/pitch and effect states) at which the
+vehicle hovers still at a given place: in closed form for a symmetric airframe whose model
+has no effect that shifts the balance, otherwise by solving ``xdot = 0`` with IPOPT for the
+rotor speeds closest to equal (e.g. ``cog_offset`` or ``motor_asymmetry`` need unequal
+speeds). :func:`linearize` evaluates the CasADi Jacobians of the right-hand side and the
+measurement map at any operating point, giving a continuous-time :class:`LinearModel`
+that can be discretised (zero-order hold) or handed to python-control.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+from scipy.linalg import expm
+
+from .errors import GreyboxInputError, SolverError
+from .model import BASE_STATES, QuadrotorModel
+
+__all__ = ["hover_trim", "linearize", "LinearModel"]
+
+# effects that change where (or with which rotor speeds) a level hover balances
+_SHIFTING = {"cog_offset", "motor_asymmetry", "ground_effect", "thrust_drift", "wind"}
+
+
+@dataclass
+class LinearModel:
+    """``dx/dt = A dx + B du``, ``dy = C dx + D du`` about ``(x_op, u_op)`` (continuous),
+    or the discrete equivalent when ``dt`` is set."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    state_names: list[str]
+    input_names: list[str]
+    output_names: list[str]
+    x_op: np.ndarray
+    u_op: np.ndarray
+    dt: float | None = None
+
+    def discretize(self, dt: float) -> "LinearModel":
+        """Zero-order-hold discretisation (exact for inputs held over each step)."""
+        if self.dt is not None:
+            raise GreyboxInputError("model is already discrete")
+        n, m = self.B.shape
+        M = np.zeros((n + m, n + m))
+        M[:n, :n], M[:n, n:] = self.A, self.B
+        E = expm(M * dt)
+        return LinearModel(E[:n, :n], E[:n, n:], self.C, self.D, self.state_names, self.input_names,
+                           self.output_names, self.x_op, self.u_op, dt)
+
+    def to_control(self):
+        """A python-control ``StateSpace`` (``pip install greybox[compare]``)."""
+        try:
+            import control
+        except ImportError as e:  # pragma: no cover - depends on the optional extra
+            raise GreyboxInputError("python-control is not installed: pip install 'greybox[compare]'") from e
+        args = (self.A, self.B, self.C, self.D) + ((self.dt,) if self.dt is not None else ())
+        return control.ss(*args, states=self.state_names, inputs=self.input_names, outputs=self.output_names)
+
+
+def _closed_form_ok(model: QuadrotorModel) -> bool:
+    af = model.airframe
+    P = af.rotor_positions
+    symmetric = (np.allclose(P[:, :2].sum(axis=0), 0) and abs(af.spins.sum()) < 1e-12
+                 and np.allclose(af.inertia, np.diag(np.diag(af.inertia))))
+    return (symmetric and model.inputs == "rotor_speeds"
+            and not (_SHIFTING & set(model.effect_names)))
+
+
+def hover_trim(model: QuadrotorModel, p: np.ndarray | None = None, position=(0.0, 0.0, None),
+               psi: float = 0.0, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """``(x_trim, u_trim)`` for a still hover at ``position`` (default: 1 m above the
+    ground plane at the origin) with heading ``psi``.
+
+    Closed form ``w_i = sqrt(m g / (N K_T))`` where it applies; otherwise IPOPT solves
+    ``xdot(x, u) = 0`` for the inputs (closest to equal rotor speeds), roll, pitch and the
+    effects' states.
+    """
+    p = model.default_parameters() if p is None else np.asarray(p, dtype=float)
+    af = model.airframe
+    pos = np.array([position[0], position[1], af.ground_z - 1.0 if position[2] is None else position[2]], float)
+    x = np.zeros(12)
+    x[0:3], x[5] = pos, psi
+    if _closed_form_ok(model):
+        w = np.full(model.nu, model.hover_speed(p))
+        return model.initial_state(x, w, p), w
+    # unknowns: inputs, roll, pitch, effect states; equations: every state derivative
+    # except the position/attitude kinematics that hold trivially at rest
+    n_extra = model.nx - 12
+    u = ca.SX.sym("u", model.nu)
+    ang = ca.SX.sym("ang", 2)
+    xe = ca.SX.sym("xe", n_extra)
+    xs = ca.vertcat(ca.DM(x[0:3]), ang, psi, ca.DM.zeros(6), xe)
+    f = model.rhs(xs, u, p, t)
+    if model.inputs == "rotor_speeds":
+        u0 = np.full(model.nu, model.hover_speed(p))
+    else:
+        u0 = np.array([af.mass * af.gravity, 0.0, 0.0, 0.0])
+    scale = np.abs(u0) + (af.mass * af.gravity if model.inputs == "controls" else 0.0) + 1e-9
+    obj = ca.sumsqr((u - u0) / scale)
+    nlp = {"x": ca.vertcat(u, ang, xe), "f": obj, "g": f[6:]}
+    solver = ca.nlpsol("trim", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": False,
+                                              "ipopt.tol": 1e-12, "ipopt.sb": "yes"})
+    x0 = model.initial_state(x, u0, p)
+    sol = solver(x0=np.concatenate([u0, [0.0, 0.0], x0[12:]]), lbg=0, ubg=0)
+    z = np.asarray(sol["x"]).ravel()
+    if not solver.stats()["success"] or np.abs(np.asarray(sol["g"])).max() > 1e-7:
+        raise SolverError(f"no hover trim found: {solver.stats()['return_status']}")
+    u_t = z[:model.nu]
+    x_t = np.concatenate([x[:3], z[model.nu:model.nu + 2], [psi], np.zeros(6), z[model.nu + 2:]])
+    return x_t, u_t
+
+
+def linearize(model: QuadrotorModel, p: np.ndarray | None = None, x: np.ndarray | None = None,
+              u: np.ndarray | None = None, t: float = 0.0) -> LinearModel:
+    """Continuous-time Jacobians of ``model`` at ``(x, u)`` (default: the hover trim)."""
+    p = model.default_parameters() if p is None else np.asarray(p, dtype=float)
+    if x is None or u is None:
+        x_t, u_t = hover_trim(model, p)
+        x = x_t if x is None else x
+        u = u_t if u is None else u
+    x, u = np.asarray(x, float), np.asarray(u, float)
+    xs, us = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
+    f = model.rhs(xs, us, p, t)
+    y = model.output(xs, us, p, t)
+    J = ca.Function("linearization", [xs, us], [ca.jacobian(f, xs), ca.jacobian(f, us), ca.jacobian(y, xs), ca.jacobian(y, us)])
+    A, B, C, D = (np.asarray(M) for M in J(x, u))
+    return LinearModel(A, B, C, D, model.state_names, model.input_names, list(model.output_names), x, u)
+
+
+__all__ += ["BASE_STATES"]
