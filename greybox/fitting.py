@@ -173,6 +173,8 @@ class FitResult:
     timings: dict[str, float] = field(default_factory=dict)
     evaluator: str = ""
     interval: int = 50
+    channel_cost: dict[str, float] = field(default_factory=dict)   # sum of squared weighted residuals
+    channel_count: dict[str, int] = field(default_factory=dict)    # measured samples per channel
 
     @property
     def parameters(self) -> dict[str, dict[str, float | None]]:
@@ -455,6 +457,183 @@ def _progress_printer(stream=None) -> Callable[[str], None]:
     return say
 
 
+def _noise_levels(logs: Sequence[FlightLog], noise: Mapping[str, float] | None) -> np.ndarray:
+    sigma = np.ones(len(OUTPUTS))
+    given = dict(noise or {})
+    for c, name in enumerate(OUTPUTS):
+        if name in given:
+            sigma[c] = float(given[name])
+            continue
+        vals = [estimate_noise(l.output(name)) for l in logs if name in l.output_names]
+        vals = [v for v in vals if np.isfinite(v)]
+        sigma[c] = float(np.median(vals)) if vals else 1.0
+    floor = {"x": 1e-4, "y": 1e-4, "z": 1e-4, "phi": 1e-4, "theta": 1e-4, "psi": 1e-4,
+             "p": 1e-3, "q": 1e-3, "r": 1e-3}
+    return np.maximum(sigma, [floor[n] for n in OUTPUTS])
+
+
+class _Session:
+    """One multiple-shooting problem (model, logs, free set, weights) and its solver."""
+
+    def __init__(self, model: QuadrotorModel, logs: Sequence[FlightLog], free_idx: list[int], p: np.ndarray,
+                 sigma: np.ndarray, interval: int, compile: str, say: Callable[[str], None]):
+        self.model, self.logs, self.free_idx, self.say = model, list(logs), free_idx, say
+        params_by_comp = {n: par for par in model.parameters for n in par.component_names}
+        self.scale = np.array([max(abs(p[i]), params_by_comp[model.param_names[i]].scale) for i in free_idx])
+        lo, hi = _bounds(model)
+        self.lo_s, self.hi_s = lo[free_idx] / self.scale, hi[free_idx] / self.scale
+        self.sigma = sigma.copy()
+        self.interval = interval
+        h_max = max(float(np.diff(l.t).max()) for l in logs)
+        t0 = time.perf_counter()
+        self.prob = _ShootingProblem(model, free_idx, interval, n_substeps(h_max), compile)
+        self.t_build = time.perf_counter() - t0
+        self.data = _layout(model, logs, interval, sigma)
+        self.n_int = sum(M for _, M in self.data.flights)
+        self.F_blocks, self.F_value = self.prob.mapped(self.n_int)
+        self.kkt = _KKT(self.data.flights, model.nx, len(free_idx))
+        self.nx, self.nth, self.nz = model.nx, len(free_idx), self.prob.nz
+        self.pfix = p.copy()
+        n_nodes = self.n_int + len(self.data.flights)
+        self.last_mask = np.zeros(n_nodes, dtype=bool)
+        k = 0
+        for _, M in self.data.flights:
+            self.last_mask[k + M] = True
+            k += M + 1
+        self.nxt = self.kkt.zi + 1
+
+    def set_sigma(self, sigma: np.ndarray) -> None:
+        self.sigma = sigma.copy()
+        self.data.W = np.where(self.data.mask, 1.0 / sigma[:, None], 0.0)
+
+    def initial_nodes(self, p: np.ndarray) -> np.ndarray:
+        return np.vstack([initial_node_states(self.model, log, idx, p)
+                          for log, idx in zip(self.logs, self.data.node_index)])
+
+    def evaluate(self, X, th, blocks=True):
+        nx, nz, n_int = self.nx, self.nz, self.n_int
+        args = (X[~self.last_mask].T, th, self.scale, self.pfix, self.data.U, self.data.T, self.data.Hs,
+                self.data.Y, self.data.W)
+        if blocks:
+            xe, S, H, g, c = self.F_blocks(*args)
+            S = np.asarray(S).reshape(nx, n_int, nz).transpose(1, 0, 2)
+            H = np.asarray(H).reshape(nz, n_int, nz).transpose(1, 0, 2)
+            return np.asarray(xe).T, S, H, np.asarray(g).T, np.asarray(c)
+        xe, c = self.F_value(*args)
+        return np.asarray(xe).T, np.asarray(c)
+
+    def gaps(self, X, xe):
+        return xe - X[self.nxt]
+
+    def _kkt_parts(self, X, blocks):
+        xe, S, Hb, g, _ = blocks
+        nx, nz, nth, n_int = self.nx, self.nz, self.nth, self.n_int
+        H = np.zeros((X.shape[0], nz, nz))
+        gg = np.zeros((X.shape[0], nz))
+        H[~self.last_mask] = Hb
+        gg[~self.last_mask] = g
+        G = np.zeros((n_int, nz, nz))
+        G[:, :nx, :] = S
+        G[:, nx:, nx:] = np.eye(nth)
+        cz = np.zeros((n_int, nz))
+        cz[:, :nx] = self.gaps(X, xe)
+        return H, gg, G, cz
+
+    def step(self, X, th, blocks, mu):
+        """Gauss-Newton step with parameters on a bound held when the step points outward."""
+        H, gg, G, cz = self._kkt_parts(X, blocks)
+        nx, nz, nth, kkt = self.nx, self.nz, self.nth, self.kkt
+        frozen = np.zeros(nth, dtype=bool)
+        for _ in range(nth + 1):
+            Hf = H
+            if frozen.any():
+                Hf = H.copy()
+                big = 1e12 * (1.0 + np.abs(np.einsum("kii->ki", H)).max())
+                Hf[0, nx + np.flatnonzero(frozen), nx + np.flatnonzero(frozen)] += big
+            sol = kkt.solve(Hf, gg, G, cz, mu)
+            dz = sol[(kkt.znodes[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
+            dth = dz[0, nx:]
+            out = ((th <= self.lo_s + 1e-12) & (dth < 0)) | ((th >= self.hi_s - 1e-12) & (dth > 0))
+            if not (out & ~frozen).any():
+                break
+            frozen |= out
+        dz[:, nx:] = np.where(frozen, 0.0, dz[:, nx:])
+        lam = sol[(kkt.lams[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
+        return dz, lam, H, gg, cz
+
+    def predicted_decrease(self, X, th) -> float:
+        """Cost decrease one undamped Gauss-Newton step predicts from (X, th): at the optimum of
+        a smaller model it is half the score (Lagrange multiplier) statistic of the extra
+        parameters."""
+        blocks = self.evaluate(X, th)
+        dz, _, H, gg, _ = self.step(X, th, blocks, 0.0)
+        return float(-(gg * dz).sum() - 0.5 * np.einsum("ki,kij,kj->", dz, H, dz))
+
+    def solve(self, X, th, mu, max_iter, tol):
+        say, nx, n_int = self.say, self.nx, self.n_int
+        rho = np.zeros((n_int, nx))
+        blocks = self.evaluate(X, th)
+        cost = 0.5 * float(blocks[4].sum())
+        it, status, converged = 0, "maximum iterations reached", False
+        for it in range(1, max_iter + 1):
+            dz, lam, H, gg, cz = self.step(X, th, blocks, mu)
+            c = cz[:, :nx]
+            dX, dth = dz[:, :nx], dz[0, nx:]
+            rho = np.maximum(rho, 2.0 * np.abs(lam[:, :nx]) + 1e-8)
+            merit0 = cost + float((rho * np.abs(c)).sum())
+            slope = float((gg * dz).sum()) - float((rho * np.abs(c)).sum())
+            alpha, accepted, trial = 1.0, False, None
+            for ls in range(14):
+                # projected step: parameters are clipped onto their bounds
+                Xt, tht = X + alpha * dX, np.clip(th + alpha * dth, self.lo_s, self.hi_s)
+                if ls == 0:  # the full step is usually taken: its blocks serve the next iteration
+                    trial = self.evaluate(Xt, tht)
+                    xe_t, c_t = trial[0], trial[4]
+                else:
+                    trial = None
+                    xe_t, c_t = self.evaluate(Xt, tht, blocks=False)
+                cost_t = 0.5 * float(c_t.sum())
+                merit_t = cost_t + float((rho * np.abs(self.gaps(Xt, xe_t))).sum())
+                if np.isfinite(merit_t) and merit_t <= merit0 + 1e-4 * alpha * min(slope, 0.0):
+                    accepted = True
+                    break
+                alpha *= 0.5
+            step_size = float(np.max(np.abs(tht - th))) if self.nth else 0.0
+            if not accepted:
+                if mu > 1e6:
+                    status = "line search failed: no decrease along the Gauss-Newton direction"
+                    break
+                mu = max(mu * 10, 1e-3)
+                say(f"  iter {it:3d}  step rejected, damping -> {mu:.1e}")
+                continue
+            X, th = Xt, tht
+            mu = mu / 3 if alpha == 1.0 else min(mu * 2, 1e8)
+            mu = max(mu, 1e-10)
+            blocks = trial if trial is not None else self.evaluate(X, th)
+            new_cost = 0.5 * float(blocks[4].sum())
+            gap = float(np.abs(self.gaps(X, blocks[0])).max())
+            say(f"  iter {it:3d}  cost {new_cost:12.6g}  max gap {gap:9.2e}  step {step_size:9.2e}  alpha {alpha:.3f}")
+            rel = abs(cost - new_cost) / max(new_cost, 1e-300)
+            cost = new_cost
+            if step_size < tol and rel < 1e-6 and gap < 1e-6 * (1 + float(np.abs(X).max())):
+                converged, status = True, "converged"
+                break
+        if not np.all(np.isfinite(X)) or not np.all(np.isfinite(th)):
+            raise SolverError("fit diverged: non-finite states or parameters")
+        return X, th, mu, it, converged, status, blocks
+
+    def covariance(self, X, blocks) -> np.ndarray:
+        """Parameter block of the inverse KKT matrix (undamped): the Gauss-Newton covariance
+        of the scaled free parameters for unit-variance weighted residuals."""
+        H, _, G, _ = self._kkt_parts(X, blocks)
+        nx, nth, kkt = self.nx, self.nth, self.kkt
+        rhs = np.zeros((kkt.n, nth))
+        rhs[kkt.znodes[0] + nx + np.arange(nth), np.arange(nth)] = 1.0
+        P = kkt.solve(H, np.zeros((X.shape[0], self.nz)), G, np.zeros((self.n_int, self.nz)), 0.0, rhs_extra=rhs)
+        P = P[kkt.znodes[0] + nx + np.arange(nth)]
+        return 0.5 * (P + P.T)
+
+
 def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free: Iterable[str] | None = None,
         fixed: Iterable[str] | None = None, p0: np.ndarray | Mapping[str, float] | None = None,
         interval: int | None = None, noise: Mapping[str, float] | None = None,
@@ -466,8 +645,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     Args:
         model: the grey-box model (its effects decide the parameters).
         logs: one log or a list of logs (several flights share the parameters; each has its
-            own states). Fit on the estimation part yourself (``log.split()``) — or use
-            :func:`greybox.validation.fit_and_validate`.
+            own states). Fit on the estimation part (``log.split()``); validate with
+            :func:`greybox.validation.predict` on the rest.
         free / fixed: parameter (or component) names to estimate / hold. Default: every
             parameter whose ``Parameter.free`` is set (``J_r`` is fixed by default).
         p0: starting values (flat vector or ``{name: value}``); default the airframe's guesses.
@@ -498,175 +677,36 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         p = model.default_parameters() if p0 is None else np.array(p0, dtype=float)
     free_idx = _free_indices(model, free, fixed)
     free_names = [model.param_names[i] for i in free_idx]
-    params_by_comp = {n: par for par in model.parameters for n in par.component_names}
-    scale = np.array([max(abs(p[i]), params_by_comp[model.param_names[i]].scale) for i in free_idx])
-    lo, hi = _bounds(model)
-    lo_s, hi_s = lo[free_idx] / scale, hi[free_idx] / scale
-
-    # channel noise levels
-    sigma = np.ones(model.ny)
-    given = dict(noise or {})
-    for c, name in enumerate(OUTPUTS):
-        if name in given:
-            sigma[c] = float(given[name])
-            continue
-        vals = [estimate_noise(l.output(name)) for l in logs if name in l.output_names]
-        vals = [v for v in vals if np.isfinite(v)]
-        sigma[c] = float(np.median(vals)) if vals else 1.0
-    floor = {"x": 1e-4, "y": 1e-4, "z": 1e-4, "phi": 1e-4, "theta": 1e-4, "psi": 1e-4,
-             "p": 1e-3, "q": 1e-3, "r": 1e-3}
-    sigma = np.maximum(sigma, [floor[n] for n in OUTPUTS])
-
-    h_max = max(float(np.diff(l.t).max()) for l in logs)
-    t0 = time.perf_counter()
-    prob = _ShootingProblem(model, free_idx, interval, n_substeps(h_max), compile)
-    t_build = time.perf_counter() - t0
+    sigma = _noise_levels(logs, noise)
+    ses = _Session(model, logs, free_idx, p, sigma, interval, compile, say)
     say(f"fit: {len(logs)} flight(s), {sum(len(l) for l in logs)} samples, {len(free_idx)} free "
-        f"parameters, interval {interval} samples; interval function: {prob.how} ({t_build:.1f} s)")
-
-    data = _layout(model, logs, interval, sigma)
-    n_int = sum(M for _, M in data.flights)
-    F_blocks, F_value = prob.mapped(n_int)
-    kkt = _KKT(data.flights, model.nx, len(free_idx))
-    nx, nth, nz = model.nx, len(free_idx), prob.nz
-
+        f"parameters, interval {interval} samples; interval function: {ses.prob.how} ({ses.t_build:.1f} s)")
     if initial_states is not None:
-        nodes = [np.array(s, dtype=float) for s in initial_states]
+        X = np.vstack([np.array(s, dtype=float) for s in initial_states])
     else:
-        nodes = [initial_node_states(model, log, idx, p) for log, idx in zip(logs, data.node_index)]
-    X = np.vstack(nodes)                      # (n_nodes, nx)
-    th = p[free_idx] / scale
-    pfix = p.copy()
-    start_of = np.concatenate([[True] + [False] * M for _, M in data.flights])  # nodes starting a flight
-
-    def evaluate(X, th, blocks=True):
-        xs = X[~_last_mask].T  # nodes that start an interval
-        args = (xs, th, scale, pfix, data.U, data.T, data.Hs, data.Y, data.W)
-        if blocks:
-            xe, S, H, g, c = F_blocks(*args)
-            S = np.asarray(S).reshape(nx, n_int, nz).transpose(1, 0, 2)
-            H = np.asarray(H).reshape(nz, n_int, nz).transpose(1, 0, 2)
-            return np.asarray(xe).T, S, H, np.asarray(g).T, np.asarray(c)
-        xe, c = F_value(*args)
-        return np.asarray(xe).T, np.asarray(c)
-
-    _last_mask = np.zeros(X.shape[0], dtype=bool)
-    k = 0
-    for _, M in data.flights:
-        _last_mask[k + M] = True
-        k += M + 1
-    nxt = kkt.zi + 1
-
-    def gaps(X, xe):
-        return xe - X[nxt]
-
-    def solve_problem(X, th, mu, max_iter):
-        rho = np.zeros((n_int, nx))
-        xe, S, Hb, g, cch = evaluate(X, th)
-        cost = 0.5 * float(cch.sum())
-        it, status, converged = 0, "maximum iterations reached", False
-        for it in range(1, max_iter + 1):
-            c = gaps(X, xe)
-            H = np.zeros((X.shape[0], nz, nz))
-            gg = np.zeros((X.shape[0], nz))
-            H[~_last_mask] = Hb
-            gg[~_last_mask] = g
-            G = np.zeros((n_int, nz, nz))
-            G[:, :nx, :] = S
-            G[:, nx:, nx:] = np.eye(nth)
-            cz = np.zeros((n_int, nz))
-            cz[:, :nx] = c
-            # parameters on a bound whose step points outward are held (active set)
-            frozen = np.zeros(nth, dtype=bool)
-            for _ in range(nth + 1):
-                Hf = H
-                if frozen.any():
-                    Hf = H.copy()
-                    big = 1e12 * (1.0 + np.abs(np.einsum("kii->ki", H)).max())
-                    Hf[0, nx + np.flatnonzero(frozen), nx + np.flatnonzero(frozen)] += big
-                sol = kkt.solve(Hf, gg, G, cz, mu)
-                dz = sol[(kkt.znodes[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
-                dth = dz[0, nx:]
-                out = ((th <= lo_s + 1e-12) & (dth < 0)) | ((th >= hi_s - 1e-12) & (dth > 0))
-                if not (out & ~frozen).any():
-                    break
-                frozen |= out
-            dth = np.where(frozen, 0.0, dth)
-            lam = sol[(kkt.lams[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
-            dX = dz[:, :nx]
-            rho = np.maximum(rho, 2.0 * np.abs(lam[:, :nx]) + 1e-8)
-            merit0 = cost + float((rho * np.abs(c)).sum())
-            slope = float((gg * dz).sum()) - float((rho * np.abs(c)).sum())
-            alpha, accepted = 1.0, False
-            trial_blocks = None
-            for ls in range(14):
-                # projected step: parameters are clipped onto their bounds
-                Xt, tht = X + alpha * dX, np.clip(th + alpha * dth, lo_s, hi_s)
-                if ls == 0:  # the full step is usually taken: its blocks serve the next iteration
-                    trial_blocks = evaluate(Xt, tht)
-                    xe_t, c_t = trial_blocks[0], trial_blocks[4]
-                else:
-                    trial_blocks = None
-                    xe_t, c_t = evaluate(Xt, tht, blocks=False)
-                cost_t = 0.5 * float(c_t.sum())
-                merit_t = cost_t + float((rho * np.abs(gaps(Xt, xe_t))).sum())
-                if np.isfinite(merit_t) and merit_t <= merit0 + 1e-4 * alpha * min(slope, 0.0):
-                    accepted = True
-                    break
-                alpha *= 0.5
-            step_size = float(np.max(np.abs(tht - th))) if nth else 0.0
-            if not accepted:
-                if mu > 1e6:
-                    status = "line search failed: no decrease along the Gauss-Newton direction"
-                    break
-                mu = max(mu * 10, 1e-3)
-                say(f"  iter {it:3d}  step rejected, damping -> {mu:.1e}")
-                continue
-            X, th = Xt, tht
-            mu = mu / 3 if alpha == 1.0 else min(mu * 2, 1e8)
-            mu = max(mu, 1e-10)
-            xe, S, Hb, g, cch = trial_blocks if trial_blocks is not None else evaluate(X, th)
-            new_cost = 0.5 * float(cch.sum())
-            gap = float(np.abs(gaps(X, xe)).max())
-            say(f"  iter {it:3d}  cost {new_cost:12.6g}  max gap {gap:9.2e}  step {step_size:9.2e}  alpha {alpha:.3f}")
-            rel = abs(cost - new_cost) / max(new_cost, 1e-300)
-            cost = new_cost
-            if step_size < tol and rel < 1e-6 and gap < 1e-6 * (1 + float(np.abs(X).max())):
-                converged, status = True, "converged"
-                break
-        if not np.all(np.isfinite(X)) or not np.all(np.isfinite(th)):
-            raise SolverError("fit diverged: non-finite states or parameters")
-        return X, th, mu, it, converged, status, (xe, S, Hb, g, cch)
+        X = ses.initial_nodes(p)
+    th = p[free_idx] / ses.scale
 
     t0 = time.perf_counter()
-    X, th, mu, iters, converged, status, last = solve_problem(X, th, 1e-3, max_iter)
+    X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-3, max_iter, tol)
     total_iters = iters
+    data = ses.data
     if reweight and converged:
         # channel noise re-estimated from the residuals: weights match the data
-        cch = last[4].sum(axis=1)
+        cch = blocks[4].sum(axis=1)
         n_c = data.mask.sum(axis=1)
         rms_w = np.sqrt(np.where(n_c > 0, cch / np.maximum(n_c, 1), 1.0))
         if np.any(np.abs(rms_w[n_c > 0] - 1) > 0.05):
-            sigma = sigma * np.where(n_c > 0, rms_w, 1.0)
-            data.W = np.where(data.mask, 1.0 / sigma[:, None], 0.0)
+            ses.set_sigma(ses.sigma * np.where(n_c > 0, rms_w, 1.0))
             say(f"fit: noise re-estimated from residuals: " +
-                ", ".join(f"{n}={s:.3g}" for n, s, k in zip(OUTPUTS, sigma, n_c) if k))
-            X, th, mu, iters, converged, status, last = solve_problem(X, th, 1e-4, max_iter)
+                ", ".join(f"{n}={s:.3g}" for n, s, k in zip(OUTPUTS, ses.sigma, n_c) if k))
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
             total_iters += iters
     t_solve = time.perf_counter() - t0
-    xe, S, Hb, g, cch = last
+    sigma, scale, nth, nx = ses.sigma, ses.scale, ses.nth, ses.nx
+    cch = blocks[4]
 
-    # covariance: parameter block of the inverse KKT matrix (no damping), scaled by s^2
-    H = np.zeros((X.shape[0], nz, nz))
-    H[~_last_mask] = Hb
-    G = np.zeros((n_int, nz, nz))
-    G[:, :nx, :] = S
-    G[:, nx:, nx:] = np.eye(nth)
-    rhs = np.zeros((kkt.n, nth))
-    rhs[kkt.znodes[0] + nx + np.arange(nth), np.arange(nth)] = 1.0
-    P = kkt.solve(H, np.zeros((X.shape[0], nz)), G, np.zeros((n_int, nz)), 0.0, rhs_extra=rhs)
-    P = P[kkt.znodes[0] + nx + np.arange(nth)]
-    P = 0.5 * (P + P.T)
+    P = ses.covariance(X, blocks)
     n_res = int(data.mask.sum())
     dof = max(n_res - nth - nx * len(logs), 1)
     cost = 0.5 * float(cch.sum())
@@ -695,11 +735,13 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     for _, M in data.flights:
         node_states.append(X[k:k + M + 1].copy())
         k += M + 1
-    timings = {"build": t_build, "solve": t_solve, "total": time.perf_counter() - t_start}
+    timings = {"build": ses.t_build, "solve": t_solve, "total": time.perf_counter() - t_start}
     say(f"fit: {status} after {total_iters} iterations in {timings['total']:.2f} s")
     return FitResult(model, p_out, free_names, std, cov, corr, converged, status, total_iters, cost,
                      n_res, {n: float(sigma[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, resid_rms,
-                     node_states, data.node_index, warnings, timings, prob.how, interval)
+                     node_states, data.node_index, warnings, timings, ses.prob.how, interval,
+                     {n: float(cc[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
+                     {n: int(n_c[c]) for c, n in enumerate(OUTPUTS) if n_c[c]})
 
 
 def _identifiability_warnings(names: list[str], values: np.ndarray, std: np.ndarray, corr: np.ndarray,
