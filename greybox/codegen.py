@@ -17,7 +17,7 @@ from pathlib import Path
 
 import casadi as ca
 
-__all__ = ["compiled", "cache_dir", "compiler_available"]
+__all__ = ["compiled", "precompile", "cache_dir", "compiler_available"]
 
 
 def cache_dir() -> Path:
@@ -39,6 +39,60 @@ def source_fingerprint() -> str:
     return h.hexdigest()
 
 
+def _lib_path(f: ca.Function, key: str | None, opt: str) -> Path:
+    text = (key + source_fingerprint()) if key is not None else f.serialize()
+    digest = hashlib.sha1((text + opt + ca.__version__).encode()).hexdigest()[:20]
+    return cache_dir() / f"{f.name()}_{digest}.so"
+
+
+def _generate(f: ca.Function, tmp: str) -> Path:
+    src = Path(tmp) / f"{f.name()}.c"
+    cg = ca.CodeGenerator(str(src.name), {"with_header": False})
+    cg.add(f)
+    cwd = os.getcwd()
+    os.chdir(tmp)
+    try:
+        cg.generate()
+    finally:
+        os.chdir(cwd)
+    return src
+
+
+def precompile(items: "list[tuple[ca.Function, str | None]]", workers: int = 2, opt: str = "-O1") -> None:
+    """Compile several functions into the cache at once, ``workers`` compilers in parallel
+    (code generation is serial; the C compiler runs concurrently)."""
+    cc = compiler_available()
+    if cc is None:
+        return
+    todo = [(f, _lib_path(f, key, opt)) for f, key in items]
+    todo = [(f, lib) for f, lib in todo if not lib.exists()]
+    if not todo:
+        return
+    cache_dir().mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        jobs = []
+        for i, (f, lib) in enumerate(todo):
+            d = Path(tmp) / str(i)
+            d.mkdir()
+            jobs.append((_generate(f, str(d)), d / "lib.so", lib))
+        running: list = []
+        for src, out, lib in jobs:
+            while len(running) >= workers:
+                _finish(running.pop(0))
+            running.append((subprocess.Popen([cc, opt, "-fPIC", "-shared", str(src), "-o", str(out), "-lm"],
+                                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL), out, lib))
+        for r in running:
+            _finish(r)
+
+
+def _finish(job) -> None:
+    proc, out, lib = job
+    if proc.wait() == 0 and out.exists():
+        tmp_lib = lib.with_suffix(f".{os.getpid()}.tmp")
+        shutil.copyfile(out, tmp_lib)
+        os.replace(tmp_lib, lib)
+
+
 def compiled(f: ca.Function, key: str | None = None, opt: str = "-O1") -> tuple[ca.Function, str]:
     """``(function, how)``: the compiled twin of ``f`` (``how`` = ``"cached"`` or ``"compiled"``)
     or ``f`` itself (``how`` = ``"virtual machine"``) when no compiler works.
@@ -48,24 +102,14 @@ def compiled(f: ca.Function, key: str | None = None, opt: str = "-O1") -> tuple[
     cc = compiler_available()
     if cc is None:
         return f, "virtual machine"
-    text = (key + source_fingerprint()) if key is not None else f.serialize()
-    key = hashlib.sha1((text + opt + ca.__version__).encode()).hexdigest()[:20]
-    lib = cache_dir() / f"{f.name()}_{key}.so"
+    lib = _lib_path(f, key, opt)
     how = "cached"
     if not lib.exists():
         how = "compiled"
         try:
             lib.parent.mkdir(parents=True, exist_ok=True)
             with tempfile.TemporaryDirectory() as tmp:
-                src = Path(tmp) / f"{f.name()}.c"
-                cg = ca.CodeGenerator(str(src.name), {"with_header": False})
-                cg.add(f)
-                cwd = os.getcwd()
-                os.chdir(tmp)
-                try:
-                    cg.generate()
-                finally:
-                    os.chdir(cwd)
+                src = _generate(f, tmp)
                 out = Path(tmp) / "lib.so"
                 subprocess.run([cc, opt, "-fPIC", "-shared", str(src), "-o", str(out), "-lm"],
                                check=True, capture_output=True, timeout=600)

@@ -211,13 +211,13 @@ class _ShootingProblem:
     interval's samples and the map over intervals stay CasADi constructs around them.
     """
 
-    def __init__(self, model: QuadrotorModel, free_idx: list[int], N: int, n_sub: int,
-                 compile_mode: str):
-        self.model, self.free_idx, self.N = model, free_idx, N
+    @staticmethod
+    def step_functions(model: QuadrotorModel, free_idx: list[int], n_sub: int
+                       ) -> tuple[ca.Function, ca.Function, str]:
+        """Per-sample Gauss-Newton step functions and the cache key that determines them."""
         nx, nu, ny, npar = model.nx, model.nu, model.ny, model.n_params
         nth = len(free_idx)
         nz = nx + nth
-        self.nx, self.nth, self.nz, self.ny = nx, nth, nz, ny
         step = rk4_step(model, n_sub)
         x = ca.SX.sym("x", nx)
         S = ca.SX.sym("S", nx, nz)
@@ -249,19 +249,34 @@ class _ShootingProblem:
         step_blk = ca.Function("gb_step_blocks", [x, S, H, g, c, u, t, h, ym, w, th, sc, pfix],
                                [xn, Sn, H + Je.T @ Je, g + Je.T @ e, c + e * e])
         step_val = ca.Function("gb_step_value", [x, c, u, t, h, ym, w, th, sc, pfix], [xn, c + e * e])
+        af = model.airframe
+        key = repr((af.mass, af.inertia.tolist(), af.rotor_positions.tolist(), af.spins.tolist(),
+                    af.gravity, af.ground_z, af.rotor_inertia,
+                    af.parameters if model.inputs == "controls" else None,
+                    model.effect_names, model.inputs, free_idx, n_sub))
+        return step_blk, step_val, key
+
+    def __init__(self, model: QuadrotorModel, free_idx: list[int], N: int, n_sub: int,
+                 compile_mode: str):
+        self.model, self.free_idx, self.N = model, free_idx, N
+        nx, nu, ny, npar = model.nx, model.nu, model.ny, model.n_params
+        nth = len(free_idx)
+        nz = nx + nth
+        self.nx, self.nth, self.nz, self.ny = nx, nth, nz, ny
+        step_blk, step_val, key = self.step_functions(model, free_idx, n_sub)
         self.how = "virtual machine"
         if compile_mode != "never":
-            af = model.airframe
-            key = repr((af.mass, af.inertia.tolist(), af.rotor_positions.tolist(), af.spins.tolist(),
-                        af.gravity, af.ground_z, af.rotor_inertia,
-                        af.parameters if model.inputs == "controls" else None,
-                        model.effect_names, model.inputs, free_idx, n_sub))
-            step_blk, self.how = compiled(step_blk, key + "blocks")
-            step_val, _ = compiled(step_val, key + "value")
+            # "quick": a faster build, slower code, for functions evaluated once or twice
+            opt = "-O0" if compile_mode == "quick" else "-O1"
+            step_blk, self.how = compiled(step_blk, key + "blocks", opt)
+            # the line-search function compiles when first used (screening never needs it)
+            self._value_step = (step_val, key + "value", opt)
+        else:
+            self._value_step = (step_val, None, None)
+        self._N = N
 
         # fold over the interval's samples; theta, scale and fixed parameters are repeated
         acc_b = step_blk.mapaccum("acc", N, [0, 1, 2, 3, 4], [0, 1, 2, 3, 4])
-        acc_v = step_val.mapaccum("accv", N, [0, 1], [0, 1])
         xs = ca.MX.sym("s", nx)
         ths = ca.MX.sym("th", nth)
         scs = ca.MX.sym("scale", nth)
@@ -277,14 +292,54 @@ class _ShootingProblem:
         ins = [xs, ths, scs, pf, U, T, Hs, Y, W]
         self.blocks = ca.Function("gb_interval_blocks", ins,
                                   [r[0][:, -1], r[1][:, -nz:], r[2][:, -nz:], r[3][:, -1], r[4][:, -1]])
-        rv = acc_v(xs, ca.MX.zeros(ny, 1), U, T, Hs, Y, W, *const)
-        self.value = ca.Function("gb_interval_value", ins, [rv[0][:, -1], rv[1][:, -1]])
-        self._maps: dict[int, tuple[ca.Function, ca.Function]] = {}
+        self._value_args = (ins, const)
+        self._value: ca.Function | None = None
+        self._maps: dict[int, "_MappedPair"] = {}
 
-    def mapped(self, M: int) -> tuple[ca.Function, ca.Function]:
+    @property
+    def value(self) -> ca.Function:
+        if self._value is None:
+            step_val, key, opt = self._value_step
+            if key is not None:
+                step_val, _ = compiled(step_val, key, opt)
+            ins, const = self._value_args
+            xs, U, T, Hs, Y, W = ins[0], ins[4], ins[5], ins[6], ins[7], ins[8]
+            acc_v = step_val.mapaccum("accv", self._N, [0, 1], [0, 1])
+            rv = acc_v(xs, ca.MX.zeros(self.ny, 1), U, T, Hs, Y, W, *const)
+            self._value = ca.Function("gb_interval_value", ins, [rv[0][:, -1], rv[1][:, -1]])
+        return self._value
+
+    def mapped(self, M: int) -> "_MappedPair":
         if M not in self._maps:
-            self._maps[M] = (self.blocks.map(M, "thread", 2), self.value.map(M, "thread", 2))
+            self._maps[M] = _MappedPair(self, M)
         return self._maps[M]
+
+
+class _MappedPair:
+    """The interval functions mapped over M intervals; the value function on first use."""
+
+    def __init__(self, prob: _ShootingProblem, M: int):
+        self.prob, self.M = prob, M
+        self.blocks = prob.blocks.map(M, "thread", 2)
+        self._value = None
+
+    @property
+    def value(self) -> ca.Function:
+        if self._value is None:
+            self._value = self.prob.value.map(self.M, "thread", 2)
+        return self._value
+
+    def __iter__(self):  # (blocks, value) unpacking, value built lazily on demand
+        yield self.blocks
+        yield _Lazy(self)
+
+
+class _Lazy:
+    def __init__(self, pair: _MappedPair):
+        self.pair = pair
+
+    def __call__(self, *args):
+        return self.pair.value(*args)
 
 
 @dataclass
@@ -653,7 +708,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         interval: samples per shooting interval (default: the number nearest 50 ms).
         noise: channel noise standard deviations ``{"x": 0.003, ...}``; others are estimated.
         reweight: re-estimate channel noise from the residuals and solve again.
-        compile: ``"auto"`` (compile the interval function to C when a compiler exists) or ``"never"``.
+        compile: ``"auto"`` (compile the step functions to C when a compiler exists), ``"quick"``
+            (compile without optimisation: faster to build, slower to run) or ``"never"``.
         progress: True to print iterations to stderr, or a callable taking a line of text.
         initial_states: per flight (M+1, nx) node state guesses (default: from the data).
     """

@@ -1,0 +1,729 @@
+"""Find the missing physics: compare, see where the model fails, rank the missing effects.
+
+The workflow (:func:`diagnose`):
+
+1. **Compare.** Fit the model on the estimation part (first 80 %), predict the validation
+   part (k-step ahead, :mod:`greybox.validation`): ``nrmse`` per channel and in total.
+2. **Where it fails.** Residuals of the fitted trajectory on the estimation part: whiteness
+   (autocorrelation against the 99 % band of white noise, as MATLAB's ``resid``),
+   cross-correlation with the inputs, and the *regimes* where the error concentrates — the
+   rank correlation (Spearman) of each channel's error envelope with speed (world and body
+   frame), vertical speed, height above the ground, thrust level, yaw rate, rotor-speed
+   spread, acceleration and time — said in words with the correlation.
+3. **Which effect is missing.** Every catalogue effect not in the model is a candidate.
+   *Screening*: from the baseline optimum, one Gauss–Newton step of the model extended by
+   the candidate (its parameters starting at their null values) predicts the cost decrease,
+   i.e. the score (Lagrange-multiplier) statistic — one evaluation per candidate, no fit.
+   The best few are then *refitted* (warm-started, same weights): the likelihood-ratio
+   statistic ``2 (C0 - C1)``, divided per channel by the long-run variance factor of the
+   refitted residuals (Bartlett-weighted autocorrelation, so coloured noise does not
+   masquerade as information), is compared with chi-square(df) (halved where the null
+   value is on a bound), Bonferroni-corrected over the candidates. A candidate is
+   *significant* when that test passes at 1 % **and** the validation ``nrmse`` falls by at
+   least 2 % (out-of-sample confirmation). The verdict is the best significant candidate,
+   or ``None``.
+4. **Add it and watch the error fall.** With ``iterate=True`` the verdict is added, the
+   model refitted and the remaining candidates screened again, until nothing significant
+   is missing. Candidates that were significant alone but explain nothing once the winner
+   is in are reported as confusable, with the manoeuvre that would tell them apart.
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import casadi as ca
+import numpy as np
+from scipy import stats
+
+from . import effects as fx
+from .data import FlightLog, atomic_write
+from .errors import GreyboxInputError
+from .fitting import FitResult, _free_indices, _Session, _ShootingProblem, fit, initial_node_states
+from .integrate import n_substeps, rk4_step
+from .model import OUTPUTS, QuadrotorModel
+from .validation import Prediction, compare_plot, predict
+
+__all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
+           "MIN_VALIDATION_GAIN", "DISTINGUISH"]
+
+ALPHA = 0.01
+"""Family-wise significance level of the likelihood-ratio tests (Bonferroni over candidates)."""
+MIN_VALIDATION_GAIN = 0.02
+"""Relative fall of the validation nrmse that confirms a candidate out of sample."""
+N_REFIT = 4
+"""Candidates refitted after screening (the rest keep their screening statistic)."""
+
+DISTINGUISH = {
+    frozenset({"linear_drag", "rotor_drag"}): "fly the same speeds at different thrust levels (climbing and "
+                                              "descending translations): rotor drag scales with rotor speed",
+    frozenset({"quadratic_drag", "rotor_drag"}): "fly several speeds at a constant thrust, and the same speed at "
+                                                 "another thrust",
+    frozenset({"quadratic_drag", "wind"}): "fly the same speed upwind and downwind",
+    frozenset({"rotor_drag", "wind"}): "fly in several directions: wind has a fixed direction",
+    frozenset({"cog_offset", "motor_asymmetry"}): "hover at several thrust levels and yaw angles",
+    frozenset({"cog_offset", "attitude_bias"}): "fly roll and pitch steps: a bias shifts readings, an offset "
+                                                 "needs torque",
+    frozenset({"thrust_drift", "ground_effect"}): "repeat the same climb early and late in the flight, away "
+                                                  "from the ground",
+    frozenset({"motor_lag", "position_delay"}): "fast rotor-speed steps with attitude recorded: motor lag "
+                                                "delays attitude too, a vision delay only position",
+}
+
+CHANNEL_EFFECTS = {  # which channels each effect should improve (for the before/after table)
+    "yaw_torque": ["psi", "r"], "linear_drag": ["x", "y", "z"], "gyroscopic": ["phi", "theta", "p", "q"],
+    "quadratic_drag": ["x", "y", "z"], "rotor_drag": ["x", "y"], "ground_effect": ["z"],
+    "motor_lag": ["phi", "theta", "p", "q", "z"], "cog_offset": ["phi", "theta", "p", "q", "x", "y"],
+    "motor_asymmetry": ["phi", "theta", "p", "q", "psi", "r", "x", "y"], "wind": ["x", "y"],
+    "thrust_drift": ["z"], "position_delay": ["x", "y", "z"], "attitude_bias": ["phi", "theta", "x", "y"],
+}
+
+
+# ------------------------------------------------------------------------------ results
+@dataclass
+class Finding:
+    """A sentence about where the model fails, with its evidence."""
+
+    channel: str
+    variable: str
+    r: float
+    text: str
+
+
+@dataclass
+class CandidateResult:
+    """One candidate effect: screening statistic, and for the best few a refit."""
+
+    effect: str
+    df: int
+    score: float                        # score (LM) statistic from the screening step
+    lr: float | None = None             # autocorrelation-corrected likelihood-ratio statistic
+    p_value: float | None = None
+    significant: bool = False
+    nrmse_before: float = float("nan")
+    nrmse_after: float | None = None
+    channels_after: dict[str, float] | None = None
+    fit: FitResult | None = None
+    prediction: Prediction | None = None
+    reason: str = ""
+
+    def as_dict(self) -> dict:
+        out = {"effect": self.effect, "significant": bool(self.significant),
+               "nrmse_before": _num(self.nrmse_before), "nrmse_after": _num(self.nrmse_after),
+               "score": _num(self.score), "lr": _num(self.lr), "p_value": _num(self.p_value),
+               "df": self.df, "reason": self.reason}
+        if self.channels_after is not None:
+            out["channels_after"] = {k: _num(v) for k, v in self.channels_after.items()}
+        if self.fit is not None:
+            new = [n for n in self.fit.free_names if _effect_of(self.fit.model, n) == self.effect]
+            out["parameters"] = {n: {"value": self.fit.value(n),
+                                     "std": float(self.fit.std[self.fit.free_names.index(n)])} for n in new}
+        return out
+
+
+def _num(v):
+    if v is None:
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _effect_of(model: QuadrotorModel, comp: str) -> str:
+    for par in model.parameters:
+        if comp in par.component_names:
+            return par.effect
+    return ""
+
+
+@dataclass
+class Round:
+    """One pass of screening and refits."""
+
+    model: QuadrotorModel
+    fit: FitResult
+    prediction: Prediction
+    ranking: list[CandidateResult]
+    verdict: str | None
+
+
+@dataclass
+class Diagnosis:
+    """Everything :func:`diagnose` found; ``report(dir)`` writes it as HTML with plots."""
+
+    model: QuadrotorModel
+    baseline: FitResult
+    baseline_prediction: Prediction
+    findings: list[Finding]
+    whiteness: dict[str, float]         # fraction of autocorrelation lags outside the 99 % band
+    input_correlation: dict[str, tuple[str, float]]
+    ranking: list[CandidateResult]
+    verdict: str | None
+    warnings: list[str]
+    rounds: list[Round] = field(default_factory=list)
+    final_model: QuadrotorModel | None = None
+    final_fit: FitResult | None = None
+    final_prediction: Prediction | None = None
+    residuals: np.ndarray | None = field(default=None, repr=False)
+    regimes: dict[str, np.ndarray] | None = field(default=None, repr=False)
+    log: FlightLog | None = field(default=None, repr=False)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def as_json(self) -> dict:
+        """The contract's diagnose JSON (plus findings, warnings and the added effects)."""
+        out = {"baseline": {"nrmse": self.baseline_prediction.total,
+                            "channels": dict(self.baseline_prediction.nrmse)},
+               "ranking": [c.as_dict() for c in self.ranking],
+               "verdict": self.verdict,
+               "findings": [f.text for f in self.findings],
+               "warnings": list(self.warnings),
+               "effects": self.model.effect_names}
+        if self.final_model is not None and self.final_prediction is not None:
+            out["added"] = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
+            out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
+                            "channels": dict(self.final_prediction.nrmse)}
+        out["time_s"] = self.timings.get("total")
+        return out
+
+    def summary(self) -> str:
+        """Readable text of steps 1-4."""
+        b = self.baseline_prediction
+        lines = [f"1. compare: validation nrmse {b.total:.3f}  (" +
+                 ", ".join(f"{c} {v:.3f}" for c, v in b.nrmse.items()) + ")"]
+        lines.append("2. where it fails:")
+        lines += [f"   - {f.text}" for f in self.findings] or ["   - no regime stands out"]
+        lines.append("3. candidates (best first):")
+        for c in self.ranking:
+            after = f"{c.nrmse_after:.3f}" if c.nrmse_after is not None else "  -  "
+            lr = f"LR {c.lr:10.1f} p={c.p_value:.1e}" if c.lr is not None else f"score {c.score:10.1f}        "
+            lines.append(f"   {'*' if c.significant else ' '} {c.effect:<16} {lr}  nrmse {c.nrmse_before:.3f} -> "
+                         f"{after}  {c.reason}")
+        lines.append(f"   verdict: {self.verdict or 'null (nothing significant is missing)'}")
+        if self.final_prediction is not None and self.final_model is not None:
+            added = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
+            f = self.final_prediction
+            lines.append(f"4. added {', '.join(added) or 'nothing'}: nrmse {b.total:.3f} -> {f.total:.3f}")
+            for ch in b.nrmse:
+                fall = 100 * (1 - f.nrmse[ch] / b.nrmse[ch]) if b.nrmse[ch] > 0 else 0.0
+                lines.append(f"   {ch:<6} {b.nrmse[ch]:8.3f} -> {f.nrmse[ch]:8.3f}  ({fall:+.0f} %)")
+            for name in self.final_fit.free_names if self.final_fit else []:
+                if _effect_of(self.final_model, name) in added:
+                    s = self.final_fit.std[self.final_fit.free_names.index(name)]
+                    lines.append(f"   {name} = {self.final_fit.value(name):.5g} ± {s:.2g}")
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def report(self, directory: str | Path) -> Path:
+        """Write ``report.html`` (plots embedded) and the plots as PNG files into ``directory``."""
+        return _write_report(self, Path(directory))
+
+
+# ------------------------------------------------------------------------------ residuals
+def _trajectory(model: QuadrotorModel, res: FitResult, log: FlightLog) -> tuple[np.ndarray, np.ndarray]:
+    """States and outputs at every sample of ``log`` along the fitted node states."""
+    nodes, idx = res.node_states[0], res.node_index[0]
+    N = res.interval
+    n = len(log)
+    M = len(idx) - 1
+    n_sub = n_substeps(float(np.diff(log.t).max()))
+    step = rk4_step(model, n_sub)
+    x = ca.SX.sym("x", model.nx)
+    u = ca.SX.sym("u", model.nu)
+    p = ca.SX.sym("p", model.n_params)
+    t = ca.SX.sym("t")
+    h = ca.SX.sym("h")
+    f = ca.Function("traj_step", [x, u, p, t, h], [step(x, u, p, t, h), model.output(x, u, p, t), x])
+    F = f.mapaccum("traj", N, [0], [0]).map(M, "thread", 2)
+    k = np.minimum(np.arange(M * N), n - 1)
+    hk = np.append(np.diff(log.t), 0.0)[k]
+    _, Y, X = F(nodes[:M].T, log.inputs[k].T, res.p, log.t[k][None, :], hk[None, :])
+    Y, X = np.asarray(Y).T, np.asarray(X).T
+    out_y = np.full((n, model.ny), np.nan)
+    out_x = np.full((n, model.nx), np.nan)
+    m = min(n, M * N)
+    out_y[:m], out_x[:m] = Y[:m], X[:m]
+    return out_x, out_y
+
+
+def _residuals(log: FlightLog, Y: np.ndarray) -> np.ndarray:
+    E = np.full_like(Y, np.nan)
+    for c, name in enumerate(OUTPUTS):
+        if name in log.output_names:
+            E[:, c] = log.output(name) - Y[:, c]
+    E[:, 3 + 2] = np.arctan2(np.sin(E[:, 5]), np.cos(E[:, 5]))
+    return E
+
+
+def _long_run_factor(e: np.ndarray, lags: int = 50) -> float:
+    """Long-run variance / variance of a residual sequence (Bartlett weights), >= 1."""
+    e = e[np.isfinite(e)]
+    if e.size < 4 * lags:
+        return 1.0
+    e = e - e.mean()
+    v = float(e @ e) / e.size
+    if v <= 0:
+        return 1.0
+    acc = 0.0
+    for k in range(1, lags + 1):
+        rho = float(e[k:] @ e[:-k]) / e.size / v
+        acc += (1 - k / (lags + 1)) * rho
+    return max(1.0, 1.0 + 2.0 * acc)
+
+
+def _regime_variables(model: QuadrotorModel, X: np.ndarray, log: FlightLog) -> dict[str, np.ndarray]:
+    """Flight-condition variables at every sample, from states ``X`` (e.g. smoothed measurements)."""
+    af = model.airframe
+    ph, th, ps = X[:, 3], X[:, 4], X[:, 5]
+    v = X[:, 6:9]
+    # body-frame velocity: R^T v
+    cph, sph, cth, sth, cps, sps = np.cos(ph), np.sin(ph), np.cos(th), np.sin(th), np.cos(ps), np.sin(ps)
+    R = np.stack([np.stack([cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps], -1),
+                  np.stack([cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps], -1),
+                  np.stack([-sth, sph * cth, cph * cth], -1)], 1)
+    vb = np.einsum("kji,kj->ki", R, v)
+    dt = np.gradient(log.t)
+    acc = np.gradient(v, axis=0) / dt[:, None]
+    w = log.inputs if model.inputs == "rotor_speeds" else np.abs(log.inputs)
+    return {
+        "horizontal speed": np.hypot(v[:, 0], v[:, 1]),
+        "body-frame horizontal speed": np.hypot(vb[:, 0], vb[:, 1]),
+        "vertical speed": np.abs(v[:, 2]),
+        "height above ground": af.ground_z - X[:, 2],
+        "thrust level": (w ** 2).sum(axis=1),
+        "yaw rate": np.abs(X[:, 11]),
+        "rotor speed spread": w.std(axis=1),
+        "acceleration": np.linalg.norm(acc, axis=1),
+        "time into the flight": log.t - log.t[0],
+    }
+
+
+def _envelope(e: np.ndarray, t: np.ndarray, window: float = 0.2) -> np.ndarray:
+    """RMS of the error over a sliding window (NaN-aware), sampled where e is measured."""
+    k = np.isfinite(e)
+    cs = np.concatenate([[0.0], np.cumsum(np.where(k, e * e, 0.0))])
+    cn = np.concatenate([[0.0], np.cumsum(k)])
+    lo = np.searchsorted(t, t - window / 2)
+    hi = np.searchsorted(t, t + window / 2, side="right")
+    n = cn[hi] - cn[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt((cs[hi] - cs[lo]) / n)
+
+
+def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog, pred: Prediction | None = None,
+                      min_r: float = 0.4
+                      ) -> tuple[list[Finding], dict[str, float], dict[str, tuple[str, float]], np.ndarray,
+                                 dict[str, np.ndarray]]:
+    """Where the fitted model fails: on ``log`` (the estimation log it was fitted to) and, if
+    given, on the k-step-ahead prediction errors of the validation part.
+
+    Returns (findings, whiteness, input correlation, estimation residuals, regime variables):
+    ``whiteness[ch]`` is the fraction of the first 30 autocorrelation lags (measured samples)
+    outside the 99 % band of white noise; findings are sentences for regimes whose rank
+    correlation with the error envelope reaches ``min_r`` (an effect-size threshold). Regime
+    variables come from the measurements (smoothed), not from the model under test.
+    """
+    _, Y = _trajectory(model, res, log)
+    E = _residuals(log, Y)
+    regimes = _regime_variables(model, initial_node_states(model, log, np.arange(len(log))), log)
+    whiteness: dict[str, float] = {}
+    input_corr: dict[str, tuple[str, float]] = {}
+    for c, ch in enumerate(OUTPUTS):
+        e = E[:, c]
+        k = np.isfinite(e)
+        if k.sum() < 50:
+            continue
+        ek = e[k] - e[k].mean()
+        var = float(ek @ ek)
+        band = 2.576 / math.sqrt(ek.size)
+        ac = np.array([float(ek[j:] @ ek[:-j]) / var for j in range(1, 31)])
+        whiteness[ch] = float(np.mean(np.abs(ac) > band))
+        best = ("", 0.0)
+        for i, name in enumerate(log.input_names):
+            u = log.inputs[k, i] - log.inputs[k, i].mean()
+            r = float(u @ ek) / math.sqrt(max(float(u @ u) * var, 1e-300))
+            if abs(r) > abs(best[1]):
+                best = (name, r)
+        input_corr[ch] = best
+    sets = [(E, log, regimes)]
+    if pred is not None:
+        vlog = pred.log
+        vreg = _regime_variables(model, initial_node_states(model, vlog, np.arange(len(vlog))), vlog)
+        vreg["time into the flight"] = vlog.t - log.t[0]
+        sets.append((pred.errors, vlog, vreg))
+    best: dict[tuple[str, str], Finding] = {}
+    for err, lg, reg in sets:
+        for f in _regime_findings(err, lg, reg, min_r):
+            key = (f.channel, f.variable)
+            if key not in best or abs(f.r) > abs(best[key].r):
+                best[key] = f
+    per_channel: dict[str, list[Finding]] = {}
+    for f in best.values():
+        per_channel.setdefault(f.channel, []).append(f)
+    findings = [f for fs in per_channel.values() for f in sorted(fs, key=lambda f: -abs(f.r))[:2]]
+    findings.sort(key=lambda f: -abs(f.r))
+    return findings, whiteness, input_corr, E, regimes
+
+
+def _regime_findings(E: np.ndarray, log: FlightLog, regimes: dict[str, np.ndarray], min_r: float) -> list[Finding]:
+    out = []
+    t = log.t
+    for c, ch in enumerate(OUTPUTS):
+        e = E[:, c]
+        k = np.isfinite(e)
+        if k.sum() < 50:
+            continue
+        env = _envelope(e, t)
+        sel = np.flatnonzero(k)[:: max(1, k.sum() // 4000)]
+        for name, v in regimes.items():
+            ok = np.isfinite(env[sel]) & np.isfinite(v[sel])
+            if ok.sum() < 30 or np.ptp(v[sel][ok]) == 0:
+                continue
+            if name == "time into the flight":
+                rs = float(stats.spearmanr(e[sel][ok], v[sel][ok])[0])  # a signed drift
+                if np.isfinite(rs) and abs(rs) >= min_r:
+                    out.append(Finding(ch, name, rs, f"{ch} error drifts steadily over the flight "
+                                                     f"(r = {rs:+.2f} with time)"))
+                continue
+            r = float(stats.spearmanr(env[sel][ok], v[sel][ok])[0])
+            if np.isfinite(r) and abs(r) >= min_r:
+                out.append(Finding(ch, name, r, _sentence(ch, name, r, env[sel][ok], v[sel][ok])))
+    return out
+
+
+def _sentence(ch: str, name: str, r: float, env: np.ndarray, v: np.ndarray) -> str:
+    if name == "height above ground" and r < 0:
+        low = v <= np.quantile(v, 0.1)
+        ratio = float(np.sqrt(np.mean(env[low] ** 2) / max(np.mean(env[~low] ** 2), 1e-300)))
+        return (f"{ch} error is largest close to the ground: below {np.quantile(v, 0.1):.2f} m it is "
+                f"{ratio:.1f}x the RMS elsewhere (r = {r:+.2f} with height)")
+    if r > 0:
+        return f"{ch} error grows with {name} (r = {r:+.2f})"
+    return f"{ch} error grows as {name} falls (r = {r:+.2f})"
+
+
+# ------------------------------------------------------------------------------ candidates
+def _extended(model: QuadrotorModel, res: FitResult, name: str) -> tuple[QuadrotorModel, np.ndarray, list[str]]:
+    """The model plus effect ``name``, its parameter vector (baseline values, new parameters at
+    their null value or lower bound) and the free set (baseline's plus the new parameters)."""
+    ext = model + fx.by_name(name)
+    base = res.model.parameter_dict(res.p)
+    p = ext.default_parameters()
+    names = ext.param_names
+    new: list[str] = []
+    for par in ext.parameters:
+        for comp in par.component_names:
+            i = names.index(comp)
+            if comp in base:
+                p[i] = base[comp]
+            else:
+                p[i] = min(max(par.null, par.lower), par.upper)
+                new.append(comp)
+    return ext, p, list(res.free_names) + new
+
+
+def _extend_nodes(ext: QuadrotorModel, res: FitResult, log: FlightLog, p: np.ndarray) -> list[np.ndarray]:
+    out = []
+    for nodes, idx in zip(res.node_states, res.node_index):
+        full = np.zeros((nodes.shape[0], ext.nx))
+        for r, k in enumerate(idx):
+            full[r] = ext.initial_state(nodes[r, :12], log.inputs[k], p)
+        # keep effect states the smaller model already had (same order: catalogue order)
+        old = [s for s in res.model.state_names]
+        for j, s in enumerate(ext.state_names):
+            if s in old:
+                full[:, j] = nodes[:, old.index(s)]
+        out.append(full)
+    return out
+
+
+def _screen(model: QuadrotorModel, res: FitResult, log: FlightLog, name: str, sigma: np.ndarray,
+            compile: str) -> tuple[float, int]:
+    """Score statistic and degrees of freedom of candidate ``name`` at the baseline optimum."""
+    ext, p, free = _extended(model, res, name)
+    free_idx = _free_indices(ext, free, None)
+    ses = _Session(ext, [log], free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
+                   lambda _m: None)
+    X = np.vstack(_extend_nodes(ext, res, log, p))
+    th = p[free_idx] / ses.scale
+    d = ses.predicted_decrease(X, th)
+    return 2.0 * max(d, 0.0), len(free) - len(res.free_names)
+
+
+def _refit(model: QuadrotorModel, res: FitResult, est: FlightLog, val: FlightLog, name: str, sigma: dict,
+           compile: str) -> tuple[QuadrotorModel, FitResult, Prediction]:
+    ext, p, free = _extended(model, res, name)
+    fr = fit(ext, est, free=free, p0=p, noise=sigma, reweight=False, compile=compile,
+             initial_states=_extend_nodes(ext, res, est, p), interval=res.interval)
+    return ext, fr, predict(ext, fr.p, val, compile=compile)
+
+
+def _lr_test(base: FitResult, alt: FitResult, alt_resid: np.ndarray, df: int, on_bound: bool,
+             n_tests: int) -> tuple[float, float]:
+    lr = 0.0
+    for c, ch in enumerate(OUTPUTS):
+        if ch not in base.channel_cost:
+            continue
+        f = _long_run_factor(alt_resid[:, c] / base.sigma[ch])
+        lr += (base.channel_cost[ch] - alt.channel_cost[ch]) / f
+    lr = max(lr, 0.0)
+    p = float(stats.chi2.sf(lr, df)) if df > 0 else 1.0
+    if on_bound:
+        p *= 0.5   # chi-bar-square: half the mass sits on the bound
+    return lr, min(1.0, p * n_tests)
+
+
+def _null_on_bound(ext: QuadrotorModel, name: str) -> bool:
+    return any(par.effect == name and par.lower >= min(par.null, par.upper) for par in ext.parameters)
+
+
+def _precompile(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: int, compile: str,
+                what: str) -> None:
+    """Compile candidates' step functions at once, two compilers in parallel, before they
+    are needed one by one: ``what`` = "screen" (blocks, quick build) or "refit" (blocks and
+    line search, optimised; plus the state estimator of the validation part)."""
+    if compile == "never":
+        return
+    from .codegen import precompile
+    items, quick = [], []
+    for name in names:
+        ext, _, free = _extended(model, res, name)
+        blk, val, key = _ShootingProblem.step_functions(ext, _free_indices(ext, free, None), n_sub)
+        if what == "screen":
+            quick.append((blk, key + "blocks"))
+        else:
+            items += [(blk, key + "blocks"), (val, key + "value")]
+            blk0, _, key0 = _ShootingProblem.step_functions(ext, [], n_sub)
+            items.append((blk0, key0 + "blocks"))
+    if quick:
+        precompile(quick, opt="-O0")
+    if items:
+        precompile(items, opt="-O1")
+
+
+def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: FlightLog, val: FlightLog,
+                candidates: Sequence[str], compile: str, say: Callable[[str], None], n_refit: int
+                ) -> list[CandidateResult]:
+    sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
+    n_sub = n_substeps(float(np.diff(est.t).max()))
+    t0 = time.perf_counter()
+    _precompile(model, res, candidates, n_sub, compile, "screen")
+    say(f"  built candidate models ({time.perf_counter() - t0:.1f} s)")
+    out: list[CandidateResult] = []
+    for name in candidates:
+        t0 = time.perf_counter()
+        score, df = _screen(model, res, est, name, sigma, compile)
+        say(f"  screen {name:<16} score {score:12.1f}  ({time.perf_counter() - t0:.1f} s)")
+        out.append(CandidateResult(name, df, score, nrmse_before=pred.total))
+    out.sort(key=lambda c: -c.score)
+    n_tests = max(len(candidates), 1)
+
+    def promising(c: CandidateResult) -> bool:
+        ext_model = model + fx.by_name(c.effect)
+        p_score = float(stats.chi2.sf(c.score, c.df)) * (0.5 if _null_on_bound(ext_model, c.effect) else 1.0)
+        return c.score > 0 and p_score * n_tests < ALPHA
+
+    t0 = time.perf_counter()
+    _precompile(model, res, [c.effect for c in out[:n_refit] if promising(c)], n_sub, compile, "refit")
+    say(f"  built refit models ({time.perf_counter() - t0:.1f} s)")
+    for cand in out[:n_refit]:
+        ext_model = model + fx.by_name(cand.effect)
+        p_score = float(stats.chi2.sf(cand.score, cand.df)) * (0.5 if _null_on_bound(ext_model, cand.effect) else 1.0)
+        if cand.score <= 0:
+            cand.reason = "no improvement in the allowed direction"
+            continue
+        if p_score * n_tests >= ALPHA:
+            # the score statistic is larger than the corrected LR: it cannot become significant
+            cand.reason = f"score test not significant (p = {min(1.0, p_score * n_tests):.2g}), not refitted"
+            continue
+        t0 = time.perf_counter()
+        ext, fr, pr = _refit(model, res, est, val, cand.effect, res.sigma, compile)
+        _, Y = _trajectory(ext, fr, est)
+        E = _residuals(est, Y)
+        cand.lr, cand.p_value = _lr_test(res, fr, E, cand.df, _null_on_bound(ext, cand.effect), n_tests)
+        cand.fit, cand.prediction = fr, pr
+        cand.nrmse_after, cand.channels_after = pr.total, dict(pr.nrmse)
+        gain = 1 - pr.total / pred.total
+        if cand.p_value >= ALPHA:
+            cand.reason = f"not significant (p = {cand.p_value:.2g})"
+        elif gain < MIN_VALIDATION_GAIN:
+            cand.reason = f"significant in the fit but validation nrmse {'rises' if gain < 0 else 'falls only'} " \
+                          f"{abs(100 * gain):.1f} %"
+        else:
+            cand.significant = True
+            cand.reason = f"p = {cand.p_value:.2g}, validation nrmse -{100 * gain:.0f} %"
+        say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
+            f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s)")
+    refitted = [c for c in out if c.lr is not None]
+    rest = [c for c in out if c.lr is None]
+    refitted.sort(key=lambda c: (not c.significant, -(c.lr or 0.0)))
+    return refitted + rest
+
+
+def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str] | None = None,
+             iterate: bool = True, max_rounds: int = 3, split: float = 0.8, p0=None,
+             n_refit: int = N_REFIT, compile: str = "auto",
+             progress: bool | Callable[[str], None] = False) -> Diagnosis:
+    """Compare ``model`` with ``log``, find where it fails and which catalogue effect is
+    missing; with ``iterate`` add significant effects until none is left (see module doc).
+
+    Args:
+        candidates: effect names to consider (default: every catalogue effect not in the model).
+        p0: starting values of the baseline fit.
+    """
+    t_start = time.perf_counter()
+    say = (lambda m: print(m, file=__import__("sys").stderr, flush=True)) if progress is True else \
+        (progress or (lambda _m: None))
+    if candidates is None:
+        candidates = [n for n in fx.CATALOGUE if n not in model.effects]
+    for c in candidates:
+        fx.by_name(c)
+        if c in model.effects:
+            raise GreyboxInputError(f"candidate {c!r} is already in the model")
+    est, val = log.split(split)
+    say(f"diagnose: fitting the model ({', '.join(model.effect_names)}) to {len(est)} samples")
+    res = fit(model, est, p0=p0, compile=compile)
+    pred = predict(model, res.p, val, compile=compile)
+    say(f"diagnose: validation nrmse {pred.total:.3f}")
+    findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred)
+    rounds: list[Round] = []
+    warnings: list[str] = list(res.warnings)
+    cur_model, cur_res, cur_pred = model, res, pred
+    remaining = list(candidates)
+    for r in range(max_rounds if iterate else 1):
+        if not remaining:
+            break
+        say(f"diagnose: round {r + 1}: screening {len(remaining)} candidates")
+        ranking = _rank_round(cur_model, cur_res, cur_pred, est, val, remaining, compile, say, n_refit)
+        verdict = ranking[0].effect if ranking and ranking[0].significant else None
+        rounds.append(Round(cur_model, cur_res, cur_pred, ranking, verdict))
+        if verdict is None:
+            break
+        win = ranking[0]
+        cur_model, cur_res, cur_pred = win.fit.model, win.fit, win.prediction
+        remaining = [c for c in remaining if c != verdict]
+    # confusable candidates: significant alone in round 1, explained away by the winner
+    first = rounds[0].ranking if rounds else []
+    if len(rounds) >= 2 and rounds[0].verdict:
+        later = {c.effect: c for c in rounds[1].ranking}
+        for c in first[1:]:
+            if c.significant and c.effect in later and not later[c.effect].significant:
+                pair = frozenset({rounds[0].verdict, c.effect})
+                hint = DISTINGUISH.get(pair, "fly manoeuvres that excite one and not the other")
+                warnings.append(f"{c.effect} explains much of what {rounds[0].verdict} explains "
+                                f"(significant alone, not once {rounds[0].verdict} is in); to tell them apart: {hint}")
+    elif len(first) >= 2 and first[0].significant and first[1].significant and first[1].lr and first[0].lr \
+            and first[1].lr > 0.5 * first[0].lr:
+        pair = frozenset({first[0].effect, first[1].effect})
+        warnings.append(f"{first[0].effect} and {first[1].effect} both explain the data well; to tell them apart: "
+                        f"{DISTINGUISH.get(pair, 'fly manoeuvres that excite one and not the other')}")
+    verdict = rounds[0].verdict if rounds else None
+    final = rounds[-1] if rounds else None
+    diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
+                     warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est)
+    diag.timings["total"] = time.perf_counter() - t_start
+    say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
+    return diag
+
+
+# ------------------------------------------------------------------------------ report
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="png", dpi=90)
+    import matplotlib.pyplot as plt
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+def _write_report(d: Diagnosis, out: Path) -> Path:
+    import matplotlib
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    out.mkdir(parents=True, exist_ok=True)
+    images: dict[str, str] = {}
+    compare_plot(d.baseline_prediction, out / "compare_baseline.png", ["baseline"])
+    images["compare_baseline"] = base64.b64encode((out / "compare_baseline.png").read_bytes()).decode()
+    if d.final_prediction is not None and d.final_model is not None and d.final_model is not d.model:
+        added = [e for e in d.final_model.effect_names if e not in d.model.effect_names]
+        compare_plot([d.baseline_prediction, d.final_prediction], out / "compare_after.png",
+                     ["baseline", "+ " + ", ".join(added)])
+        images["compare_after"] = base64.b64encode((out / "compare_after.png").read_bytes()).decode()
+    # residual whiteness
+    if d.residuals is not None:
+        chans = [c for c in OUTPUTS if c in d.whiteness]
+        fig, axs = plt.subplots(1, len(chans), figsize=(2.0 * len(chans), 2.4), sharey=True)
+        for ax, ch in zip(np.atleast_1d(axs), chans):
+            e = d.residuals[:, OUTPUTS.index(ch)]
+            e = e[np.isfinite(e)]
+            e = e - e.mean()
+            ac = [float(e[j:] @ e[:-j]) / float(e @ e) for j in range(1, 31)]
+            ax.bar(range(1, 31), ac, color="C0")
+            band = 2.576 / math.sqrt(e.size)
+            ax.axhspan(-band, band, color="0.85")
+            ax.set_title(ch, fontsize=9)
+            ax.set_xlabel("lag", fontsize=8)
+        np.atleast_1d(axs)[0].set_ylabel("autocorrelation")
+        images["whiteness"] = _png(fig)
+        fig.savefig(out / "whiteness.png")
+        # regimes of the strongest findings
+        top = d.findings[:4]
+        if top and d.regimes is not None:
+            fig, axs = plt.subplots(1, len(top), figsize=(3.3 * len(top), 2.8))
+            for ax, f in zip(np.atleast_1d(axs), top):
+                e = d.residuals[:, OUTPUTS.index(f.channel)]
+                v = d.regimes[f.variable]
+                k = np.isfinite(e)
+                ax.plot(v[k][::5], np.abs(e[k])[::5], ".", ms=1.5, alpha=0.5)
+                ax.set_xlabel(f.variable, fontsize=8)
+                ax.set_ylabel(f"|{f.channel} error|", fontsize=8)
+                ax.set_title(f"r = {f.r:+.2f}", fontsize=9)
+            images["regimes"] = _png(fig)
+            fig.savefig(out / "regimes.png")
+    # ranking bar chart
+    if d.ranking:
+        fig, ax = plt.subplots(figsize=(7, 0.35 * len(d.ranking) + 1))
+        vals = [(c.lr if c.lr is not None else c.score) for c in d.ranking][::-1]
+        cols = ["C2" if c.significant else "0.6" for c in d.ranking][::-1]
+        ax.barh([c.effect for c in d.ranking][::-1], np.maximum(vals, 1e-3), color=cols)
+        ax.set_xscale("log")
+        ax.set_xlabel("statistic (LR after refit, else score); green = significant")
+        images["ranking"] = _png(fig)
+        fig.savefig(out / "ranking.png")
+    esc = html.escape
+    rows = "".join(
+        f"<tr><td>{esc(c.effect)}</td><td>{'yes' if c.significant else 'no'}</td>"
+        f"<td>{c.score:.1f}</td><td>{'' if c.lr is None else f'{c.lr:.1f}'}</td>"
+        f"<td>{'' if c.p_value is None else f'{c.p_value:.2g}'}</td><td>{c.nrmse_before:.3f}</td>"
+        f"<td>{'' if c.nrmse_after is None else f'{c.nrmse_after:.3f}'}</td><td>{esc(c.reason)}</td></tr>"
+        for c in d.ranking)
+    b = d.baseline_prediction
+    chan_rows = ""
+    if d.final_prediction is not None:
+        f = d.final_prediction
+        chan_rows = "".join(f"<tr><td>{ch}</td><td>{b.nrmse[ch]:.3f}</td><td>{f.nrmse.get(ch, float('nan')):.3f}</td>"
+                            f"<td>{100 * (1 - f.nrmse.get(ch, 0) / b.nrmse[ch]) if b.nrmse[ch] else 0:+.0f} %</td></tr>"
+                            for ch in b.nrmse)
+    img = lambda k: f'<img src="data:image/png;base64,{images[k]}"/>' if k in images else ""
+    text = f"""<!doctype html><html><head><meta charset="utf-8"><title>greybox diagnosis</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:3px 8px}}img{{max-width:100%}}</style></head><body>
+<h1>greybox diagnosis</h1>
+<p>Model: {esc(', '.join(d.model.effect_names))}. Verdict: <b>{esc(d.verdict or 'null: nothing significant is missing')}</b>.</p>
+<h2>1. Compare</h2><p>Validation nrmse {b.total:.3f} ({esc(', '.join(f'{c} {v:.3f}' for c, v in b.nrmse.items()))}).</p>
+{img('compare_baseline')}
+<h2>2. Where it fails</h2><ul>{''.join(f'<li>{esc(f.text)}</li>' for f in d.findings) or '<li>no regime stands out</li>'}</ul>
+{img('regimes')}<p>Residual autocorrelation (grey: 99 % band of white noise):</p>{img('whiteness')}
+<h2>3. Which effect is missing</h2><table><tr><th>effect</th><th>significant</th><th>score</th><th>LR</th>
+<th>p</th><th>nrmse before</th><th>nrmse after</th><th>why</th></tr>{rows}</table>{img('ranking')}
+<h2>4. Added, and the error falls</h2>
+<table><tr><th>channel</th><th>before</th><th>after</th><th>change</th></tr>{chan_rows}</table>{img('compare_after')}
+<h2>Warnings</h2><ul>{''.join(f'<li>{esc(w)}</li>' for w in d.warnings) or '<li>none</li>'}</ul>
+</body></html>"""
+    path = out / "report.html"
+    atomic_write(path, text)
+    return path
