@@ -132,7 +132,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
                          input_noise=args.input_noise, dropout=args.dropout)
     man = [m.strip() for m in args.manoeuvres.split(",") if m.strip()]
     res = synthesize(model, p, args.duration, sensors, man, args.seed, args.excitation, args.altitude)
-    save_log(res.log, args.out)
+    save_log(res.log, args.out, digits=args.digits)
     print(f"synthesised {len(res.log)} samples ({args.duration:g} s, seed {args.seed}), effects "
           f"{','.join(model.effect_names)} -> {args.out}", file=sys.stderr)
     if args.json:
@@ -141,44 +141,22 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from .synth import SensorSpec, synthesize
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    af_path = resources.files("greybox") / "data" / "airframes" / "paper.toml"
-    with resources.as_file(af_path) as path:
-        model = build_model(str(path))
-    out = Path(args.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    print(f"greybox demo: airframe {model.airframe.name!r}, effects {', '.join(model.effect_names)}")
-    res = synthesize(model, duration=args.duration, sensors=SensorSpec(), seed=args.seed,
-                     manoeuvres=["hover", "step_x", "step_y", "step_z", "yaw"])
-    save_log(res.log, out / "demo_flight.csv")
-    # the same inputs open loop through the model: the simulation reproduces the flight
-    sim = simulate(model, res.log.t, res.log.inputs, res.parameters, res.states[0])
-    err = np.abs(sim.outputs[:, :6] - res.outputs_true[:, :6]).max(axis=0)
-    print(f"  {len(res.log)} samples at {res.sensors.rate:g} Hz, vision {res.sensors.vision_rate:g} Hz "
-          f"({res.info['vision_samples']} frames)")
-    print("  open-loop replay of the logged rotor speeds vs the flown trajectory, max |error|:")
-    print("   " + "  ".join(f"{n}={e:.2e}" for n, e in zip(model.output_names[:6], err)))
-    fig, axs = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-    for i, n in enumerate("xyz"):
-        axs[0].plot(res.log.t, res.log.output(n), ".", ms=1, label=f"{n} measured")
-        axs[0].plot(sim.t, sim.output(n), "-", lw=0.8, label=f"{n} model")
-    axs[0].set_ylabel("position (m, NED)")
-    axs[0].legend(ncol=3, fontsize=7)
-    for i in range(model.nu):
-        axs[1].plot(res.log.t, res.log.inputs[:, i], lw=0.5, label=model.input_names[i])
-    axs[1].set_ylabel("rotor speed (rad/s)")
-    axs[1].set_xlabel("t (s)")
-    axs[1].legend(ncol=4, fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "demo_flight.png", dpi=110)
-    plt.close(fig)
-    print(f"  wrote {out / 'demo_flight.csv'} and {out / 'demo_flight.png'}")
+    """The greybox story on a bundled log: compare, where it fails, ranking, add, error falls."""
+    from .data import load_log
+    from .diagnosis import diagnose
+    data = resources.files("greybox") / "data"
+    with resources.as_file(data / "airframes" / "paper.toml") as af_path, \
+            resources.as_file(data / "logs" / "demo_ground_effect.csv") as log_path:
+        model = build_model(str(af_path))
+        log = load_log(log_path)
+    print("greybox demo: a 30 s flight of the seed paper's quadrotor (bundled log, 200 Hz IMU, 50 Hz vision);\n"
+          f"model: {', '.join(model.effect_names)}. What is it missing?\n")
+    diag = diagnose(model, log, progress=not args.quiet)
+    print()
+    print(diag.summary())
+    print(f"\nreport: {diag.report(Path(args.out_dir))}")
     if args.json:
-        write_json(args.json, {"samples": len(res.log), "max_replay_error": dict(zip(model.output_names[:6], map(float, err)))})
+        write_json(args.json, diag.as_json())
     return 0
 
 
@@ -238,6 +216,22 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(f"plots: {out / 'compare.png'}, {out / 'residuals.png'}")
     if args.json:
         write_json(args.json, fit_result_json(model, res, {**pred.as_dict()}))
+    return 0
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from .diagnosis import diagnose
+    model, log = _load_fit_inputs(args)
+    cands = _names(args.candidates)
+    for n in cands or []:
+        fx.by_name(n)
+    diag = diagnose(model, log, candidates=cands, iterate=not args.no_iterate,
+                    p0=model.parameter_vector(parse_sets(args.set)), progress=not args.quiet)
+    print(diag.summary())
+    if args.report:
+        print(f"report: {diag.report(args.report)}")
+    if args.json:
+        write_json(args.json, diag.as_json())
     return 0
 
 
@@ -310,6 +304,7 @@ def _parser() -> argparse.ArgumentParser:
     y.add_argument("--altitude", type=float, default=1.0, help="hover height above ground, m")
     y.add_argument("--manoeuvres", default=",".join(("hover", "step_x", "step_y", "step_z", "yaw", "fast", "ground")),
                    help="comma list from hover,step_x,step_y,step_z,yaw,fast,ground")
+    y.add_argument("--digits", type=int, default=17, help="significant digits in the CSV (default 17: exact)")
     y.add_argument("--json", help="write the truth (effects, parameters, seed) here")
     y.set_defaults(func=cmd_synth)
 
@@ -331,6 +326,21 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--json", help="write the result here")
     f.set_defaults(func=cmd_fit)
 
+    g = sub.add_parser("diagnose", help="find where the model fails and which effect is missing",
+                       description="Fit the model, show where it fails, try the catalogue's candidate effects "
+                                   "and rank them; add the significant ones until nothing is missing.")
+    g.add_argument("log", help="flight log CSV")
+    g.add_argument("--airframe", required=True)
+    g.add_argument("--effects", help="comma list of effects to add to the base model")
+    g.add_argument("--without", help="comma list of effects to remove from the base model")
+    g.add_argument("--set", action="append", metavar="NAME=VALUE", help="starting value (repeatable)")
+    g.add_argument("--candidates", help="comma list of candidate effects (default: every effect not in the model)")
+    g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
+    g.add_argument("--report", help="folder for the HTML report and its plots")
+    g.add_argument("--quiet", action="store_true", help="no progress lines")
+    g.add_argument("--json", help="write the result here")
+    g.set_defaults(func=cmd_diagnose)
+
     z = sub.add_parser("linearize", help="hover trim and continuous-time Jacobians",
                        description="Hover trim of the composed model and its continuous-time Jacobians "
                                    "A = df/dx, B = df/du (and C, D of the measurement map).")
@@ -344,10 +354,10 @@ def _parser() -> argparse.ArgumentParser:
     z.set_defaults(func=cmd_linearize)
 
     d = sub.add_parser("demo", help="the greybox story on bundled data",
-                       description="Simulate the bundled airframe through a short manoeuvre and plot it.")
-    d.add_argument("--out-dir", default="greybox-demo", help="folder for the outputs (default greybox-demo)")
-    d.add_argument("--duration", type=float, default=15.0)
-    d.add_argument("--seed", type=int, default=0)
+                       description="Diagnose the seed paper's base model on a bundled flight log with a hidden "
+                                   "effect: compare, where it fails, ranking, add, error falls; writes a report.")
+    d.add_argument("--out-dir", default="greybox-demo", help="folder for the report (default greybox-demo)")
+    d.add_argument("--quiet", action="store_true", help="no progress lines")
     d.add_argument("--json")
     d.set_defaults(func=cmd_demo)
     return ap

@@ -154,6 +154,9 @@ def atomic_write(path: str | Path, text: str) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would make results private to one user
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
             f.write(text)
@@ -295,12 +298,11 @@ def load_log(path: str | Path, inputs: str = "auto") -> FlightLog:
     return FlightLog(t, U, in_names, Y, out_names, extras, notes, str(path))
 
 
-def _fmt(v: float) -> str:
-    return "" if np.isnan(v) else repr(float(v))
-
-
-def save_log(log: FlightLog, path: str | Path, extras: bool = True) -> None:
-    """Write a flight log CSV atomically; NaN outputs become empty cells."""
+def save_log(log: FlightLog, path: str | Path, extras: bool = True, digits: int = 17) -> None:
+    """Write a flight log CSV atomically; NaN outputs become empty cells. ``digits``
+    significant digits per value (17 round-trips exactly; fewer make smaller files)."""
+    _fmt = (lambda v: "" if np.isnan(v) else repr(float(v))) if digits >= 17 else \
+        (lambda v: "" if np.isnan(v) else f"{v:.{digits}g}")
     names = ["t"] + list(log.input_names) + list(log.output_names)
     cols = [log.t[:, None], log.inputs, log.outputs]
     if extras and log.extras:

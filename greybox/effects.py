@@ -189,7 +189,9 @@ class LinearDrag(Effect):
     summary = "translational drag -Kd*v (world axes)"
 
     def parameters(self, airframe):
-        return [Parameter("Kd", 3, 0.1, "N s/m", 0.0, np.inf, 0.1, 0.0, True,
+        # upper bound: a drag time constant m/Kd below 0.1 s is no multirotor; it keeps a
+        # misspecified model from running away to absurd drag
+        return [Parameter("Kd", 3, 0.1, "N s/m", 0.0, 10.0 * airframe.mass, 0.1, 0.0, True,
                           "linear drag coefficients along world x, y, z", self.name)]
 
     def add_forces(self, ctx):
@@ -227,7 +229,7 @@ class QuadraticDrag(Effect):
     summary = "parasitic drag -Kq*|v|*v"
 
     def parameters(self, airframe):
-        return [Parameter("Kq", 3, 0.0, "N s^2/m^2", 0.0, np.inf, 0.01, 0.0, True,
+        return [Parameter("Kq", 3, 0.0, "N s^2/m^2", 0.0, 10.0 * airframe.mass, 0.01, 0.0, True,
                           "quadratic drag coefficients along world x, y, z", self.name)]
 
     def add_forces(self, ctx):

@@ -608,10 +608,11 @@ class _Session:
             sol = kkt.solve(Hf, gg, G, cz, mu)
             dz = sol[(kkt.znodes[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
             dth = dz[0, nx:]
-            out = ((th <= self.lo_s + 1e-12) & (dth < 0)) | ((th >= self.hi_s - 1e-12) & (dth > 0))
-            if not (out & ~frozen).any():
+            out = (((th <= self.lo_s + 1e-12) & (dth < 0)) | ((th >= self.hi_s - 1e-12) & (dth > 0))) & ~frozen
+            if not out.any():
                 break
-            frozen |= out
+            # hold the worst violator only, then look again: the others may turn inward
+            frozen[np.flatnonzero(out)[np.argmax(np.abs(dth[out]))]] = True
         dz[:, nx:] = np.where(frozen, 0.0, dz[:, nx:])
         lam = sol[(kkt.lams[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
         return dz, lam, H, gg, cz
