@@ -1,0 +1,84 @@
+"""The diagnosis: the seed paper's Fig. 1 story, a null verdict, the CLI contract."""
+import json
+
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel
+from greybox.cli import main
+from greybox.data import save_log
+from greybox.diagnosis import _long_run_factor, diagnose
+from greybox.synth import SensorSpec, synthesize
+
+from conftest import AIRFRAMES
+
+FAST = SensorSpec(rate=200.0, vision_rate=50.0)
+
+
+@pytest.fixture(scope="module")
+def paper():
+    from greybox import load_airframe
+    return QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+
+
+@pytest.fixture(scope="module")
+def normal_flight(paper):
+    return synthesize(paper, duration=24.0, seed=5, sensors=FAST,
+                      manoeuvres=["hover", "yaw", "step_x", "step_z", "yaw", "step_y"])
+
+
+def test_long_run_factor_of_white_and_coloured_noise():
+    rng = np.random.default_rng(0)
+    white = rng.standard_normal(20000)
+    assert _long_run_factor(white) == pytest.approx(1.0, abs=0.25)   # ~2.5 sampling sd
+    ar = np.zeros(20000)
+    for k in range(1, ar.size):     # AR(1), rho = 0.8: long-run factor (1+rho)/(1-rho) = 9
+        ar[k] = 0.8 * ar[k - 1] + white[k]
+    assert 6.5 < _long_run_factor(ar) < 10
+
+
+@pytest.mark.slow
+def test_model_without_yaw_torque_is_diagnosed_as_missing_it(paper, normal_flight):
+    """The seed paper's Fig. 1: without the rotor reaction torque the model cannot explain yaw."""
+    d = diagnose(paper.without("yaw_torque"), normal_flight.log, iterate=False)
+    assert d.verdict == "yaw_torque"
+    top = d.ranking[0]
+    assert top.effect == "yaw_torque" and top.significant
+    for ch in ("psi", "r"):
+        assert top.channels_after[ch] < 0.7 * d.baseline_prediction.nrmse[ch]   # falls by >= 30 %
+    b = top.fit.value("b")
+    assert b == pytest.approx(6.8429e-7, rel=0.02)
+
+
+@pytest.mark.slow
+def test_nothing_missing_gives_a_null_verdict(paper, normal_flight):
+    d = diagnose(paper, normal_flight.log, candidates=["ground_effect", "attitude_bias", "wind", "thrust_drift"])
+    assert d.verdict is None
+    assert not any(c.significant for c in d.ranking)
+    assert "null" in d.summary()
+
+
+def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airframe_path):
+    save_log(normal_flight.log, tmp_path / "f.csv")
+    rc = main(["diagnose", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--without", "yaw_torque",
+               "--candidates", "yaw_torque,attitude_bias", "--no-iterate", "--quiet",
+               "--json", str(tmp_path / "d.json"), "--report", str(tmp_path / "rep")])
+    assert rc == 0
+    r = json.loads((tmp_path / "d.json").read_text())
+    assert set(r) >= {"baseline", "ranking", "verdict"}
+    assert set(r["baseline"]) == {"nrmse", "channels"} and "psi" in r["baseline"]["channels"]
+    assert r["verdict"] == "yaw_torque"
+    first = r["ranking"][0]
+    assert first["effect"] == "yaw_torque" and first["significant"] is True
+    assert first["nrmse_after"] < first["nrmse_before"]
+    assert {c["effect"] for c in r["ranking"]} == {"yaw_torque", "attitude_bias"}
+    html = (tmp_path / "rep" / "report.html").read_text()
+    assert "data:image/png;base64," in html and "yaw_torque" in html
+
+
+def test_diagnose_cli_bad_candidate(tmp_path, normal_flight, paper_airframe_path, capsys):
+    save_log(normal_flight.log, tmp_path / "f.csv")
+    rc = main(["diagnose", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path),
+               "--candidates", "magic", "--json", str(tmp_path / "d.json")])
+    assert rc == 2 and "unknown effect 'magic'" in capsys.readouterr().err
+    assert not (tmp_path / "d.json").exists()
