@@ -262,6 +262,14 @@ def _floats(text: str, n: int, opt: str) -> list[float]:
 
 
 # ---------------------------------------------------------------------------- parser
+def _model_args(ap: argparse.ArgumentParser, set_help: str) -> None:
+    """The options that choose a model: airframe, added and removed effects, parameter values."""
+    ap.add_argument("--airframe", required=True, help="airframe TOML")
+    ap.add_argument("--effects", help="comma list of effects to add to the base model")
+    ap.add_argument("--without", help="comma list of effects to remove from the base model")
+    ap.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = _Parser(prog="greybox", description="Grey-box system identification of quadrotors.")
     ap.add_argument("--version", action="version", version=f"greybox {__version__}")
@@ -270,13 +278,9 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("simulate", help="simulate the model open loop from rotor speeds",
                        description="Simulate the model open loop from the rotor speeds in an inputs CSV "
                                    "(columns t,w1..w4) and write a flight log of the noise-free outputs.")
-    s.add_argument("--airframe", required=True, help="airframe TOML")
+    _model_args(s, "parameter value, e.g. K_T=2.4e-5 or Kd=0.2,0.2,0.3 (repeatable)")
     s.add_argument("--inputs", required=True, help="CSV with columns t,w1..wN (rad/s)")
     s.add_argument("--out", required=True, help="flight log CSV to write")
-    s.add_argument("--effects", help="comma list of effects to add to the base model")
-    s.add_argument("--without", help="comma list of effects to remove from the base model")
-    s.add_argument("--set", action="append", metavar="NAME=VALUE",
-                   help="parameter value, e.g. K_T=2.4e-5 or Kd=0.2,0.2,0.3 (repeatable)")
     s.add_argument("--x0", help="initial state x,y,z,phi,theta,psi,vx,vy,vz,p,q,r (default rest at origin)")
     s.add_argument("--integrator", choices=["rk4", "cvodes"], default="rk4",
                    help="rk4: fixed step <= 1 ms (default); cvodes: adaptive, tight tolerances")
@@ -312,10 +316,7 @@ def _parser() -> argparse.ArgumentParser:
                        description="Fit the free parameters by multiple-shooting least squares on the "
                                    "first 80 %% of the log and validate on the last 20 %%.")
     f.add_argument("log", help="flight log CSV")
-    f.add_argument("--airframe", required=True)
-    f.add_argument("--effects", help="comma list of effects to add to the base model")
-    f.add_argument("--without", help="comma list of effects to remove from the base model")
-    f.add_argument("--set", action="append", metavar="NAME=VALUE", help="starting value (repeatable)")
+    _model_args(f, "starting value (repeatable)")
     f.add_argument("--free", help="comma list of parameters to fit (default: all that are free by default)")
     f.add_argument("--fixed", help="comma list of parameters to hold at their starting values")
     f.add_argument("--interval", type=int, help="samples per shooting interval (default: nearest 50 ms)")
@@ -330,10 +331,7 @@ def _parser() -> argparse.ArgumentParser:
                        description="Fit the model, show where it fails, try the catalogue's candidate effects "
                                    "and rank them; add the significant ones until nothing is missing.")
     g.add_argument("log", help="flight log CSV")
-    g.add_argument("--airframe", required=True)
-    g.add_argument("--effects", help="comma list of effects to add to the base model")
-    g.add_argument("--without", help="comma list of effects to remove from the base model")
-    g.add_argument("--set", action="append", metavar="NAME=VALUE", help="starting value (repeatable)")
+    _model_args(g, "starting value (repeatable)")
     g.add_argument("--candidates", help="comma list of candidate effects (default: every effect not in the model)")
     g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
     g.add_argument("--report", help="folder for the HTML report and its plots")
@@ -344,10 +342,7 @@ def _parser() -> argparse.ArgumentParser:
     z = sub.add_parser("linearize", help="hover trim and continuous-time Jacobians",
                        description="Hover trim of the composed model and its continuous-time Jacobians "
                                    "A = df/dx, B = df/du (and C, D of the measurement map).")
-    z.add_argument("--airframe", required=True)
-    z.add_argument("--effects", help="comma list of effects to add to the base model")
-    z.add_argument("--without", help="comma list of effects to remove from the base model")
-    z.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter value (repeatable)")
+    _model_args(z, "parameter value (repeatable)")
     z.add_argument("--at", help="hover position x,y,z (NED; default 0,0 and 1 m above the ground plane)")
     z.add_argument("--psi", type=float, default=0.0, help="hover heading, rad (default 0)")
     z.add_argument("--json", required=True, help="write the result here")

@@ -46,7 +46,7 @@ from . import effects as fx
 from .data import FlightLog, atomic_write
 from .errors import GreyboxInputError
 from .fitting import FitResult, _free_indices, _Session, _ShootingProblem, fit, initial_node_states
-from .integrate import n_substeps, rk4_step
+from .integrate import n_substeps, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 from .validation import Prediction, compare_plot, predict
 
@@ -234,14 +234,7 @@ def _trajectory(model: QuadrotorModel, res: FitResult, log: FlightLog) -> tuple[
     N = res.interval
     n = len(log)
     M = len(idx) - 1
-    n_sub = n_substeps(float(np.diff(log.t).max()))
-    step = rk4_step(model, n_sub)
-    x = ca.SX.sym("x", model.nx)
-    u = ca.SX.sym("u", model.nu)
-    p = ca.SX.sym("p", model.n_params)
-    t = ca.SX.sym("t")
-    h = ca.SX.sym("h")
-    f = ca.Function("traj_step", [x, u, p, t, h], [step(x, u, p, t, h), model.output(x, u, p, t), x])
+    f = rk4_step_with_output(model, n_substeps(float(np.diff(log.t).max())))
     F = f.mapaccum("traj", N, [0], [0]).map(M, "thread", 2)
     k = np.minimum(np.arange(M * N), n - 1)
     hk = np.append(np.diff(log.t), 0.0)[k]

@@ -20,7 +20,7 @@ import numpy as np
 from .errors import GreyboxInputError, SolverError
 from .model import QuadrotorModel
 
-__all__ = ["MAX_STEP", "rk4_step", "n_substeps", "simulate", "Simulation"]
+__all__ = ["MAX_STEP", "rk4_step", "rk4_step_with_output", "n_substeps", "simulate", "Simulation"]
 
 MAX_STEP = 2.5e-3
 """Largest RK4 step (s). Logs sampled more slowly are integrated with sub-steps; with the
@@ -51,6 +51,19 @@ def rk4_step(model: QuadrotorModel, n_sub: int = 1) -> ca.Function:
         xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         tk = tk + dt
     return ca.Function("rk4", [x, u, p, t, h], [xk], ["x", "u", "p", "t", "h"], ["x_next"])
+
+
+def rk4_step_with_output(model: QuadrotorModel, n_sub: int = 1) -> ca.Function:
+    """``F(x, u, p, t, h) -> (x_next, y, x)``: one held-input RK4 interval and the outputs and
+    state at its start, the building block of trajectory and prediction maps."""
+    step = rk4_step(model, n_sub)
+    x = ca.SX.sym("x", model.nx)
+    u = ca.SX.sym("u", model.nu)
+    p = ca.SX.sym("p", model.n_params)
+    t = ca.SX.sym("t")
+    h = ca.SX.sym("h")
+    return ca.Function("rk4_out", [x, u, p, t, h], [step(x, u, p, t, h), model.output(x, u, p, t), x],
+                       ["x", "u", "p", "t", "h"], ["x_next", "y", "x_now"])
 
 
 def _cvodes_step(model: QuadrotorModel, rtol: float, atol: float) -> ca.Function:

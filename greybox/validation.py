@@ -26,7 +26,7 @@ import numpy as np
 from .data import FlightLog
 from .errors import GreyboxInputError
 from .fitting import _ShootingProblem, estimate_noise, initial_node_states
-from .integrate import n_substeps, rk4_step
+from .integrate import n_substeps, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 
 __all__ = ["Prediction", "predict", "nrmse", "compare_plot", "residual_plot", "estimate_states",
@@ -131,20 +131,13 @@ def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts
 
 
 def _prediction_function(model: QuadrotorModel, n_steps: int, n_sub: int, n_windows: int) -> ca.Function:
-    step = rk4_step(model, n_sub)
-    x = ca.SX.sym("x", model.nx)
-    u = ca.SX.sym("u", model.nu)
-    p = ca.SX.sym("p", model.n_params)
-    t = ca.SX.sym("t")
-    h = ca.SX.sym("h")
-    f = ca.Function("pred_step", [x, u, p, t, h], [step(x, u, p, t, h), model.output(x, u, p, t)])
-    acc = f.mapaccum("pred", n_steps, [0], [0])
+    acc = rk4_step_with_output(model, n_sub).mapaccum("pred", n_steps, [0], [0])
     X0 = ca.MX.sym("x0", model.nx)
     U = ca.MX.sym("U", model.nu, n_steps)
     P = ca.MX.sym("p", model.n_params)
     T = ca.MX.sym("T", 1, n_steps)
     Hs = ca.MX.sym("h", 1, n_steps)
-    _, Y = acc(X0, U, ca.repmat(P, 1, n_steps), T, Hs)
+    _, Y, _ = acc(X0, U, ca.repmat(P, 1, n_steps), T, Hs)
     return ca.Function("predict", [X0, U, P, T, Hs], [Y]).map(n_windows, "thread", 2)
 
 
