@@ -465,8 +465,10 @@ def _refit(model: QuadrotorModel, res: FitResult, est: FlightLog, val: FlightLog
         init = None
     else:
         init = _extend_nodes(ext, res, est, p)
-    fr = fit(ext, est, free=free, p0=p, noise=sigma, reweight=False, compile=compile, max_iter=200,
-             initial_states=init, interval=res.interval)
+    # a cold start of a still-wrong model can crawl along a compensating valley: cap it, the
+    # likelihood ratio against the baseline stays valid for any point reached
+    fr = fit(ext, est, free=free, p0=p, noise=sigma, reweight=False, compile=compile,
+             max_iter=50 if cold else 200, initial_states=init, interval=res.interval)
     return ext, fr, predict(ext, fr.p, val, compile=compile)
 
 
