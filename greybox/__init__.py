@@ -15,8 +15,12 @@ from .integrate import simulate  # noqa: E402
 from .model import QuadrotorModel  # noqa: E402
 from .fitting import FitResult, GreyBoxEstimator, fit  # noqa: E402
 from .validation import Prediction, compare_plot, nrmse, predict, residual_plot  # noqa: E402
+from .diagnosis import Diagnosis, diagnose  # noqa: E402
+from .linearize import LinearModel, hover_trim, linearize  # noqa: E402
+from .control import dlqr, dlqry, reference_gain  # noqa: E402
 
 __all__ = ["effects", "Airframe", "load_airframe", "FlightLog", "load_log", "save_log",
            "GreyboxError", "GreyboxInputError", "SolverError", "simulate", "QuadrotorModel",
            "fit", "FitResult", "GreyBoxEstimator", "Prediction", "predict", "nrmse", "compare_plot",
-           "residual_plot", "__version__"]
+           "residual_plot", "diagnose", "Diagnosis", "linearize", "hover_trim", "LinearModel", "dlqr",
+           "dlqry", "reference_gain", "__version__"]
