@@ -329,18 +329,6 @@ class _MappedPair:
             self._value = self.prob.value.map(self.M, "thread", 2)
         return self._value
 
-    def __iter__(self):  # (blocks, value) unpacking, value built lazily on demand
-        yield self.blocks
-        yield _Lazy(self)
-
-
-class _Lazy:
-    def __init__(self, pair: _MappedPair):
-        self.pair = pair
-
-    def __call__(self, *args):
-        return self.pair.value(*args)
-
 
 @dataclass
 class _Data:
@@ -545,7 +533,7 @@ class _Session:
         self.t_build = time.perf_counter() - t0
         self.data = _layout(model, logs, interval, sigma)
         self.n_int = sum(M for _, M in self.data.flights)
-        self.F_blocks, self.F_value = self.prob.mapped(self.n_int)
+        self.mapped = self.prob.mapped(self.n_int)
         self.kkt = _KKT(self.data.flights, model.nx, len(free_idx))
         self.nx, self.nth, self.nz = model.nx, len(free_idx), self.prob.nz
         self.pfix = p.copy()
@@ -570,11 +558,11 @@ class _Session:
         args = (X[~self.last_mask].T, th, self.scale, self.pfix, self.data.U, self.data.T, self.data.Hs,
                 self.data.Y, self.data.W)
         if blocks:
-            xe, S, H, g, c = self.F_blocks(*args)
+            xe, S, H, g, c = self.mapped.blocks(*args)
             S = np.asarray(S).reshape(nx, n_int, nz).transpose(1, 0, 2)
             H = np.asarray(H).reshape(nz, n_int, nz).transpose(1, 0, 2)
             return np.asarray(xe).T, S, H, np.asarray(g).T, np.asarray(c)
-        xe, c = self.F_value(*args)
+        xe, c = self.mapped.value(*args)
         return np.asarray(xe).T, np.asarray(c)
 
     def gaps(self, X, xe):

@@ -92,7 +92,7 @@ def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts
     n_sub = n_substeps(float(np.diff(log.t).max()))
     prob = _ShootingProblem(model, [], L, n_sub, compile)
     nW = starts.size
-    Fb, Fv = prob.mapped(nW)
+    Fb = prob.mapped(nW).blocks
     idx = (starts[:, None] - L + np.arange(L)[None, :]).ravel()
     Y = np.full((idx.size, model.ny), np.nan)
     for c, name in enumerate(OUTPUTS):
