@@ -222,10 +222,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, log = _load_fit_inputs(args)
-    cands = _names(args.candidates)
-    for n in cands or []:
-        fx.by_name(n)
-    diag = diagnose(model, log, candidates=cands, iterate=not args.no_iterate,
+    diag = diagnose(model, log, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=model.parameter_vector(parse_sets(args.set)), progress=not args.quiet)
     print(diag.summary())
     if args.report:

@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
-import casadi as ca
 import numpy as np
 from scipy import stats
 
@@ -532,10 +531,10 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
     out.sort(key=lambda c: -c.score)
     n_tests = max(len(candidates), 1)
 
-    def promising(c: CandidateResult) -> bool:
-        ext_model = model + fx.by_name(c.effect)
-        p_score = float(stats.chi2.sf(c.score, c.df)) * (0.5 if _null_on_bound(ext_model, c.effect) else 1.0)
-        return c.score > 0 and p_score * n_tests < ALPHA
+    def score_p(c: CandidateResult) -> float:
+        """Bonferroni-corrected p-value of the screening (score) statistic."""
+        half = 0.5 if _null_on_bound(model + fx.by_name(c.effect), c.effect) else 1.0
+        return min(1.0, float(stats.chi2.sf(c.score, c.df)) * half * n_tests)
 
     # A baseline with parameters on their bounds is compensating for something: the score,
     # a local statistic at that distorted point, can miss the effect. Then refit them all.
@@ -545,24 +544,22 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
                        for b in lo_hi[model.param_names.index(n)] if np.isfinite(b))]
     if at_bound:
         say(f"  baseline has {', '.join(at_bound)} on a bound: refitting every candidate")
-        to_refit = [c for c in out]
+        to_refit = list(out)
     else:
-        to_refit = [c for c in out[:n_refit] if promising(c)]
+        to_refit = []
+        for c in out[:n_refit]:
+            p = score_p(c)
+            if c.score <= 0:
+                c.reason = "no improvement in the allowed direction"
+            elif p >= ALPHA:
+                # the score statistic is larger than the corrected LR: it cannot become significant
+                c.reason = f"score test not significant (p = {p:.2g}), not refitted"
+            else:
+                to_refit.append(c)
     t0 = time.perf_counter()
     _precompile(model, res, [c.effect for c in to_refit], n_sub, compile, "refit")
     say(f"  built refit models ({time.perf_counter() - t0:.1f} s)")
-    for cand in out:
-        if cand not in to_refit:
-            continue
-        ext_model = model + fx.by_name(cand.effect)
-        p_score = float(stats.chi2.sf(cand.score, cand.df)) * (0.5 if _null_on_bound(ext_model, cand.effect) else 1.0)
-        if cand.score <= 0 and not at_bound:
-            cand.reason = "no improvement in the allowed direction"
-            continue
-        if p_score * n_tests >= ALPHA and not at_bound:
-            # the score statistic is larger than the corrected LR: it cannot become significant
-            cand.reason = f"score test not significant (p = {min(1.0, p_score * n_tests):.2g}), not refitted"
-            continue
+    for cand in to_refit:
         t0 = time.perf_counter()
         ext, fr, pr = _refit(model, res, est, val, cand.effect, res.sigma, compile, cold=bool(at_bound))
         _, Y = _trajectory(ext, fr, est)
@@ -658,7 +655,6 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
         warnings.append(f"{first[0].effect} and {first[1].effect} both explain the data well; to tell them apart: "
                         f"{DISTINGUISH.get(pair, 'fly manoeuvres that excite one and not the other')}")
     verdict = rounds[0].verdict if rounds else None
-    final = rounds[-1] if rounds else None
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est)
     diag.timings["total"] = time.perf_counter() - t_start

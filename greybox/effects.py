@@ -27,7 +27,7 @@ How an effect takes part in building the model (all symbolic CasADi, see
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar, Iterable, Iterator
 
 import casadi as ca

@@ -40,7 +40,7 @@ from .codegen import compiled
 from .data import FlightLog
 from .errors import ConvergenceWarning, GreyboxInputError, SolverError
 from .integrate import n_substeps, rk4_step
-from .model import OUTPUTS, QuadrotorModel, euler_rate_matrix
+from .model import OUTPUTS, QuadrotorModel
 
 __all__ = ["fit", "FitResult", "GreyBoxEstimator", "estimate_noise", "initial_node_states",
            "DEFAULT_INTERVAL_S", "default_interval", "MANOEUVRE_ADVICE"]
@@ -345,7 +345,7 @@ class _Data:
 
 
 def _layout(model: QuadrotorModel, logs: Sequence[FlightLog], N: int, sigma: np.ndarray) -> _Data:
-    Us, Ts, Hs, Ys, Ms, flights, node_index = [], [], [], [], [], [], []
+    Us, Ts, Hs, Ys, flights, node_index = [], [], [], [], [], []
     j0 = 0
     for log in logs:
         n = len(log)
@@ -743,7 +743,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         rms_w = np.sqrt(np.where(n_c > 0, cch / np.maximum(n_c, 1), 1.0))
         if np.any(np.abs(rms_w[n_c > 0] - 1) > 0.05):
             ses.set_sigma(ses.sigma * np.where(n_c > 0, rms_w, 1.0))
-            say(f"fit: noise re-estimated from residuals: " +
+            say("fit: noise re-estimated from residuals: " +
                 ", ".join(f"{n}={s:.3g}" for n, s, k in zip(OUTPUTS, ses.sigma, n_c) if k))
             X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
             total_iters += iters

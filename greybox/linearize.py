@@ -17,7 +17,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from .errors import GreyboxInputError, SolverError
-from .model import BASE_STATES, QuadrotorModel
+from .model import QuadrotorModel
 
 __all__ = ["hover_trim", "linearize", "LinearModel"]
 
@@ -131,5 +131,3 @@ def linearize(model: QuadrotorModel, p: np.ndarray | None = None, x: np.ndarray 
     A, B, C, D = (np.asarray(M) for M in J(x, u))
     return LinearModel(A, B, C, D, model.state_names, model.input_names, list(model.output_names), x, u)
 
-
-__all__ += ["BASE_STATES"]

@@ -15,7 +15,6 @@ MATLAB's ``100 * (1 - nrmse)``.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence

@@ -12,7 +12,7 @@ from greybox.fitting import GreyBoxEstimator, estimate_noise, fit
 from greybox.synth import SensorSpec, model_with_hidden_effects, synthesize
 from greybox.validation import compare_plot, predict, residual_plot
 
-from conftest import AIRFRAMES, make_airframe
+from conftest import AIRFRAMES
 
 OFF = {"K_T": 2.395e-5 * 1.35, "b": 6.8429e-7 * 0.65, "Kd": [0.14, 0.06, 0.2]}
 

@@ -84,6 +84,6 @@ def test_discretize_zoh_and_python_control(plus_airframe):
     assert d.A.shape == (12, 12) and d.dt == 0.01
     # position integrates velocity: x[k+1] = x[k] + dt vx[k] + O(dt^2)
     assert d.A[0, 6] == pytest.approx(0.01, rel=0.01)
-    control = pytest.importorskip("control")
+    pytest.importorskip("control")
     sys = d.to_control()
     assert sys.dt == 0.01 and sys.nstates == 12

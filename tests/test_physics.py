@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from greybox import QuadrotorModel, effects, simulate
+from greybox import QuadrotorModel, simulate
 from greybox.model import rotation_matrix
 
 from conftest import make_airframe

@@ -6,7 +6,7 @@ import pytest
 from greybox import QuadrotorModel, simulate
 from greybox.cli import main
 from greybox.data import load_log
-from greybox.synth import MANOEUVRES, SensorSpec, model_with_hidden_effects, reference_trajectory, synthesize
+from greybox.synth import MANOEUVRES, model_with_hidden_effects, reference_trajectory, synthesize
 
 
 @pytest.fixture(scope="module")
