@@ -184,9 +184,10 @@ def _load_fit_inputs(args: argparse.Namespace):
     log = load_log(args.log, inputs="rotor_speeds")
     for note in log.notes:
         print(f"note: {note}", file=sys.stderr)
-    if log.input_names != model.input_names:
+    if log.input_names != model.command_names:
         raise GreyboxInputError(f"{args.log}: has rotor speeds {','.join(log.input_names)} but the airframe "
                                 f"has {model.airframe.n_rotors} rotors")
+    log = model.prepare_log(log)
     log.check_fittable()
     return model, log
 

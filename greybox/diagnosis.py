@@ -73,6 +73,8 @@ DISTINGUISH = {
                                                  "needs torque",
     frozenset({"thrust_drift", "ground_effect"}): "repeat the same climb early and late in the flight, away "
                                                   "from the ground",
+    frozenset({"thrust_drift", "battery_voltage"}): "vary the thrust level: the voltage sags with the "
+                                                    "current drawn, time does not",
     frozenset({"motor_lag", "position_delay"}): "fast rotor-speed steps with attitude recorded: motor lag "
                                                 "delays attitude too, a vision delay only position",
 }
@@ -83,6 +85,7 @@ CHANNEL_EFFECTS = {  # which channels each effect should improve (for the before
     "motor_lag": ["phi", "theta", "p", "q", "z"], "cog_offset": ["phi", "theta", "p", "q", "x", "y"],
     "motor_asymmetry": ["phi", "theta", "p", "q", "psi", "r", "x", "y"], "wind": ["x", "y"],
     "thrust_drift": ["z"], "position_delay": ["x", "y", "z"], "attitude_bias": ["phi", "theta", "x", "y"],
+    "battery_voltage": ["z", "psi", "r"], "rotor_map": ["z", "phi", "theta", "p", "q"],
 }
 
 
@@ -229,6 +232,7 @@ class Diagnosis:
 # ------------------------------------------------------------------------------ residuals
 def _trajectory(model: QuadrotorModel, res: FitResult, log: FlightLog) -> tuple[np.ndarray, np.ndarray]:
     """States and outputs at every sample of ``log`` along the fitted node states."""
+    log = model.prepare_log(log)
     nodes, idx = res.node_states[0], res.node_index[0]
     N = res.interval
     n = len(log)
@@ -284,7 +288,8 @@ def _regime_variables(model: QuadrotorModel, X: np.ndarray, log: FlightLog) -> d
     vb = np.einsum("kji,kj->ki", R, v)
     dt = np.gradient(log.t)
     acc = np.gradient(v, axis=0) / dt[:, None]
-    w = log.inputs if model.inputs == "rotor_speeds" else np.abs(log.inputs)
+    n_cmd = len(model.command_names)
+    w = log.inputs[:, :n_cmd] if model.inputs == "rotor_speeds" else np.abs(log.inputs[:, :n_cmd])
     return {
         "horizontal speed": np.hypot(v[:, 0], v[:, 1]),
         "body-frame horizontal speed": np.hypot(vb[:, 0], vb[:, 1]),
@@ -443,6 +448,7 @@ def _screen(model: QuadrotorModel, res: FitResult, log: FlightLog, name: str, si
     """Score statistic and degrees of freedom of candidate ``name`` at the baseline optimum."""
     ext, p, free = _extended(model, res, name)
     free_idx = _free_indices(ext, free, None)
+    log = ext.prepare_log(log)
     ses = _Session(ext, [log], free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
                    lambda _m: None)
     X = np.vstack(_extend_nodes(ext, res, log, p))
@@ -613,6 +619,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
         (progress or (lambda _m: None))
     if candidates is None:
         candidates = [n for n in fx.CATALOGUE if n not in model.effects]
+        # effects that read a logged signal are candidates when the log has that signal
+        candidates += [n for n, cls in fx.SIGNAL_EFFECTS.items() if cls.signals and n not in model.effects
+                       and all(s in log.extras or s in log.input_names for s in cls.signals)]
     for c in candidates:
         fx.by_name(c)
         if c in model.effects:

@@ -43,7 +43,8 @@ __all__ = [
     "Effect", "EffectLibrary", "ModelContext", "CATALOGUE", "BASE_EFFECTS", "by_name",
     "parse_effect_names", "YawTorque", "LinearDrag", "Gyroscopic", "QuadraticDrag", "RotorDrag",
     "GroundEffect", "MotorLag", "CogOffset", "MotorAsymmetry", "Wind", "ThrustDrift",
-    "PositionDelay", "AttitudeBias",
+    "PositionDelay", "AttitudeBias", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
+    "APPLY_ORDER",
 ]
 
 
@@ -72,6 +73,7 @@ class ModelContext:
     force_world: ca.SX = None  # forces added by effects (world, N)
     torque_body: ca.SX = None  # torques added by effects (body, N m)
     rotor_thrust: ca.SX = None  # per-rotor thrust magnitude along body -z (N), set by the model
+    signals: dict[str, ca.SX] = None  # extra logged inputs by name (see Effect.signals)
     acc_world: ca.SX = None    # translational acceleration, set before measurement hooks
 
 
@@ -80,6 +82,9 @@ class Effect:
 
     name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
+    signals: ClassVar[tuple[str, ...]] = ()
+    """Logged signals the effect reads as extra model inputs (e.g. ``vbat``), after the
+    rotor speeds in the input vector; a log supplies them as extra columns."""
 
     def parameters(self, airframe: "Airframe") -> list[Parameter]:
         return []
@@ -413,13 +418,69 @@ class AttitudeBias(Effect):
         y["theta"] = y["theta"] + ctx.params["att_bias"][1]
 
 
+class RotorMap(Effect):
+    """A constant offset ``w_offset`` (rad/s) added to the logged rotor speeds.
+
+    For logs whose speeds come from a command through an affine map ``w = a*cmd + c``
+    (e.g. Crazyflie PWM), this fits the map: a wrong slope ``a`` is absorbed exactly by
+    ``K_T`` and ``b`` (thrust is ``K_T*w^2``), so the offset is the one coefficient left
+    to identify. Applied before the other effects (it changes the command itself).
+    """
+
+    name = "rotor_map"
+    summary = "offset of the logged rotor speeds (command-to-speed map)"
+
+    def parameters(self, airframe):
+        return [Parameter("w_offset", 1, 0.0, "rad/s", -2000.0, 2000.0, 100.0, 0.0, True,
+                          "offset added to the logged rotor speeds", self.name)]
+
+    def modify(self, ctx):
+        ctx.w_command = ctx.w_command + ctx.params["w_offset"]
+        ctx.w = ctx.w + ctx.params["w_offset"]
+
+
+class BatteryVoltage(Effect):
+    """Rotor speed (hence thrust and reaction torque) at a given command changing with the
+    logged battery voltage ``vbat`` (V): ``w = w_logged * (1 + K_vbat * (vbat - v_ref))``.
+
+    Real motors spin slower at the same command as the battery sags, so a log of commanded
+    speeds (PWM mapped to rad/s) over-states thrust late in the flight. ``thrust_drift``
+    models the same with time; this uses the measured voltage instead. Reads the signal
+    ``vbat`` (an extra input column of the log).
+    """
+
+    name = "battery_voltage"
+    summary = "rotor speed at a given command scaling with battery voltage"
+    signals = ("vbat",)
+
+    def __init__(self, v_ref: float = 4.0):
+        self.v_ref = float(v_ref)
+
+    def parameters(self, airframe):
+        return [Parameter("K_vbat", 1, 0.0, "1/V", -2.0, 2.0, 0.05, 0.0, True,
+                          f"relative rotor speed change per volt about {self.v_ref:g} V", self.name)]
+
+    def modify(self, ctx):
+        scale = 1.0 + ctx.params["K_vbat"] * (ctx.signals["vbat"] - self.v_ref)
+        ctx.w_command = ctx.w_command * scale
+        ctx.w = ctx.w * scale
+
+
 CATALOGUE: dict[str, type[Effect]] = {
     cls.name: cls
     for cls in (YawTorque, LinearDrag, Gyroscopic, QuadraticDrag, RotorDrag, GroundEffect,
                 MotorLag, CogOffset, MotorAsymmetry, Wind, ThrustDrift, PositionDelay,
                 AttitudeBias)
 }
-"""Every effect greybox knows, by name, in the order they are applied."""
+"""The contract's effects (§4), by name, in the order they are applied."""
+
+SIGNAL_EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (RotorMap, BatteryVoltage)}
+"""Effects beyond the contract's catalogue, tied to what a log records (a command map, the
+battery voltage). Applied before the catalogue's effects, since they change the command.
+``diagnose`` considers ``battery_voltage`` when the log has a ``vbat`` column."""
+
+APPLY_ORDER: tuple[str, ...] = tuple(SIGNAL_EFFECTS) + tuple(CATALOGUE)
+"""Order in which a model applies its effects, whatever order they were composed in."""
 
 BASE_EFFECTS: tuple[str, ...] = ("yaw_torque", "linear_drag", "gyroscopic")
 """The seed paper's model: rigid body + thrust + these."""
@@ -427,11 +488,11 @@ BASE_EFFECTS: tuple[str, ...] = ("yaw_torque", "linear_drag", "gyroscopic")
 
 def by_name(name: str) -> Effect:
     """A new effect object from its catalogue name."""
-    try:
-        return CATALOGUE[name]()
-    except KeyError:
+    cls = CATALOGUE.get(name) or SIGNAL_EFFECTS.get(name)
+    if cls is None:
         raise GreyboxInputError(f"unknown effect {name!r}; known effects: "
-                                f"{', '.join(CATALOGUE)}") from None
+                                f"{', '.join(list(CATALOGUE) + list(SIGNAL_EFFECTS))}")
+    return cls()
 
 
 def parse_effect_names(text: str | None) -> list[str]:

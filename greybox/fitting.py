@@ -711,10 +711,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         interval = default_interval(logs)
     if interval < 1:
         raise GreyboxInputError(f"interval must be >= 1 sample, got {interval}")
+    logs = [model.prepare_log(log) for log in logs]
     for log in logs:
-        if log.input_names != model.input_names:
-            raise GreyboxInputError(f"{log.source or 'log'}: inputs {log.input_names} do not match the "
-                                    f"model's {model.input_names}")
         log.check_fittable(min_samples=max(2 * interval, 20))
     if isinstance(p0, Mapping):
         p = model.parameter_vector(p0)

@@ -83,7 +83,7 @@ class QuadrotorModel:
         objs = [fx.by_name(e) if isinstance(e, str) else e for e in effects]
         lib = fx.EffectLibrary(objs)
         # apply in catalogue order, so the result does not depend on how it was composed
-        order = list(fx.CATALOGUE)
+        order = list(fx.APPLY_ORDER)
         self.effects = fx.EffectLibrary(sorted(lib, key=lambda e: order.index(e.name)
                                                if e.name in order else len(order)))
         self.airframe = airframe
@@ -138,10 +138,57 @@ class QuadrotorModel:
         return out
 
     @property
-    def input_names(self) -> list[str]:
+    def signal_names(self) -> list[str]:
+        """Logged signals the effects read (e.g. ``vbat``): inputs after the rotor speeds."""
+        out: list[str] = []
+        for e in self.effects:
+            out += [s for s in e.signals if s not in out]
+        return out
+
+    @property
+    def command_names(self) -> list[str]:
+        """The actuator inputs: ``w1..wN`` or ``u1..u4``."""
         if self.inputs == "controls":
             return ["u1", "u2", "u3", "u4"]
         return [f"w{i + 1}" for i in range(self.airframe.n_rotors)]
+
+    @property
+    def input_names(self) -> list[str]:
+        """Model inputs: the actuator inputs, then any logged signals the effects read."""
+        return self.command_names + self.signal_names
+
+    def prepare_log(self, log: "FlightLog") -> "FlightLog":
+        """The log with its inputs in this model's order: actuator inputs checked against
+        the model's, signals (e.g. ``vbat``) taken from the log's extra columns.
+
+        Raises a :class:`GreyboxInputError` naming the log and column when they do not match.
+        """
+        from .data import FlightLog
+        where = log.source or "log"
+        cmd = self.command_names
+        if list(log.input_names[:len(cmd)]) != cmd:
+            raise GreyboxInputError(f"{where}: inputs {','.join(log.input_names)} do not match the "
+                                    f"model's {','.join(self.input_names)}")
+        if list(log.input_names) == self.input_names:
+            return log
+        cols = [log.inputs[:, :len(cmd)]]
+        extras = dict(log.extras)
+        # signals the log carries as inputs but this model does not read go back to extras
+        for j, name in enumerate(log.input_names[len(cmd):], start=len(cmd)):
+            extras.setdefault(name, log.inputs[:, j])
+        for name in self.signal_names:
+            if name not in extras:
+                users = [e.name for e in self.effects if name in e.signals]
+                raise GreyboxInputError(f"{where}: missing column {name!r}, which effect "
+                                        f"{users[0]!r} reads as an input")
+            v = np.asarray(extras.pop(name), dtype=float)
+            bad = np.flatnonzero(~np.isfinite(v))
+            if bad.size:
+                raise GreyboxInputError(f"{where}: row {bad[0] + 2}, column {name!r}: missing value "
+                                        "(a signal read by the model is an input and may never be missing)")
+            cols.append(v[:, None])
+        return FlightLog(log.t, np.hstack(cols), self.input_names, log.outputs, list(log.output_names),
+                         extras, list(log.notes), log.source)
 
     output_names = OUTPUTS
 
@@ -164,7 +211,7 @@ class QuadrotorModel:
     # ------------------------------------------------------------------ parameter values
     def _check_airframe_parameters(self) -> None:
         known = {THRUST.name: THRUST}
-        for cls in fx.CATALOGUE.values():
+        for cls in list(fx.CATALOGUE.values()) + list(fx.SIGNAL_EFFECTS.values()):
             for p in cls().parameters(self.airframe):
                 known[p.name] = p
         for name, value in self.airframe.parameters.items():
@@ -226,7 +273,8 @@ class QuadrotorModel:
         if base.shape != (12,):
             raise GreyboxInputError(f"x0 needs 12 values ({','.join(BASE_STATES)}), got {base.size}")
         u0 = np.zeros(self.nu) if u0 is None else np.asarray(list(u0), dtype=float)
-        w0 = self.rotor_speeds_from_inputs(u0, p) if self.inputs == "controls" else u0
+        w0 = self.rotor_speeds_from_inputs(u0, p) if self.inputs == "controls" \
+            else u0[:self.airframe.n_rotors]
         parts = [base] + [e.initial_state(self.airframe, w0) for e in self.effects]
         return np.concatenate(parts)
 
@@ -265,15 +313,17 @@ class QuadrotorModel:
             b = params["b"] if "b" in params else float(np.atleast_1d(
                 af.parameters.get("b", fx.YawTorque().parameters(af)[0].default))[0])
             Ginv = ca.DM(np.linalg.pinv(af.allocation_matrix()))
-            wsq = Ginv @ (u / ca.vertcat(K_T, K_T, K_T, b))
+            wsq = Ginv @ (u[:4] / ca.vertcat(K_T, K_T, K_T, b))
             w_cmd = ca.sqrt(ca.fmax(wsq, 1e-9))
         else:
-            w_cmd = u
+            w_cmd = u[:n]
+        n_cmd = len(self.command_names)
+        signals = {name: u[n_cmd + i] for i, name in enumerate(self.signal_names)}
         self._u_sym, self._p_sym, self._w_from_u = u, p, w_cmd
 
         ctx = fx.ModelContext(
             airframe=af, t=t, pos=pos, euler=euler, v=v, omega=omega, R=R, w=w_cmd,
-            params=params, extra_states=extra, w_command=w_cmd,
+            params=params, extra_states=extra, w_command=w_cmd, signals=signals,
             thrust_scale=ca.SX.ones(n), torque_scale=ca.SX.ones(n),
             rotor_pos=ca.SX(ca.DM(af.rotor_positions)), v_air=v,
             force_world=ca.SX.zeros(3), torque_body=ca.SX.zeros(3))

@@ -144,9 +144,7 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
             init_window: float = DEFAULT_INIT_WINDOW, sigma: np.ndarray | None = None,
             compile: str = "auto") -> Prediction:
     """k-step-ahead prediction of ``model`` with parameters ``p`` on ``log`` (see module doc)."""
-    if log.input_names != model.input_names:
-        raise GreyboxInputError(f"{log.source or 'log'}: inputs {log.input_names} do not match the "
-                                f"model's {model.input_names}")
+    log = model.prepare_log(log)
     p = np.asarray(p, dtype=float)
     t = log.t
     dt = float(np.median(np.diff(t)))
