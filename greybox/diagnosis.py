@@ -451,10 +451,22 @@ def _screen(model: QuadrotorModel, res: FitResult, log: FlightLog, name: str, si
     log = ext.prepare_log(log)
     ses = _Session(ext, [log], free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
                    lambda _m: None)
+    if res.process_noise is not None:
+        ses.q = np.array(list(_process_noise(ext, res).values()))
     X = np.vstack(_extend_nodes(ext, res, log, p))
     th = p[free_idx] / ses.scale
     d = ses.predicted_decrease(X, th)
     return 2.0 * max(d, 0.0), len(free) - len(res.free_names)
+
+
+def _process_noise(ext: QuadrotorModel, res: FitResult) -> dict[str, float] | None:
+    """The baseline's process noise for the extended model's states (same weights, so costs
+    compare); new effect states (motor speeds) get a loose 1 % of their scale."""
+    if res.process_noise is None:
+        return None
+    w_ref = float(np.sqrt(ext.airframe.mass * ext.airframe.gravity /
+                          (ext.airframe.n_rotors * res.p[res.model.param_names.index("K_T")])))
+    return {s: res.process_noise.get(s, 0.01 * w_ref) for s in ext.state_names}
 
 
 def _refit(model: QuadrotorModel, res: FitResult, est: FlightLog, val: FlightLog, name: str, sigma: dict,
@@ -473,7 +485,8 @@ def _refit(model: QuadrotorModel, res: FitResult, est: FlightLog, val: FlightLog
     # a cold start of a still-wrong model can crawl along a compensating valley: cap it, the
     # likelihood ratio against the baseline stays valid for any point reached
     fr = fit(ext, est, free=free, p0=p, noise=sigma, reweight=False, compile=compile,
-             max_iter=50 if cold else 200, initial_states=init, interval=res.interval)
+             max_iter=50 if cold else 200, initial_states=init, interval=res.interval,
+             process_noise=_process_noise(ext, res))
     return ext, fr, predict(ext, fr.p, val, compile=compile)
 
 
@@ -485,6 +498,7 @@ def _lr_test(base: FitResult, alt: FitResult, alt_resid: np.ndarray, df: int, on
             continue
         f = _long_run_factor(alt_resid[:, c] / base.sigma[ch])
         lr += (base.channel_cost[ch] - alt.channel_cost[ch]) / f
+    lr += base.process_cost - alt.process_cost   # soft continuity: the gaps are residuals too
     lr = max(lr, 0.0)
     p = float(stats.chi2.sf(lr, df)) if df > 0 else 1.0
     if on_bound:
@@ -606,13 +620,16 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
 def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str] | None = None,
              iterate: bool = True, max_rounds: int = 3, split: float = 0.8, p0=None,
              n_refit: int = N_REFIT, compile: str = "auto",
-             progress: bool | Callable[[str], None] = False) -> Diagnosis:
+             progress: bool | Callable[[str], None] = False,
+             process_noise: str | dict[str, float] | None = None) -> Diagnosis:
     """Compare ``model`` with ``log``, find where it fails and which catalogue effect is
     missing; with ``iterate`` add significant effects until none is left (see module doc).
 
     Args:
         candidates: effect names to consider (default: every catalogue effect not in the model).
         p0: starting values of the baseline fit.
+        process_noise: passed to the baseline :func:`~greybox.fitting.fit` (e.g. ``"auto"`` for
+            real logs); candidates are then fitted with the baseline's process noise.
     """
     t_start = time.perf_counter()
     say = (lambda m: print(m, file=__import__("sys").stderr, flush=True)) if progress is True else \
@@ -628,7 +645,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
             raise GreyboxInputError(f"candidate {c!r} is already in the model")
     est, val = log.split(split)
     say(f"diagnose: fitting the model ({', '.join(model.effect_names)}) to {len(est)} samples")
-    res = fit(model, est, p0=p0, compile=compile, max_iter=200)
+    res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise)
     pred = predict(model, res.p, val, compile=compile)
     say(f"diagnose: validation nrmse {pred.total:.3f}")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred)

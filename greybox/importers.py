@@ -1,0 +1,323 @@
+"""Import flight logs recorded by other tools into the flight-log contract (§2).
+
+NanoBench (Crazyflie 2.1, Vicon + onboard logs on a 100 Hz grid; see
+``shared/realdata/README.md`` and arXiv 2603.09908) is converted as follows:
+
+* **Frames.** NanoBench's world is z-up (x, y, z) and its body frame FLU. Both become
+  NED / FRD by a rotation of pi about x: ``x, -y, -z``; ZYX Euler angles
+  ``phi, -theta, -psi``; body rates ``p, -q, -r``; specific force ``ax, -ay, -az``.
+* **Attitude** comes from the Vicon quaternion (unambiguous). The ``roll, pitch, yaw``
+  columns are documented as degrees; their unit is checked against the quaternion and a
+  note says which it was (in the published files they are radians).
+* **Time** becomes seconds from the first kept sample; the Unix time is kept as ``t_unix``.
+* **Rotor speed** from PWM through an affine map ``w = a*PWM + c`` (default the published
+  Crazyflie 2.0 map, Förster 2015: a = 0.04076521, c = 380.8359); PWM 0 (motor off) gives
+  0. The map is configurable, and its offset can be fitted as a model parameter with the
+  ``rotor_map`` effect (its slope is absorbed by ``K_T`` and ``b``).
+* **Held samples.** Motor commands arrive at 80-88 Hz and are held on the 100 Hz grid. By
+  default the commands are linearly interpolated between fresh samples (``held="interpolate"``:
+  a held value is stale by up to one grid step, interpolation removes most of that
+  timing error); ``held="hold"`` keeps them as logged. A ``motor_fresh`` column (1/0)
+  marks fresh samples. Measurements repeated exactly from the previous row (a held
+  Vicon pose or gyro sample) become missing values (NaN) rather than false measurements.
+* **Ground contact.** The resting height is the median height over the first samples
+  (motors off); the vehicle is airborne while more than ``takeoff_height`` above it. The
+  log is trimmed to the span from take-off to touchdown (the model has no ground reaction
+  force); ``keep_ground=True`` keeps everything. An ``on_ground`` column (1/0) flags contact.
+* **Battery voltage** ``pwr_pm_vbat`` (held at about 10 Hz) is interpolated between fresh
+  samples and kept as the ``vbat`` column, the signal the ``battery_voltage`` effect reads.
+* The IMU specific force becomes ``acc_x, acc_y, acc_z`` (m/s^2, FRD): an independent
+  check of drag (see ``experiments/real_crazyflie.py``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .data import FlightLog, read_csv_table
+from .errors import GreyboxInputError
+
+__all__ = ["import_nanobench", "NanoBenchImport", "CRAZYFLIE_PWM_MAP", "crazyflie_airframe_toml",
+           "pwm_to_rotor_speed"]
+
+CRAZYFLIE_PWM_MAP = (0.04076521, 380.8359)
+"""Published Crazyflie 2.0 PWM-to-rotor-speed map ``w [rad/s] = a*PWM + c`` (J. Förster,
+"System Identification of the Crazyflie 2.0 Nano Quadrocopter", ETH Zurich, 2015)."""
+
+G0 = 9.80665
+PWM_MAX = 65535.0
+
+_MOTORS = [f"motor_motor_m{i}" for i in range(1, 5)]
+_POSITION = ["px", "py", "pz"]
+_QUATERNION = ["qx", "qy", "qz", "qw"]
+_EULER = ["roll", "pitch", "yaw"]
+_GYRO = ["imu_gyro_x", "imu_gyro_y", "imu_gyro_z"]
+_ACC = ["imu_acc_x", "imu_acc_y", "imu_acc_z"]
+_VBAT = "pwr_pm_vbat"
+
+
+@dataclass
+class NanoBenchImport:
+    """Result of :func:`import_nanobench`: the log plus what was found on the way."""
+
+    log: FlightLog
+    takeoff_time: float          # s from the start of the file
+    touchdown_time: float
+    rest_height: float           # z-up height of the tracked origin at rest, m
+    hover_rotor_speed: float     # rms rotor speed while airborne, rad/s
+    notes: list[str] = field(default_factory=list)
+
+
+def pwm_to_rotor_speed(pwm: np.ndarray, pwm_map: tuple[float, float] = CRAZYFLIE_PWM_MAP) -> np.ndarray:
+    """Rotor speed (rad/s) of PWM commands through ``w = a*PWM + c``; a motor at PWM 0 is off."""
+    a, c = pwm_map
+    pwm = np.asarray(pwm, dtype=float)
+    return np.where(pwm > 0, a * pwm + c, 0.0)
+
+
+def _fresh(block: np.ndarray) -> np.ndarray:
+    """Rows whose values are not an exact repeat of the previous row (held samples)."""
+    same = np.all(block[1:] == block[:-1], axis=1)
+    return np.r_[True, ~same]
+
+
+def _interpolate_fresh(t: np.ndarray, values: np.ndarray, fresh: np.ndarray) -> np.ndarray:
+    k = np.flatnonzero(fresh)
+    return np.interp(t, t[k], values[k])
+
+
+def _euler_from_quaternion(q: np.ndarray) -> np.ndarray:
+    """ZYX Euler angles (roll, pitch, yaw) of unit quaternions (x, y, z, w)."""
+    x, y, z, w = q.T
+    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x ** 2 + y ** 2))
+    pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y ** 2 + z ** 2))
+    return np.column_stack([roll, pitch, yaw])
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_PWM_MAP,
+                     held: str = "interpolate", keep_ground: bool = False,
+                     takeoff_height: float = 0.01) -> NanoBenchImport:
+    """Convert a NanoBench CSV (Crazyflie 2.1) into a flight log (see module doc).
+
+    Args:
+        pwm_map: ``(a, c)`` of ``w = a*PWM + c``.
+        held: ``"interpolate"`` (default) or ``"hold"`` for the held motor samples.
+        keep_ground: keep the samples on the ground before take-off and after touchdown.
+        takeoff_height: height above the resting height (m) above which it is airborne.
+
+    Raises:
+        GreyboxInputError: naming the file, row and column of the first problem.
+    """
+    path = Path(path)
+    if held not in ("interpolate", "hold"):
+        raise GreyboxInputError(f"held must be 'interpolate' or 'hold', got {held!r}")
+    a, c = (float(v) for v in pwm_map)
+    if not (np.isfinite(a) and np.isfinite(c) and a > 0):
+        raise GreyboxInputError(f"PWM map slope must be positive and finite, got a={a!r}, c={c!r}")
+    header, data = read_csv_table(path)
+    col = {h: j for j, h in enumerate(header)}
+    has_quat = all(h in col for h in _QUATERNION)
+    need = ["t"] + _POSITION + _MOTORS + ([] if has_quat else _EULER)
+    for name in need:
+        if name not in col:
+            hint = " (or the quaternion qx,qy,qz,qw)" if name in _EULER else ""
+            raise GreyboxInputError(f"{path}: missing required column {name!r}{hint}: not a NanoBench log?")
+    if data.shape[0] < 20:
+        raise GreyboxInputError(f"{path}: only {data.shape[0]} data rows, too short to import")
+
+    def column(name: str, required: bool = True) -> np.ndarray:
+        v = data[:, col[name]]
+        if required:
+            bad = np.flatnonzero(np.isnan(v))
+            if bad.size:
+                raise GreyboxInputError(f"{path}: row {bad[0] + 2}, column {name!r}: missing value")
+        return v
+
+    notes: list[str] = []
+    t_unix = column("t")
+    bad = np.flatnonzero(np.diff(t_unix) <= 0)
+    if bad.size:
+        k = bad[0]
+        raise GreyboxInputError(f"{path}: row {k + 3}, column 't': time {t_unix[k + 1]!r} is not after the "
+                                f"previous row's {t_unix[k]!r} (t must be strictly increasing)")
+    t_all = t_unix - t_unix[0]
+
+    pwm = np.column_stack([column(m) for m in _MOTORS])
+    out = np.argwhere((pwm < 0) | (pwm > PWM_MAX))
+    if out.size:
+        r, j = out[0]
+        raise GreyboxInputError(f"{path}: row {r + 2}, column {_MOTORS[j]!r}: PWM {pwm[r, j]:g} outside "
+                                f"0..{PWM_MAX:g}")
+    motor_fresh = _fresh(pwm)
+    if held == "interpolate":
+        pwm_used = np.column_stack([_interpolate_fresh(t_all, pwm[:, i], motor_fresh) for i in range(4)])
+        # a motor that is off stays off: interpolating into or out of 0 would invent speeds
+        pwm_used[pwm == 0] = 0.0
+    else:
+        pwm_used = pwm
+    w = pwm_to_rotor_speed(pwm_used, (a, c))
+    notes.append(f"motor commands: {motor_fresh.mean():.0%} of rows fresh "
+                 f"({motor_fresh.sum() / max(t_all[-1], 1e-9):.0f} Hz); held rows "
+                 + ("interpolated between fresh samples" if held == "interpolate" else "kept as logged"))
+
+    pos = np.column_stack([column(n, required=False) for n in _POSITION])
+    if has_quat:
+        q = np.column_stack([column(n, required=False) for n in _QUATERNION])
+        norm = np.linalg.norm(q, axis=1)
+        badq = np.flatnonzero(np.isfinite(norm) & (np.abs(norm - 1) > 0.05))
+        if badq.size:
+            raise GreyboxInputError(f"{path}: row {badq[0] + 2}, columns qx..qw: quaternion norm "
+                                    f"{norm[badq[0]]:.3f} is not 1")
+        eul_flu = _euler_from_quaternion(q / norm[:, None])
+        if all(h in col for h in _EULER):
+            logged = np.column_stack([data[:, col[n]] for n in _EULER])
+            ok = np.isfinite(logged).all(1) & np.isfinite(eul_flu).all(1)
+            if ok.any():
+                err_rad = np.nanmedian(np.abs(_wrap(logged[ok] - eul_flu[ok])))
+                err_deg = np.nanmedian(np.abs(_wrap(np.radians(logged[ok]) - eul_flu[ok])))
+                unit = "radians" if err_rad < err_deg else "degrees"
+                notes.append(f"attitude from the quaternion; the roll/pitch/yaw columns agree with it "
+                             f"in {unit}" + (" (documented as degrees)" if unit == "radians" else ""))
+        pose_block = np.column_stack([pos, q])
+    else:
+        eul_flu = np.radians(np.column_stack([column(n, required=False) for n in _EULER]))
+        notes.append("no quaternion columns: attitude from roll/pitch/yaw, taken as degrees")
+        pose_block = np.column_stack([pos, eul_flu])
+    pose_fresh = _fresh(np.nan_to_num(pose_block, nan=1e300))
+    n_held_pose = int((~pose_fresh).sum())
+
+    # world z-up -> NED and body FLU -> FRD: rotation of pi about x
+    Y = np.full((t_all.size, 9), np.nan)
+    Y[:, 0], Y[:, 1], Y[:, 2] = pos[:, 0], -pos[:, 1], -pos[:, 2]
+    Y[:, 3], Y[:, 4], Y[:, 5] = eul_flu[:, 0], -eul_flu[:, 1], _wrap(-eul_flu[:, 2])
+    Y[~pose_fresh, :6] = np.nan
+    out_names = ["x", "y", "z", "phi", "theta", "psi"]
+    if all(h in col for h in _GYRO):
+        gyro = np.column_stack([column(n, required=False) for n in _GYRO])
+        # unit check: body rates from the attitude must match the gyro in rad/s
+        ang = np.unwrap(eul_flu, axis=0)
+        rates = np.gradient(ang, t_all, axis=0)
+        ok = np.isfinite(rates).all(1) & np.isfinite(gyro).all(1)
+        if ok.sum() > 20:
+            ratio = np.std(gyro[ok, :2]) / max(np.std(rates[ok, :2]), 1e-12)
+            if ratio > 20:
+                gyro = np.radians(gyro)
+                notes.append(f"gyro columns are in deg/s (gyro/attitude-rate ratio {ratio:.0f}): converted")
+        gyro_fresh = _fresh(np.nan_to_num(gyro, nan=1e300))
+        Y[:, 6], Y[:, 7], Y[:, 8] = gyro[:, 0], -gyro[:, 1], -gyro[:, 2]
+        Y[~gyro_fresh, 6:] = np.nan
+        out_names += ["p", "q", "r"]
+    else:
+        notes.append("no gyro columns: the log has no p, q, r")
+    Y = Y[:, :len(out_names)]
+    if n_held_pose:
+        notes.append(f"{n_held_pose} held (repeated) Vicon poses set missing")
+
+    extras: dict[str, np.ndarray] = {}
+    if _VBAT in col:
+        v = column(_VBAT, required=False)
+        fin = np.isfinite(v)
+        if not fin.any():
+            raise GreyboxInputError(f"{path}: column {_VBAT!r} has no values")
+        vf = _fresh(np.nan_to_num(v, nan=-1.0)[:, None]) & fin
+        extras["vbat"] = _interpolate_fresh(t_all, np.where(fin, v, 0.0), vf)
+    else:
+        notes.append(f"no {_VBAT!r} column: no battery voltage (the battery_voltage effect needs it)")
+    if all(h in col for h in _ACC):
+        acc = np.column_stack([column(n, required=False) for n in _ACC]) * G0
+        extras["acc_x"], extras["acc_y"], extras["acc_z"] = acc[:, 0], -acc[:, 1], -acc[:, 2]
+    for i in range(4):
+        extras[f"pwm{i + 1}"] = pwm[:, i]
+    extras["motor_fresh"] = motor_fresh.astype(float)
+    extras["t_unix"] = t_unix
+
+    # ground contact
+    height = pos[:, 2]
+    on = np.flatnonzero(np.any(pwm > 0, axis=1))
+    before = np.arange(on[0] if on.size else height.size)
+    before = before[np.isfinite(height[before])]
+    rest_height = float(np.median(height[before])) if before.size >= 5 else float(np.nanmin(height))
+    airborne = np.isfinite(height) & (height - rest_height > takeoff_height) & np.any(pwm > 0, axis=1)
+    k_air = np.flatnonzero(airborne)
+    if k_air.size < 20:
+        raise GreyboxInputError(f"{path}: the vehicle never leaves the ground (never {takeoff_height:g} m above "
+                                f"its resting height {rest_height:.3f} m): nothing to identify")
+    # the flight is the longest airborne run (a hop at take-off is not the flight)
+    breaks = np.flatnonzero(np.diff(k_air) > 1)
+    starts, ends = np.r_[k_air[0], k_air[breaks + 1]], np.r_[k_air[breaks], k_air[-1]]
+    j = int(np.argmax(ends - starts))
+    k0, k1 = int(starts[j]), int(ends[j])
+    on_ground = ~airborne
+    mid_contact = int(on_ground[k0:k1 + 1].sum())
+    extras["on_ground"] = on_ground.astype(float)
+    notes.append(f"take-off at {t_all[k0]:.2f} s, touchdown at {t_all[k1]:.2f} s (resting height "
+                 f"{rest_height:.3f} m)" + (f"; {mid_contact} samples in between touch the ground"
+                                           if mid_contact else ""))
+    hover_w = float(np.sqrt(np.mean(w[k0:k1 + 1] ** 2)))
+    sl = slice(None) if keep_ground else slice(k0, k1 + 1)
+    if keep_ground:
+        notes.append("kept the samples on the ground (flagged by on_ground): the model has no ground "
+                     "reaction force, so do not fit them")
+    else:
+        notes.append(f"trimmed {k0} samples before take-off and {t_all.size - 1 - k1} after touchdown")
+    t_kept = t_all[sl]
+    log = FlightLog(t_kept - t_kept[0], w[sl], ["w1", "w2", "w3", "w4"], Y[sl], out_names,
+                    {k: v[sl] for k, v in extras.items()}, list(notes), str(path))
+    return NanoBenchImport(log, float(t_all[k0]), float(t_all[k1]), rest_height, hover_w, notes)
+
+
+def crazyflie_airframe_toml(mass: float = 0.030, hover_rotor_speed: float | None = None,
+                            ground_z: float = 0.0, name: str = "crazyflie21") -> str:
+    """Airframe TOML of a Crazyflie 2.1 (rotors in firmware order M1..M4 = w1..w4).
+
+    ``hover_rotor_speed`` (rad/s, e.g. from :func:`import_nanobench`) sets the starting
+    guess of ``K_T`` to ``m g / (4 w^2)``; ``b`` starts at Förster's torque/thrust ratio.
+    """
+    g = 9.81
+    a = 0.046 / np.sqrt(2.0)
+    kt = mass * g / (4 * hover_rotor_speed ** 2) if hover_rotor_speed else 1.8e-8
+    return f"""# Crazyflie 2.1 (Bitcraze), written by `greybox import nanobench`.
+# Rotors in firmware order M1..M4 (= log columns w1..w4), positions in body FRD:
+# mixer QUAD_FORMATION_X, M1 front-right, M2 back-right, M3 back-left, M4 front-left;
+# M1 and M3 turn clockwise seen from above (reaction torque about body +z, FRD: spin +1).
+# Arm: 46 mm from the centre to each motor (92 mm motor-to-motor diagonal, Bitcraze
+# datasheet). Inertia: J. Förster, "System Identification of the Crazyflie 2.0 Nano
+# Quadrocopter", ETH Zurich 2015. Mass: 27 g bare (Bitcraze datasheet) plus markers and
+# deck; {mass * 1000:.0f} g assumed here -- K_T, b and Kd scale with it, so set the weighed value.
+[airframe]
+name = "{name}"
+mass = {mass!r}
+inertia = [1.395e-5, 1.436e-5, 2.173e-5]
+arm_length = 0.046
+rotor_inertia = 0.0        # unknown and tiny (about 1e-9 kg m^2); gyroscopic torque neglected
+gravity = {g!r}
+ground_z = {ground_z!r}    # NED z of the floor plane (ground effect height = ground_z - z)
+
+[[rotor]]   # M1 front-right
+position = [{a:.6f}, {a:.6f}, 0.0]
+spin = 1
+
+[[rotor]]   # M2 back-right
+position = [{-a:.6f}, {a:.6f}, 0.0]
+spin = -1
+
+[[rotor]]   # M3 back-left
+position = [{-a:.6f}, {-a:.6f}, 0.0]
+spin = 1
+
+[[rotor]]   # M4 front-left
+position = [{a:.6f}, {-a:.6f}, 0.0]
+spin = -1
+
+[parameters]
+K_T = {kt:.6g}             # from hover: m g / (4 w_hover^2)
+b = {0.005964552 * kt:.6g}        # Förster: reaction torque / thrust = 0.005964552 m
+Kd = [0.01, 0.01, 0.01]
+"""
