@@ -196,6 +196,31 @@ def _names(text: str | None) -> list[str] | None:
     return [s.strip() for s in text.split(",") if s.strip()] if text else None
 
 
+def cmd_import_nanobench(args: argparse.Namespace) -> int:
+    from .importers import crazyflie_airframe_toml, import_nanobench
+    try:
+        pwm_map = tuple(float(v) for v in args.pwm_map.split(","))
+    except ValueError:
+        raise GreyboxInputError(f"--pwm-map: expected two numbers a,c, got {args.pwm_map!r}") from None
+    if len(pwm_map) != 2:
+        raise GreyboxInputError(f"--pwm-map: expected two numbers a,c, got {args.pwm_map!r}")
+    if not args.mass > 0:
+        raise GreyboxInputError(f"--mass must be positive, got {args.mass}")
+    imp = import_nanobench(args.file, pwm_map=pwm_map, held=args.held, keep_ground=args.keep_ground)
+    for note in imp.notes:
+        print(f"note: {note}", file=sys.stderr)
+    toml = None
+    if args.airframe_out:
+        # floor plane: rotors assumed 2.5 cm above the floor when resting (tracked origin at rest height)
+        toml = crazyflie_airframe_toml(args.mass, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))
+    save_log(imp.log, args.out, digits=15)
+    if toml is not None:
+        atomic_write(args.airframe_out, toml)
+    print(f"wrote {args.out}: {len(imp.log)} samples, {imp.log.duration:.2f} s"
+          + (f"; airframe {args.airframe_out}" if toml else ""))
+    return 0
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting import fit
     from .validation import compare_plot, predict, residual_plot
@@ -203,7 +228,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     est, val = log.split(0.8)
     p0 = model.parameter_vector(parse_sets(args.set))
     res = fit(model, est, free=_names(args.free), fixed=_names(args.fixed), p0=p0,
-              interval=args.interval, max_iter=args.max_iter, progress=not args.quiet)
+              interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
+              process_noise=args.process_noise)
     if not res.converged:
         raise GreyboxError(f"fit did not converge: {res.status}")
     pred = predict(model, res.p, val, horizon=args.horizon)
@@ -224,7 +250,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, log = _load_fit_inputs(args)
     diag = diagnose(model, log, candidates=_names(args.candidates), iterate=not args.no_iterate,
-                    p0=model.parameter_vector(parse_sets(args.set)), progress=not args.quiet)
+                    p0=model.parameter_vector(parse_sets(args.set)), progress=not args.quiet,
+                    process_noise=args.process_noise)
     print(diag.summary())
     if args.report:
         print(f"report: {diag.report(args.report)}")
@@ -319,6 +346,8 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--fixed", help="comma list of parameters to hold at their starting values")
     f.add_argument("--interval", type=int, help="samples per shooting interval (default: nearest 50 ms)")
     f.add_argument("--max-iter", type=int, default=60, help="Gauss-Newton iteration limit (default 60)")
+    f.add_argument("--process-noise", choices=["auto"],
+                   help="'auto': treat shooting gaps as process noise (real logs; see README)")
     f.add_argument("--horizon", type=float, default=1.0, help="validation prediction horizon, s (default 1)")
     f.add_argument("--plots", help="folder for compare/residual plots")
     f.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -332,6 +361,8 @@ def _parser() -> argparse.ArgumentParser:
     _model_args(g, "starting value (repeatable)")
     g.add_argument("--candidates", help="comma list of candidate effects (default: every effect not in the model)")
     g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
+    g.add_argument("--process-noise", choices=["auto"],
+                   help="'auto': treat shooting gaps as process noise (real logs; see README)")
     g.add_argument("--report", help="folder for the HTML report and its plots")
     g.add_argument("--quiet", action="store_true", help="no progress lines")
     g.add_argument("--json", help="write the result here")
@@ -345,6 +376,24 @@ def _parser() -> argparse.ArgumentParser:
     z.add_argument("--psi", type=float, default=0.0, help="hover heading, rad (default 0)")
     z.add_argument("--json", required=True, help="write the result here")
     z.set_defaults(func=cmd_linearize)
+
+    i = sub.add_parser("import", help="convert another tool's log into a greybox flight log",
+                       description="Convert a log of another format into a flight log (contract §2).")
+    isub = i.add_subparsers(dest="format", required=True, parser_class=_Parser)
+    nb = isub.add_parser("nanobench", help="NanoBench Crazyflie 2.1 CSV (Vicon + onboard logs)",
+                         description="Convert a NanoBench CSV: z-up world -> NED, FLU -> FRD, attitude from the "
+                                     "quaternion, PWM -> rotor speed, held samples, ground contact trimmed, "
+                                     "battery voltage as column vbat.")
+    nb.add_argument("file", help="NanoBench CSV")
+    nb.add_argument("--out", required=True, help="flight log CSV to write")
+    nb.add_argument("--airframe-out", help="also write a Crazyflie 2.1 airframe TOML here")
+    nb.add_argument("--mass", type=float, default=0.030, help="vehicle mass for the airframe, kg (default 0.030)")
+    nb.add_argument("--pwm-map", default="0.04076521,380.8359",
+                    help="a,c of w[rad/s] = a*PWM + c (default: Förster 2015 Crazyflie map)")
+    nb.add_argument("--held", choices=["interpolate", "hold"], default="interpolate",
+                    help="held motor samples: interpolate between fresh ones (default) or keep as logged")
+    nb.add_argument("--keep-ground", action="store_true", help="keep samples on the ground (flagged on_ground)")
+    nb.set_defaults(func=cmd_import_nanobench)
 
     d = sub.add_parser("demo", help="the greybox story on bundled data",
                        description="Diagnose the seed paper's base model on a bundled flight log with a hidden "

@@ -427,7 +427,11 @@ class _KKT:
         d = np.einsum("kii->ki", H)
         floor = 1e-10 * max(float(d.max()), 1.0)
         Hd = H.copy()
-        Hd[:, ar, ar] += mu * d + floor
+        Hd[:, ar, ar] += mu * d
+        # a tiny floor keeps the system regular; on the parameters (repeated at every node,
+        # tied by the continuity rows) only once, or it would sum to a prior over all nodes
+        Hd[:, ar[:nx], ar[:nx]] += floor
+        Hd[0, ar[nx:], ar[nx:]] += floor
         put(self.znodes, self.znodes, Hd)
         nI = G.shape[0]
         zfrom = self.znodes[self.zi]
@@ -641,6 +645,7 @@ class _Session:
         blocks = self.evaluate(X, th)
         soft = self.q is not None
         cost = self.total_cost(X, blocks[0], blocks[4])
+        last_rel = np.inf
         it, status, converged = 0, "maximum iterations reached", False
         for it in range(1, max_iter + 1):
             dz, lam, H, gg, cz = self.step(X, th, blocks, mu)
@@ -674,6 +679,10 @@ class _Session:
             step_size = float(np.max(np.abs(tht - th))) if self.nth else 0.0
             if not accepted:
                 if mu > 1e6:
+                    if soft and last_rel < 1e-4:
+                        # no decrease left to find: the smoother is at its optimum to rounding
+                        converged, status = True, "converged"
+                        break
                     status = "line search failed: no decrease along the Gauss-Newton direction"
                     break
                 mu = max(mu * 10, 1e-3)
@@ -687,6 +696,7 @@ class _Session:
             gap = float(np.abs(self.gaps(X, blocks[0])).max())
             say(f"  iter {it:3d}  cost {new_cost:12.6g}  max gap {gap:9.2e}  step {step_size:9.2e}  alpha {alpha:.3f}")
             rel = abs(cost - new_cost) / max(new_cost, 1e-300)
+            last_rel = rel
             cost = new_cost
             # soft continuity: the smoother's states settle slowly once the parameters have
             # stopped moving, so a looser cost test
@@ -737,8 +747,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         process_noise: ``None`` (default): the model is exact between measurements, the
             shooting gaps must close (output error). ``"auto"`` or ``{state: std}``: the
             gaps are process noise, penalised by ``|gap_i|^2 / (2 q_i^2)`` (a filter-error
-            / smoothing formulation); with ``"auto"`` ``q`` is the RMS gap of each state,
-            re-estimated after each solve. Use it on real data whose inputs are not the
+            / smoothing formulation); with ``"auto"`` ``q`` starts as the RMS gap of each
+            state at the starting point and is re-estimated (downwards only) after each solve. Use it on real data whose inputs are not the
             whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
             fit of such data can only shrink the parameters until the model stops moving.
     """
@@ -793,6 +803,10 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             rms = np.sqrt(np.mean(ses.gaps(X_, xe) ** 2, axis=0))
             floor = 1e-6 * (np.abs(X_).max(axis=0) + 1e-3)
             q = np.maximum(rms, floor)
+            if ses.q is not None:
+                # only downwards: grown process noise would let the states follow measurement
+                # noise, and the gaps grow with it (the degenerate end of joint Q estimation)
+                q = np.minimum(q, ses.q)
             for name, v in q_given.items():
                 q[model.state_names.index(name)] = float(v)
             return q

@@ -14,7 +14,9 @@ NanoBench (Crazyflie 2.1, Vicon + onboard logs on a 100 Hz grid; see
   Crazyflie 2.0 map, Förster 2015: a = 0.04076521, c = 380.8359); PWM 0 (motor off) gives
   0. The map is configurable, and its offset can be fitted as a model parameter with the
   ``rotor_map`` effect (its slope is absorbed by ``K_T`` and ``b``).
-* **Held samples.** Motor commands arrive at 80-88 Hz and are held on the 100 Hz grid. By
+* **Held samples.** Motor commands arrive at 80-88 Hz; where a log holds them on its grid
+  (exact repeats while the motors run; the published files turn out to carry fractional,
+  already interpolated PWM instead, which the import notes). By
   default the commands are linearly interpolated between fresh samples (``held="interpolate"``:
   a held value is stale by up to one grid step, interpolation removes most of that
   timing error); ``held="hold"`` keeps them as logged. A ``motor_fresh`` column (1/0)
@@ -163,9 +165,17 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
     else:
         pwm_used = pwm
     w = pwm_to_rotor_speed(pwm_used, (a, c))
-    notes.append(f"motor commands: {motor_fresh.mean():.0%} of rows fresh "
-                 f"({motor_fresh.sum() / max(t_all[-1], 1e-9):.0f} Hz); held rows "
-                 + ("interpolated between fresh samples" if held == "interpolate" else "kept as logged"))
+    running = np.any(pwm > 0, axis=1)
+    frac = float(motor_fresh[running].mean()) if running.any() else 1.0
+    dt_med = float(np.median(np.diff(t_all)))
+    if frac > 0.995:
+        notes.append("motor commands: no held (repeated) samples while the motors run"
+                     + ("; PWM values are fractional, i.e. already interpolated onto the log's grid"
+                        if np.any(pwm[running] % 1 != 0) else ""))
+    else:
+        notes.append(f"motor commands: {frac:.0%} of rows fresh while the motors run "
+                     f"({frac / dt_med:.0f} Hz); held rows "
+                     + ("interpolated between fresh samples" if held == "interpolate" else "kept as logged"))
 
     pos = np.column_stack([column(n, required=False) for n in _POSITION])
     if has_quat:

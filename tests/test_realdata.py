@@ -1,0 +1,236 @@
+"""Real Crazyflie flights (NanoBench): import, frames, units, errors, and a fit whose hover
+thrust must carry the weight; plus the battery_voltage and rotor_map effects and the
+process-noise fit on synthetic data where the truth is known."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel, effects, load_airframe
+from greybox.airframe import airframe_from_dict
+from greybox.cli import main
+from greybox.data import FlightLog, load_log
+from greybox.errors import GreyboxInputError
+from greybox.fitting import fit
+from greybox.importers import CRAZYFLIE_PWM_MAP, crazyflie_airframe_toml, import_nanobench, pwm_to_rotor_speed
+from greybox.synth import SensorSpec, synthesize
+
+from conftest import AIRFRAMES
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "nanobench"
+FILES = sorted(REAL.glob("*.csv")) if REAL.is_dir() else []
+BUNDLED = Path(__file__).resolve().parent / "data" / "nanobench_B2_slice.csv"
+needs_real = pytest.mark.skipif(not FILES, reason="../shared/realdata not present")
+
+
+def _quat_matrix(q):
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _euler_matrix(phi, th, psi):
+    c, s = np.cos, np.sin
+    Rz = np.array([[c(psi), -s(psi), 0], [s(psi), c(psi), 0], [0, 0, 1]])
+    Ry = np.array([[c(th), 0, s(th)], [0, 1, 0], [-s(th), 0, c(th)]])
+    Rx = np.array([[1, 0, 0], [0, c(phi), -s(phi)], [0, s(phi), c(phi)]])
+    return Rz @ Ry @ Rx
+
+
+def test_bundled_slice_is_a_verbatim_nanobench_excerpt():
+    # the slice keeps CI honest when ../shared is absent: it is real data, not generated
+    imp = import_nanobench(BUNDLED)
+    assert imp.log.duration > 8.0 and imp.rest_height == pytest.approx(0.055, abs=0.005)
+
+
+@pytest.mark.parametrize("path", [BUNDLED] + FILES, ids=lambda p: p.stem)
+def test_import_frames_units_and_trimming(path):
+    imp = import_nanobench(path)
+    log = imp.log
+    assert log.input_names == ["w1", "w2", "w3", "w4"]
+    assert log.output_names == ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
+    assert log.t[0] == 0.0 and np.all(np.diff(log.t) > 0)
+    # airborne: NED z negative (above the floor), hover specific force along body -z ~ g
+    assert np.nanmax(log.output("z")) < 0
+    assert np.mean(log.extras["acc_z"]) == pytest.approx(-9.81, rel=0.03)
+    assert log.extras["on_ground"].sum() <= 10
+    assert 3.0 < log.extras["vbat"].min() and log.extras["vbat"].max() < 4.3
+    # rotor speeds of a hovering Crazyflie: a couple of thousand rad/s
+    assert 2000 < imp.hover_rotor_speed < 3200
+    # attitude: our R(phi, theta, psi) is Rx(pi) R_quaternion Rx(pi) (z-up/FLU -> NED/FRD)
+    raw = np.genfromtxt(path, delimiter=",", names=True)
+    k0 = int(np.searchsorted(raw["t"], log.extras["t_unix"][0]))
+    F = np.diag([1.0, -1.0, -1.0])
+    for j in (100, 400, 700):
+        q = [raw[n][k0 + j] for n in ("qx", "qy", "qz", "qw")]
+        R_ned = F @ _quat_matrix(q / np.linalg.norm(q)) @ F
+        phi, th, psi = log.outputs[j, 3:6]
+        np.testing.assert_allclose(_euler_matrix(phi, th, psi), R_ned, atol=1e-9)
+    # gyro in FRD: body rates agree with the Euler-angle rates (small angles)
+    for ch, ang in (("p", "phi"), ("q", "theta"), ("r", "psi")):
+        rate = np.gradient(np.unwrap(log.output(ang)), log.t)
+        assert np.corrcoef(rate, log.output(ch))[0, 1] > 0.4, ch   # a sign error gives < 0
+    # position: x stays, y and z flip
+    np.testing.assert_allclose(log.output("y")[:50], -raw["py"][k0:k0 + 50], atol=1e-12)
+    np.testing.assert_allclose(log.output("z")[:50], -raw["pz"][k0:k0 + 50], atol=1e-12)
+
+
+def test_pwm_map_and_held_samples(tmp_path):
+    np.testing.assert_allclose(pwm_to_rotor_speed([0, 40000]), [0.0, 0.04076521 * 40000 + 380.8359])
+    # the published files have no held samples in flight (fractional, interpolated PWM)
+    assert any("no held (repeated) samples" in n for n in import_nanobench(BUNDLED).notes)
+    # a log that holds every 7th command: those rows are detected and interpolated
+    lines = BUNDLED.read_text().splitlines()
+    header = lines[0].split(",")
+    js = [header.index(f"motor_motor_m{i}") for i in range(1, 5)]
+    rows = [r.split(",") for r in lines]
+    for k in range(8, len(rows), 7):
+        for j in js:
+            rows[k][j] = rows[k - 1][j]
+    held_path = tmp_path / "held.csv"
+    held_path.write_text("\n".join(",".join(r) for r in rows))
+    imp_i = import_nanobench(held_path)
+    imp_h = import_nanobench(held_path, held="hold")
+    fresh = imp_h.log.extras["motor_fresh"] > 0
+    assert fresh.mean() == pytest.approx(6 / 7, abs=0.01)
+    assert any("86% of rows fresh" in n for n in imp_i.notes)
+    assert np.all(np.diff(imp_h.log.inputs[:, 0])[~fresh[1:]] == 0)
+    np.testing.assert_allclose(imp_i.log.inputs[fresh], imp_h.log.inputs[fresh])
+    # interpolation recovers the original (smooth) commands better than holding
+    orig = import_nanobench(BUNDLED).log.inputs[~fresh]
+    assert np.abs(imp_i.log.inputs[~fresh] - orig).mean() < 0.6 * np.abs(imp_h.log.inputs[~fresh] - orig).mean()
+    other = import_nanobench(BUNDLED, pwm_map=(0.05, 0.0))
+    np.testing.assert_allclose(other.log.extras["pwm1"] * 0.05, other.log.inputs[:, 0], rtol=1e-12, atol=0)
+
+
+def _write(tmp_path, text):
+    p = tmp_path / "bad.csv"
+    p.write_text(text)
+    return p
+
+
+def test_import_errors_name_file_row_and_column(tmp_path):
+    lines = BUNDLED.read_text().splitlines()
+    header = lines[0].split(",")
+    # missing column
+    cols = [i for i, h in enumerate(header) if h != "motor_motor_m3"]
+    text = "\n".join(",".join(r.split(",")[i] for i in cols) for r in lines[:200])
+    with pytest.raises(GreyboxInputError, match="missing required column 'motor_motor_m3'"):
+        import_nanobench(_write(tmp_path, text))
+    # PWM out of range, time going backwards, non-numeric cell
+    j = header.index("motor_motor_m2")
+    for row, col, val, msg in [(50, j, "70000", r"row 51, column 'motor_motor_m2': PWM 70000"),
+                               (60, 0, "1.0", r"row 61, column 't'"),
+                               (70, header.index("px"), "abc", r"row 71, column 'px': not a number")]:
+        rows = [r.split(",") for r in lines]
+        rows[row][col] = val
+        with pytest.raises(GreyboxInputError, match=msg):
+            import_nanobench(_write(tmp_path, "\n".join(",".join(r) for r in rows)))
+    # a log that never leaves the ground
+    with pytest.raises(GreyboxInputError, match="never leaves the ground"):
+        import_nanobench(_write(tmp_path, "\n".join(lines[:150])))
+
+
+def test_cli_import_writes_log_and_airframe_or_nothing(tmp_path, capsys):
+    out, af = tmp_path / "log.csv", tmp_path / "cf.toml"
+    assert main(["import", "nanobench", str(BUNDLED), "--out", str(out), "--airframe-out", str(af)]) == 0
+    log = load_log(out)
+    assert log.input_names == ["w1", "w2", "w3", "w4"] and "vbat" in log.extras
+    airframe = load_airframe(af)
+    assert airframe.n_rotors == 4 and airframe.mass == pytest.approx(0.030)
+    # M1 front-right, M2 back-right, M3 back-left, M4 front-left (FRD), M1/M3 spin +1
+    pos = np.array(airframe.rotor_positions)
+    np.testing.assert_allclose(np.sign(pos[:, :2]), [[1, 1], [-1, 1], [-1, -1], [1, -1]])
+    assert [r.spin for r in airframe.rotors] == [1, -1, 1, -1]
+    bad = tmp_path / "nope.csv"
+    assert main(["import", "nanobench", str(out), "--out", str(bad)]) == 2
+    assert not bad.exists()
+    assert "missing required column 'px'" in capsys.readouterr().err
+
+
+def test_real_fit_hover_thrust_carries_the_weight():
+    """Output error cannot fit these logs (PWM at 85 Hz for a 500 Hz controller); with process
+    noise the base model's thrust at hover must match the weight, drag must be positive."""
+    imp = import_nanobench(BUNDLED)
+    af = load_airframe_text(crazyflie_airframe_toml(0.030, imp.hover_rotor_speed))
+    model = QuadrotorModel(af)
+    est, _ = imp.log.split(0.8)
+    res = fit(model, est, process_noise="auto", max_iter=40)
+    kt = res.value("K_T")
+    w2 = est.inputs ** 2
+    acc_z = est.extras["acc_z"]
+    # weight against fitted thrust at the mean hover condition (specific force ~ -g)
+    thrust = kt * w2.sum(axis=1).mean()
+    assert thrust == pytest.approx(af.mass * 9.81, rel=0.05)
+    # and against the IMU: thrust/m is the measured specific force along body -z
+    assert thrust / af.mass == pytest.approx(-acc_z.mean(), rel=0.05)
+    assert 0.0 < res.value("Kd[0]") < 0.05 and 0.0 < res.value("Kd[1]") < 0.05
+
+
+def load_airframe_text(text):
+    import tomllib
+    return airframe_from_dict(tomllib.loads(text), "crazyflie.toml")
+
+
+@pytest.fixture(scope="module")
+def battery_flight():
+    """A synthetic flight whose logged rotor speeds are commands: the true speed is
+    command * (1 + K (vbat - 4)), with vbat sagging from 4.15 to 3.6 V."""
+    model = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    syn = synthesize(model, duration=16.0, seed=21)
+    log = syn.log
+    vbat = np.linspace(4.15, 3.6, len(log)) - 0.1 * (log.inputs.mean(axis=1) / log.inputs.mean() - 1)
+    K = 0.25
+    cmd = log.inputs / (1 + K * (vbat[:, None] - 4.0))
+    return syn, FlightLog(log.t, cmd, log.input_names, log.outputs, log.output_names, {"vbat": vbat},
+                          source="battery"), K
+
+
+def test_battery_voltage_effect_recovers_its_coefficient(battery_flight):
+    syn, log, K = battery_flight
+    model = syn.model + effects.BatteryVoltage()
+    assert model.input_names == ["w1", "w2", "w3", "w4", "vbat"]
+    est, _ = log.split()
+    res = fit(model, est, p0=model.parameter_vector({"K_T": 2.395e-5 * 1.2}))
+    assert res.converged
+    assert res.value("K_vbat") == pytest.approx(K, abs=4 * res.std[res.free_names.index("K_vbat")])
+    assert res.value("K_vbat") == pytest.approx(K, rel=0.03)
+    assert res.value("K_T") == pytest.approx(2.395e-5, rel=0.01)
+
+
+def test_signal_effect_needs_its_column(battery_flight):
+    syn, log, _ = battery_flight
+    model = syn.model + effects.BatteryVoltage()
+    bare = FlightLog(log.t, log.inputs, log.input_names, log.outputs, log.output_names, source="bare.csv")
+    with pytest.raises(GreyboxInputError, match="bare.csv: missing column 'vbat'.*battery_voltage"):
+        fit(model, bare)
+    holed = log.extras["vbat"].copy()
+    holed[30] = np.nan
+    with pytest.raises(GreyboxInputError, match="row 32, column 'vbat'"):
+        model.prepare_log(FlightLog(log.t, log.inputs, log.input_names, log.outputs, log.output_names,
+                                    {"vbat": holed}, source="h.csv"))
+
+
+def test_rotor_map_offset_is_recovered():
+    model = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    syn = synthesize(model, duration=16.0, seed=22)
+    log = syn.log
+    shifted = FlightLog(log.t, log.inputs - 40.0, log.input_names, log.outputs, log.output_names)
+    ext = model + effects.by_name("rotor_map")
+    res = fit(ext, shifted.split()[0])
+    assert res.value("w_offset") == pytest.approx(40.0, abs=2.0)
+
+
+def test_process_noise_fit_recovers_parameters_of_an_exact_model():
+    model = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    syn = synthesize(model, duration=10.0, seed=23, sensors=SensorSpec(rate=250.0, vision_rate=125.0))
+    est, _ = syn.log.split()    # 250 Hz: every sample is a node
+    p0 = model.parameter_vector({"K_T": 2.395e-5 * 1.3, "b": 6.8429e-7 * 0.7, "Kd": [0.15, 0.05, 0.2]})
+    res = fit(model, est, p0=p0, process_noise="auto")
+    assert res.converged, res.status
+    assert res.process_noise is not None and res.interval == 1
+    assert res.value("K_T") == pytest.approx(2.395e-5, rel=0.01)
+    assert res.value("b") == pytest.approx(6.8429e-7, rel=0.03)
+    with pytest.raises(GreyboxInputError, match="process_noise: unknown state 'vw'"):
+        fit(model, est, process_noise={"vw": 1.0})
