@@ -559,9 +559,12 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
     # A baseline with parameters on their bounds is compensating for something: the score,
     # a local statistic at that distorted point, can miss the effect. Then refit them all.
     lo_hi = [(par.lower, par.upper) for par in model.parameters for _ in range(par.size)]
+    # a parameter pushed onto a bound is a compensating solution, unless the bound is its
+    # null value (no vertical drag is an answer, not a compensation)
+    nulls = {c: par.null for par in model.parameters for c in par.component_names}
     at_bound = [n for n in res.free_names
                 if any(np.isclose(res.value(n), b, rtol=1e-6, atol=1e-15)
-                       for b in lo_hi[model.param_names.index(n)] if np.isfinite(b))]
+                       for b in lo_hi[model.param_names.index(n)] if np.isfinite(b) and b != nulls[n])]
     if at_bound:
         say(f"  baseline has {', '.join(at_bound)} on a bound: refitting every candidate")
         to_refit = list(out)

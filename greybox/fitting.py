@@ -636,8 +636,13 @@ class _Session:
         a smaller model it is half the score (Lagrange multiplier) statistic of the extra
         parameters."""
         blocks = self.evaluate(X, th)
-        dz, _, H, gg, _ = self.step(X, th, blocks, 0.0)
-        return float(-(gg * dz).sum() - 0.5 * np.einsum("ki,kij,kj->", dz, H, dz))
+        dz, lam, H, gg, cz = self.step(X, th, blocks, 0.0)
+        d = float(-(gg * dz).sum() - 0.5 * np.einsum("ki,kij,kj->", dz, H, dz))
+        if self.q is not None:
+            # soft continuity: the linearised gaps after the step are q^2 * lambda
+            q2 = self.q ** 2
+            d += 0.5 * float((cz[:, :self.nx] ** 2 / q2).sum()) - 0.5 * float((q2 * lam[:, :self.nx] ** 2).sum())
+        return d
 
     def solve(self, X, th, mu, max_iter, tol):
         say, nx, n_int = self.say, self.nx, self.n_int

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from greybox import QuadrotorModel, effects, load_airframe
+from greybox import QuadrotorModel, diagnose, effects, load_airframe
 from greybox.airframe import airframe_from_dict
 from greybox.cli import main
 from greybox.data import FlightLog, load_log
@@ -234,3 +234,17 @@ def test_process_noise_fit_recovers_parameters_of_an_exact_model():
     assert res.value("b") == pytest.approx(6.8429e-7, rel=0.03)
     with pytest.raises(GreyboxInputError, match="process_noise: unknown state 'vw'"):
         fit(model, est, process_noise={"vw": 1.0})
+
+
+def test_process_noise_diagnosis_finds_the_missing_yaw_torque():
+    """The seed paper's story with soft continuity: screening and refits use the baseline's
+    process noise, and the verdict and the recovered b are right."""
+    model = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    syn = synthesize(model, duration=12.0, seed=31, sensors=SensorSpec(rate=200.0, vision_rate=100.0))
+    d = diagnose(model.without("yaw_torque"), syn.log, candidates=["yaw_torque", "ground_effect", "wind"],
+                 process_noise="auto")
+    assert d.verdict == "yaw_torque"
+    top = d.ranking[0]
+    assert top.channels_after["r"] < 0.3 * d.baseline_prediction.nrmse["r"]
+    assert top.fit.value("b") == pytest.approx(6.8429e-7, rel=0.03)
+    assert not any(c.significant for c in d.ranking[1:])

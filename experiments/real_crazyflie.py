@@ -1,0 +1,167 @@
+"""The whole workflow on real Crazyflie 2.1 flights (NanoBench): import, fit the base model,
+validate on the last 20 %, diagnose, add what is found; cross-check drag with the IMU.
+
+    python experiments/real_crazyflie.py [FILES...] [--out experiments/out/real_crazyflie]
+
+Default files: ``../shared/realdata/nanobench/*.csv``. Writes per flight a diagnosis report
+(HTML + PNG), ``imu_drag_<flight>.png``, and ``summary.json`` / ``summary.md`` (the table in
+the README). Fits use ``process_noise="auto"``: the logged PWM (sampled from a 500 Hz
+controller) is not the whole input truth, and an output-error fit of such data shrinks
+the parameters until the model stops moving (see README, "Real flights").
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import tomllib
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from greybox import QuadrotorModel, diagnose  # noqa: E402
+from greybox.airframe import airframe_from_dict  # noqa: E402
+from greybox.importers import crazyflie_airframe_toml, import_nanobench  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+REAL = HERE.parents[1] / "shared" / "realdata" / "nanobench"
+MASS = 0.030
+
+
+def imu_drag(log, out_png: Path, title: str) -> dict[str, float]:
+    """Independent drag estimate: body-frame specific force along x/y against body velocity.
+
+    For a rotor (thrust along body -z), the only horizontal body-frame specific force is
+    aerodynamic: ``f_x = -(k/m) v_x`` with ``k`` the (rotor + body) drag coefficient.
+    """
+    t = log.t
+    pos = np.column_stack([log.output(c) for c in "xyz"])
+    ok = np.isfinite(pos).all(1)
+    v = np.column_stack([np.gradient(np.interp(t, t[ok], pos[ok, i]), t) for i in range(3)])
+    phi, th, psi = (np.interp(t, t[ok], log.output(c)[ok]) for c in ("phi", "theta", "psi"))
+    cph, sph, cth, sth, cps, sps = np.cos(phi), np.sin(phi), np.cos(th), np.sin(th), np.cos(psi), np.sin(psi)
+    R = np.stack([np.stack([cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps], -1),
+                  np.stack([cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps], -1),
+                  np.stack([-sth, sph * cth, cph * cth], -1)], 1)
+    vb = np.einsum("kji,kj->ki", R, v)
+    # smooth both sides the same way (IMU noise, differentiated positions)
+    kern = np.ones(9) / 9
+    sm = lambda y: np.convolve(y, kern, mode="same")  # noqa: E731
+    out, fig = {}, plt.figure(figsize=(8, 3.5))
+    for i, ax_name in enumerate("xy"):
+        f = sm(log.extras[f"acc_{ax_name}"])
+        vv = sm(vb[:, i])
+        A = np.column_stack([vv, np.ones_like(vv)])
+        coef, *_ = np.linalg.lstsq(A, f, rcond=None)
+        r = float(np.corrcoef(vv, f)[0, 1])
+        out[f"k_{ax_name}"] = float(-coef[0] * MASS)
+        out[f"r_{ax_name}"] = r
+        ax = fig.add_subplot(1, 2, i + 1)
+        ax.plot(vv, f, ".", ms=1.5, alpha=0.4)
+        g = np.linspace(vv.min(), vv.max(), 10)
+        ax.plot(g, coef[0] * g + coef[1], "r-", label=f"k = {-coef[0] * MASS:.4f} N s/m (r = {r:+.2f})")
+        ax.set_xlabel(f"body v_{ax_name} (m/s)")
+        ax.set_ylabel(f"specific force {ax_name} (m/s²)")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{title}: IMU drag cross-check")
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def run(path: Path, out: Path) -> dict:
+    name = path.stem
+    t0 = time.perf_counter()
+    imp = import_nanobench(path)
+    toml = crazyflie_airframe_toml(MASS, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))
+    af = airframe_from_dict(tomllib.loads(toml), f"{name} airframe")
+    model = QuadrotorModel(af)
+    print(f"== {name}: {len(imp.log)} samples, {imp.log.duration:.1f} s airborne", flush=True)
+    diag = diagnose(model, imp.log, process_noise="auto", progress=True)
+    base, final = diag.baseline, diag.final_fit or diag.baseline
+    est, _ = imp.log.split(0.8)
+    w2 = (est.inputs[:, :4] ** 2).sum(axis=1)
+
+    def hover(res):
+        kt = res.value("K_T")
+        scale = 1.0
+        if "K_vbat" in res.model.param_names:
+            scale = (1 + res.value("K_vbat") * (est.extras["vbat"] - 4.0)) ** 2
+        thrust = kt * np.mean(w2 * scale)
+        return float(thrust / (af.mass * af.gravity))
+
+    drag = imu_drag(est, out / f"imu_drag_{name}.png", name)
+    report = diag.report(out / name)
+    row = {
+        "flight": name,
+        "samples": len(imp.log),
+        "duration_s": imp.log.duration,
+        "import_notes": imp.notes,
+        "base_parameters": {n: [base.value(n), float(s)] for n, s in zip(base.free_names, base.std)},
+        "final_parameters": {n: [final.value(n), float(s)] for n, s in zip(final.free_names, final.std)},
+        "hover_thrust_over_weight_base": hover(base),
+        "hover_thrust_over_weight_final": hover(final),
+        "imu_specific_force_over_g": float(-est.extras["acc_z"].mean() / 9.81),
+        "imu_drag": drag,
+        "nrmse_base": diag.baseline_prediction.nrmse | {"total": diag.baseline_prediction.total},
+        "nrmse_final": (diag.final_prediction.nrmse | {"total": diag.final_prediction.total})
+        if diag.final_prediction else None,
+        "verdicts": [r.verdict for r in diag.rounds if r.verdict],
+        "final_effects": (diag.final_model or model).effect_names,
+        "warnings": diag.warnings,
+        "report": str(report),
+        "seconds": time.perf_counter() - t0,
+    }
+    print(diag.summary(), flush=True)
+    return row
+
+
+def markdown(rows: list[dict]) -> str:
+    lines = ["| flight | verdicts (in order) | hover thrust / weight (base → final) | IMU f_z / g | "
+             "Kd x, y (fit, N s/m) | IMU drag x, y (N s/m) | 1-s nrmse total (base → final) |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        bp = r["base_parameters"]
+        kd = ", ".join(f"{bp[k][0]:.4f}±{bp[k][1]:.4f}" for k in ("Kd[0]", "Kd[1]") if k in bp)
+        fin = r["nrmse_final"]["total"] if r["nrmse_final"] else r["nrmse_base"]["total"]
+        lines.append(f"| {r['flight']} | {', '.join(r['verdicts']) or 'none'} | "
+                     f"{r['hover_thrust_over_weight_base']:.3f} → {r['hover_thrust_over_weight_final']:.3f} | "
+                     f"{r['imu_specific_force_over_g']:.3f} | {kd} | "
+                     f"{r['imu_drag']['k_x']:.4f}, {r['imu_drag']['k_y']:.4f} | "
+                     f"{r['nrmse_base']['total']:.2f} → {fin:.2f} |")
+    lines.append("")
+    lines.append("Per-channel 1-s nrmse (validation, last 20 %):")
+    lines.append("")
+    chans = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
+    lines.append("| flight | model | " + " | ".join(chans) + " |")
+    lines.append("|---|---|" + "---|" * len(chans))
+    for r in rows:
+        for lab, key in (("base", "nrmse_base"), ("final", "nrmse_final")):
+            if r[key]:
+                lines.append(f"| {r['flight']} | {lab} | " + " | ".join(f"{r[key].get(c, float('nan')):.3g}"
+                                                                      for c in chans) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("files", nargs="*", type=Path)
+    ap.add_argument("--out", type=Path, default=HERE / "out" / "real_crazyflie")
+    args = ap.parse_args()
+    files = args.files or sorted(REAL.glob("*.csv"))
+    if not files:
+        raise SystemExit(f"no NanoBench files given and none in {REAL}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = [run(f, args.out) for f in files]
+    (args.out / "summary.json").write_text(json.dumps(rows, indent=2, default=float))
+    (args.out / "summary.md").write_text(markdown(rows))
+    print(markdown(rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,316 @@
+"""Black-box subspace identification: ``n4sid`` (Van Overschee & De Moor), in numpy/scipy.
+
+The algorithm, for inputs ``u`` (N, m) and outputs ``y`` (N, l) sampled every ``dt``:
+
+1. Block Hankel matrices of ``i`` past and ``i`` future blocks.
+2. The oblique projection of the future outputs along the future inputs onto the past
+   data, ``O_i = Yf /_Uf Wp``, by a thin least squares (never a full SVD of a
+   ``2i(m+l) x N`` matrix: that is what runs out of memory on 40,000 samples); its thin SVD
+   gives the order (the singular values are returned for the plot) and the extended
+   observability matrix ``Gamma_i = U_1 S_1^(1/2)``.
+3. ``A`` and ``C`` from the shift invariance of ``Gamma_i`` (least squares); ``B`` (and ``D``
+   with ``feedthrough``) by least squares on the outputs over 1-s windows, each with its
+   own initial state (eliminated by projection): the outputs are linear in all of them,
+   and restarting every window keeps an open-loop-unstable plant such as a quadrotor well
+   posed, where fitting one free-run simulation is not (we tried; and the state-sequence
+   regression of the classical algorithm gave unusable models on closed-loop flights).
+
+``order="auto"`` fits every order up to ``max_order`` on the first 75 % of the data and
+takes the smallest whose 1-s-ahead fit (:meth:`StateSpaceModel.predict_windows`) on the
+last 25 % is within 1 % (absolute fit percentage) of the best.
+
+Closed-loop data (a quadrotor is unstable in open loop, so identification data are always
+closed loop): the noise is correlated with the inputs through the controller, which biases
+subspace estimates. Limit it by exciting the loop (the synthetic flights add a multisine to
+the references), by keeping the horizon ``i`` short so that past noise is forgotten, and
+by fitting near hover (the linear model is a hover model anyway); ``validation`` checks it.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import linalg
+
+from .errors import GreyboxInputError
+
+__all__ = ["n4sid", "StateSpaceModel", "fit_percent", "order_plot"]
+
+
+@dataclass
+class StateSpaceModel:
+    """Discrete-time ``x+ = A x + B u``, ``y = C x + D u`` around an operating point
+    (``u0``, ``y0`` are subtracted before and added after)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    dt: float
+    x0: np.ndarray
+    u0: np.ndarray
+    y0: np.ndarray
+    input_names: list[str] = field(default_factory=list)
+    output_names: list[str] = field(default_factory=list)
+    singular_values: np.ndarray | None = None
+    order_scores: dict[int, float] = field(default_factory=dict)
+
+    @property
+    def order(self) -> int:
+        return self.A.shape[0]
+
+    def simulate(self, u: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        """Outputs (N, l) for inputs ``u`` (N, m) in absolute units, from ``x0`` (default the
+        identified initial state)."""
+        du = np.asarray(u, dtype=float) - self.u0
+        x = self.x0 if x0 is None else np.asarray(x0, dtype=float)
+        X = _state_sequence(self.A, self.B @ du.T, x)
+        return (self.C @ X).T + du @ self.D.T + self.y0
+
+    def predict_windows(self, u: np.ndarray, y: np.ndarray, horizon: int, init: int) -> np.ndarray:
+        """k-step-ahead fit % per output: in consecutive windows of ``horizon`` samples, the
+        state at the window start is estimated by least squares from the ``init`` samples
+        before it, then the model runs open loop through the window (as
+        :func:`greybox.validation.predict` does for the grey-box model). Returns the fit %
+        over all windows together (MATLAB ``compare`` with a prediction horizon)."""
+        du = np.asarray(u, dtype=float) - self.u0
+        dy = np.asarray(y, dtype=float) - self.y0
+        n, l = self.order, dy.shape[1]
+        N = du.shape[0]
+        starts = np.arange(init, N - horizon + 1, horizon)
+        if starts.size == 0:
+            raise GreyboxInputError(f"predict_windows: {N} samples are fewer than init + horizon")
+        # observability over the init + horizon samples: y_k = C A^k x + forced response
+        L = init + horizon
+        Ak = _state_sequence(self.A, np.zeros((n, L)), np.eye(n))
+        Obs = np.einsum("ln,nkc->klc", self.C, Ak)                       # (L, l, n)
+        yh, yt = [], []
+        for s0 in starts:
+            a = s0 - init
+            uu = du[a:a + L]
+            forced = (self.C @ _state_sequence(self.A, self.B @ uu.T, np.zeros(n))).T + uu @ self.D.T
+            x = linalg.lstsq(Obs[:init].reshape(-1, n), (dy[a:s0] - forced[:init]).reshape(-1),
+                             check_finite=False)[0]
+            pred = Obs @ x + forced
+            yh.append(pred[init:])
+            yt.append(dy[s0:s0 + horizon])
+        return fit_percent(np.vstack(yt), np.vstack(yh))
+
+    def is_stable(self) -> bool:
+        return bool(np.max(np.abs(np.linalg.eigvals(self.A))) < 1.0)
+
+    def to_control(self):
+        """A python-control ``StateSpace`` (needs python-control)."""
+        import control
+        return control.ss(self.A, self.B, self.C, self.D, self.dt, inputs=self.input_names or None,
+                          outputs=self.output_names or None)
+
+
+def _state_sequence(A: np.ndarray, Bu: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """States x_0..x_{N-1} of x+ = A x + Bu[:, k] (columns), x_0 = x0; x0 may be (n, c)."""
+    n, N = A.shape[0], Bu.shape[1]
+    x = np.array(x0, dtype=float)
+    X = np.empty((n, N) + x.shape[1:])
+    for k in range(N):
+        X[:, k] = x
+        x = A @ x + Bu[:, k]
+    return X
+
+
+def _block_hankel(x: np.ndarray, i: int, j: int) -> np.ndarray:
+    """Rows: x_k^T of block row k = 0..i-1, columns: time 0..j-1 -> (i*dim, j)."""
+    d = x.shape[1]
+    H = np.empty((i * d, j))
+    for r in range(i):
+        H[r * d:(r + 1) * d] = x[r:r + j].T
+    return H
+
+
+def fit_percent(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
+    """MATLAB's ``compare`` fit per output: ``100 (1 - |y - yhat| / |y - mean(y)|)``."""
+    e = np.linalg.norm(y - yhat, axis=0)
+    d = np.linalg.norm(y - y.mean(axis=0), axis=0)
+    return 100.0 * (1.0 - e / np.maximum(d, 1e-300))
+
+
+def _oblique(Yf: np.ndarray, Uf: np.ndarray, Wp: np.ndarray) -> np.ndarray:
+    """Oblique projection ``Yf /_Uf Wp``: the ``Wp`` part of the regression of ``Yf`` on
+    ``[Uf; Wp]`` (rows are signals, columns time), by a thin least squares."""
+    Z = np.vstack([Uf, Wp])
+    coef = linalg.lstsq(Z.T, Yf.T, check_finite=False, lapack_driver="gelsy")[0].T
+    return coef[:, Uf.shape[0]:] @ Wp
+
+
+class _Subspace:
+    """Hankel data and the two oblique projections of the N4SID state-sequence algorithm."""
+
+    def __init__(self, u: np.ndarray, y: np.ndarray, i: int):
+        N, m = u.shape
+        l = y.shape[1]
+        j = N - 2 * i + 1
+        Uh = _block_hankel(u, 2 * i, j)
+        Yh = _block_hankel(y, 2 * i, j)
+        self.i, self.m, self.l, self.j = i, m, l, j
+        Up, Uf, Yp, Yf = Uh[:i * m], Uh[i * m:], Yh[:i * l], Yh[i * l:]
+        self.O = _oblique(Yf, Uf, np.vstack([Up, Yp]))
+        # shifted: one more block in the past, one fewer in the future
+        Upp, Ufm = Uh[:(i + 1) * m], Uh[(i + 1) * m:]
+        Ypp, Yfm = Yh[:(i + 1) * l], Yh[(i + 1) * l:]
+        self.O_minus = _oblique(Yfm, Ufm, np.vstack([Upp, Ypp]))
+        self.U_ii = Uh[i * m:(i + 1) * m]
+        self.Y_ii = Yh[i * l:(i + 1) * l]
+        self.Usv, self.s, _ = linalg.svd(self.O, full_matrices=False, check_finite=False)
+
+
+def _model_of_order(sub: _Subspace, n: int, feedthrough: bool, u: np.ndarray, y: np.ndarray,
+                    window: int):
+    """A and C from the shift invariance of ``Gamma_i``; B and D by least squares on the
+    outputs over windows of ``window`` samples, each window with its own initial state (the
+    outputs are linear in them). Restarting every window keeps an open-loop-unstable plant
+    (a quadrotor) well posed, where fitting one free-run simulation is not."""
+    l, m = sub.l, sub.m
+    G = sub.Usv[:, :n] * np.sqrt(sub.s[:n])
+    C = G[:l]
+    A = linalg.lstsq(G[:-l], G[l:], check_finite=False)[0]
+    N = u.shape[0]
+    W = max(min(window, N), 2)
+    starts = np.arange(0, N - W + 1, W)
+    nw = starts.size
+    Ak = _state_sequence(A, np.zeros((n, W)), np.eye(n))
+    Obs = np.einsum("ln,nkc->klc", C, Ak).reshape(W * l, n)             # (W l, n)
+    nb = n * m + (l * m if feedthrough else 0)
+    # normal equations of [x0_1 .. x0_nw, vec(B), vec(D)], block-arrow: eliminate the x0's
+    Sbb = np.zeros((nb, nb))
+    sb = np.zeros(nb)
+    P_obs = Obs @ linalg.pinv(Obs)                                         # projector on range(Obs)
+    for s0 in starts:
+        uu = u[s0:s0 + W]
+        cols = []
+        for q in range(m):
+            Bu = np.eye(n)[:, None, :] * uu[None, :, q, None]
+            Xq = _state_sequence(A, Bu, np.zeros((n, n)))
+            cols.append(np.einsum("ln,nkr->klr", C, Xq))
+        Phi = np.concatenate(cols, axis=2)                                 # (W, l, n m): B[r, q] at q n + r
+        if feedthrough:
+            Phi_D = np.zeros((W, l, l * m))
+            for q in range(m):
+                for o in range(l):
+                    Phi_D[:, o, o * m + q] = uu[:, q]
+            Phi = np.concatenate([Phi, Phi_D], axis=2)
+        Phi = Phi.reshape(W * l, nb)
+        yy = y[s0:s0 + W].reshape(-1)
+        # the window's own initial state takes whatever lies in range(Obs)
+        Phi_r = Phi - P_obs @ Phi
+        y_r = yy - P_obs @ yy
+        Sbb += Phi_r.T @ Phi_r
+        sb += Phi_r.T @ y_r
+    sol = linalg.lstsq(Sbb, sb, check_finite=False)[0]
+    B = sol[:n * m].reshape(m, n).T
+    D = sol[n * m:].reshape(l, m) if feedthrough else np.zeros((l, m))
+    return A, B, C, D
+
+
+def _initial_state(A, B, C, D, u, y, n_samples: int = 200) -> np.ndarray:
+    """Least-squares initial state from the first samples (short: unstable modes grow)."""
+    n = A.shape[0]
+    L = min(n_samples, u.shape[0])
+    Ak = _state_sequence(A, np.zeros((n, L)), np.eye(n))
+    Obs = np.einsum("ln,nkc->klc", C, Ak).reshape(-1, n)
+    forced = (C @ _state_sequence(A, B @ u[:L].T, np.zeros(n))).T + u[:L] @ D.T
+    return linalg.lstsq(Obs, (y[:L] - forced).reshape(-1), check_finite=False)[0]
+
+
+def n4sid(u: np.ndarray, y: np.ndarray, dt: float, order: int | str = "auto", horizon: int | None = None,
+          max_order: int = 16, feedthrough: bool = False, input_names: list[str] | None = None,
+          output_names: list[str] | None = None) -> StateSpaceModel:
+    """Identify a discrete-time state-space model from input/output data (see module doc).
+
+    Args:
+        u: (N, m) inputs; y: (N, l) outputs, no missing values (resample multi-rate logs first).
+        dt: sample time (s) of the returned model.
+        order: model order, or ``"auto"`` (smallest order within 1 % fit of the best on the
+            last 25 % of the data).
+        horizon: block rows ``i`` (default ``max(max_order // l + 2, 5)`` capped so the
+            Hankel matrices keep at least 20 i (m+l) columns).
+        feedthrough: estimate ``D`` (default ``D = 0``: rotor speeds do not move the
+            position instantly).
+    """
+    u = np.asarray(u, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if u.ndim != 2 or y.ndim != 2 or u.shape[0] != y.shape[0]:
+        raise GreyboxInputError(f"n4sid needs u (N, m) and y (N, l) with the same N, got {u.shape} and {y.shape}")
+    if not (np.isfinite(u).all() and np.isfinite(y).all()):
+        raise GreyboxInputError("n4sid: data contain NaN or inf; resample or fill multi-rate logs first")
+    N, m = u.shape
+    l = y.shape[1]
+    i = horizon or max(max_order // l + 2, 5)
+    if isinstance(order, int):
+        max_order = order
+    if i * l <= max_order:
+        raise GreyboxInputError(f"n4sid: horizon {i} x {l} outputs must exceed the order {max_order}")
+    if N - 2 * i + 1 < 20 * i * (m + l):
+        raise GreyboxInputError(f"n4sid: {N} samples are too few for horizon {i} "
+                                f"(need {20 * i * (m + l) + 2 * i})")
+    u0, y0 = u.mean(axis=0), y.mean(axis=0)
+    du, dy = u - u0, y - y0
+
+    scores: dict[int, float] = {}
+    if order == "auto":
+        k = int(0.75 * N)
+        sub = _Subspace(du[:k], dy[:k], i)
+        H, L = max(int(round(1.0 / dt)), 2), max(int(round(0.5 / dt)), n_init_min(max_order, l))
+        for n in range(1, max_order + 1):
+            A, B, C, D = _model_of_order(sub, n, feedthrough, du[:k], dy[:k], H)
+            trial = StateSpaceModel(A, B, C, D, dt, np.zeros(n), u0, y0)
+            try:
+                fp = trial.predict_windows(u[k - L:], y[k - L:], H, L)
+            except GreyboxInputError:
+                raise GreyboxInputError("n4sid: order 'auto' needs at least 1.5 s of data after the first "
+                                        "75 %; give a fixed order") from None
+            scores[n] = float(np.mean(np.clip(fp, -100, 100))) if np.all(np.isfinite(fp)) else -100.0
+        best = max(scores.values())
+        order = min(n for n, v in scores.items() if v >= best - 1.0)
+    elif not isinstance(order, int) or order < 1:
+        raise GreyboxInputError(f"n4sid: order must be a positive integer or 'auto', got {order!r}")
+    sub = _Subspace(du, dy, i)
+    A, B, C, D = _model_of_order(sub, order, feedthrough, du, dy, max(int(round(1.0 / dt)), 2))
+    x0 = _initial_state(A, B, C, D, du, dy)
+    return StateSpaceModel(A, B, C, D, dt, x0, u0, y0, list(input_names or []), list(output_names or []),
+                           sub.s, scores)
+
+
+def n_init_min(n: int, l: int) -> int:
+    """Samples needed to observe an order-n state from l outputs (with margin)."""
+    return 2 * (n // max(l, 1) + 2)
+
+
+def order_plot(model: StateSpaceModel, path: str | Path) -> Path:
+    """Singular values of the oblique projection (log scale) with the chosen order, and the
+    validation fit of each order when it was chosen automatically."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(1, 2 if model.order_scores else 1, figsize=(9 if model.order_scores else 5, 3.5),
+                             squeeze=False)
+    s = model.singular_values
+    ax = axes[0, 0]
+    ax.semilogy(np.arange(1, s.size + 1), s, "o-", ms=3)
+    ax.axvline(model.order, color="r", ls="--", label=f"order {model.order}")
+    ax.set_xlabel("index")
+    ax.set_ylabel("singular value")
+    ax.legend()
+    if model.order_scores:
+        ax = axes[0, 1]
+        ks = sorted(model.order_scores)
+        ax.plot(ks, [model.order_scores[k] for k in ks], "o-", ms=3)
+        ax.axvline(model.order, color="r", ls="--")
+        ax.set_xlabel("order")
+        ax.set_ylabel("held-out fit %")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
