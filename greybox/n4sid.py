@@ -184,7 +184,7 @@ def _model_of_order(sub: _Subspace, n: int, feedthrough: bool, u: np.ndarray, y:
     # normal equations of [x0_1 .. x0_nw, vec(B), vec(D)], block-arrow: eliminate the x0's
     Sbb = np.zeros((nb, nb))
     sb = np.zeros(nb)
-    P_obs = Obs @ linalg.pinv(Obs)                                         # projector on range(Obs)
+    Q_obs = linalg.orth(Obs)                                               # basis of range(Obs)
     for s0 in starts:
         uu = u[s0:s0 + W]
         cols = []
@@ -202,8 +202,8 @@ def _model_of_order(sub: _Subspace, n: int, feedthrough: bool, u: np.ndarray, y:
         Phi = Phi.reshape(W * l, nb)
         yy = y[s0:s0 + W].reshape(-1)
         # the window's own initial state takes whatever lies in range(Obs)
-        Phi_r = Phi - P_obs @ Phi
-        y_r = yy - P_obs @ yy
+        Phi_r = Phi - Q_obs @ (Q_obs.T @ Phi)
+        y_r = yy - Q_obs @ (Q_obs.T @ yy)
         Sbb += Phi_r.T @ Phi_r
         sb += Phi_r.T @ y_r
     sol = linalg.lstsq(Sbb, sb, check_finite=False)[0]

@@ -1,0 +1,64 @@
+"""Closed loop under the seed's LQR: hover stays put, 1 m steps are tracked, rotor limits
+bite, and the step metrics are right on an analytic response."""
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel, effects, load_airframe
+from greybox.closedloop import design_lqr, simulate_lqr, step_metrics, step_reference
+from greybox.errors import GreyboxInputError
+
+from conftest import AIRFRAMES
+
+
+@pytest.fixture(scope="module")
+def model():
+    return QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+
+
+def test_step_metrics_of_a_first_order_response():
+    tau = 0.4
+    t = np.linspace(0, 20, 200001)
+    y = np.where(t >= 1.0, 1 - np.exp(-(t - 1.0) / tau), 0.0)
+    m = step_metrics(t, y, 1.0, 0.0, 1.0)
+    assert m["rise_time"] == pytest.approx(tau * np.log(9), abs=1e-3)
+    assert m["overshoot_pct"] == 0.0
+    assert m["settling_time"] == pytest.approx(tau * np.log(50), abs=1e-3)
+    assert m["itae"] == pytest.approx(tau ** 2, rel=1e-4)
+    with pytest.raises(GreyboxInputError):
+        step_metrics(t, y, 1.0, 1.0, 1.0)
+
+
+def test_lqr_holds_hover_and_tracks_steps(model):
+    p = model.default_parameters()
+    d = design_lqr(model, p)
+    assert np.all(np.abs(d.poles) < 1)
+    t = np.arange(0, 5, d.dt)
+    hold = simulate_lqr(model, p, d, step_reference(t, steps=[]))
+    np.testing.assert_allclose(hold.states[:, :6], np.repeat(hold.states[:1, :6], len(t), 0), atol=1e-9)
+    t = np.arange(0, 16, d.dt)
+    ref = step_reference(t)
+    cl = simulate_lqr(model, p, d, ref)
+    for ax, ts in ((0, 1.0), (1, 6.0)):
+        m = step_metrics(t, cl.states[:, ax], ts, ref[0, ax], ref[-1, ax], ts + 5)
+        assert 0.2 < m["rise_time"] < 3 and m["overshoot_pct"] < 25 and m["settling_time"] < 5
+        assert cl.states[-1, ax] == pytest.approx(ref[-1, ax], abs=1e-3)
+    # the climb goes the right way (NED: up is -z) and ends near the target
+    assert cl.states[-1, 2] < -1.9
+    assert cl.saturated == 0.0
+
+
+def test_rotor_limits_bite_and_plant_may_differ_from_design(model):
+    p = model.default_parameters()
+    d = design_lqr(model, p)
+    t = np.arange(0, 8, d.dt)
+    ref = step_reference(t, steps=[(1.0, 0, 3.0)])
+    w = float(d.u_trim[0])
+    cl = simulate_lqr(model, p, d, ref, w_limits=(0.9 * w, 1.1 * w))
+    assert cl.saturated > 0.0
+    assert cl.inputs.max() <= 1.1 * w + 1e-9 and cl.inputs.min() >= 0.9 * w - 1e-9
+    # a plant with ground effect and motor lag (not in the design) still runs
+    plant = model + effects.MotorLag()
+    pp = plant.parameter_vector({"tau_m": 0.03}, plant.default_parameters())
+    cl2 = simulate_lqr(plant, pp, d, step_reference(np.arange(0, 8, d.dt)))
+    assert np.isfinite(cl2.states).all()
+    assert cl2.states[-1, 0] == pytest.approx(1.0, abs=0.05)
