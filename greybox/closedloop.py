@@ -1,5 +1,5 @@
-"""Closed-loop simulation of a composed nonlinear model under the seed paper's LQR, with
-rotor-speed limits, and step-response metrics.
+"""Closed-loop simulation of a composed nonlinear model under the seed paper's LQR or an
+automatically tuned cascaded PID, with rotor-speed limits, and step-response metrics.
 
 :func:`design_lqr` linearises the model at hover, discretises it (ZOH, the controller's
 sample time) and designs ``dlqry`` on the outputs ``x, y, z, psi`` (the seed's design:
@@ -28,7 +28,7 @@ from .linearize import hover_trim, linearize
 from .model import QuadrotorModel
 
 __all__ = ["LQRDesign", "design_lqr", "simulate_lqr", "ClosedLoop", "step_metrics", "step_reference",
-           "TRACKED"]
+           "TRACKED", "CascadedPID", "PID_GAINS", "simulate_pid", "tune_pid"]
 
 TRACKED = ("x", "y", "z", "psi")
 
@@ -144,3 +144,131 @@ def step_metrics(t: np.ndarray, y: np.ndarray, t_step: float, y_before: float, y
         settling = float(tt[outside[-1] + 1])
     itae = float(np.trapezoid(tt * np.abs(y_after - yy), tt))
     return {"rise_time": rise, "overshoot_pct": overshoot, "settling_time": settling, "itae": itae}
+
+
+# ------------------------------------------------------------------------------ cascaded PID
+PID_GAINS = ("kp_xy", "ki_xy", "kd_xy", "kp_z", "ki_z", "kd_z", "kp_att", "kd_att")
+"""Gains of :class:`CascadedPID`: outer position loop (P, I, D on the error's rate, seed eqs.
+13-16 with the ERRATA correction), inner attitude loop (P, D); yaw uses the attitude gains."""
+
+
+@dataclass
+class CascadedPID:
+    """Seed eqs. (13)-(18): position errors -> desired accelerations (PID, derivative on the
+    error's rate, integrators clamped at ``i_limit`` for anti-windup) -> desired roll, pitch
+    (heading-compensated, limited to ``tilt_limit``) and thrust -> attitude PD -> torques ->
+    rotor speeds through the nominal allocation, saturated to ``w_limits`` attitude first
+    (torques scaled into the available range, then the collective shifted)."""
+
+    gains: dict[str, float]
+    dt: float = 0.01
+    tilt_limit: float = 0.5
+    i_limit: float = 1.0
+    w_limits: tuple[float, float] | None = None
+    cost: float | None = None       # tuning criterion reached, if tuned
+
+    def vector(self) -> np.ndarray:
+        return np.array([self.gains[k] for k in PID_GAINS])
+
+
+def _pid_loop(model: QuadrotorModel, p: np.ndarray, dt: float, n: int, tilt_limit: float, i_limit: float,
+              w_limits: tuple[float, float]) -> ca.Function:
+    """``F(x0, xi0, ref (4, n), gains) -> (X, U)``: the PID closed loop mapaccum'd over n steps."""
+    af = model.airframe
+    names = model.param_names
+    kt = float(p[names.index("K_T")])
+    b = float(p[names.index("b")]) if "b" in names else 1e-7
+    G = af.allocation_matrix() * np.array([kt, kt, kt, b])[:, None]
+    J = np.diag(af.inertia)
+    m, g = af.mass, af.gravity
+    x = ca.SX.sym("x", model.nx)
+    xi = ca.SX.sym("xi", 3)
+    r = ca.SX.sym("r", 4)
+    k = ca.SX.sym("k", len(PID_GAINS))
+    kp = ca.vertcat(k[0], k[0], k[3])
+    ki = ca.vertcat(k[1], k[1], k[4])
+    kd = ca.vertcat(k[2], k[2], k[5])
+    kp_att, kd_att = k[6], k[7]
+    pos, eul, vel, om = x[0:3], x[3:6], x[6:9], x[9:12]
+    e = r[:3] - pos
+    a_des = kp * e + ki * xi - kd * vel          # derivative on the error's rate (constant steps)
+    psi = eul[2]
+    th_d = -(a_des[0] * ca.cos(psi) + a_des[1] * ca.sin(psi)) / g
+    ph_d = (a_des[1] * ca.cos(psi) - a_des[0] * ca.sin(psi)) / g
+    th_d = ca.fmin(ca.fmax(th_d, -tilt_limit), tilt_limit)
+    ph_d = ca.fmin(ca.fmax(ph_d, -tilt_limit), tilt_limit)
+    thrust = m * (g - a_des[2]) / (ca.cos(eul[0]) * ca.cos(eul[1]))
+    e_psi = ca.atan2(ca.sin(r[3] - psi), ca.cos(r[3] - psi))
+    tau = ca.vertcat(J[0] * (kp_att * (ph_d - eul[0]) - kd_att * om[0]),
+                     J[1] * (kp_att * (th_d - eul[1]) - kd_att * om[1]),
+                     J[2] * (0.25 * kp_att * e_psi - 0.5 * kd_att * om[2]))
+    # attitude before altitude when rotors saturate: scale the torque part into the
+    # available range, then shift the collective as far as the limits allow
+    lo, hi = w_limits
+    Ginv_np = np.linalg.pinv(G)
+    d = ca.DM(Ginv_np[:, 1:]) @ tau
+    span = ca.mmax(d) - ca.mmin(d)
+    d = d * ca.fmin(1.0, (hi ** 2 - lo ** 2) / ca.fmax(span, 1e-12))
+    c = ca.fmin(ca.fmax(thrust * float(np.mean(Ginv_np[:, 0])), lo ** 2 - ca.mmin(d)), hi ** 2 - ca.mmax(d))
+    w2 = c + d
+    w = ca.sqrt(ca.fmin(ca.fmax(w2, lo ** 2), hi ** 2))
+    step = rk4_step(model, n_substeps(dt))
+    xn = step(x, w, p, 0.0, dt)
+    xin = ca.fmin(ca.fmax(xi + dt * e, -i_limit), i_limit)      # clamped integrators: anti-windup
+    f = ca.Function("pid_step", [ca.vertcat(x, xi), r, k], [ca.vertcat(xn, xin), w])
+    return f.mapaccum("pid", n, [0], [0])
+
+
+def simulate_pid(model: QuadrotorModel, p: np.ndarray, pid: CascadedPID, reference: np.ndarray,
+                 x0: np.ndarray | None = None) -> ClosedLoop:
+    """Closed loop of ``model`` under ``pid`` tracking ``reference`` (N, 4) every ``pid.dt``."""
+    reference = np.asarray(reference, dtype=float)
+    w_h = model.hover_speed(p)
+    lims = pid.w_limits or (0.0, 2.0 * w_h)
+    F = _pid_loop(model, p, pid.dt, reference.shape[0], pid.tilt_limit, pid.i_limit, lims)
+    return _run_pid(F, model, p, pid.vector(), reference, x0, lims, pid.dt)
+
+
+def _run_pid(F, model, p, gains, reference, x0, lims, dt) -> ClosedLoop:
+    if x0 is None:
+        base = np.zeros(12)
+        base[[0, 1, 2, 5]] = reference[0]
+        x0 = model.initial_state(base, np.full(model.nu, model.hover_speed(p)), p)
+    Xs, Us = F(np.concatenate([x0, np.zeros(3)]), reference.T, gains)
+    X = np.vstack([x0, np.asarray(Xs).T[:-1, :model.nx]])
+    U = np.asarray(Us).T
+    t = np.arange(reference.shape[0]) * dt
+    sat = float(np.mean(np.any((U <= lims[0] + 1e-9) | (U >= lims[1] - 1e-9), axis=1)))
+    return ClosedLoop(t, X, U, reference, sat)
+
+
+def tune_pid(model: QuadrotorModel, p: np.ndarray | None = None, dt: float = 0.01,
+             w_limits: tuple[float, float] | None = None, max_evals: int = 300) -> CascadedPID:
+    """Gains minimising the ITAE of the seed's x, y and z steps (plus a penalty on rotor
+    saturation and on divergence) on ``model``, by Nelder-Mead in log-gains from a
+    bandwidth-separated start (inner loop 20 rad/s, outer 2 rad/s, damping 0.8). The loop
+    is built once; each evaluation is one mapaccum call."""
+    from scipy.optimize import minimize
+    p = model.default_parameters() if p is None else np.asarray(p, dtype=float)
+    t = np.arange(0, 16, dt)
+    ref = step_reference(t)
+    w_h = model.hover_speed(p)
+    lims = w_limits or (0.0, 2.0 * w_h)
+    F = _pid_loop(model, p, dt, t.size, 0.5, 1.0, lims)
+    wa, wp, z = 20.0, 2.0, 0.8
+    g0 = np.array([wp ** 2, 0.1 * wp ** 2, 2 * z * wp, wp ** 2, 0.1 * wp ** 2, 2 * z * wp, wa ** 2, 2 * z * wa])
+    steps = [(1.0, 0), (6.0, 1), (11.0, 2)]
+
+    def cost(lg):
+        cl = _run_pid(F, model, p, np.exp(lg), ref, None, lims, dt)
+        if not np.all(np.isfinite(cl.states)) or np.abs(cl.states[:, :3]).max() > 100:
+            return 1e6
+        c = 0.0
+        for ts, ax in steps:
+            c += step_metrics(t, cl.states[:, ax], ts, ref[0, ax], ref[-1, ax], ts + 5)["itae"]
+        return c + 10.0 * cl.saturated
+
+    res = minimize(cost, np.log(g0), method="Nelder-Mead",
+                   options={"maxfev": max_evals, "xatol": 1e-3, "fatol": 1e-4})
+    best = np.exp(res.x)
+    return CascadedPID(dict(zip(PID_GAINS, map(float, best))), dt, w_limits=lims, cost=float(res.fun))

@@ -62,3 +62,34 @@ def test_rotor_limits_bite_and_plant_may_differ_from_design(model):
     cl2 = simulate_lqr(plant, pp, d, step_reference(np.arange(0, 8, d.dt)))
     assert np.isfinite(cl2.states).all()
     assert cl2.states[-1, 0] == pytest.approx(1.0, abs=0.05)
+
+
+def test_pid_autotuning_improves_the_criterion_and_tracks(model):
+    from greybox.closedloop import CascadedPID, PID_GAINS, simulate_pid, tune_pid
+    p = model.default_parameters()
+    pid = tune_pid(model, p, max_evals=150)
+    t = np.arange(0, 16, pid.dt)
+    ref = step_reference(t)
+
+    def itae(ctrl):
+        cl = simulate_pid(model, p, ctrl, ref)
+        return sum(step_metrics(t, cl.states[:, ax], ts, ref[0, ax], ref[-1, ax], ts + 5)["itae"]
+                   for ts, ax in ((1.0, 0), (6.0, 1), (11.0, 2))), cl
+
+    wa, wp, z = 20.0, 2.0, 0.8
+    start = CascadedPID(dict(zip(PID_GAINS, [wp ** 2, 0.1 * wp ** 2, 2 * z * wp, wp ** 2, 0.1 * wp ** 2,
+                                             2 * z * wp, wa ** 2, 2 * z * wa])))
+    c0, _ = itae(start)
+    c1, cl = itae(pid)
+    assert c1 < 0.7 * c0
+    np.testing.assert_allclose(cl.states[-1, :3], ref[-1, :3], atol=0.01)
+    for ts, ax in ((1.0, 0), (11.0, 2)):
+        m = step_metrics(t, cl.states[:, ax], ts, ref[0, ax], ref[-1, ax], ts + 5)
+        assert m["overshoot_pct"] < 30 and m["settling_time"] < 5
+    # anti-windup: a 3 m step with rotors limited to +-30 % of hover stays stable and arrives
+    w = model.hover_speed(p)
+    tight = CascadedPID(pid.gains, w_limits=(0.7 * w, 1.3 * w))
+    far = step_reference(np.arange(0, 12, 0.01), steps=[(1.0, 0, 3.0)])
+    cl_t = simulate_pid(model, p, tight, far)
+    assert cl_t.saturated > 0 and np.isfinite(cl_t.states).all()
+    assert cl_t.states[-1, 0] == pytest.approx(3.0, abs=0.05)
