@@ -617,8 +617,12 @@ class _Session:
             Hf = H
             if frozen.any():
                 Hf = H.copy()
-                big = 1e12 * (1.0 + np.abs(np.einsum("kii->ki", H)).max())
-                Hf[0, nx + np.flatnonzero(frozen), nx + np.flatnonzero(frozen)] += big
+                # hold a parameter by a penalty that dominates its own information (summed
+                # over the nodes it rides along): scaling by the largest diagonal entry
+                # of all (1/sigma^2 of a mocap position, 1e8) swamped the whole system
+                fz = nx + np.flatnonzero(frozen)
+                info = np.abs(H[:, fz, fz]).sum(axis=0)
+                Hf[0, fz, fz] += 1e8 * (1.0 + info)
             sol = kkt.solve(Hf, gg, G, cz, mu, q2=self._q2())
             dz = sol[(kkt.znodes[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
             dth = dz[0, nx:]
