@@ -26,6 +26,7 @@ import numpy as np  # noqa: E402
 from greybox import QuadrotorModel, diagnose  # noqa: E402
 from greybox.airframe import airframe_from_dict  # noqa: E402
 from greybox.importers import crazyflie_airframe_toml, import_nanobench  # noqa: E402
+from greybox.model import rotation_matrices  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 REAL = HERE.parents[1] / "shared" / "realdata" / "nanobench"
@@ -43,11 +44,7 @@ def imu_drag(log, out_png: Path, title: str) -> dict[str, float]:
     ok = np.isfinite(pos).all(1)
     v = np.column_stack([np.gradient(np.interp(t, t[ok], pos[ok, i]), t) for i in range(3)])
     phi, th, psi = (np.interp(t, t[ok], log.output(c)[ok]) for c in ("phi", "theta", "psi"))
-    cph, sph, cth, sth, cps, sps = np.cos(phi), np.sin(phi), np.cos(th), np.sin(th), np.cos(psi), np.sin(psi)
-    R = np.stack([np.stack([cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps], -1),
-                  np.stack([cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps], -1),
-                  np.stack([-sth, sph * cth, cph * cth], -1)], 1)
-    vb = np.einsum("kji,kj->ki", R, v)
+    vb = np.einsum("kji,kj->ki", rotation_matrices(phi, th, psi), v)
     # smooth both sides the same way (IMU noise, differentiated positions)
     kern = np.ones(9) / 9
     sm = lambda y: np.convolve(y, kern, mode="same")  # noqa: E731

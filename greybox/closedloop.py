@@ -107,17 +107,27 @@ def simulate_lqr(model: QuadrotorModel, p: np.ndarray, design: LQRDesign, refere
     xn = step(x, u_sat, p, 0.0, design.dt)
     F = ca.Function("cl_step", [x, rk], [xn, u_sat]).mapaccum("cl", reference.shape[0], [0], [0])
     if x0 is None:
-        base = design.x_trim[:12].copy()
-        base[[0, 1, 2, 5]] = reference[0]
-        x0 = model.initial_state(base, design.u_trim, p)
+        x0 = _start_state(model, p, reference, design.x_trim[:12], design.u_trim)
     Xs, Us = F(x0, reference.T)
     X = np.vstack([x0, np.asarray(Xs).T[:-1]])
-    U = np.asarray(Us).T
     if not np.all(np.isfinite(X)):
         raise GreyboxInputError("closed-loop simulation diverged (non-finite states)")
-    t = np.arange(reference.shape[0]) * design.dt
+    return _closed_loop(X, np.asarray(Us).T, reference, design.dt, (lo, hi))
+
+
+def _start_state(model: QuadrotorModel, p: np.ndarray, reference: np.ndarray, x_base: np.ndarray,
+                 u0: np.ndarray) -> np.ndarray:
+    """Still hover at the reference's first point (effect states from ``u0``)."""
+    base = np.array(x_base, dtype=float)
+    base[[0, 1, 2, 5]] = reference[0]
+    return model.initial_state(base, u0, p)
+
+
+def _closed_loop(X: np.ndarray, U: np.ndarray, reference: np.ndarray, dt: float,
+                 limits: tuple[float, float]) -> ClosedLoop:
+    lo, hi = limits
     sat = float(np.mean(np.any((U <= lo + 1e-9) | (U >= hi - 1e-9), axis=1)))
-    return ClosedLoop(t, X, U, reference, sat)
+    return ClosedLoop(np.arange(reference.shape[0]) * dt, X, U, reference, sat)
 
 
 def step_metrics(t: np.ndarray, y: np.ndarray, t_step: float, y_before: float, y_after: float,
@@ -231,15 +241,10 @@ def simulate_pid(model: QuadrotorModel, p: np.ndarray, pid: CascadedPID, referen
 
 def _run_pid(F, model, p, gains, reference, x0, lims, dt) -> ClosedLoop:
     if x0 is None:
-        base = np.zeros(12)
-        base[[0, 1, 2, 5]] = reference[0]
-        x0 = model.initial_state(base, np.full(model.nu, model.hover_speed(p)), p)
+        x0 = _start_state(model, p, reference, np.zeros(12), np.full(model.nu, model.hover_speed(p)))
     Xs, Us = F(np.concatenate([x0, np.zeros(3)]), reference.T, gains)
     X = np.vstack([x0, np.asarray(Xs).T[:-1, :model.nx]])
-    U = np.asarray(Us).T
-    t = np.arange(reference.shape[0]) * dt
-    sat = float(np.mean(np.any((U <= lims[0] + 1e-9) | (U >= lims[1] - 1e-9), axis=1)))
-    return ClosedLoop(t, X, U, reference, sat)
+    return _closed_loop(X, np.asarray(Us).T, reference, dt, lims)
 
 
 def tune_pid(model: QuadrotorModel, p: np.ndarray | None = None, dt: float = 0.01,

@@ -46,7 +46,7 @@ from .data import FlightLog, atomic_write
 from .errors import GreyboxInputError
 from .fitting import FitResult, _free_indices, _Session, _ShootingProblem, fit, initial_node_states
 from .integrate import n_substeps, rk4_step_with_output
-from .model import OUTPUTS, QuadrotorModel
+from .model import OUTPUTS, QuadrotorModel, rotation_matrices
 from .validation import Prediction, compare_plot, predict
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
@@ -281,11 +281,7 @@ def _regime_variables(model: QuadrotorModel, X: np.ndarray, log: FlightLog) -> d
     ph, th, ps = X[:, 3], X[:, 4], X[:, 5]
     v = X[:, 6:9]
     # body-frame velocity: R^T v
-    cph, sph, cth, sth, cps, sps = np.cos(ph), np.sin(ph), np.cos(th), np.sin(th), np.cos(ps), np.sin(ps)
-    R = np.stack([np.stack([cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps], -1),
-                  np.stack([cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps], -1),
-                  np.stack([-sth, sph * cth, cph * cth], -1)], 1)
-    vb = np.einsum("kji,kj->ki", R, v)
+    vb = np.einsum("kji,kj->ki", rotation_matrices(ph, th, ps), v)
     dt = np.gradient(log.t)
     acc = np.gradient(v, axis=0) / dt[:, None]
     n_cmd = len(model.command_names)

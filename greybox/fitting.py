@@ -757,8 +757,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             shooting gaps must close (output error). ``"auto"`` or ``{state: std}``: the
             gaps are process noise, penalised by ``|gap_i|^2 / (2 q_i^2)`` (a filter-error
             / smoothing formulation); with ``"auto"`` ``q`` starts as the RMS gap of each
-            state at the starting point and is re-estimated (downwards only) after each solve. Use it on real data whose inputs are not the
-            whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
+            state at the starting point and is re-estimated (downwards only) after each
+            solve. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
             fit of such data can only shrink the parameters until the model stops moving.
     """
     t_start = time.perf_counter()
@@ -771,6 +771,15 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         interval = 1 if process_noise is not None else default_interval(logs)
     if interval < 1:
         raise GreyboxInputError(f"interval must be >= 1 sample, got {interval}")
+    soft = process_noise is not None
+    if soft:   # checked before anything is built
+        if isinstance(process_noise, str) and process_noise != "auto":
+            raise GreyboxInputError(f"process_noise must be None, 'auto' or {{state: std}}, got {process_noise!r}")
+        q_given = {} if isinstance(process_noise, str) else dict(process_noise)
+        for k in q_given:
+            if k not in model.state_names:
+                raise GreyboxInputError(f"process_noise: unknown state {k!r}; states are "
+                                        f"{', '.join(model.state_names)}")
     logs = [model.prepare_log(log) for log in logs]
     for log in logs:
         log.check_fittable(min_samples=max(2 * interval, 20))
@@ -797,16 +806,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         return np.sqrt(np.where(n_c > 0, c.sum(axis=1) / np.maximum(n_c, 1), 1.0))
 
     t0 = time.perf_counter()
-    soft = process_noise is not None
     if soft:
-        if isinstance(process_noise, str) and process_noise != "auto":
-            raise GreyboxInputError(f"process_noise must be None, 'auto' or {{state: std}}, got {process_noise!r}")
-        q_given = {} if isinstance(process_noise, str) else dict(process_noise)
-        for k in q_given:
-            if k not in model.state_names:
-                raise GreyboxInputError(f"process_noise: unknown state {k!r}; states are "
-                                        f"{', '.join(model.state_names)}")
-
         def estimate_q(X_, th_) -> np.ndarray:
             xe = ses.evaluate(X_, th_, blocks=False)[0]
             rms = np.sqrt(np.mean(ses.gaps(X_, xe) ** 2, axis=0))
@@ -885,7 +885,6 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         _w.warn(f"fit did not converge: {status}", ConvergenceWarning, stacklevel=2)
 
     cc = cch.sum(axis=1)
-    n_c = data.mask.sum(axis=1)
     resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
     node_states, k = [], 0
     for _, M in data.flights:

@@ -30,7 +30,8 @@ from .airframe import Airframe
 from .errors import GreyboxInputError
 from .parameters import Parameter, flat_names
 
-__all__ = ["QuadrotorModel", "BASE_STATES", "OUTPUTS", "rotation_matrix", "euler_rate_matrix"]
+__all__ = ["QuadrotorModel", "BASE_STATES", "OUTPUTS", "rotation_matrix", "rotation_matrices",
+           "euler_rate_matrix"]
 
 BASE_STATES = ["x", "y", "z", "phi", "theta", "psi", "vx", "vy", "vz", "p", "q", "r"]
 OUTPUTS = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
@@ -49,6 +50,15 @@ def rotation_matrix(phi, theta, psi):
         ca.horzcat(cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps),
         ca.horzcat(-sth, sph * cth, cph * cth),
     )
+
+
+def rotation_matrices(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """:func:`rotation_matrix` for arrays of angles, in numpy: (n, 3, 3) body -> world."""
+    cph, sph, cth, sth = np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta)
+    cps, sps = np.cos(psi), np.sin(psi)
+    return np.stack([np.stack([cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps], -1),
+                     np.stack([cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps], -1),
+                     np.stack([-sth, sph * cth, cph * cth], -1)], 1)
 
 
 def euler_rate_matrix(phi, theta):
@@ -166,7 +176,10 @@ class QuadrotorModel:
         from .data import FlightLog
         where = log.source or "log"
         cmd = self.command_names
-        if list(log.input_names[:len(cmd)]) != cmd:
+        known_signals = {s for e in list(fx.CATALOGUE.values()) + list(fx.SIGNAL_EFFECTS.values())
+                         for s in e.signals}
+        if list(log.input_names[:len(cmd)]) != cmd or \
+                any(n not in known_signals for n in log.input_names[len(cmd):]):
             raise GreyboxInputError(f"{where}: inputs {','.join(log.input_names)} do not match the "
                                     f"model's {','.join(self.input_names)}")
         if list(log.input_names) == self.input_names:

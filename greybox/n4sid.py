@@ -84,13 +84,12 @@ class StateSpaceModel:
             raise GreyboxInputError(f"predict_windows: {N} samples are fewer than init + horizon")
         # observability over the init + horizon samples: y_k = C A^k x + forced response
         L = init + horizon
-        Ak = _state_sequence(self.A, np.zeros((n, L)), np.eye(n))
-        Obs = np.einsum("ln,nkc->klc", self.C, Ak)                       # (L, l, n)
+        Obs = _observability(self.A, self.C, L)                             # (L, l, n)
         yh, yt = [], []
         for s0 in starts:
             a = s0 - init
             uu = du[a:a + L]
-            forced = (self.C @ _state_sequence(self.A, self.B @ uu.T, np.zeros(n))).T + uu @ self.D.T
+            forced = _forced_response(self.A, self.B, self.C, self.D, uu)
             x = linalg.lstsq(Obs[:init].reshape(-1, n), (dy[a:s0] - forced[:init]).reshape(-1),
                              check_finite=False)[0]
             pred = Obs @ x + forced
@@ -117,6 +116,17 @@ def _state_sequence(A: np.ndarray, Bu: np.ndarray, x0: np.ndarray) -> np.ndarray
         X[:, k] = x
         x = A @ x + Bu[:, k]
     return X
+
+
+def _observability(A: np.ndarray, C: np.ndarray, L: int) -> np.ndarray:
+    """(L, l, n): the output ``C A^k`` of each initial-state direction, k = 0..L-1."""
+    n = A.shape[0]
+    return np.einsum("ln,nkc->klc", C, _state_sequence(A, np.zeros((n, L)), np.eye(n)))
+
+
+def _forced_response(A, B, C, D, u: np.ndarray) -> np.ndarray:
+    """(N, l) outputs from a zero initial state under inputs u (N, m)."""
+    return (C @ _state_sequence(A, B @ u.T, np.zeros(A.shape[0]))).T + u @ D.T
 
 
 def _block_hankel(x: np.ndarray, i: int, j: int) -> np.ndarray:
@@ -178,8 +188,7 @@ def _model_of_order(sub: _Subspace, n: int, feedthrough: bool, u: np.ndarray, y:
     W = max(min(window, N), 2)
     starts = np.arange(0, N - W + 1, W)
     nw = starts.size
-    Ak = _state_sequence(A, np.zeros((n, W)), np.eye(n))
-    Obs = np.einsum("ln,nkc->klc", C, Ak).reshape(W * l, n)             # (W l, n)
+    Obs = _observability(A, C, W).reshape(W * l, n)
     nb = n * m + (l * m if feedthrough else 0)
     # normal equations of [x0_1 .. x0_nw, vec(B), vec(D)], block-arrow: eliminate the x0's
     Sbb = np.zeros((nb, nb))
@@ -216,9 +225,8 @@ def _initial_state(A, B, C, D, u, y, n_samples: int = 200) -> np.ndarray:
     """Least-squares initial state from the first samples (short: unstable modes grow)."""
     n = A.shape[0]
     L = min(n_samples, u.shape[0])
-    Ak = _state_sequence(A, np.zeros((n, L)), np.eye(n))
-    Obs = np.einsum("ln,nkc->klc", C, Ak).reshape(-1, n)
-    forced = (C @ _state_sequence(A, B @ u[:L].T, np.zeros(n))).T + u[:L] @ D.T
+    Obs = _observability(A, C, L).reshape(-1, n)
+    forced = _forced_response(A, B, C, D, u[:L])
     return linalg.lstsq(Obs, (y[:L] - forced).reshape(-1), check_finite=False)[0]
 
 

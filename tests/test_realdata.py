@@ -248,3 +248,11 @@ def test_process_noise_diagnosis_finds_the_missing_yaw_torque():
     assert top.channels_after["r"] < 0.3 * d.baseline_prediction.nrmse["r"]
     assert top.fit.value("b") == pytest.approx(6.8429e-7, rel=0.03)
     assert not any(c.significant for c in d.ranking[1:])
+
+
+def test_log_with_more_rotors_than_the_model_is_refused(battery_flight):
+    syn, log, _ = battery_flight
+    five = FlightLog(log.t, np.hstack([log.inputs, log.inputs[:, :1]]), ["w1", "w2", "w3", "w4", "w5"],
+                     log.outputs, log.output_names, source="five.csv")
+    with pytest.raises(GreyboxInputError, match="five.csv: inputs w1,w2,w3,w4,w5 do not match"):
+        syn.model.prepare_log(five)
