@@ -228,12 +228,14 @@ _W = re.compile(r"^w(\d+)$")
 _U = re.compile(r"^u([1-4])$")
 
 
-def load_log(path: str | Path, inputs: str = "auto") -> FlightLog:
+def load_log(path: str | Path, inputs: str = "auto", optional: Iterable[str] = ()) -> FlightLog:
     """Read and validate a flight log CSV (contract §2).
 
     Args:
         inputs: ``"rotor_speeds"`` (require ``w1..wN``), ``"controls"`` (require ``u1..u4``) or
             ``"auto"`` (rotor speeds when present, else controls).
+        optional: required outputs that may be absent here (then all-empty), e.g.
+            ``("x", "y", "z")`` for an IMU log that vision positions will be merged into.
     """
     path = Path(path)
     header, data = read_csv_table(path)
@@ -261,8 +263,9 @@ def load_log(path: str | Path, inputs: str = "auto") -> FlightLog:
         in_names = ["u1", "u2", "u3", "u4"]
     else:
         raise GreyboxInputError(f"inputs must be 'auto', 'rotor_speeds' or 'controls', got {inputs!r}")
+    optional = set(optional)
     for name in REQUIRED_OUTPUTS:
-        if name not in col:
+        if name not in col and name not in optional:
             raise GreyboxInputError(f"{path}: missing required column {name!r}")
     out_names = REQUIRED_OUTPUTS + [n for n in OPTIONAL_OUTPUTS if n in col]
 
@@ -288,7 +291,8 @@ def load_log(path: str | Path, inputs: str = "auto") -> FlightLog:
             raise GreyboxInputError(
                 f"{path}: row {r + 2}, column {in_names[c]!r}: rotor speed {U[r, c]:g} is not "
                 f"plausible in rad/s (above {MAX_ROTOR_SPEED:g}); is it RPM? rad/s = RPM * pi/30")
-    Y = data[:, [col[n] for n in out_names]]
+    Y = np.column_stack([data[:, col[n]] if n in col else np.full(data.shape[0], np.nan)
+                         for n in out_names])
     used = {"t", *in_names, *out_names}
     extra_names = [h for h in header if h not in used]
     extras = {h: data[:, col[h]] for h in extra_names}
