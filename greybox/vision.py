@@ -11,8 +11,8 @@ The seed paper's quadrotor watches a ground marker with its forward camera throu
   intrinsics with ``cx -> W - 1 - cx`` and tangential distortion ``p2 -> -p2``.
 * For one square marker, IPPE gives the two poses that explain four corners; the wrong
   one is a reflection about the line of sight. We keep the better-reprojecting one unless
-  the two are close (noise), then the one whose tilt is nearest a prior (the IMU attitude,
-  the last accepted frame, or level flight).
+  the two are close (noise) and there is a prior, then the one whose tilt is nearest it
+  (the IMU attitude, else the last accepted frame).
 
 Frames: OpenCV camera axes (x right, y down, z along the optical axis). World NED, body
 FRD (contract §1). The rig (camera, optional mirror, markers) is one TOML file, see
@@ -482,7 +482,8 @@ class MarkerTracker:
             last accepted one is rejected as a jump (after ``reset_after`` such frames in a
             row the tracker re-locks on the new position: it was the old one that was wrong).
         ambiguity_ratio: when the second IPPE solution's reprojection error is within this
-            factor of the first, the one nearer the attitude prior is taken.
+            factor of the first, the one nearer the attitude prior (IMU, else the last
+            accepted frame) is taken; with no prior, the better-reprojecting one.
         tilt_sigma: rad, the IMU's roll/pitch accuracy. When :meth:`process` is given the
             IMU attitude, the pose is refined by Gauss–Newton on the corner reprojection
             error (``corner_sigma_px``) *and* the IMU's tilt: one marker's four corners
@@ -562,10 +563,11 @@ class MarkerTracker:
             rots = [self._body_rotation_from_marker(rv, m) for rv in rvecs]
             k = 0
             if n_sol == 2:
-                if errs[1] < self.ambiguity_ratio * max(errs[0], 1e-9):
+                # without an IMU attitude: the better reprojection (maximum likelihood). The
+                # last frame's tilt is no help: a vision-only tilt is as noisy as the choice
+                if prior is not None and errs[1] < self.ambiguity_ratio * max(errs[0], 1e-9):
                     ambiguous = True
-                    ref = prior if prior is not None else (self._last.R_wb if self._last is not None else None)
-                    k = int(self._tilt_from(rots[1], ref) < self._tilt_from(rots[0], ref))
+                    k = int(self._tilt_from(rots[1], prior) < self._tilt_from(rots[0], prior))
                 alternative = rots[1 - k]
             R_wb, t_cm, rms = rots[k], tvecs[k].ravel(), float(errs[k])
             if t_cm[2] <= 0:
@@ -607,7 +609,7 @@ class MarkerTracker:
         return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=-1)
 
     def refine_with_tilt(self, est: VisionEstimate, corners: Mapping[int, np.ndarray],
-                         imu: np.ndarray, iterations: int = 3) -> VisionEstimate:
+                         imu: np.ndarray, iterations: int = 2) -> VisionEstimate:
         """Gauss–Newton on (position, world-frame rotation): corner residuals / corner
         sigma and the body z axis against the IMU's / tilt sigma. Yaw stays vision's."""
         ids = sorted(corners)
@@ -641,10 +643,10 @@ class MarkerTracker:
         return (self.R_bv @ R_cw).T
 
     @staticmethod
-    def _tilt_from(R_wb: np.ndarray, ref: np.ndarray | None) -> float:
-        """Angle between the body z axes of ``R_wb`` and the reference (level if none)."""
+    def _tilt_from(R_wb: np.ndarray, ref: np.ndarray) -> float:
+        """Angle between the body z axes of ``R_wb`` and the reference."""
         z = R_wb[:, 2]
-        z_ref = np.array([0.0, 0.0, 1.0]) if ref is None else ref[:, 2]
+        z_ref = ref[:, 2]
         return math.acos(max(-1.0, min(1.0, float(z @ z_ref))))
 
     def process(self, image: np.ndarray | None, t: float,
@@ -780,10 +782,7 @@ def read_frames(source: str | Path, timestamps: str | Path | None = None, fps: f
     def gen() -> Iterator[tuple[int, float, np.ndarray | None]]:
         if source.is_dir():
             for i, p in enumerate(files):
-                try:
-                    img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-                except cv2.error:
-                    img = None
+                img = _imread_quiet(p)
                 yield i, time_of(i), img
         else:
             i = 0
@@ -818,6 +817,20 @@ def imu_attitude(log: FlightLog) -> "Callable[[float], tuple[float, float, float
 
 
 __all__.append("imu_attitude")
+
+
+def _imread_quiet(path: Path) -> np.ndarray | None:
+    """``cv2.imread`` without OpenCV's own error lines (a corrupt frame is counted and
+    reported as a skip by the caller)."""
+    log = cv2.utils.logging
+    level = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)
+    try:
+        return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    except cv2.error:
+        return None
+    finally:
+        log.setLogLevel(level)
 
 
 def save_positions(result: VisionResult, path: str | Path) -> None:
