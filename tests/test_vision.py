@@ -280,3 +280,19 @@ def test_cli_errors_exit_2_without_output(tmp_path, capsys):
     assert main(["vision", str(tmp_path / "frames"), "--camera", str(RIG_PATH), "--out", str(out), "--fps", "30"]) == 2
     assert "no frame gave a position" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_cli_vision_reads_a_video(tmp_path, rig):
+    cam = SyntheticCamera(rig, pixel_noise=1.0, seed=6)
+    pose = lambda t: (_euler_to_rotation(0.0, 0.0, 0.2), np.array([0.1 * t, 0.0, -1.0]))
+    writer = cv2.VideoWriter(str(tmp_path / "flight.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (640, 480), False)
+    assert writer.isOpened()
+    for f in cam.frames(pose, np.arange(10) / 30):
+        writer.write(f.image)
+    writer.release()
+    out = tmp_path / "pos.csv"
+    assert main(["vision", str(tmp_path / "flight.avi"), "--camera", str(RIG_PATH), "--out", str(out), "--quiet"]) == 0
+    pos = np.loadtxt(out, delimiter=",", skiprows=1)
+    np.testing.assert_allclose(pos[:, 0], np.arange(10) / 30)          # the video's own 30 fps
+    np.testing.assert_allclose(pos[:, 4], 0.2, atol=0.02)
+    assert np.abs(pos[:, 3] + 1.0).max() < 0.03
