@@ -28,7 +28,8 @@ from .linearize import hover_trim, linearize
 from .model import QuadrotorModel
 
 __all__ = ["LQRDesign", "design_lqr", "simulate_lqr", "ClosedLoop", "step_metrics", "step_reference",
-           "TRACKED", "CascadedPID", "PID_GAINS", "simulate_pid", "tune_pid"]
+           "TRACKED", "CascadedPID", "PID_GAINS", "simulate_pid", "tune_pid", "LinearClosedLoop",
+           "simulate_linear_lqr"]
 
 TRACKED = ("x", "y", "z", "psi")
 
@@ -128,6 +129,68 @@ def _closed_loop(X: np.ndarray, U: np.ndarray, reference: np.ndarray, dt: float,
     lo, hi = limits
     sat = float(np.mean(np.any((U <= lo + 1e-9) | (U >= hi - 1e-9), axis=1)))
     return ClosedLoop(np.arange(reference.shape[0]) * dt, X, U, reference, sat)
+
+
+@dataclass
+class LinearClosedLoop:
+    """A linear (black-box) model's closed loop: its outputs, not physical states."""
+
+    t: np.ndarray
+    outputs: np.ndarray     # (N, l) in the model's output units
+    output_names: list[str]
+    inputs: np.ndarray      # (N, m) after saturation
+    reference: np.ndarray   # (N, 4)
+    saturated: float
+    K: np.ndarray
+    Kr: np.ndarray
+    poles: np.ndarray
+
+    def output(self, name: str) -> np.ndarray:
+        return self.outputs[:, self.output_names.index(name)]
+
+
+def simulate_linear_lqr(ss, reference: np.ndarray, q: float = 1.0, r: float = 1e-3,
+                        w_limits: tuple[float, float] | None = None) -> LinearClosedLoop:
+    """The seed's LQR designed and flown on a discrete linear model ``ss`` (e.g. from
+    :func:`greybox.n4sid.n4sid`: any state coordinates, outputs named ``x, y, z, ...``).
+
+    ``dlqry`` with ``Q = q I`` on the outputs ``x, y, z, psi`` and ``R = r I``, and ``Kr`` of
+    eq. (12) — the same design as :func:`design_lqr`, on the black box's own states (the
+    output weighting is what makes one design procedure apply to both). Deviations are
+    about the model's operating point (``ss.u0``, ``ss.y0``); rotor speeds are saturated to
+    ``w_limits`` (default 0 .. 2 x ``ss.u0``) in absolute units. The loop starts at the
+    steady state that holds the reference's first point.
+    """
+    names = list(ss.output_names)
+    missing = [c for c in TRACKED if c not in names]
+    if missing:
+        raise GreyboxInputError(f"simulate_linear_lqr: the model has no output(s) {missing}; "
+                                f"its outputs are {names}")
+    reference = np.asarray(reference, dtype=float)
+    if reference.ndim != 2 or reference.shape[1] != 4:
+        raise GreyboxInputError(f"reference must be (N, 4) x, y, z, psi, got {reference.shape}")
+    rows = [names.index(c) for c in TRACKED]
+    A, B, C, D = ss.A, ss.B, ss.C, ss.D
+    Ct, Dt = C[rows], D[rows]
+    K, S, E = dlqry(A, B, Ct, Dt, q * np.eye(4), r * np.eye(B.shape[1]))
+    Kr = reference_gain(A, B, Ct, q * np.eye(4), r * np.eye(B.shape[1]), K, S)
+    u0, y0 = np.asarray(ss.u0, float), np.asarray(ss.y0, float)
+    lo, hi = w_limits if w_limits is not None else (0.0, 2.0 * float(np.max(u0)))
+    dref = reference - y0[rows]
+    Acl = A - B @ K
+    x = np.linalg.solve(np.eye(A.shape[0]) - Acl, B @ Kr @ dref[0])
+    N = reference.shape[0]
+    Y = np.empty((N, C.shape[0]))
+    U = np.empty((N, B.shape[1]))
+    for k in range(N):   # a few thousand steps of small matrices: cheaper than building a graph
+        du = np.clip(u0 - K @ x + Kr @ dref[k], lo, hi) - u0
+        U[k] = u0 + du
+        Y[k] = C @ x + D @ du + y0
+        x = A @ x + B @ du
+    if not np.all(np.isfinite(Y)):
+        raise GreyboxInputError("linear closed-loop simulation diverged (non-finite outputs)")
+    sat = float(np.mean(np.any((U <= lo + 1e-9) | (U >= hi - 1e-9), axis=1)))
+    return LinearClosedLoop(np.arange(N) * ss.dt, Y, names, U, reference, sat, K, Kr, E)
 
 
 def step_metrics(t: np.ndarray, y: np.ndarray, t_step: float, y_before: float, y_after: float,

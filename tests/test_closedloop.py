@@ -93,3 +93,27 @@ def test_pid_autotuning_improves_the_criterion_and_tracks(model):
     cl_t = simulate_pid(model, p, tight, far)
     assert cl_t.saturated > 0 and np.isfinite(cl_t.states).all()
     assert cl_t.states[-1, 0] == pytest.approx(3.0, abs=0.05)
+
+
+def test_linear_lqr_on_the_hover_linearisation_matches_the_nonlinear_loop():
+    """simulate_linear_lqr on the true model linearised at hover (as a black box would be)
+    follows small steps like the nonlinear model under design_lqr: same design procedure."""
+    from greybox import linearize
+    from greybox.closedloop import simulate_linear_lqr
+    from greybox.n4sid import StateSpaceModel
+    model = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    p = model.default_parameters()
+    dt = 0.01
+    lin = linearize(model, p=p).discretize(dt)
+    outs = ["x", "y", "z", "phi", "theta", "psi"]
+    rows = [lin.output_names.index(c) for c in outs]
+    ss = StateSpaceModel(lin.A, lin.B, lin.C[rows], lin.D[rows], dt, np.zeros(lin.A.shape[0]),
+                         np.asarray(lin.u_op), np.asarray(lin.C[rows] @ lin.x_op), [], outs)
+    t = np.arange(0, 8, dt)
+    ref = step_reference(t, steps=[(1.0, 0, 0.1), (3.0, 1, -0.1), (5.0, 2, -0.1)])
+    lin_cl = simulate_linear_lqr(ss, ref)
+    nl_cl = simulate_lqr(model, p, design_lqr(model, p, dt=dt), ref)
+    for c in ("x", "y", "z"):
+        np.testing.assert_allclose(lin_cl.output(c), nl_cl.output(c, model.state_names), atol=2e-3)
+    assert abs(lin_cl.output("x")[-1] - 0.1) < 1e-3          # Kr: no steady-state error
+    assert np.max(np.abs(lin_cl.poles)) < 1.0
