@@ -1,30 +1,34 @@
-"""Black-box subspace identification: ``n4sid`` (Van Overschee & De Moor), in numpy/scipy.
+"""Black-box subspace identification: ``n4sid`` for closed-loop flights, in numpy/scipy.
 
-The algorithm, for inputs ``u`` (N, m) and outputs ``y`` (N, l) sampled every ``dt``:
+A quadrotor is unstable in open loop, so its identification data are always closed loop:
+the controller feeds output noise back into the inputs. The classical N4SID oblique
+projection (Van Overschee & De Moor) assumes future inputs uncorrelated with past noise
+and is biased there; on our flights it predicted 1 s ahead far worse than the same data
+allow. ``n4sid`` therefore uses, by default, the predictor-based member of the family
+(PBSID, Chiuso 2007; the closed-loop counterpart of N4SID/MOESP), ``method="pbsid"``:
 
-1. Block Hankel matrices of ``i`` past and ``i`` future blocks.
-2. The oblique projection of the future outputs along the future inputs onto the past
-   data, ``O_i = Yf /_Uf Wp``, by a thin least squares (never a full SVD of a
-   ``2i(m+l) x N`` matrix: that is what runs out of memory on 40,000 samples); its thin SVD
-   gives the order (the singular values are returned for the plot) and the extended
-   observability matrix ``Gamma_i = U_1 S_1^(1/2)``.
-3. ``A`` and ``C`` from the shift invariance of ``Gamma_i`` (least squares); ``B`` (and ``D``
-   with ``feedthrough``) by least squares on the outputs over 1-s windows, each with its
-   own initial state (eliminated by projection): the outputs are linear in all of them,
-   and restarting every window keeps an open-loop-unstable plant such as a quadrotor well
-   posed, where fitting one free-run simulation is not (we tried; and the state-sequence
-   regression of the classical algorithm gave unusable models on closed-loop flights).
+1. a VARX model of the one-step predictor over a past window of ``p`` samples by least
+   squares (the innovation is uncorrelated with all past inputs and outputs, feedback or
+   not);
+2. the predictor's Markov parameters arranged as ``Gamma K``, times the past data: its SVD
+   gives the order (the singular values are kept for :func:`order_plot`) and the state
+   sequence;
+3. ``C`` (and ``D`` with ``feedthrough``) and then ``A, B`` (with the Kalman gain) by least
+   squares on the state sequence.
+
+``method="oblique"`` keeps the classical algorithm (oblique projection, ``A``, ``C`` by
+shift invariance, ``B`` by least squares over 1-s windows with their own initial states)
+for comparison. Both work on Gram matrices of the Hankel data (one BLAS product), never
+on the tall data matrices: 40,000 samples x (4 in, 6 out) take well under a second.
 
 ``order="auto"`` fits every order up to ``max_order`` on the first 75 % of the data and
 takes the smallest whose 1-s-ahead fit (:meth:`StateSpaceModel.predict_windows`) on the
 last 25 % is within 1 % (absolute fit percentage) of the best.
 
-Closed-loop data (a quadrotor is unstable in open loop, so identification data are always
-closed loop): the noise is correlated with the inputs through the controller, which biases
-subspace estimates. Limit it by exciting the loop (the synthetic flights add a multisine to
-the references) and by fitting near hover (the linear model is a hover model anyway); the
-held-out 1-s-ahead fit checks the result. A horizon spanning ~0.15 s (15 block rows at
-100 Hz) beat 5 and 10 rows on our closed-loop flights, for nfoursid as well.
+What is left of the closed-loop bias is limited by exciting the loop (the synthetic flights
+add a multisine to the commands), by fitting near hover (the linear model is a hover model
+anyway) and by a sampling rate at which the past window spans the dynamics (~100 Hz for a
+quadrotor: at 1 kHz decimate first). The held-out 1-s-ahead fit checks the result.
 """
 from __future__ import annotations
 
@@ -224,6 +228,57 @@ def _model_of_order(sub: _Subspace, n: int, feedthrough: bool, u: np.ndarray, y:
     return A, B, C, D
 
 
+class _Predictor:
+    """Predictor-based subspace identification (PBSID, Chiuso 2007), consistent on
+    closed-loop data.
+
+    1. A VARX model of the one-step *predictor*, ``y_k = sum_s Xi_s z_{k-s} + e_k`` with
+       ``z = [u; y]`` over ``p`` past samples, by least squares: the innovation ``e_k`` is
+       uncorrelated with all past data even when a controller feeds outputs back into the
+       inputs (the oblique projection assumes future inputs uncorrelated with noise,
+       which feedback breaks). ``Xi_s = C Ac^(s-1) [B - K D, K]`` with ``Ac = A - K C``.
+    2. The block-triangular matrix ``Gamma K`` built from the ``Xi_s``, times the past data,
+       estimates ``Gamma X``; its SVD gives the order and the state sequence ``X``.
+    3. ``C`` (``D``) by least squares of ``y`` on ``X`` (and ``u``); then ``A, B, K`` by least
+       squares of ``x_(k+1)`` on ``[x_k; u_k; e_k]``.
+
+    As in :class:`_Subspace`, everything is done on Gram matrices of the past data (one
+    BLAS product), never on the tall data matrices.
+    """
+
+    def __init__(self, u: np.ndarray, y: np.ndarray, p: int):
+        N, m = u.shape
+        l = y.shape[1]
+        r = m + l
+        j = N - p
+        self.m, self.l, self.p = m, l, p
+        Zp = _block_hankel(np.hstack([u, y]), p, j)          # column k-p: z_{k-p} .. z_{k-1}
+        self.Zp, self.uk, self.yk = Zp, u[p:].T, y[p:].T
+        G = Zp @ Zp.T
+        Xi = linalg.lstsq(G, Zp @ self.yk.T, check_finite=False, cond=1e-12)[0].T   # block c: Xi_(p-c)
+        # Gamma_f K_p: row block f0 (future step), column block c (z_{k-p+c}) = Xi_(f0+p-c), c >= f0
+        LK = np.zeros((p * l, p * r))
+        for f0 in range(p):
+            LK[f0 * l:(f0 + 1) * l, f0 * r:] = Xi[:, :(p - f0) * r]
+        MMt = LK @ G @ LK.T
+        w, V = linalg.eigh((MMt + MMt.T) / 2, check_finite=False)
+        order = np.argsort(w)[::-1]
+        self.s = np.sqrt(np.maximum(w[order], 0.0))                            # singular values of LK Zp
+        self.W = V[:, order].T @ LK
+
+    def model(self, n: int, feedthrough: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        X = (self.W[:n] @ self.Zp) / np.sqrt(np.maximum(self.s[:n], 1e-300))[:, None]   # S^(1/2) V^T
+        m, l = self.m, self.l
+        reg = np.vstack([X, self.uk]) if feedthrough else X
+        CD = linalg.lstsq(reg.T, self.yk.T, check_finite=False)[0].T
+        C = CD[:, :n]
+        D = CD[:, n:] if feedthrough else np.zeros((l, m))
+        e = self.yk - CD @ reg
+        Z = np.vstack([X[:, :-1], self.uk[:, :-1], e[:, :-1]])
+        AB = linalg.lstsq(Z.T, X[:, 1:].T, check_finite=False)[0].T
+        return AB[:, :n], AB[:, n:n + m], C, D
+
+
 def _initial_state(A, B, C, D, u, y, n_samples: int = 200) -> np.ndarray:
     """Least-squares initial state from the first samples (short: unstable modes grow)."""
     n = A.shape[0]
@@ -235,7 +290,7 @@ def _initial_state(A, B, C, D, u, y, n_samples: int = 200) -> np.ndarray:
 
 def n4sid(u: np.ndarray, y: np.ndarray, dt: float, order: int | str = "auto", horizon: int | None = None,
           max_order: int = 16, feedthrough: bool = False, input_names: list[str] | None = None,
-          output_names: list[str] | None = None) -> StateSpaceModel:
+          output_names: list[str] | None = None, method: str = "pbsid") -> StateSpaceModel:
     """Identify a discrete-time state-space model from input/output data (see module doc).
 
     Args:
@@ -243,14 +298,19 @@ def n4sid(u: np.ndarray, y: np.ndarray, dt: float, order: int | str = "auto", ho
         dt: sample time (s) of the returned model.
         order: model order, or ``"auto"`` (smallest order within 1 % fit of the best on the
             last 25 % of the data).
-        horizon: block rows ``i`` (default: enough rows to span 0.15 s, at least
-            ``max_order // l + 2`` and 5, at most 20, fewer if the data are short so the
-            Hankel matrices keep at least 20 i (m+l) columns). On closed-loop quadrotor
-            flights at 100 Hz, i = 15 predicts 1 s ahead far better than i = 5 (see
-            ``experiments/bench_n4sid.py``).
+        horizon: PBSID's past window ``p`` / the oblique method's block rows ``i``
+            (default: enough to span 0.2 s / 0.15 s, at least ``max_order // l + 2`` and 5,
+            at most 30 / 20, fewer if the data are short). At 1 kHz that span is cut by
+            the cap: decimate to ~100 Hz first (block means), where a 0.2 s past covers the
+            predictor's memory (see ``experiments/bench_n4sid.py``).
         feedthrough: estimate ``D`` (default ``D = 0``: rotor speeds do not move the
             position instantly).
+        method: ``"pbsid"`` (default: predictor-based, consistent on closed-loop data; the
+            horizon is its past window ``p``) or ``"oblique"`` (the classical N4SID oblique
+            projection, biased in closed loop; kept for comparison).
     """
+    if method not in ("pbsid", "oblique"):
+        raise GreyboxInputError(f"n4sid: method must be 'pbsid' or 'oblique', got {method!r}")
     u = np.asarray(u, dtype=float)
     y = np.asarray(y, dtype=float)
     if u.ndim != 2 or y.ndim != 2 or u.shape[0] != y.shape[0]:
@@ -261,27 +321,42 @@ def n4sid(u: np.ndarray, y: np.ndarray, dt: float, order: int | str = "auto", ho
     l = y.shape[1]
     if isinstance(order, int):
         max_order = order
-    i = horizon or min(max(max_order // l + 2, int(round(0.15 / dt)), 5), 20)
+    # columns needed per parameter row: the oblique projection has 2i block rows, PBSID p
+    def enough(i: int) -> bool:
+        return (N - 2 * i + 1 >= 20 * i * (m + l)) if method == "oblique" else (N - i >= 10 * i * (m + l))
+
+    span = 0.15 if method == "oblique" else 0.2
+    i = horizon or min(max(max_order // l + 2, int(round(span / dt)), 5), 20 if method == "oblique" else 30)
     if horizon is None:
-        while i > max_order // l + 2 and N - 2 * i + 1 < 20 * i * (m + l):
+        while i > max_order // l + 2 and not enough(i):
             i -= 1
     if i * l <= max_order:
         raise GreyboxInputError(f"n4sid: horizon {i} x {l} outputs must exceed the order {max_order}")
-    if N - 2 * i + 1 < 20 * i * (m + l):
-        raise GreyboxInputError(f"n4sid: {N} samples are too few for horizon {i} "
-                                f"(need {20 * i * (m + l) + 2 * i})")
+    if not enough(i):
+        need = 20 * i * (m + l) + 2 * i if method == "oblique" else 10 * i * (m + l) + i
+        raise GreyboxInputError(f"n4sid: {N} samples are too few for horizon {i} (need {need})")
     u0, y0 = u.mean(axis=0), y.mean(axis=0)
     # in the data's own units: the SVD's weighting of the outputs follows their variation
     # (positions over attitude), which predicted better than unit-RMS scaling (tried)
     du, dy = u - u0, y - y0
 
+    W = max(int(round(1.0 / dt)), 2)
+
+    def identify(uu: np.ndarray, yy: np.ndarray):
+        """The order-independent part, and a function giving the model of each order."""
+        if method == "pbsid":
+            pred = _Predictor(uu, yy, i)
+            return pred.s, lambda n: pred.model(n, feedthrough)
+        sub = _Subspace(uu, yy, i)
+        return sub.s, lambda n: _model_of_order(sub, n, feedthrough, uu, yy, W)
+
     scores: dict[int, float] = {}
     if order == "auto":
         k = int(0.75 * N)
-        sub = _Subspace(du[:k], dy[:k], i)
+        _, of_order = identify(du[:k], dy[:k])
         H, L = max(int(round(1.0 / dt)), 2), max(int(round(0.5 / dt)), n_init_min(max_order, l))
         for n in range(1, max_order + 1):
-            A, B, C, D = _model_of_order(sub, n, feedthrough, du[:k], dy[:k], H)
+            A, B, C, D = of_order(n)
             trial = StateSpaceModel(A, B, C, D, dt, np.zeros(n), u0, y0)
             try:
                 fp = trial.predict_windows(u[k - L:], y[k - L:], H, L)
@@ -293,11 +368,11 @@ def n4sid(u: np.ndarray, y: np.ndarray, dt: float, order: int | str = "auto", ho
         order = min(n for n, v in scores.items() if v >= best - 1.0)
     elif not isinstance(order, int) or order < 1:
         raise GreyboxInputError(f"n4sid: order must be a positive integer or 'auto', got {order!r}")
-    sub = _Subspace(du, dy, i)
-    A, B, C, D = _model_of_order(sub, order, feedthrough, du, dy, max(int(round(1.0 / dt)), 2))
+    sv, of_order = identify(du, dy)
+    A, B, C, D = of_order(order)
     x0 = _initial_state(A, B, C, D, du, dy)
     return StateSpaceModel(A, B, C, D, dt, x0, u0, y0, list(input_names or []), list(output_names or []),
-                           sub.s, scores)
+                           sv, scores)
 
 
 def n_init_min(n: int, l: int) -> int:
