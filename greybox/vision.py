@@ -757,16 +757,7 @@ def read_frames(source: str | Path, timestamps: str | Path | None = None, fps: f
     times: np.ndarray | None = None
     if timestamps is not None:
         header, data = read_csv_table(timestamps)
-        if "t" not in header:
-            raise GreyboxInputError(f"{timestamps}: missing required column 't'")
-        times = data[:, header.index("t")]
-        bad = np.flatnonzero(np.isnan(times))
-        if bad.size:
-            raise GreyboxInputError(f"{timestamps}: row {bad[0] + 2}, column 't': missing value")
-        bad = np.flatnonzero(np.diff(times) <= 0)
-        if bad.size:
-            raise GreyboxInputError(f"{timestamps}: row {bad[0] + 3}, column 't': time is not after "
-                                    "the previous row's (t must be strictly increasing)")
+        times = _time_column(timestamps, header, data)
         if source.is_dir() and len(times) != n:
             raise GreyboxInputError(f"{timestamps}: {len(times)} time(s) for {n} image file(s) in {source}")
     elif fps is None:
@@ -844,12 +835,19 @@ def save_positions(result: VisionResult, path: str | Path) -> None:
 def load_positions(path: str | Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Read a vision positions CSV: ``t`` and any of ``x,y,z,psi`` → (t, values, names)."""
     header, data = read_csv_table(path)
-    if "t" not in header:
-        raise GreyboxInputError(f"{path}: missing required column 't'")
+    t = _time_column(path, header, data)
     names = [n for n in ("x", "y", "z", "psi") if n in header]
     if not {"x", "y", "z"} <= set(names):
         miss = next(n for n in ("x", "y", "z") if n not in header)
         raise GreyboxInputError(f"{path}: missing required column {miss!r}")
+    return t, data[:, [header.index(n) for n in names]], names
+
+
+def _time_column(path, header: list[str], data: np.ndarray) -> np.ndarray:
+    """Column ``t`` of a table: present, never empty, strictly increasing (errors name the
+    file, row and column)."""
+    if "t" not in header:
+        raise GreyboxInputError(f"{path}: missing required column 't'")
     t = data[:, header.index("t")]
     bad = np.flatnonzero(np.isnan(t))
     if bad.size:
@@ -858,7 +856,7 @@ def load_positions(path: str | Path) -> tuple[np.ndarray, np.ndarray, list[str]]
     if bad.size:
         raise GreyboxInputError(f"{path}: row {bad[0] + 3}, column 't': time is not after the "
                                 "previous row's (t must be strictly increasing)")
-    return t, data[:, [header.index(n) for n in names]], names
+    return t
 
 
 def merge_vision(log: FlightLog, t_vis: np.ndarray, values: np.ndarray, names: list[str],
