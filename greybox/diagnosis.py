@@ -465,13 +465,17 @@ def _process_noise(ext: QuadrotorModel, res: FitResult) -> dict[str, float] | No
     return {s: res.process_noise.get(s, 0.01 * w_ref) for s in ext.state_names}
 
 
-def _refit(model: QuadrotorModel, res: FitResult, est: FlightLog, val: FlightLog, name: str, sigma: dict,
-           compile: str, cold: bool = False) -> tuple[QuadrotorModel, FitResult, Prediction]:
+def _refit(model: QuadrotorModel, res: FitResult, est: FlightLog, val: FlightLog | None, name: str,
+           sigma: dict, compile: str, cold: bool = False, max_iter: int | None = None,
+           start: FitResult | None = None) -> tuple[QuadrotorModel, FitResult, Prediction | None]:
     """Fit the model extended by ``name`` with the baseline's weights: warm-started at the
     baseline optimum, or ``cold`` — from the airframe's guesses with the candidate's
-    parameters at a plausible magnitude — when the baseline is a compensating solution."""
+    parameters at a plausible magnitude — when the baseline is a compensating solution, or
+    continued from ``start`` (an earlier, capped refit). No validation when ``val`` is None."""
     ext, p, free = _extended(model, res, name)
-    if cold:
+    if start is not None:
+        p, init = start.p, start.node_states
+    elif cold:
         p = ext.default_parameters()
         kt = p[ext.param_names.index("K_T")]
         p = ext.parameter_vector(fx.example_values(name, ext.airframe, kt), p)
@@ -481,9 +485,9 @@ def _refit(model: QuadrotorModel, res: FitResult, est: FlightLog, val: FlightLog
     # a cold start of a still-wrong model can crawl along a compensating valley: cap it, the
     # likelihood ratio against the baseline stays valid for any point reached
     fr = fit(ext, est, free=free, p0=p, noise=sigma, reweight=False, compile=compile,
-             max_iter=50 if cold else 200, initial_states=init, interval=res.interval,
+             max_iter=max_iter or (50 if cold else 200), initial_states=init, interval=res.interval,
              process_noise=_process_noise(ext, res))
-    return ext, fr, predict(ext, fr.p, val, compile=compile)
+    return ext, fr, (predict(ext, fr.p, val, compile=compile) if val is not None else None)
 
 
 def _lr_test(base: FitResult, alt: FitResult, alt_resid: np.ndarray, df: int, on_bound: bool,
@@ -528,6 +532,10 @@ def _precompile(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_s
         precompile(quick, opt="-O0")
     if items:
         precompile(items, opt="-O1")
+
+
+COLD_SCREEN_ITER = 8
+"""Iterations each candidate gets from cold before the best few are continued."""
 
 
 def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: FlightLog, val: FlightLog,
@@ -578,9 +586,26 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
     t0 = time.perf_counter()
     _precompile(model, res, [c.effect for c in to_refit], n_sub, compile, "refit")
     say(f"  built refit models ({time.perf_counter() - t0:.1f} s)")
+    starts: dict[str, FitResult] = {}
+    if at_bound:
+        # cold refits in two stages: a few iterations for every candidate (the right model
+        # converges fast from cold, wrong ones crawl along the compensating valley), then
+        # the best few by the cost reached are continued to the usual cap
+        t0 = time.perf_counter()
+        for cand in to_refit:
+            starts[cand.effect] = _refit(model, res, est, None, cand.effect, res.sigma, compile, cold=True,
+                                         max_iter=COLD_SCREEN_ITER)[1]
+        to_refit.sort(key=lambda c: starts[c.effect].cost)
+        for cand in to_refit[n_refit:]:
+            cand.reason = f"cold screen: cost {starts[cand.effect].cost:.4g} after {COLD_SCREEN_ITER} iterations, " \
+                          f"not among the {n_refit} lowest"
+        to_refit = to_refit[:n_refit]
+        say(f"  cold screen ({time.perf_counter() - t0:.1f} s): continuing "
+            f"{', '.join(c.effect for c in to_refit)}")
     for cand in to_refit:
         t0 = time.perf_counter()
-        ext, fr, pr = _refit(model, res, est, val, cand.effect, res.sigma, compile, cold=bool(at_bound))
+        ext, fr, pr = _refit(model, res, est, val, cand.effect, res.sigma, compile, cold=bool(at_bound),
+                             start=starts.get(cand.effect))
         _, Y = _trajectory(ext, fr, est)
         E = _residuals(est, Y)
         cand.lr, cand.p_value = _lr_test(res, fr, E, cand.df, _null_on_bound(ext, cand.effect), n_tests)
