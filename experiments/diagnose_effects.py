@@ -22,9 +22,9 @@ HERE = Path(__file__).resolve().parent
 
 
 def case(base: QuadrotorModel, hidden: str | None, duration: float, seed: int, rate: float = 1000.0) -> dict:
-    if hidden == "yaw_torque":       # seed Fig. 1: normal data, model without the reaction torque
+    if hidden in base.effects:       # a base effect (seed Fig. 1: yaw_torque): normal data, model without it
         truth, p = base, base.default_parameters()
-        model = base.without("yaw_torque")
+        model = base.without(hidden)
     elif hidden is None:
         truth, p, model = base, base.default_parameters(), base
     else:
@@ -57,7 +57,7 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=1000.0, help="log rate, Hz")
     a = ap.parse_args()
     base = QuadrotorModel(load_airframe(HERE.parent / "greybox" / "data" / "airframes" / "paper.toml"))
-    names = a.effects or ([None, "yaw_torque"] + [n for n in effects.CATALOGUE if n not in base.effects])
+    names = a.effects or ([None] + list(base.effects.names) + [n for n in effects.CATALOGUE if n not in base.effects])
     rows = []
     for n in names:
         n = None if n in (None, "none") else n
