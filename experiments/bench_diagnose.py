@@ -87,7 +87,7 @@ def main(argv=None) -> int:
         print(f"ratio naive / greybox: {t_naive / t_ours:.1f}x")
         result["naive"] = {"time_s": t_naive, "ranking": ranking, "ratio": t_naive / t_ours}
     (HERE / "out").mkdir(exist_ok=True)
-    (HERE / "out" / "bench_diagnose.json").write_text(json.dumps(result, indent=2, default=float))
+    (HERE / "out" / ("bench_diagnose.json" if not args.skip_naive else "bench_diagnose_greybox.json")).write_text(json.dumps(result, indent=2, default=float))
     return 0
 
 

@@ -531,11 +531,15 @@ def _precompile(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_s
     if quick:
         precompile(quick, opt="-O0")
     if items:
-        precompile(items, opt="-O1")
+        precompile(items, opt="-O0" if compile == "quick" else "-O1")
 
 
-COLD_SCREEN_ITER = 8
+COLD_SCREEN_ITER = 6
 """Iterations each candidate gets from cold before the best few are continued."""
+COLD_CONTINUE = (3, 20)
+"""How many of the cold-screened candidates are continued, and for how many iterations: the
+right model has converged by then; a wrong one is still crawling, and its likelihood ratio
+at any point reached is a valid (lower) bound."""
 
 
 def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: FlightLog, val: FlightLog,
@@ -583,8 +587,11 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
                 c.reason = f"score test not significant (p = {p:.2g}), not refitted"
             else:
                 to_refit.append(c)
+    # refitting every candidate from cold: ten quick builds beat ten optimised ones (on a
+    # fresh machine the -O1 builds alone took ~55 s of a 2-minute demo)
+    rcompile = "quick" if at_bound and compile == "auto" else compile
     t0 = time.perf_counter()
-    _precompile(model, res, [c.effect for c in to_refit], n_sub, compile, "refit")
+    _precompile(model, res, [c.effect for c in to_refit], n_sub, rcompile, "refit")
     say(f"  built refit models ({time.perf_counter() - t0:.1f} s)")
     starts: dict[str, FitResult] = {}
     if at_bound:
@@ -593,19 +600,20 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
         # the best few by the cost reached are continued to the usual cap
         t0 = time.perf_counter()
         for cand in to_refit:
-            starts[cand.effect] = _refit(model, res, est, None, cand.effect, res.sigma, compile, cold=True,
+            starts[cand.effect] = _refit(model, res, est, None, cand.effect, res.sigma, rcompile, cold=True,
                                          max_iter=COLD_SCREEN_ITER)[1]
         to_refit.sort(key=lambda c: starts[c.effect].cost)
-        for cand in to_refit[n_refit:]:
+        n_cont = min(n_refit, COLD_CONTINUE[0])
+        for cand in to_refit[n_cont:]:
             cand.reason = f"cold screen: cost {starts[cand.effect].cost:.4g} after {COLD_SCREEN_ITER} iterations, " \
-                          f"not among the {n_refit} lowest"
-        to_refit = to_refit[:n_refit]
+                          f"not among the {n_cont} lowest"
+        to_refit = to_refit[:n_cont]
         say(f"  cold screen ({time.perf_counter() - t0:.1f} s): continuing "
             f"{', '.join(c.effect for c in to_refit)}")
     for cand in to_refit:
         t0 = time.perf_counter()
-        ext, fr, pr = _refit(model, res, est, val, cand.effect, res.sigma, compile, cold=bool(at_bound),
-                             start=starts.get(cand.effect))
+        ext, fr, pr = _refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=bool(at_bound),
+                             start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if at_bound else None)
         _, Y = _trajectory(ext, fr, est)
         E = _residuals(est, Y)
         cand.lr, cand.p_value = _lr_test(res, fr, E, cand.df, _null_on_bound(ext, cand.effect), n_tests)
