@@ -55,3 +55,25 @@ def test_bad_input_is_refused():
         n4sid(u[:100], y[:100], 0.01)
     with pytest.raises(GreyboxInputError, match="order must be"):
         n4sid(u, y, 0.01, order=0)
+
+
+def test_closed_loop_data_pbsid_is_consistent_oblique_is_not():
+    """An unstable first-order plant under output feedback with process and measurement
+    noise: the predictor-based default recovers the open-loop pole and gain; the classical
+    oblique projection (future inputs correlated with past noise through the controller)
+    does not — the reason PBSID is the default."""
+    rng = np.random.default_rng(0)
+    a, b, k = 1.02, 0.5, 0.5
+    x, U, Y = 0.0, [], []
+    for _ in range(20000):
+        y = x + 0.05 * rng.normal()
+        u = -k * y + 0.2 * rng.normal()
+        U.append(u)
+        Y.append(y)
+        x = a * x + b * u + 0.1 * rng.normal()
+    U, Y = np.array(U)[:, None], np.array(Y)[:, None]
+    m = n4sid(U, Y, 0.01, order=1, horizon=10)
+    assert abs(np.linalg.eigvals(m.A)[0] - a) < 0.005
+    assert abs((m.C @ m.B)[0, 0] - b) < 0.02
+    bad = n4sid(U, Y, 0.01, order=1, horizon=10, method="oblique")
+    assert abs(np.linalg.eigvals(bad.A)[0] - a) > 0.1
