@@ -78,15 +78,18 @@ class Camera:
 
     def project_camera_points(self, P: np.ndarray) -> np.ndarray:
         """Pixels of camera-frame points ``P`` (n, 3) with distortion (OpenCV's model)."""
-        x = P[:, 0] / P[:, 2]
-        y = P[:, 1] / P[:, 2]
-        k1, k2, p1, p2, k3 = self.dist
-        r2 = x * x + y * y
-        radial = 1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
-        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        K = self.K
-        return np.column_stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]])
+        return _distorted_pixels(self.K, self.dist, P[:, 0] / P[:, 2], P[:, 1] / P[:, 2])
+
+
+def _distorted_pixels(K: np.ndarray, dist: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Pixels (..., 2) of normalised image coordinates through OpenCV's distortion model
+    (``k1, k2, p1, p2, k3``) and the intrinsics ``K``."""
+    k1, k2, p1, p2, k3 = dist
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=-1)
 
 
 @dataclass(frozen=True)
@@ -599,14 +602,7 @@ class MarkerTracker:
         (n, 3) for a batch of body poses ``R_wb`` (m, 3, 3), ``p`` (m, 3): (m, n, 2)."""
         # X_v = R_bv^T (R_wb^T (X_w - p) - c_b)
         Pv = ((P_w[None] - p[:, None]) @ R_wb - self.c_b) @ self.R_bv
-        x, y = Pv[..., 0] / Pv[..., 2], Pv[..., 1] / Pv[..., 2]
-        k1, k2, p1, p2, k3 = self.dist
-        r2 = x * x + y * y
-        rad = 1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
-        xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        K = self.K
-        return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=-1)
+        return _distorted_pixels(self.K, self.dist, Pv[..., 0] / Pv[..., 2], Pv[..., 1] / Pv[..., 2])
 
     def refine_with_tilt(self, est: VisionEstimate, corners: Mapping[int, np.ndarray],
                          imu: np.ndarray, iterations: int = 2) -> VisionEstimate:
