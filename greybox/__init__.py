@@ -18,9 +18,10 @@ from .validation import Prediction, compare_plot, nrmse, predict, residual_plot 
 from .diagnosis import Diagnosis, diagnose  # noqa: E402
 from .linearize import LinearModel, hover_trim, linearize  # noqa: E402
 from .control import dlqr, dlqry, reference_gain  # noqa: E402
+from .n4sid import StateSpaceModel, n4sid  # noqa: E402
 
 __all__ = ["effects", "Airframe", "load_airframe", "FlightLog", "load_log", "save_log",
            "GreyboxError", "GreyboxInputError", "SolverError", "simulate", "QuadrotorModel",
            "fit", "FitResult", "GreyBoxEstimator", "Prediction", "predict", "nrmse", "compare_plot",
            "residual_plot", "diagnose", "Diagnosis", "linearize", "hover_trim", "LinearModel", "dlqr",
-           "dlqry", "reference_gain", "__version__"]
+           "dlqry", "reference_gain", "n4sid", "StateSpaceModel", "__version__"]
