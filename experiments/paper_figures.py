@@ -44,6 +44,7 @@ from greybox.closedloop import (design_lqr, simulate_linear_lqr, simulate_lqr, s
                                 step_metrics, step_reference, tune_pid)
 from greybox.data import FlightLog  # noqa: E402
 from greybox.fitting import fit  # noqa: E402
+from greybox.model import OUTPUTS  # noqa: E402
 from greybox.n4sid import n4sid  # noqa: E402
 from greybox.synth import SensorSpec, model_with_hidden_effects, synthesize  # noqa: E402
 from greybox.validation import predict  # noqa: E402
@@ -225,8 +226,7 @@ def fig56(out: Path, duration: float = 50.0, rate: float = 1000.0, order: int | 
     # n4sid on the noise-free-sampled flight decimated to 100 Hz (block means), 80 %
     k = max(int(round(rate / 100.0)), 1)
     outs = ["x", "y", "z", "phi", "theta", "psi"]
-    Y = np.column_stack([syn.outputs_true[:, ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"].index(c)]
-                         for c in outs])
+    Y = syn.outputs_true[:, [OUTPUTS.index(c) for c in outs]]
     Yn = np.column_stack([syn.log.output(c) for c in outs])
     Y = np.where(np.isnan(Yn), Y, Yn)      # measured where measured, truth-interpolated between vision samples
     n = (len(syn.log) // k) * k
@@ -247,8 +247,7 @@ def fig56(out: Path, duration: float = 50.0, rate: float = 1000.0, order: int | 
     series = {"flight (truth)": {c: flight_cl.output(c, truth_model.state_names) for c in outs},
               "grey-box": {c: grey_cl.output(c, names) for c in outs},
               "black-box (n4sid)": {c: black_cl.output(c) for c in outs}}
-    res = {"grey_box": {"parameters": grey.parameter_table() if hasattr(grey, "parameter_table") else
-                        {n_: grey.value(n_) for n_ in grey.free_names}, "fit_s": t_grey},
+    res = {"grey_box": {"parameters": {n_: grey.value(n_) for n_ in grey.free_names}, "fit_s": t_grey},
            "black_box": {"order": black.order, "identify_s": t_black, "stable": black.is_stable(),
                          "closed_loop_poles_max": float(np.max(np.abs(black_cl.poles)))},
            "metrics": {k_: _metrics(t, s) for k_, s in series.items()},

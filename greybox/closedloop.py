@@ -65,12 +65,23 @@ def design_lqr(model: QuadrotorModel, p: np.ndarray | None = None, dt: float = 0
                                 "design on a model without them")
     x0, u0 = hover_trim(model, p, position=position)
     lin = linearize(model, p=p, x=x0, u=u0).discretize(dt)
-    rows = [lin.output_names.index(c) for c in TRACKED]
-    C, D = lin.C[rows], lin.D[rows]
-    Q, R = q * np.eye(len(rows)), r * np.eye(model.nu)
-    K, S, E = dlqry(lin.A, lin.B, C, D, Q, R)
-    Kr = reference_gain(lin.A, lin.B, C, Q, R, K, S)
+    K, Kr, E = _tracking_lqr(lin.A, lin.B, lin.C, lin.D, lin.output_names, q, r)
     return LQRDesign(K, Kr, x0, u0, dt, E)
+
+
+def _tracking_lqr(A, B, C, D, output_names, q: float, r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(K, Kr, poles)``: ``dlqry`` with ``Q = q I`` on the outputs :data:`TRACKED`,
+    ``R = r I``, and the reference gain of eq. (12) — for any state coordinates."""
+    rows = [list(output_names).index(c) for c in TRACKED]
+    Ct, Dt = C[rows], D[rows]
+    Q, R = q * np.eye(len(rows)), r * np.eye(B.shape[1])
+    K, S, E = dlqry(A, B, Ct, Dt, Q, R)
+    return K, reference_gain(A, B, Ct, Q, R, K, S), E
+
+
+def _saturated_fraction(U: np.ndarray, lo: float, hi: float) -> float:
+    """Fraction of samples with some rotor at a limit."""
+    return float(np.mean(np.any((U <= lo + 1e-9) | (U >= hi - 1e-9), axis=1)))
 
 
 def step_reference(t: np.ndarray, start=(0.0, 0.0, -1.0, 0.0), steps=None) -> np.ndarray:
@@ -126,9 +137,7 @@ def _start_state(model: QuadrotorModel, p: np.ndarray, reference: np.ndarray, x_
 
 def _closed_loop(X: np.ndarray, U: np.ndarray, reference: np.ndarray, dt: float,
                  limits: tuple[float, float]) -> ClosedLoop:
-    lo, hi = limits
-    sat = float(np.mean(np.any((U <= lo + 1e-9) | (U >= hi - 1e-9), axis=1)))
-    return ClosedLoop(np.arange(reference.shape[0]) * dt, X, U, reference, sat)
+    return ClosedLoop(np.arange(reference.shape[0]) * dt, X, U, reference, _saturated_fraction(U, *limits))
 
 
 @dataclass
@@ -171,9 +180,7 @@ def simulate_linear_lqr(ss, reference: np.ndarray, q: float = 1.0, r: float = 1e
         raise GreyboxInputError(f"reference must be (N, 4) x, y, z, psi, got {reference.shape}")
     rows = [names.index(c) for c in TRACKED]
     A, B, C, D = ss.A, ss.B, ss.C, ss.D
-    Ct, Dt = C[rows], D[rows]
-    K, S, E = dlqry(A, B, Ct, Dt, q * np.eye(4), r * np.eye(B.shape[1]))
-    Kr = reference_gain(A, B, Ct, q * np.eye(4), r * np.eye(B.shape[1]), K, S)
+    K, Kr, E = _tracking_lqr(A, B, C, D, names, q, r)
     u0, y0 = np.asarray(ss.u0, float), np.asarray(ss.y0, float)
     lo, hi = w_limits if w_limits is not None else (0.0, 2.0 * float(np.max(u0)))
     dref = reference - y0[rows]
@@ -189,8 +196,8 @@ def simulate_linear_lqr(ss, reference: np.ndarray, q: float = 1.0, r: float = 1e
         x = A @ x + B @ du
     if not np.all(np.isfinite(Y)):
         raise GreyboxInputError("linear closed-loop simulation diverged (non-finite outputs)")
-    sat = float(np.mean(np.any((U <= lo + 1e-9) | (U >= hi - 1e-9), axis=1)))
-    return LinearClosedLoop(np.arange(N) * ss.dt, Y, names, U, reference, sat, K, Kr, E)
+    return LinearClosedLoop(np.arange(N) * ss.dt, Y, names, U, reference, _saturated_fraction(U, lo, hi),
+                            K, Kr, E)
 
 
 def step_metrics(t: np.ndarray, y: np.ndarray, t_step: float, y_before: float, y_after: float,

@@ -460,8 +460,7 @@ def _process_noise(ext: QuadrotorModel, res: FitResult) -> dict[str, float] | No
     compare); new effect states (motor speeds) get a loose 1 % of their scale."""
     if res.process_noise is None:
         return None
-    w_ref = float(np.sqrt(ext.airframe.mass * ext.airframe.gravity /
-                          (ext.airframe.n_rotors * res.p[res.model.param_names.index("K_T")])))
+    w_ref = res.model.hover_speed(res.p)
     return {s: res.process_noise.get(s, 0.01 * w_ref) for s in ext.state_names}
 
 

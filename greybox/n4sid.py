@@ -150,6 +150,13 @@ def fit_percent(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
     return 100.0 * (1.0 - e / np.maximum(d, 1e-300))
 
 
+def _left_singular(MMt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Singular values (descending) and left singular vectors of ``M`` from ``M M^T``."""
+    w, V = linalg.eigh((MMt + MMt.T) / 2, check_finite=False)
+    order = np.argsort(w)[::-1]
+    return np.sqrt(np.maximum(w[order], 0.0)), V[:, order]
+
+
 class _Subspace:
     """The oblique projection ``O_i = Yf /_Uf Wp`` of the N4SID algorithm, through its
     left singular vectors and singular values only.
@@ -168,17 +175,14 @@ class _Subspace:
         j = N - 2 * i + 1
         Uh = _block_hankel(u, 2 * i, j)
         Yh = _block_hankel(y, 2 * i, j)
-        self.i, self.m, self.l, self.j = i, m, l, j
+        self.m, self.l = m, l
         H = np.vstack([Uh[i * m:], Uh[:i * m], Yh[:i * l], Yh[i * l:]])   # Uf, Wp = [Up; Yp], Yf
         G = H @ H.T / j
         nf, nz = i * m, 2 * i * m + i * l
         coef = linalg.lstsq(G[:nz, :nz], G[nz:, :nz].T, check_finite=False, cond=1e-12)[0].T
         cw = coef[:, nf:]
-        OOt = cw @ G[nf:nz, nf:nz] @ cw.T
-        w, V = linalg.eigh((OOt + OOt.T) / 2, check_finite=False)
-        order = np.argsort(w)[::-1]
-        self.s = np.sqrt(np.maximum(w[order], 0.0) * j)                   # singular values of O_i
-        self.Usv = V[:, order]
+        s, self.Usv = _left_singular(cw @ G[nf:nz, nf:nz] @ cw.T)
+        self.s = s * np.sqrt(j)                                            # singular values of O_i
 
 
 def _model_of_order(sub: _Subspace, n: int, feedthrough: bool, u: np.ndarray, y: np.ndarray,
@@ -194,7 +198,6 @@ def _model_of_order(sub: _Subspace, n: int, feedthrough: bool, u: np.ndarray, y:
     N = u.shape[0]
     W = max(min(window, N), 2)
     starts = np.arange(0, N - W + 1, W)
-    nw = starts.size
     Obs = _observability(A, C, W).reshape(W * l, n)
     nb = n * m + (l * m if feedthrough else 0)
     # normal equations of [x0_1 .. x0_nw, vec(B), vec(D)], block-arrow: eliminate the x0's
@@ -251,7 +254,7 @@ class _Predictor:
         l = y.shape[1]
         r = m + l
         j = N - p
-        self.m, self.l, self.p = m, l, p
+        self.m, self.l = m, l
         Zp = _block_hankel(np.hstack([u, y]), p, j)          # column k-p: z_{k-p} .. z_{k-1}
         self.Zp, self.uk, self.yk = Zp, u[p:].T, y[p:].T
         G = Zp @ Zp.T
@@ -260,11 +263,8 @@ class _Predictor:
         LK = np.zeros((p * l, p * r))
         for f0 in range(p):
             LK[f0 * l:(f0 + 1) * l, f0 * r:] = Xi[:, :(p - f0) * r]
-        MMt = LK @ G @ LK.T
-        w, V = linalg.eigh((MMt + MMt.T) / 2, check_finite=False)
-        order = np.argsort(w)[::-1]
-        self.s = np.sqrt(np.maximum(w[order], 0.0))                            # singular values of LK Zp
-        self.W = V[:, order].T @ LK
+        self.s, V = _left_singular(LK @ G @ LK.T)                              # singular values of LK Zp
+        self.W = V.T @ LK
 
     def model(self, n: int, feedthrough: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         X = (self.W[:n] @ self.Zp) / np.sqrt(np.maximum(self.s[:n], 1e-300))[:, None]   # S^(1/2) V^T
@@ -321,20 +321,20 @@ def n4sid(u: np.ndarray, y: np.ndarray, dt: float, order: int | str = "auto", ho
     l = y.shape[1]
     if isinstance(order, int):
         max_order = order
-    # columns needed per parameter row: the oblique projection has 2i block rows, PBSID p
-    def enough(i: int) -> bool:
-        return (N - 2 * i + 1 >= 20 * i * (m + l)) if method == "oblique" else (N - i >= 10 * i * (m + l))
+    # samples needed: Hankel columns per parameter row (the oblique projection has 2i block
+    # rows and wants 20 columns a row, PBSID p block rows and 10)
+    def need(i: int) -> int:
+        return 20 * i * (m + l) + 2 * i - 1 if method == "oblique" else 10 * i * (m + l) + i
 
     span = 0.15 if method == "oblique" else 0.2
     i = horizon or min(max(max_order // l + 2, int(round(span / dt)), 5), 20 if method == "oblique" else 30)
     if horizon is None:
-        while i > max_order // l + 2 and not enough(i):
+        while i > max_order // l + 2 and N < need(i):
             i -= 1
     if i * l <= max_order:
         raise GreyboxInputError(f"n4sid: horizon {i} x {l} outputs must exceed the order {max_order}")
-    if not enough(i):
-        need = 20 * i * (m + l) + 2 * i if method == "oblique" else 10 * i * (m + l) + i
-        raise GreyboxInputError(f"n4sid: {N} samples are too few for horizon {i} (need {need})")
+    if N < need(i):
+        raise GreyboxInputError(f"n4sid: {N} samples are too few for horizon {i} (need {need(i)})")
     u0, y0 = u.mean(axis=0), y.mean(axis=0)
     # in the data's own units: the SVD's weighting of the outputs follows their variation
     # (positions over attitude), which predicted better than unit-RMS scaling (tried)
@@ -354,12 +354,12 @@ def n4sid(u: np.ndarray, y: np.ndarray, dt: float, order: int | str = "auto", ho
     if order == "auto":
         k = int(0.75 * N)
         _, of_order = identify(du[:k], dy[:k])
-        H, L = max(int(round(1.0 / dt)), 2), max(int(round(0.5 / dt)), n_init_min(max_order, l))
+        L = max(int(round(0.5 / dt)), n_init_min(max_order, l))
         for n in range(1, max_order + 1):
             A, B, C, D = of_order(n)
             trial = StateSpaceModel(A, B, C, D, dt, np.zeros(n), u0, y0)
             try:
-                fp = trial.predict_windows(u[k - L:], y[k - L:], H, L)
+                fp = trial.predict_windows(u[k - L:], y[k - L:], W, L)
             except GreyboxInputError:
                 raise GreyboxInputError("n4sid: order 'auto' needs at least 1.5 s of data after the first "
                                         "75 %; give a fixed order") from None

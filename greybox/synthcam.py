@@ -22,7 +22,7 @@ import numpy as np
 
 from .data import atomic_write
 from .errors import GreyboxInputError
-from .vision import VisionRig, _euler_to_rotation
+from .vision import VisionRig, _euler_to_rotation, rotation_to_euler
 
 __all__ = ["SyntheticCamera", "RenderedFrame", "trajectory_pose", "write_sequence"]
 
@@ -196,27 +196,23 @@ class SyntheticCamera:
             inside = all_front and np.all((px >= 0) & (px <= [cam.width - 1, cam.height - 1]))
             if inside:
                 corners[mid] = px
-        occluded = False
+        occluder = None
         if self.occlusion > 0 and corners and rng.random() < self.occlusion:
-            mid = list(corners)[int(rng.integers(len(corners)))]
-            c = corners[mid]
+            # placed on the corners of the real (distorted) image, so drawn after the lens
+            c = corners[list(corners)[int(rng.integers(len(corners)))]]
             side = float(np.linalg.norm(c[1] - c[0]))
             centre = c[int(rng.integers(4))] + rng.normal(0, 0.15 * side, 2)
-            axes = (max(int(0.35 * side), 2), max(int(0.2 * side), 2))
-            if self._distort_map is None:
-                cv2.ellipse(img, (int(centre[0]), int(centre[1])), axes, float(rng.uniform(0, 180)), 0, 360,
-                            float(rng.uniform(60, 160)), -1)
-            occluded = True
+            occluder = ((int(centre[0]), int(centre[1])), (max(int(0.35 * side), 2), max(int(0.2 * side), 2)))
         if self._distort_map is not None:
             img = cv2.remap(img, *self._distort_map, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            if occluded:
-                cv2.ellipse(img, (int(centre[0]), int(centre[1])), axes, float(rng.uniform(0, 180)), 0, 360,
-                            float(rng.uniform(60, 160)), -1)
+        if occluder is not None:
+            cv2.ellipse(img, *occluder, float(rng.uniform(0, 180)), 0, 360, float(rng.uniform(60, 160)), -1)
         if self.exposure_jitter > 0:
             img *= float(np.clip(1.0 + rng.normal(0.0, self.exposure_jitter), 0.2, 3.0))
         if self.pixel_noise > 0:
             img += rng.normal(0.0, self.pixel_noise, img.shape).astype(np.float32)
-        return RenderedFrame(t, np.clip(img + 0.5, 0, 255).astype(np.uint8), R_wb, p_wb, corners, occluded)
+        return RenderedFrame(t, np.clip(img + 0.5, 0, 255).astype(np.uint8), R_wb, p_wb, corners,
+                             occluder is not None)
 
     def frames(self, pose: Callable[[float], Pose], times: np.ndarray) -> Iterator[RenderedFrame]:
         """Render a frame at each of ``times``."""
@@ -227,7 +223,6 @@ class SyntheticCamera:
 def write_sequence(frames: Iterator[RenderedFrame], folder: str | Path, ext: str = ".png") -> int:
     """Write frames as ``frame_000000.png``..., with ``timestamps.csv`` (``t``) and
     ``truth.csv`` (``t,x,y,z,phi,theta,psi`` of the body) beside them; returns the count."""
-    from .vision import rotation_to_euler
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     times, truth = ["t"], ["t,x,y,z,phi,theta,psi"]

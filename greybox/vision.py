@@ -11,8 +11,8 @@ The seed paper's quadrotor watches a ground marker with its forward camera throu
   intrinsics with ``cx -> W - 1 - cx`` and tangential distortion ``p2 -> -p2``.
 * For one square marker, IPPE gives the two poses that explain four corners; the wrong
   one is a reflection about the line of sight. We keep the better-reprojecting one unless
-  the two are close (noise) and there is a prior, then the one whose tilt is nearest it
-  (the IMU attitude, else the last accepted frame).
+  the two are close (noise) and the IMU attitude is known, then the one whose tilt is
+  nearest the IMU's.
 
 Frames: OpenCV camera axes (x right, y down, z along the optical axis). World NED, body
 FRD (contract §1). The rig (camera, optional mirror, markers) is one TOML file, see
@@ -34,6 +34,7 @@ import numpy as np
 
 from .data import FlightLog, atomic_write, read_csv_table
 from .errors import GreyboxInputError
+from .model import rotation_matrices
 
 __all__ = ["Camera", "Mirror", "Marker", "VisionRig", "load_rig", "rig_from_dict",
            "VisionEstimate", "VisionResult", "MarkerTracker", "read_frames", "position_crb",
@@ -354,11 +355,8 @@ def rotation_to_euler(R: np.ndarray) -> tuple[float, float, float]:
 
 
 def _euler_to_rotation(phi: float, theta: float, psi: float) -> np.ndarray:
-    cf, sf, ct, st, cp, sp = (math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta),
-                              math.cos(psi), math.sin(psi))
-    return np.array([[cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf],
-                     [sp * ct, sp * st * sf + cp * cf, sp * st * cf - cp * sf],
-                     [-st, ct * sf, ct * cf]])
+    """The model's ZYX rotation (:func:`greybox.model.rotation_matrices`) of one attitude."""
+    return rotation_matrices(np.atleast_1d(phi), np.atleast_1d(theta), np.atleast_1d(psi))[0]
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -474,9 +472,9 @@ class MarkerTracker:
     """Body position and yaw from camera frames of the rig's markers.
 
     Per frame: (flip if mirrored) → ``ArucoDetector.detectMarkers`` with sub-pixel corner
-    refinement → IPPE_SQUARE (one marker) or SQPnP (several) → the ambiguity settled →
-    Levenberg–Marquardt refinement on all corners → reprojection check → body pose in the
-    world → jump check against the last accepted frame.
+    refinement → IPPE_SQUARE with its ambiguity settled (one marker) or SQPnP refined by
+    Levenberg–Marquardt (several) → reprojection check → body pose in the world → with the
+    IMU attitude, the tilt-aided refinement → jump check against the last accepted frame.
 
     Args:
         rig: camera, mirror and markers.
@@ -485,8 +483,8 @@ class MarkerTracker:
             last accepted one is rejected as a jump (after ``reset_after`` such frames in a
             row the tracker re-locks on the new position: it was the old one that was wrong).
         ambiguity_ratio: when the second IPPE solution's reprojection error is within this
-            factor of the first, the one nearer the attitude prior (IMU, else the last
-            accepted frame) is taken; with no prior, the better-reprojecting one.
+            factor of the first, the one whose tilt is nearer the IMU's is taken; without
+            the IMU attitude, the better-reprojecting one.
         tilt_sigma: rad, the IMU's roll/pitch accuracy. When :meth:`process` is given the
             IMU attitude, the pose is refined by Gauss–Newton on the corner reprojection
             error (``corner_sigma_px``) *and* the IMU's tilt: one marker's four corners
@@ -670,7 +668,7 @@ class MarkerTracker:
         return est
 
     def run(self, frames: Iterable[tuple[int, float, np.ndarray | None]],
-            attitude: "callable | None" = None, progress: bool = False,
+            attitude: Callable[[float], tuple[float, float, float]] | None = None, progress: bool = False,
             n_frames: int | None = None) -> VisionResult:
         """Process ``(index, t, image-or-None)`` frames (see :func:`read_frames`).
         ``attitude(t)``, if given, returns the IMU's ``(phi, theta, psi)`` at ``t``."""
@@ -786,7 +784,7 @@ def read_frames(source: str | Path, timestamps: str | Path | None = None, fps: f
     return gen(), n
 
 
-def imu_attitude(log: FlightLog) -> "Callable[[float], tuple[float, float, float]]":
+def imu_attitude(log: FlightLog) -> Callable[[float], tuple[float, float, float]]:
     """``t -> (phi, theta, psi)`` linearly interpolated from a log's attitude samples
     (yaw unwrapped; a log without yaw gives 0, which only the ambiguity check uses)."""
     E = np.column_stack([log.output(n) for n in ("phi", "theta", "psi")])
