@@ -125,8 +125,8 @@ class SyntheticCamera:
             # for every pixel of the distorted image, where it is in the pinhole image
             u, v = np.meshgrid(np.arange(cam.width, dtype=np.float32), np.arange(cam.height, dtype=np.float32))
             pts = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
-            und = cv2.undistortPointsIter(pts, cam.K, cam.dist, None, cam.K,
-                                          (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6))
+            und = cv2.undistortPoints(pts, cam.K, cam.dist, R=None, P=cam.K,
+                                      criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6))
             und = und.reshape(cam.height, cam.width, 2)
             self._distort_map = (und[..., 0].copy(), und[..., 1].copy())
 
