@@ -614,16 +614,20 @@ class _Session:
         nx, nz, nth, kkt = self.nx, self.nz, self.nth, self.kkt
         frozen = np.zeros(nth, dtype=bool)
         for _ in range(nth + 1):
-            Hf = H
+            Hf, gf, Gf = H, gg, G
             if frozen.any():
-                Hf = H.copy()
-                # hold a parameter by a penalty that dominates its own information (summed
-                # over the nodes it rides along): scaling by the largest diagonal entry
-                # of all (1/sigma^2 of a mocap position, 1e8) swamped the whole system
+                # hold a parameter by removing it from the step: no curvature, gradient or
+                # sensitivity anywhere, a unit diagonal at the first node. (A large penalty
+                # instead cost the banded solve its accuracy: the gaps it should close stayed
+                # open, and the iteration crawled along the bound for dozens of steps.)
                 fz = nx + np.flatnonzero(frozen)
-                info = np.abs(H[:, fz, fz]).sum(axis=0)
-                Hf[0, fz, fz] += 1e8 * (1.0 + info)
-            sol = kkt.solve(Hf, gg, G, cz, mu, q2=self._q2())
+                Hf, gf, Gf = H.copy(), gg.copy(), G.copy()
+                Hf[:, fz, :] = 0.0
+                Hf[:, :, fz] = 0.0
+                Hf[0, fz, fz] = 1.0
+                gf[:, fz] = 0.0
+                Gf[:, :nx, fz] = 0.0
+            sol = kkt.solve(Hf, gf, Gf, cz, mu, q2=self._q2())
             dz = sol[(kkt.znodes[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
             dth = dz[0, nx:]
             out = (((th <= self.lo_s + 1e-12) & (dth < 0)) | ((th >= self.hi_s - 1e-12) & (dth > 0))) & ~frozen
