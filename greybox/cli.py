@@ -178,14 +178,15 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
     return out
 
 
-def _load_fit_inputs(args: argparse.Namespace):
+def _load_fit_inputs(args: argparse.Namespace, path: str | None = None):
     from .data import load_log
     model = build_model(args.airframe, args.effects, args.without)
-    log = load_log(args.log, inputs="rotor_speeds")
+    path = path or args.log
+    log = load_log(path, inputs="rotor_speeds")
     for note in log.notes:
         print(f"note: {note}", file=sys.stderr)
     if log.input_names != model.command_names:
-        raise GreyboxInputError(f"{args.log}: has rotor speeds {','.join(log.input_names)} but the airframe "
+        raise GreyboxInputError(f"{path}: has rotor speeds {','.join(log.input_names)} but the airframe "
                                 f"has {model.airframe.n_rotors} rotors")
     log = model.prepare_log(log)
     log.check_fittable()
@@ -313,9 +314,12 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, log = _load_fit_inputs(args)
+    validation = None
+    if args.validation:
+        validation = _load_fit_inputs(args, path=args.validation)[1]
     diag = diagnose(model, log, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=model.parameter_vector(parse_sets(args.set)), progress=not args.quiet,
-                    process_noise=args.process_noise)
+                    process_noise=args.process_noise, validation=validation)
     print(diag.summary())
     if args.report:
         print(f"report: {diag.report(args.report)}")
@@ -395,8 +399,8 @@ def _parser() -> argparse.ArgumentParser:
     y.add_argument("--dropout", type=float, default=0.05, help="probability of a missing vision frame")
     y.add_argument("--excitation", type=float, default=0.03, help="relative RMS rotor-speed excitation")
     y.add_argument("--altitude", type=float, default=1.0, help="hover height above ground, m")
-    y.add_argument("--manoeuvres", default=",".join(("hover", "step_x", "step_y", "step_z", "yaw", "fast", "ground")),
-                   help="comma list from hover,step_x,step_y,step_z,yaw,fast,ground")
+    y.add_argument("--manoeuvres", default="hover,step_x,step_y,step_z,yaw,fast,ground",
+                   help="comma list from hover,step_x,step_y,step_z,yaw,fast,ground,sprint")
     y.add_argument("--digits", type=int, default=17, help="significant digits in the CSV (default 17: exact)")
     y.add_argument("--json", help="write the truth (effects, parameters, seed) here")
     y.set_defaults(func=cmd_synth)
@@ -427,6 +431,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
     g.add_argument("--process-noise", choices=["auto"],
                    help="'auto': treat shooting gaps as process noise (real logs; see README)")
+    g.add_argument("--validation", metavar="LOG2",
+                   help="a separate flight to validate on (then all of LOG is estimation data; "
+                        "default: the last 20 %% of LOG)")
     g.add_argument("--report", help="folder for the HTML report and its plots")
     g.add_argument("--quiet", action="store_true", help="no progress lines")
     g.add_argument("--json", help="write the result here")

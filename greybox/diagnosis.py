@@ -3,7 +3,10 @@
 The workflow (:func:`diagnose`):
 
 1. **Compare.** Fit the model on the estimation part (first 80 %), predict the validation
-   part (k-step ahead, :mod:`greybox.validation`): ``nrmse`` per channel and in total.
+   part (k-step ahead, :mod:`greybox.validation`): ``nrmse`` per channel and in total. With
+   a separate validation flight (``validation=``) the whole log is the estimation data and
+   that flight is predicted instead: a validation nrmse can only confirm an effect that the
+   validation data exercise, and the last 20 % of one flight may not (drag needs speed).
 2. **Where it fails.** Residuals of the fitted trajectory on the estimation part: whiteness
    (autocorrelation against the 99 % band of white noise, as MATLAB's ``resid``),
    cross-correlation with the inputs, and the *regimes* where the error concentrates — the
@@ -179,6 +182,7 @@ class Diagnosis:
     regimes: dict[str, np.ndarray] | None = field(default=None, repr=False)
     log: FlightLog | None = field(default=None, repr=False)
     timings: dict[str, float] = field(default_factory=dict)
+    validation_source: str = "last 20 % of the log"
 
     def as_json(self) -> dict:
         """The contract's diagnose JSON (plus findings, warnings and the added effects)."""
@@ -199,7 +203,7 @@ class Diagnosis:
     def summary(self) -> str:
         """Readable text of steps 1-4."""
         b = self.baseline_prediction
-        lines = [f"1. compare: validation nrmse {b.total:.3f}  (" +
+        lines = [f"1. compare: validation nrmse {b.total:.3f} on the {self.validation_source}  (" +
                  ", ".join(f"{c} {v:.3f}" for c, v in b.nrmse.items()) + ")"]
         lines.append("2. where it fails:")
         lines += [f"   - {f.text}" for f in self.findings] or ["   - no regime stands out"]
@@ -652,7 +656,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
              iterate: bool = True, max_rounds: int = 3, split: float = 0.8, p0=None,
              n_refit: int = N_REFIT, compile: str = "auto",
              progress: bool | Callable[[str], None] = False,
-             process_noise: str | dict[str, float] | None = None) -> Diagnosis:
+             process_noise: str | dict[str, float] | None = None,
+             validation: FlightLog | None = None) -> Diagnosis:
     """Compare ``model`` with ``log``, find where it fails and which catalogue effect is
     missing; with ``iterate`` add significant effects until none is left (see module doc).
 
@@ -661,6 +666,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
         p0: starting values of the baseline fit.
         process_noise: passed to the baseline :func:`~greybox.fitting.fit` (e.g. ``"auto"`` for
             real logs); candidates are then fitted with the baseline's process noise.
+        validation: a separate flight to validate on; then all of ``log`` is estimation
+            data and ``split`` is not used.
     """
     t_start = time.perf_counter()
     say = (lambda m: print(m, file=__import__("sys").stderr, flush=True)) if progress is True else \
@@ -674,11 +681,17 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
         fx.by_name(c)
         if c in model.effects:
             raise GreyboxInputError(f"candidate {c!r} is already in the model")
-    est, val = log.split(split)
+    if validation is None:
+        est, val = log.split(split)
+    else:
+        if list(validation.input_names) != list(log.input_names):
+            raise GreyboxInputError(f"{validation.source or 'validation log'}: inputs {','.join(validation.input_names)} "
+                                    f"differ from the estimation log's {','.join(log.input_names)}")
+        est, val = log, validation
     say(f"diagnose: fitting the model ({', '.join(model.effect_names)}) to {len(est)} samples")
     res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise)
     pred = predict(model, res.p, val, compile=compile)
-    say(f"diagnose: validation nrmse {pred.total:.3f}")
+    say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation)})")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred)
     rounds: list[Round] = []
     warnings: list[str] = list(res.warnings)
@@ -714,9 +727,16 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
     verdict = rounds[0].verdict if rounds else None
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est)
+    diag.validation_source = _validation_source(validation)
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
+
+
+def _validation_source(validation: FlightLog | None) -> str:
+    if validation is None:
+        return "last 20 % of the log"
+    return f"validation flight {Path(validation.source).name}" if validation.source else "validation flight"
 
 
 # ------------------------------------------------------------------------------ report
@@ -801,7 +821,7 @@ def _write_report(d: Diagnosis, out: Path) -> Path:
 td,th{{border:1px solid #ccc;padding:3px 8px}}img{{max-width:100%}}</style></head><body>
 <h1>greybox diagnosis</h1>
 <p>Model: {esc(', '.join(d.model.effect_names))}. Verdict: <b>{esc(d.verdict or 'null: nothing significant is missing')}</b>.</p>
-<h2>1. Compare</h2><p>Validation nrmse {b.total:.3f} ({esc(', '.join(f'{c} {v:.3f}' for c, v in b.nrmse.items()))}).</p>
+<h2>1. Compare</h2><p>Validation nrmse {b.total:.3f} on the {esc(d.validation_source)} ({esc(', '.join(f'{c} {v:.3f}' for c, v in b.nrmse.items()))}).</p>
 {img('compare_baseline')}
 <h2>2. Where it fails</h2><ul>{''.join(f'<li>{esc(f.text)}</li>' for f in d.findings) or '<li>no regime stands out</li>'}</ul>
 {img('regimes')}<p>Residual autocorrelation (grey: 99 % band of white noise):</p>{img('whiteness')}

@@ -23,10 +23,12 @@ from .errors import GreyboxInputError, SolverError
 from .integrate import n_substeps, rk4_step
 from .model import OUTPUTS, QuadrotorModel
 
-__all__ = ["SensorSpec", "MANOEUVRES", "reference_trajectory", "synthesize", "SynthResult",
+__all__ = ["SensorSpec", "MANOEUVRES", "DEFAULT_MANOEUVRES", "reference_trajectory", "synthesize", "SynthResult",
            "model_with_hidden_effects"]
 
-MANOEUVRES = ("hover", "step_x", "step_y", "step_z", "yaw", "fast", "ground")
+MANOEUVRES = ("hover", "step_x", "step_y", "step_z", "yaw", "fast", "ground", "sprint")
+# what a flight cycles through unless told: an indoor flight (no sprint)
+DEFAULT_MANOEUVRES = MANOEUVRES[:-1]
 """Manoeuvre names understood by :func:`reference_trajectory`."""
 
 
@@ -56,7 +58,8 @@ def reference_trajectory(t: np.ndarray, manoeuvres: Sequence[str], rng: np.rando
     flight is filled, joined by minimum-jerk transitions.
 
     ``hover`` holds; ``step_x/y/z`` move ``step`` m (z: up/down); ``yaw`` turns ±60°;
-    ``fast`` crosses 3 m at up to ~3 m/s and back; ``ground`` descends to 0.15 m above the
+    ``fast`` crosses 3 m at up to ~3 m/s and back; ``sprint`` crosses 6 m diagonally at up to
+    ~6 m/s and back (outdoor speeds, where drag stops being linear in speed); ``ground`` descends to 0.15 m above the
     ground, moves 1 m sideways low, and climbs back.
     """
     for m in manoeuvres:
@@ -96,6 +99,12 @@ def reference_trajectory(t: np.ndarray, manoeuvres: Sequence[str], rng: np.rando
             a[axis] = cur[axis] + sign * 1.5
             b[axis] = cur[axis] - sign * 1.5
             moves += [(a, 1.0, 0.3), (b, 1.6, 0.3), (cur.copy(), 1.0, 1.0)]
+        elif m == "sprint":  # "fast" at twice the distance in about the same time, diagonally
+            a, b = cur.copy(), cur.copy()
+            d = np.array([sign, 1.0 if rng.random() < 0.5 else -1.0]) * 3.0 / math.sqrt(2.0)
+            a[:2] = cur[:2] + d
+            b[:2] = cur[:2] - d
+            moves += [(a, 1.5, 0.3), (b, 1.8, 0.3), (cur.copy(), 1.5, 1.0)]
         elif m == "ground":
             low = cur.copy()
             low[2] = ground_z - 0.15
@@ -208,7 +217,7 @@ def model_with_hidden_effects(base: QuadrotorModel, hidden: Iterable[str],
 
 
 def synthesize(model: QuadrotorModel, parameters: np.ndarray | None = None, duration: float = 50.0,
-               sensors: SensorSpec | None = None, manoeuvres: Sequence[str] = MANOEUVRES,
+               sensors: SensorSpec | None = None, manoeuvres: Sequence[str] = DEFAULT_MANOEUVRES,
                seed: int = 0, excitation: float = 0.03, altitude: float = 1.0,
                noise_seed: int | None = None) -> SynthResult:
     """Fly ``model`` (with true ``parameters``) closed loop and log it with sensor noise.
@@ -218,7 +227,8 @@ def synthesize(model: QuadrotorModel, parameters: np.ndarray | None = None, dura
         parameters: true flat parameter vector (default: the model's defaults).
         duration: seconds of flight.
         sensors: rates and noise levels.
-        manoeuvres: the manoeuvres to cycle through (see :data:`MANOEUVRES`).
+        manoeuvres: the manoeuvres to cycle through (see :data:`MANOEUVRES`; default
+            :data:`DEFAULT_MANOEUVRES`, every one but ``sprint``).
         seed: seeds every random choice (manoeuvre order, excitation, noise, dropouts).
         noise_seed: if given, sensor noise and dropouts come from this seed instead, so that
             several noise realisations of the same flight can be drawn.

@@ -82,3 +82,32 @@ def test_diagnose_cli_bad_candidate(tmp_path, normal_flight, paper_airframe_path
                "--candidates", "magic", "--json", str(tmp_path / "d.json")])
     assert rc == 2 and "unknown effect 'magic'" in capsys.readouterr().err
     assert not (tmp_path / "d.json").exists()
+
+
+def test_diagnose_cli_separate_validation_flight(paper, normal_flight, tmp_path, paper_airframe_path, capsys):
+    """--validation: all of LOG is estimation data, the other flight is predicted."""
+    other = synthesize(paper, duration=10.0, seed=6, sensors=FAST, manoeuvres=["hover", "yaw", "step_x"])
+    save_log(normal_flight.log, tmp_path / "f.csv")
+    save_log(other.log, tmp_path / "v.csv")
+    rc = main(["diagnose", str(tmp_path / "f.csv"), "--validation", str(tmp_path / "v.csv"), "--airframe",
+               str(paper_airframe_path), "--without", "yaw_torque", "--candidates", "yaw_torque", "--no-iterate",
+               "--quiet", "--json", str(tmp_path / "d.json")])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "on the validation flight v.csv" in out
+    r = json.loads((tmp_path / "d.json").read_text())
+    assert r["verdict"] == "yaw_torque"
+    # the prediction covers the validation flight (10 s), not the last 20 % of the log (4.8 s)
+    d = diagnose(paper.without("yaw_torque"), normal_flight.log, candidates=[], validation=other.log)
+    assert d.baseline_prediction.log.t[-1] == pytest.approx(other.log.t[-1])
+    assert d.baseline.n_residuals > 0 and len(d.log) == len(normal_flight.log)
+
+
+def test_diagnose_cli_bad_validation_file(tmp_path, normal_flight, paper_airframe_path, capsys):
+    save_log(normal_flight.log, tmp_path / "f.csv")
+    (tmp_path / "v.csv").write_text("t,w1,w2\n0,1,2\n")
+    rc = main(["diagnose", str(tmp_path / "f.csv"), "--validation", str(tmp_path / "v.csv"), "--airframe",
+               str(paper_airframe_path), "--quiet", "--json", str(tmp_path / "d.json")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "v.csv" in err and "Traceback" not in err
+    assert not (tmp_path / "d.json").exists()

@@ -1,12 +1,10 @@
-"""The diagnosis on every catalogue effect (slow: one synthetic flight and one diagnosis
-per effect, 10-140 s each). The same cases as ``experiments/diagnose_effects.py``.
+"""The diagnosis on every catalogue effect (slow: two synthetic flights and one diagnosis
+per effect, 5-60 s each). The same cases as ``experiments/diagnose_effects.py``: the
+diagnosis estimates on one flight and validates on another of the same manoeuvres.
 
-Targets (issue 4): the hidden effect is ranked first and, once added, the validation nrmse
-of the channels it affects falls by >= 30 %. The drag-like effects (linear, quadratic,
-rotor drag) and the tiny gyroscopic torque are found (ranked first, significant) but the
-affected-channel fall is small — the fitted linear drag absorbs most of a missing drag
-term at these speeds, and 1-s predictions of barely moving channels are dominated by the
-initial-state error — so for them the test asserts the ranking only (README §6).
+Targets (issue 4): the hidden effect is ranked first and is the verdict and, once added,
+the validation nrmse of the channels it affects falls by >= 30 %; with nothing hidden the
+verdict is null.
 """
 from __future__ import annotations
 
@@ -29,7 +27,8 @@ def base():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("hidden", ["ground_effect", "motor_lag", "cog_offset", "motor_asymmetry", "wind",
+@pytest.mark.parametrize("hidden", ["yaw_torque", "linear_drag", "gyroscopic", "quadratic_drag", "rotor_drag",
+                                    "ground_effect", "motor_lag", "cog_offset", "motor_asymmetry", "wind",
                                     "thrust_drift", "position_delay", "attitude_bias"])
 def test_hidden_effect_ranked_first_and_error_falls(base, hidden):
     r = sweep.case(base, hidden, duration=30.0, seed=3, rate=200.0)
@@ -38,8 +37,6 @@ def test_hidden_effect_ranked_first_and_error_falls(base, hidden):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("hidden,duration", [("quadratic_drag", 50.0), ("rotor_drag", 50.0), ("linear_drag", 30.0),
-                                             ("gyroscopic", 30.0)])
-def test_drag_like_effects_are_ranked_first(base, hidden, duration):
-    r = sweep.case(base, hidden, duration=duration, seed=3, rate=200.0)
-    assert r["first"] == hidden and r["verdict"] == hidden
+def test_nothing_hidden_gives_a_null_verdict(base):
+    r = sweep.case(base, None, duration=30.0, seed=3, rate=200.0)
+    assert r["verdict"] is None, r

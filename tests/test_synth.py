@@ -6,7 +6,7 @@ import pytest
 from greybox import QuadrotorModel, simulate
 from greybox.cli import main
 from greybox.data import load_log
-from greybox.synth import MANOEUVRES, model_with_hidden_effects, reference_trajectory, synthesize
+from greybox.synth import DEFAULT_MANOEUVRES, MANOEUVRES, model_with_hidden_effects, reference_trajectory, synthesize
 
 
 @pytest.fixture(scope="module")
@@ -63,6 +63,17 @@ def test_reference_covers_manoeuvres():
     assert ref[:, 2].max() == pytest.approx(-0.15, abs=1e-6)    # the low pass near the ground
     assert np.abs(ref[:, 3]).max() == pytest.approx(np.radians(60))
     assert np.abs(np.gradient(ref[:, 0], t)).max() > 2.0 or np.abs(np.gradient(ref[:, 1], t)).max() > 2.0
+
+
+def test_sprint_is_a_fast_diagonal_and_not_in_the_default_flight():
+    t = np.arange(0, 12, 0.005)
+    ref = reference_trajectory(t, ["sprint"], np.random.default_rng(1))
+    vx, vy = np.gradient(ref[:, 0], t), np.gradient(ref[:, 1], t)
+    speed = np.hypot(vx, vy)
+    assert 5.0 < speed.max() < 7.0                       # min-jerk: 1.875 * 6 m / 1.8 s = 6.25 m/s
+    k = np.argmax(speed)
+    assert abs(abs(vx[k]) - abs(vy[k])) < 1e-6 * speed[k]   # diagonal: x and y both move
+    assert "sprint" in MANOEUVRES and "sprint" not in DEFAULT_MANOEUVRES
 
 
 def test_synth_cli(tmp_path, paper_airframe_path):
