@@ -121,6 +121,7 @@ class CandidateResult:
     fit: FitResult | None = None
     prediction: Prediction | None = None
     reason: str = ""
+    unconfirmable: bool = False         # significant in the fit, validation data without power
 
     def as_dict(self) -> dict:
         out = {"effect": self.effect, "significant": bool(self.significant),
@@ -219,8 +220,8 @@ class Diagnosis:
             f = self.final_prediction
             lines.append(f"4. added {', '.join(added) or 'nothing'}: nrmse {b.total:.3f} -> {f.total:.3f}")
             for ch in b.nrmse:
-                fall = 100 * (1 - f.nrmse[ch] / b.nrmse[ch]) if b.nrmse[ch] > 0 else 0.0
-                lines.append(f"   {ch:<6} {b.nrmse[ch]:8.3f} -> {f.nrmse[ch]:8.3f}  ({fall:+.0f} %)")
+                change = 100 * (f.nrmse[ch] / b.nrmse[ch] - 1) if b.nrmse[ch] > 0 else 0.0
+                lines.append(f"   {ch:<6} {b.nrmse[ch]:8.3f} -> {f.nrmse[ch]:8.3f}  ({change:+.0f} %)")
             for name in self.final_fit.free_names if self.final_fit else []:
                 if _effect_of(self.final_model, name) in added:
                     s = self.final_fit.std[self.final_fit.free_names.index(name)]
@@ -493,6 +494,24 @@ def _refit(model: QuadrotorModel, res: FitResult, est: FlightLog, val: FlightLog
     return ext, fr, (predict(ext, fr.p, val, compile=compile) if val is not None else None)
 
 
+def _prediction_change(before: Prediction, after: Prediction) -> dict[str, float]:
+    """Per channel, how much ``after`` moves the predictions of ``before`` on the same log,
+    relative to the error of ``before``: below the confirmation threshold in every channel,
+    the validation data cannot confirm (or refute) the change out of sample."""
+    out = {}
+    for c, ch in enumerate(OUTPUTS):
+        if ch not in before.nrmse:
+            continue
+        d = after.predicted[:, c] - before.predicted[:, c]
+        if ch == "psi":
+            d = np.arctan2(np.sin(d), np.cos(d))
+        e = before.errors[:, c]
+        k = np.isfinite(d) & np.isfinite(e)
+        err = float(np.sqrt(np.mean(e[k] ** 2))) if k.any() else 0.0
+        out[ch] = float(np.sqrt(np.mean(d[k] ** 2))) / err if err > 0 else 0.0
+    return out
+
+
 def _lr_test(base: FitResult, alt: FitResult, alt_resid: np.ndarray, df: int, on_bound: bool,
              n_tests: int) -> tuple[float, float]:
     lr = 0.0
@@ -630,6 +649,13 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
         elif falls[best_ch] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS:
             cand.reason = (f"significant in the fit but not confirmed on validation (best channel {best_ch} "
                            f"{-100 * falls[best_ch]:+.1f} %, total {-100 * gain:+.1f} %)")
+            moved = _prediction_change(pred, pr)
+            if max(moved.values(), default=0.0) < MIN_VALIDATION_GAIN:
+                # the refit moves the validation predictions too little to be judged there:
+                # the validation data lack the regime, which is not evidence against the effect
+                cand.unconfirmable = True
+                cand.reason += (f"; the validation data hardly exercise it (its predictions there move by "
+                                f"< {100 * MIN_VALIDATION_GAIN:.0f} % of the error in every channel)")
         else:
             cand.significant = True
             cand.reason = f"p = {cand.p_value:.2g}; validation {best_ch} -{100 * falls[best_ch]:.0f} %, " \
@@ -725,6 +751,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
         warnings.append(f"{first[0].effect} and {first[1].effect} both explain the data well; to tell them apart: "
                         f"{DISTINGUISH.get(pair, 'fly manoeuvres that excite one and not the other')}")
     verdict = rounds[0].verdict if rounds else None
+    for c in (rounds[0].ranking if rounds and verdict is None else []):
+        if c.unconfirmable:
+            warnings.append(f"{c.effect} is significant in the fit (p = {c.p_value:.2g}) but the validation data do "
+                            f"not exercise it, so it could not be confirmed: validate on a flight that does "
+                            f"(validation=, --validation LOG2)")
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est)
     diag.validation_source = _validation_source(validation)
@@ -813,7 +844,7 @@ def _write_report(d: Diagnosis, out: Path) -> Path:
     if d.final_prediction is not None:
         f = d.final_prediction
         chan_rows = "".join(f"<tr><td>{ch}</td><td>{b.nrmse[ch]:.3f}</td><td>{f.nrmse.get(ch, float('nan')):.3f}</td>"
-                            f"<td>{100 * (1 - f.nrmse.get(ch, 0) / b.nrmse[ch]) if b.nrmse[ch] else 0:+.0f} %</td></tr>"
+                            f"<td>{100 * (f.nrmse.get(ch, 0) / b.nrmse[ch] - 1) if b.nrmse[ch] else 0:+.0f} %</td></tr>"
                             for ch in b.nrmse)
     img = lambda k: f'<img src="data:image/png;base64,{images[k]}"/>' if k in images else ""
     text = f"""<!doctype html><html><head><meta charset="utf-8"><title>greybox diagnosis</title>

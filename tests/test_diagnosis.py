@@ -111,3 +111,18 @@ def test_diagnose_cli_bad_validation_file(tmp_path, normal_flight, paper_airfram
     err = capsys.readouterr().err
     assert rc == 2 and "v.csv" in err and "Traceback" not in err
     assert not (tmp_path / "d.json").exists()
+
+
+def test_prediction_change_measures_what_validation_can_see(paper, normal_flight):
+    """A change of the predictions as large as the error is 1; none is 0 (psi wrapped)."""
+    from greybox.diagnosis import _prediction_change
+    from greybox.validation import predict
+    val = normal_flight.log.split(0.8)[1]
+    before = predict(paper, paper.default_parameters(), val)
+    same = _prediction_change(before, before)
+    assert set(same) == set(before.nrmse) and max(same.values()) == 0.0
+    shifted = predict(paper, paper.default_parameters(), val)
+    shifted.predicted = before.predicted + np.nan_to_num(before.errors)   # the measurements themselves
+    shifted.predicted[:, 5] += 2 * np.pi                                   # a yaw turn is no change
+    moved = _prediction_change(before, shifted)
+    assert all(v == pytest.approx(1.0, rel=1e-9) for v in moved.values())
