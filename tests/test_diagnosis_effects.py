@@ -40,3 +40,18 @@ def test_hidden_effect_ranked_first_and_error_falls(base, hidden):
 def test_nothing_hidden_gives_a_null_verdict(base):
     r = sweep.case(base, None, duration=30.0, seed=3, rate=200.0)
     assert r["verdict"] is None, r
+
+
+spec_f = importlib.util.spec_from_file_location("diagnose_foreign", ROOT / "experiments" / "diagnose_foreign.py")
+foreign = importlib.util.module_from_spec(spec_f)
+spec_f.loader.exec_module(foreign)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("hidden", sorted(foreign.CASES))
+def test_effects_of_other_forms_are_named_by_their_closest_catalogue_effect(base, hidden):
+    """Hidden effects written outside the package, in other functional forms (exponential
+    ground effect, gusty wind, exponential battery sag, cubic drag)."""
+    r = foreign.case(base, hidden, duration=30.0, seed=3, rate=200.0)
+    assert r["verdict"] == r["expected"], r
+    assert r["fall_pct"] >= 30.0, r
