@@ -402,8 +402,12 @@ def _sentence(ch: str, name: str, r: float, env: np.ndarray, v: np.ndarray) -> s
     if name == "height above ground" and r < 0:
         low = v <= np.quantile(v, 0.1)
         ratio = float(np.sqrt(np.mean(env[low] ** 2) / max(np.mean(env[~low] ** 2), 1e-300)))
-        return (f"{ch} error is largest close to the ground: below {np.quantile(v, 0.1):.2f} m it is "
-                f"{ratio:.1f}x the RMS elsewhere (r = {r:+.2f} with height)")
+        if ratio >= 1.2:
+            return (f"{ch} error is largest close to the ground: below {np.quantile(v, 0.1):.2f} m it is "
+                    f"{ratio:.1f}x the RMS elsewhere (r = {r:+.2f} with height)")
+        # a rank correlation over the whole flight, not a near-ground concentration: say both
+        return (f"{ch} error grows as {name} falls (r = {r:+.2f}), but not close to the ground: below "
+                f"{np.quantile(v, 0.1):.2f} m it is {ratio:.1f}x the RMS elsewhere")
     if r > 0:
         return f"{ch} error grows with {name} (r = {r:+.2f})"
     return f"{ch} error grows as {name} falls (r = {r:+.2f})"

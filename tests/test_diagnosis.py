@@ -126,3 +126,17 @@ def test_prediction_change_measures_what_validation_can_see(paper, normal_flight
     shifted.predicted[:, 5] += 2 * np.pi                                   # a yaw turn is no change
     moved = _prediction_change(before, shifted)
     assert all(v == pytest.approx(1.0, rel=1e-9) for v in moved.values())
+
+
+def test_height_sentence_says_what_the_error_does_near_the_ground():
+    from greybox.diagnosis import _sentence
+    h = np.linspace(0.1, 2.0, 2000)
+    near = np.where(h < 0.3, 3.0, 1.0)                   # concentrated below 0.3 m
+    s = _sentence("z", "height above ground", -0.6, near, h)
+    assert s.startswith("z error is largest close to the ground")
+    import re
+    assert 2.5 < float(re.search(r"([0-9.]+)x the RMS", s).group(1)) <= 3.0
+    # larger at low heights overall, but the lowest decile is quiet (e.g. on the ground)
+    hump = np.where(h < 0.3, 0.5, 2.0 - 0.5 * h)
+    s = _sentence("x", "height above ground", -0.6, hump, h)
+    assert "but not close to the ground" in s and "largest" not in s
