@@ -721,7 +721,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
     say(f"diagnose: fitting the model ({', '.join(model.effect_names)}) to {len(est)} samples")
     res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise)
     pred = predict(model, res.p, val, compile=compile)
-    say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation)})")
+    say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split)})")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred)
     rounds: list[Round] = []
     warnings: list[str] = list(res.warnings)
@@ -762,15 +762,15 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
                             f"(validation=, --validation LOG2)")
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est)
-    diag.validation_source = _validation_source(validation)
+    diag.validation_source = _validation_source(validation, split)
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
 
 
-def _validation_source(validation: FlightLog | None) -> str:
+def _validation_source(validation: FlightLog | None, split: float) -> str:
     if validation is None:
-        return "last 20 % of the log"
+        return f"last {100 * (1 - split):.0f} % of the log"
     return f"validation flight {Path(validation.source).name}" if validation.source else "validation flight"
 
 
