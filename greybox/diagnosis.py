@@ -53,7 +53,7 @@ from .model import OUTPUTS, QuadrotorModel, rotation_matrices
 from .validation import Prediction, compare_plot, predict
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
-           "MIN_VALIDATION_GAIN", "DISTINGUISH"]
+           "MIN_VALIDATION_GAIN", "DISTINGUISH", "EXCITED_BY", "distinguishing_manoeuvre"]
 
 ALPHA = 0.01
 """Family-wise significance level of the likelihood-ratio tests (Bonferroni over candidates)."""
@@ -81,6 +81,33 @@ DISTINGUISH = {
     frozenset({"motor_lag", "position_delay"}): "fast rotor-speed steps with attitude recorded: motor lag "
                                                 "delays attitude too, a vision delay only position",
 }
+
+EXCITED_BY = {  # the manoeuvre in which each effect shows (for pairs DISTINGUISH does not name)
+    "yaw_torque": "yaw turns", "linear_drag": "translations at moderate speed along each axis",
+    "gyroscopic": "fast roll and pitch motions during yaw turns",
+    "quadratic_drag": "translations at several speeds, up to the fastest you can fly",
+    "rotor_drag": "translations at one speed with different thrust (climbing, descending)",
+    "ground_effect": "low passes close to the ground (below about two rotor diameters)",
+    "motor_lag": "fast rotor-speed changes (steps, excitation)",
+    "cog_offset": "hovers and roll/pitch steps at several thrust levels",
+    "motor_asymmetry": "hovers at several thrust levels and yaw turns",
+    "wind": "flight in several directions (wind keeps one direction)",
+    "thrust_drift": "the same manoeuvre repeated early and late in the flight",
+    "position_delay": "fast translations (a delay lags the velocity)",
+    "attitude_bias": "long hovers at several headings",
+    "battery_voltage": "long flights at varied thrust", "rotor_map": "a wide range of thrust levels",
+}
+
+
+def distinguishing_manoeuvre(a: str, b: str) -> str:
+    """What to fly to tell effects ``a`` and ``b`` apart."""
+    hint = DISTINGUISH.get(frozenset({a, b}))
+    if hint:
+        return hint
+    if a in EXCITED_BY and b in EXCITED_BY:
+        return f"{a} shows in {EXCITED_BY[a]}, {b} in {EXCITED_BY[b]}: fly one without the other"
+    return "fly manoeuvres that excite one and not the other"
+
 
 CHANNEL_EFFECTS = {  # which channels each effect should improve (for the before/after table)
     "yaw_torque": ["psi", "r"], "linear_drag": ["x", "y", "z"], "gyroscopic": ["phi", "theta", "p", "q"],
@@ -745,15 +772,13 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
         later = {c.effect: c for c in rounds[1].ranking}
         for c in first[1:]:
             if c.significant and c.effect in later and not later[c.effect].significant:
-                pair = frozenset({rounds[0].verdict, c.effect})
-                hint = DISTINGUISH.get(pair, "fly manoeuvres that excite one and not the other")
+                hint = distinguishing_manoeuvre(rounds[0].verdict, c.effect)
                 warnings.append(f"{c.effect} explains much of what {rounds[0].verdict} explains "
                                 f"(significant alone, not once {rounds[0].verdict} is in); to tell them apart: {hint}")
     elif len(first) >= 2 and first[0].significant and first[1].significant and first[1].lr and first[0].lr \
             and first[1].lr > 0.5 * first[0].lr:
-        pair = frozenset({first[0].effect, first[1].effect})
         warnings.append(f"{first[0].effect} and {first[1].effect} both explain the data well; to tell them apart: "
-                        f"{DISTINGUISH.get(pair, 'fly manoeuvres that excite one and not the other')}")
+                        f"{distinguishing_manoeuvre(first[0].effect, first[1].effect)}")
     verdict = rounds[0].verdict if rounds else None
     for c in (rounds[0].ranking if rounds and verdict is None else []):
         if c.unconfirmable:

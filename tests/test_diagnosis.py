@@ -140,3 +140,16 @@ def test_height_sentence_says_what_the_error_does_near_the_ground():
     hump = np.where(h < 0.3, 0.5, 2.0 - 0.5 * h)
     s = _sentence("x", "height above ground", -0.6, hump, h)
     assert "but not close to the ground" in s and "largest" not in s
+
+
+def test_every_catalogue_effect_has_a_manoeuvre_that_excites_it():
+    """A confusion warning always says what to fly: a named pair, or each effect's manoeuvre."""
+    from greybox import effects
+    from greybox.diagnosis import DISTINGUISH, EXCITED_BY, distinguishing_manoeuvre
+    names = list(effects.CATALOGUE) + ["yaw_torque", "linear_drag", "gyroscopic"]
+    assert set(names) <= set(EXCITED_BY)
+    pair = next(iter(DISTINGUISH))
+    a, b = sorted(pair)
+    assert distinguishing_manoeuvre(a, b) == distinguishing_manoeuvre(b, a) == DISTINGUISH[pair]
+    hint = distinguishing_manoeuvre("ground_effect", "motor_asymmetry")
+    assert "low passes close to the ground" in hint and "yaw turns" in hint
