@@ -146,12 +146,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     data = resources.files("greybox") / "data"
     with resources.as_file(data / "airframes" / "paper.toml") as af_path, \
-            resources.as_file(data / "logs" / "demo_ground_effect.csv") as log_path:
+            resources.as_file(data / "logs" / "demo_ground_effect.csv") as log_path, \
+            resources.as_file(data / "logs" / "demo_ground_effect_validation.csv") as val_path:
         model = build_model(str(af_path))
         log = load_log(log_path)
-    print("greybox demo: a 30 s flight of the seed paper's quadrotor (bundled log, 200 Hz IMU, 50 Hz vision);\n"
+        validation = load_log(val_path)
+    print("greybox demo: a 30 s flight of the seed paper's quadrotor (bundled log, 200 Hz IMU, 50 Hz vision),\n"
+          "and a second 28 s flight to validate on; "
           f"model: {', '.join(model.effect_names)}. What is it missing?\n")
-    diag = diagnose(model, log, progress=not args.quiet)
+    diag = diagnose(model, log, progress=not args.quiet, validation=validation)
     print()
     print(diag.summary())
     print(f"\nreport: {diag.report(Path(args.out_dir))}")

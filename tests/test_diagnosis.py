@@ -153,3 +153,18 @@ def test_every_catalogue_effect_has_a_manoeuvre_that_excites_it():
     assert distinguishing_manoeuvre(a, b) == distinguishing_manoeuvre(b, a) == DISTINGUISH[pair]
     hint = distinguishing_manoeuvre("ground_effect", "motor_asymmetry")
     assert "low passes close to the ground" in hint and "yaw turns" in hint
+
+
+def test_demo_finds_the_hidden_ground_effect(tmp_path, capsys):
+    """`greybox demo`: the bundled flight hides a ground effect (k_ge = 1.806e-3); the demo
+    must name it, show the z error fall on the bundled validation flight, and write its report."""
+    rc = main(["demo", "--quiet", "--out-dir", str(tmp_path / "rep"), "--json", str(tmp_path / "d.json")])
+    assert rc == 0
+    r = json.loads((tmp_path / "d.json").read_text())
+    assert r["verdict"] == "ground_effect" and r["added"] == ["ground_effect"]
+    assert r["final"]["channels"]["z"] < 0.3 * r["baseline"]["channels"]["z"]
+    k_ge = r["ranking"][0]["parameters"]["k_ge"]
+    assert k_ge["value"] == pytest.approx(1.80625e-3, rel=0.05)
+    out = capsys.readouterr().out
+    assert "validation flight demo_ground_effect_validation.csv" in out and "verdict: ground_effect" in out
+    assert (tmp_path / "rep" / "report.html").exists()
