@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from greybox import QuadrotorModel, effects, load_airframe
-from greybox.diagnosis import CHANNEL_EFFECTS, diagnose
+from greybox.diagnosis import CHANNEL_EFFECTS, Diagnosis, diagnose
 from greybox.synth import SensorSpec, model_with_hidden_effects, synthesize
 
 HERE = Path(__file__).resolve().parent
@@ -45,23 +45,37 @@ def case(base: QuadrotorModel, hidden: str | None, duration: float, seed: int, r
     else:
         truth, p = model_with_hidden_effects(base, [hidden], values)
         model = base
+    d, dt = fly_and_diagnose(truth, p, model, duration, seed, rate)
+    out = {"hidden": hidden, "verdict": d.verdict, "first": d.ranking[0].effect if d.ranking else None,
+           "time_s": dt, "nrmse_before": d.baseline_prediction.total}
+    if hidden is not None:
+        out.update(affected_fall(d, hidden))
+    return out
+
+
+def fly_and_diagnose(truth: QuadrotorModel, p: np.ndarray, model: QuadrotorModel, duration: float, seed: int,
+                     rate: float) -> tuple[Diagnosis, float]:
+    """Two flights of ``truth`` (seeds ``seed`` and ``seed + VALIDATION_SEED_OFFSET``); ``model``
+    diagnosed on the first, validated on the second. Returns the diagnosis and its time."""
     sensors = SensorSpec(rate=rate, vision_rate=min(60.0, rate))
     est, val = (synthesize(truth, p, duration=duration, seed=s, sensors=sensors, manoeuvres=MANOEUVRES).log
                 for s in (seed, seed + VALIDATION_SEED_OFFSET))
     t0 = time.perf_counter()
     d = diagnose(model, est, iterate=False, validation=val)
-    dt = time.perf_counter() - t0
-    out = {"hidden": hidden, "verdict": d.verdict, "first": d.ranking[0].effect if d.ranking else None,
-           "time_s": dt, "nrmse_before": d.baseline_prediction.total}
-    if hidden is not None and d.ranking:
-        c = next((c for c in d.ranking if c.effect == hidden), None)
-        if c is not None and c.channels_after is not None:
-            chans = [ch for ch in CHANNEL_EFFECTS[hidden] if ch in c.channels_after]
-            before = np.mean([d.baseline_prediction.nrmse[ch] for ch in chans])
-            after = np.mean([c.channels_after[ch] for ch in chans])
-            out.update({"affected": chans, "affected_before": before, "affected_after": after,
-                        "fall_pct": 100 * (1 - after / before), "nrmse_after": c.nrmse_after})
-    return out
+    return d, time.perf_counter() - t0
+
+
+def affected_fall(d: Diagnosis, effect: str) -> dict:
+    """Fall of the mean validation nrmse of the channels ``effect`` acts on once it is added
+    (empty if it was not refitted)."""
+    c = next((c for c in d.ranking if c.effect == effect), None)
+    if c is None or c.channels_after is None:
+        return {}
+    chans = [ch for ch in CHANNEL_EFFECTS[effect] if ch in c.channels_after]
+    before = np.mean([d.baseline_prediction.nrmse[ch] for ch in chans])
+    after = np.mean([c.channels_after[ch] for ch in chans])
+    return {"affected": chans, "affected_before": before, "affected_after": after,
+            "fall_pct": 100 * (1 - after / before), "nrmse_after": c.nrmse_after}
 
 
 def main() -> None:

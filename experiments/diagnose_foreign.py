@@ -18,19 +18,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import time
 from pathlib import Path
 
 import casadi as ca
-import numpy as np
 
+from diagnose_effects import affected_fall, fly_and_diagnose   # the same two-flight design
 from greybox import QuadrotorModel, load_airframe
-from greybox.diagnosis import CHANNEL_EFFECTS, diagnose
 from greybox.effects import Effect
-from greybox.synth import SensorSpec, synthesize
 
 HERE = Path(__file__).resolve().parent
-MANOEUVRES = ["hover", "ground", "step_x", "sprint", "yaw", "step_z", "fast", "step_y"]
 
 
 class ExpGround(Effect):
@@ -71,22 +67,10 @@ CASES = {"exp_ground": (ExpGround, "ground_effect"), "gusty_wind": (GustyWind, "
 def case(base: QuadrotorModel, name: str, duration: float, seed: int, rate: float) -> dict:
     cls, expected = CASES[name]
     truth = base + cls()
-    p = truth.default_parameters()
-    sensors = SensorSpec(rate=rate, vision_rate=min(60.0, rate))
-    est, val = (synthesize(truth, p, duration=duration, seed=s, sensors=sensors, manoeuvres=MANOEUVRES).log
-                for s in (seed, seed + 1000))
-    t0 = time.perf_counter()
-    d = diagnose(base, est, iterate=False, validation=val)
-    out = {"hidden": name, "expected": expected, "verdict": d.verdict,
-           "first": d.ranking[0].effect if d.ranking else None, "time_s": time.perf_counter() - t0,
-           "nrmse_before": d.baseline_prediction.total}
-    c = next((c for c in d.ranking if c.effect == expected and c.channels_after), None)
-    if c is not None:
-        chans = [ch for ch in CHANNEL_EFFECTS[expected] if ch in c.channels_after]
-        before = np.mean([d.baseline_prediction.nrmse[ch] for ch in chans])
-        after = np.mean([c.channels_after[ch] for ch in chans])
-        out.update({"affected": chans, "fall_pct": 100 * (1 - after / before)})
-    return out
+    d, dt = fly_and_diagnose(truth, truth.default_parameters(), base, duration, seed, rate)
+    return {"hidden": name, "expected": expected, "verdict": d.verdict,
+            "first": d.ranking[0].effect if d.ranking else None, "time_s": dt,
+            "nrmse_before": d.baseline_prediction.total, **affected_fall(d, expected)}
 
 
 def main() -> None:

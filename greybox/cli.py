@@ -181,10 +181,14 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
     return out
 
 
-def _load_fit_inputs(args: argparse.Namespace, path: str | None = None):
-    from .data import load_log
+def _load_fit_inputs(args: argparse.Namespace):
     model = build_model(args.airframe, args.effects, args.without)
-    path = path or args.log
+    return model, _load_model_log(model, args.log)
+
+
+def _load_model_log(model: QuadrotorModel, path: str):
+    """A rotor-speed log checked against ``model``'s rotors and ready to fit."""
+    from .data import load_log
     log = load_log(path, inputs="rotor_speeds")
     for note in log.notes:
         print(f"note: {note}", file=sys.stderr)
@@ -193,7 +197,7 @@ def _load_fit_inputs(args: argparse.Namespace, path: str | None = None):
                                 f"has {model.airframe.n_rotors} rotors")
     log = model.prepare_log(log)
     log.check_fittable()
-    return model, log
+    return log
 
 
 def _names(text: str | None) -> list[str] | None:
@@ -317,9 +321,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, log = _load_fit_inputs(args)
-    validation = None
-    if args.validation:
-        validation = _load_fit_inputs(args, path=args.validation)[1]
+    validation = _load_model_log(model, args.validation) if args.validation else None
     diag = diagnose(model, log, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=model.parameter_vector(parse_sets(args.set)), progress=not args.quiet,
                     process_noise=args.process_noise, validation=validation)

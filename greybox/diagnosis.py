@@ -210,7 +210,7 @@ class Diagnosis:
     regimes: dict[str, np.ndarray] | None = field(default=None, repr=False)
     log: FlightLog | None = field(default=None, repr=False)
     timings: dict[str, float] = field(default_factory=dict)
-    validation_source: str = "last 20 % of the log"
+    validation_source: str = ""        # what the validation nrmse was computed on, in words
 
     def as_json(self) -> dict:
         """The contract's diagnose JSON (plus findings, warnings and the added effects)."""
@@ -786,8 +786,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
                             f"not exercise it, so it could not be confirmed: validate on a flight that does "
                             f"(validation=, --validation LOG2)")
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
-                     warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est)
-    diag.validation_source = _validation_source(validation, split)
+                     warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est,
+                     validation_source=_validation_source(validation, split))
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag

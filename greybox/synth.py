@@ -27,9 +27,9 @@ __all__ = ["SensorSpec", "MANOEUVRES", "DEFAULT_MANOEUVRES", "reference_trajecto
            "model_with_hidden_effects"]
 
 MANOEUVRES = ("hover", "step_x", "step_y", "step_z", "yaw", "fast", "ground", "sprint")
-# what a flight cycles through unless told: an indoor flight (no sprint)
-DEFAULT_MANOEUVRES = MANOEUVRES[:-1]
 """Manoeuvre names understood by :func:`reference_trajectory`."""
+DEFAULT_MANOEUVRES = MANOEUVRES[:-1]
+"""What a flight cycles through unless told: an indoor flight (every manoeuvre but ``sprint``)."""
 
 
 @dataclass

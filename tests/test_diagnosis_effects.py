@@ -9,6 +9,7 @@ verdict is null.
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -42,6 +43,7 @@ def test_nothing_hidden_gives_a_null_verdict(base):
     assert r["verdict"] is None, r
 
 
+sys.modules["diagnose_effects"] = sweep     # diagnose_foreign imports its sibling
 spec_f = importlib.util.spec_from_file_location("diagnose_foreign", ROOT / "experiments" / "diagnose_foreign.py")
 foreign = importlib.util.module_from_spec(spec_f)
 spec_f.loader.exec_module(foreign)
