@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings as _warnings
 from importlib import resources
 from pathlib import Path
 from typing import Sequence
@@ -527,11 +528,18 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"greybox: warning: {message}", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = _parser()
     try:
         args = ap.parse_args(argv)
-        return int(args.func(args) or 0)
+        with _warnings.catch_warnings():
+            # a warning reaches a CLI user as one line, not as Python's file:line form
+            _warnings.showwarning = _show_warning
+            return int(args.func(args) or 0)
     except GreyboxInputError as e:
         print(f"greybox: error: {e}", file=sys.stderr)
         return 2

@@ -21,3 +21,8 @@ class SolverError(GreyboxError, RuntimeError):
 
 class ConvergenceWarning(UserWarning):
     """A fit stopped before converging; its result says why (``FitResult.status``)."""
+
+
+class AirframeWarning(UserWarning):
+    """An airframe accepted with a doubt (e.g. inertias that break ``J1 + J2 >= J3`` within
+    measurement error)."""

@@ -119,3 +119,25 @@ def test_parameter_names_and_sizes_are_checked(tmp_path):
     # guesses for effects not (yet) in the model are allowed: the diagnosis uses them
     af = load_airframe(write(tmp_path, GOOD + "\n[parameters]\nk_ge = 1e-4\n"))
     assert "k_ge" not in QuadrotorModel(af).param_names
+
+
+def test_measured_inertia_breaking_the_triangle_inequality_slightly_is_accepted_with_a_warning(tmp_path, capsys):
+    """A flat airframe sits on J1 + J2 = J3; a published measurement may break it by 1 %."""
+    import warnings
+    from greybox.errors import AirframeWarning
+    text = GOOD.replace("[0.0082, 0.0082, 0.0149]", "[1.4e-5, 1.4e-5, 2.8284e-5]")   # 1 % over
+    with pytest.warns(AirframeWarning, match="by 1.0"):
+        af = load_airframe(write(tmp_path, text))
+    assert af.inertia[2, 2] == pytest.approx(2.8284e-5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")          # inside the limit: no warning at all
+        load_airframe(write(tmp_path, GOOD))
+    # 10 % over is not measurement error
+    with pytest.raises(GreyboxInputError, match="by 10.0 %"):
+        load_airframe(write(tmp_path, GOOD.replace("[0.0082, 0.0082, 0.0149]", "[1.0, 1.0, 2.2222]")))
+    # the CLI says it in one line
+    from greybox.cli import main
+    path = write(tmp_path, text)
+    assert main(["linearize", "--airframe", str(path), "--json", str(tmp_path / "lin.json")]) == 0
+    err = capsys.readouterr().err
+    assert "greybox: warning:" in err and "J1 + J2 >= J3" in err and "Traceback" not in err
