@@ -19,7 +19,7 @@ from . import __version__
 from . import effects as fx
 from .airframe import load_airframe
 from .data import FlightLog, atomic_write, read_csv_table, save_log
-from .errors import GreyboxError, GreyboxInputError
+from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError
 from .integrate import simulate
 from .model import QuadrotorModel
 
@@ -300,9 +300,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
     model, log = _load_fit_inputs(args)
     est, val = log.split(0.8)
     p0 = model.parameter_vector(parse_sets(args.set))
-    res = fit(model, est, free=_names(args.free), fixed=_names(args.fixed), p0=p0,
-              interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
-              process_noise=args.process_noise)
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", ConvergenceWarning)   # said below, once, as the error
+        res = fit(model, est, free=_names(args.free), fixed=_names(args.fixed), p0=p0,
+                  interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
+                  process_noise=args.process_noise)
     if not res.converged:
         raise GreyboxError(f"fit did not converge: {res.status}")
     pred = predict(model, res.p, val, horizon=args.horizon)

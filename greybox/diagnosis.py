@@ -37,6 +37,7 @@ import html
 import io
 import math
 import time
+import warnings as _warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -46,10 +47,11 @@ from scipy import stats
 
 from . import effects as fx
 from .data import FlightLog, atomic_write
-from .errors import GreyboxInputError
+from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError
 from .fitting import FitResult, _free_indices, _Session, _ShootingProblem, fit, initial_node_states
-from .integrate import n_substeps, rk4_step_with_output
+from .integrate import n_substeps
 from .model import OUTPUTS, QuadrotorModel, rotation_matrices
+from .residuals import fitted_trajectory, long_run_factor, output_residuals, whiteness_fraction
 from .validation import Prediction, compare_plot, predict
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
@@ -62,6 +64,16 @@ MIN_VALIDATION_GAIN = 0.05
 (while the total nrmse may not rise by more than :data:`MAX_VALIDATION_LOSS`)."""
 MAX_VALIDATION_LOSS = 0.01
 N_REFIT = 4
+NEGLIGIBLE_FRACTION = 0.01
+"""An effect whose fitted parameters are all below this fraction of their physically plausible
+magnitude for the airframe (:func:`greybox.effects.example_values`) is negligible: never the
+verdict, whatever its likelihood ratio."""
+UNEXPLAINED_RATIO = 3.0
+"""With a null verdict, channels whose residual RMS stays above this multiple of the sensor
+noise (and coloured) are reported as what the model misses beyond every candidate."""
+CONSISTENCY_Z = 3.0
+"""A parameter whose estimates on the two halves of the estimation data differ by more than
+this many standard deviations (of the difference) is flagged as absorbing something else."""
 """Candidates refitted after screening (the rest keep their screening statistic)."""
 
 DISTINGUISH = {
@@ -211,6 +223,14 @@ class Diagnosis:
     log: FlightLog | None = field(default=None, repr=False)
     timings: dict[str, float] = field(default_factory=dict)
     validation_source: str = ""        # what the validation nrmse was computed on, in words
+    unexplained: dict[str, float] = field(default_factory=dict)   # channel -> residual / sensor noise
+    inconsistent: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
+    # parameter -> (first half, std, second half, std) where the halves disagree
+
+    @property
+    def baseline_certified(self) -> bool:
+        """Whether the baseline fit is at a certified optimum (else no candidate was tested)."""
+        return bool(self.baseline.converged)
 
     def as_json(self) -> dict:
         """The contract's diagnose JSON (plus findings, warnings and the added effects)."""
@@ -220,7 +240,12 @@ class Diagnosis:
                "verdict": self.verdict,
                "findings": [f.text for f in self.findings],
                "warnings": list(self.warnings),
-               "effects": self.model.effect_names}
+               "effects": self.model.effect_names,
+               "certificate": self.baseline.certificate.as_dict() if self.baseline.certificate else None,
+               "unexplained": {ch: _num(v) for ch, v in self.unexplained.items()},
+               "inconsistent_parameters": {n: {"first_half": a, "first_half_std": sa, "second_half": b,
+                                               "second_half_std": sb}
+                                           for n, (a, sa, b, sb) in self.inconsistent.items()}}
         if self.final_model is not None and self.final_prediction is not None:
             out["added"] = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
             out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
@@ -241,7 +266,20 @@ class Diagnosis:
             lr = f"LR {c.lr:10.1f} p={c.p_value:.1e}" if c.lr is not None else f"score {c.score:10.1f}        "
             lines.append(f"   {'*' if c.significant else ' '} {c.effect:<16} {lr}  nrmse {c.nrmse_before:.3f} -> "
                          f"{after}  {c.reason}")
-        lines.append(f"   verdict: {self.verdict or 'null (nothing significant is missing)'}")
+        if not self.baseline_certified:
+            lines.append("   (no candidate tested: the baseline fit is not at a certified optimum, and a test "
+                         "statistic against it would be meaningless)")
+        if self.verdict:
+            lines.append(f"   verdict: {self.verdict}")
+        elif self.unexplained:
+            lines.append("   verdict: null -- the model is missing something no candidate explains: residuals in " +
+                         ", ".join(f"{ch} ({v:.3g}x the sensor noise)" for ch, v in self.unexplained.items()) +
+                         " stay far above the noise and coloured" +
+                         (f"; {self.findings[0].text}" if self.findings else ""))
+        elif not self.baseline_certified:
+            lines.append("   verdict: null (cannot tell: the baseline fit is not certified)")
+        else:
+            lines.append("   verdict: null (nothing significant is missing)")
         if self.final_prediction is not None and self.final_model is not None:
             added = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
             f = self.final_prediction
@@ -262,51 +300,6 @@ class Diagnosis:
 
 
 # ------------------------------------------------------------------------------ residuals
-def _trajectory(model: QuadrotorModel, res: FitResult, log: FlightLog) -> tuple[np.ndarray, np.ndarray]:
-    """States and outputs at every sample of ``log`` along the fitted node states."""
-    log = model.prepare_log(log)
-    nodes, idx = res.node_states[0], res.node_index[0]
-    N = res.interval
-    n = len(log)
-    M = len(idx) - 1
-    f = rk4_step_with_output(model, n_substeps(float(np.diff(log.t).max())))
-    F = f.mapaccum("traj", N, [0], [0]).map(M, "thread", 2)
-    k = np.minimum(np.arange(M * N), n - 1)
-    hk = np.append(np.diff(log.t), 0.0)[k]
-    _, Y, X = F(nodes[:M].T, log.inputs[k].T, res.p, log.t[k][None, :], hk[None, :])
-    Y, X = np.asarray(Y).T, np.asarray(X).T
-    out_y = np.full((n, model.ny), np.nan)
-    out_x = np.full((n, model.nx), np.nan)
-    m = min(n, M * N)
-    out_y[:m], out_x[:m] = Y[:m], X[:m]
-    return out_x, out_y
-
-
-def _residuals(log: FlightLog, Y: np.ndarray) -> np.ndarray:
-    E = np.full_like(Y, np.nan)
-    for c, name in enumerate(OUTPUTS):
-        if name in log.output_names:
-            E[:, c] = log.output(name) - Y[:, c]
-    E[:, 3 + 2] = np.arctan2(np.sin(E[:, 5]), np.cos(E[:, 5]))
-    return E
-
-
-def _long_run_factor(e: np.ndarray, lags: int = 50) -> float:
-    """Long-run variance / variance of a residual sequence (Bartlett weights), >= 1."""
-    e = e[np.isfinite(e)]
-    if e.size < 4 * lags:
-        return 1.0
-    e = e - e.mean()
-    v = float(e @ e) / e.size
-    if v <= 0:
-        return 1.0
-    acc = 0.0
-    for k in range(1, lags + 1):
-        rho = float(e[k:] @ e[:-k]) / e.size / v
-        acc += (1 - k / (lags + 1)) * rho
-    return max(1.0, 1.0 + 2.0 * acc)
-
-
 def _regime_variables(model: QuadrotorModel, X: np.ndarray, log: FlightLog) -> dict[str, np.ndarray]:
     """Flight-condition variables at every sample, from states ``X`` (e.g. smoothed measurements)."""
     af = model.airframe
@@ -356,8 +349,8 @@ def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog, pre
     correlation with the error envelope reaches ``min_r`` (an effect-size threshold). Regime
     variables come from the measurements (smoothed), not from the model under test.
     """
-    _, Y = _trajectory(model, res, log)
-    E = _residuals(log, Y)
+    _, Y = fitted_trajectory(model, res, log)
+    E = output_residuals(log, Y)
     regimes = _regime_variables(model, initial_node_states(model, log, np.arange(len(log))), log)
     whiteness: dict[str, float] = {}
     input_corr: dict[str, tuple[str, float]] = {}
@@ -368,9 +361,7 @@ def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog, pre
             continue
         ek = e[k] - e[k].mean()
         var = float(ek @ ek)
-        band = 2.576 / math.sqrt(ek.size)
-        ac = np.array([float(ek[j:] @ ek[:-j]) / var for j in range(1, 31)])
-        whiteness[ch] = float(np.mean(np.abs(ac) > band))
+        whiteness[ch] = whiteness_fraction(e)
         best = ("", 0.0)
         for i, name in enumerate(log.input_names):
             u = log.inputs[k, i] - log.inputs[k, i].mean()
@@ -549,7 +540,7 @@ def _lr_test(base: FitResult, alt: FitResult, alt_resid: np.ndarray, df: int, on
     for c, ch in enumerate(OUTPUTS):
         if ch not in base.channel_cost:
             continue
-        f = _long_run_factor(alt_resid[:, c] / base.sigma[ch])
+        f = long_run_factor(alt_resid[:, c] / base.sigma[ch])
         lr += (base.channel_cost[ch] - alt.channel_cost[ch]) / f
     lr += base.process_cost - alt.process_cost   # soft continuity: the gaps are residuals too
     lr = max(lr, 0.0)
@@ -557,6 +548,29 @@ def _lr_test(base: FitResult, alt: FitResult, alt_resid: np.ndarray, df: int, on
     if on_bound:
         p *= 0.5   # chi-bar-square: half the mass sits on the bound
     return lr, min(1.0, p * n_tests)
+
+
+def _negligible(fr: FitResult, effect: str) -> str:
+    """Words saying that the fitted parameters of ``effect`` are physically negligible (all
+    below :data:`NEGLIGIBLE_FRACTION` of their plausible magnitude for the airframe), or ""."""
+    model = fr.model
+    kt = fr.value("K_T") if "K_T" in model.param_names else model.default_parameters()[0]
+    plausible = fx.example_values(effect, model.airframe, kt)
+    parts = []
+    for par in model.parameters:
+        if par.effect != effect:
+            continue
+        ref = np.abs(np.atleast_1d(np.asarray(plausible.get(par.name, par.scale / NEGLIGIBLE_FRACTION * 1e-3),
+                                              dtype=float)))
+        ref = np.resize(np.max(ref), par.size)
+        for comp, r in zip(par.component_names, ref):
+            v = fr.value(comp) - par.null
+            if abs(v) >= NEGLIGIBLE_FRACTION * r:
+                return ""
+            parts.append(f"{comp} = {fr.value(comp):.3g} {par.unit}".rstrip())
+    if not parts:
+        return ""
+    return f"{', '.join(parts)} (below {100 * NEGLIGIBLE_FRACTION:.0f} % of a plausible size for this airframe)"
 
 
 def _null_on_bound(ext: QuadrotorModel, name: str) -> bool:
@@ -667,16 +681,19 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
         t0 = time.perf_counter()
         ext, fr, pr = _refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=bool(at_bound),
                              start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if at_bound else None)
-        _, Y = _trajectory(ext, fr, est)
-        E = _residuals(est, Y)
+        _, Y = fitted_trajectory(ext, fr, est)
+        E = output_residuals(est, Y)
         cand.lr, cand.p_value = _lr_test(res, fr, E, cand.df, _null_on_bound(ext, cand.effect), n_tests)
         cand.fit, cand.prediction = fr, pr
         cand.nrmse_after, cand.channels_after = pr.total, dict(pr.nrmse)
         gain = 1 - pr.total / pred.total
         falls = {ch: 1 - pr.nrmse[ch] / pred.nrmse[ch] for ch in pred.nrmse if pred.nrmse[ch] > 0}
         best_ch = max(falls, key=falls.get)
+        negligible = _negligible(fr, cand.effect)
         if cand.p_value >= ALPHA:
             cand.reason = f"not significant (p = {cand.p_value:.2g})"
+        elif negligible:
+            cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but physically negligible: {negligible}"
         elif falls[best_ch] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS:
             cand.reason = (f"significant in the fit but not confirmed on validation (best channel {best_ch} "
                            f"{-100 * falls[best_ch]:+.1f} %, total {-100 * gain:+.1f} %)")
@@ -746,14 +763,36 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
                                     f"differ from the estimation log's {','.join(log.input_names)}")
         est, val = log, validation
     say(f"diagnose: fitting the model ({', '.join(model.effect_names)}) to {len(est)} samples")
-    res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise)
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", ConvergenceWarning)   # judged below, in words
+        res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise)
+        if not res.converged:
+            # one more go from where it stopped, with the weights it reached
+            say(f"diagnose: the baseline fit is not certified ({res.status}); solving on")
+            res = fit(model, est, p0=res.p, compile=compile, max_iter=200, process_noise=process_noise,
+                      noise=res.sigma, reweight=False, initial_states=res.node_states)
     pred = predict(model, res.p, val, compile=compile)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split)})")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred)
     rounds: list[Round] = []
     warnings: list[str] = list(res.warnings)
+    if res.certificate is not None:
+        say(f"diagnose: baseline {res.certificate.text()}")
+    if not res.converged:
+        warnings.insert(0, f"the baseline fit did not reach a certified optimum ({res.status}): no candidate is "
+                           "tested against it, since any extra parameter would 'explain' the distance still to go; "
+                           "the verdict is null because greybox cannot tell")
+    inconsistent = _half_consistency(model, res, est, compile, say) if res.converged else {}
+    for n, (a, sa, b, sb) in inconsistent.items():
+        warnings.append(f"{n} differs between the two halves of the estimation data ({a:.4g} ± {sa:.2g} vs "
+                        f"{b:.4g} ± {sb:.2g}): it is absorbing something the model lacks, not a constant of the vehicle")
+    for n in (res.certificate.held if res.certificate else []):
+        par = next(par for par in model.parameters if n in par.component_names)
+        if not np.isclose(res.value(n), par.null, rtol=1e-6, atol=1e-15):
+            warnings.append(f"{n} = {res.value(n):.4g} sits on its bound: it is compensating for something the "
+                            "model lacks, and its value is not a property of the vehicle")
     cur_model, cur_res, cur_pred = model, res, pred
-    remaining = list(candidates)
+    remaining = list(candidates) if res.converged else []
     for r in range(max_rounds if iterate else 1):
         if not remaining:
             break
@@ -785,12 +824,49 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
             warnings.append(f"{c.effect} is significant in the fit (p = {c.p_value:.2g}) but the validation data do "
                             f"not exercise it, so it could not be confirmed: validate on a flight that does "
                             f"(validation=, --validation LOG2)")
+    unexplained: dict[str, float] = {}
+    if verdict is None and res.converged and res.certificate is not None:
+        cert = res.certificate
+        unexplained = {ch: cert.residual_over_noise[ch] for ch in cert.off_channels()
+                       if cert.residual_over_noise[ch] > UNEXPLAINED_RATIO}
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est,
-                     validation_source=_validation_source(validation, split))
+                     validation_source=_validation_source(validation, split), unexplained=unexplained,
+                     inconsistent=inconsistent)
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
+
+
+def _half_consistency(model: QuadrotorModel, res: FitResult, est: FlightLog, compile: str,
+                      say: Callable[[str], None]) -> dict[str, tuple[float, float, float, float]]:
+    """Fit each half of the estimation data (warm-started at the baseline, its weights) and
+    return the parameters whose two estimates differ by more than :data:`CONSISTENCY_Z`
+    standard deviations: a constant of the vehicle is the same in both halves; a parameter
+    absorbing a missing effect follows what each half happens to exercise."""
+    first, second = est.split(0.5)
+    out: dict[str, tuple[float, float, float, float]] = {}
+    try:
+        with _warnings.catch_warnings():
+            _warnings.simplefilter("ignore", ConvergenceWarning)
+            fits = [fit(model, half, p0=res.p, free=res.free_names, noise=res.sigma, reweight=False,
+                        compile=compile, max_iter=100, interval=res.interval) for half in (first, second)]
+    except GreyboxError as e:   # a half too short or too poor to fit: no verdict on consistency
+        say(f"diagnose: halves not compared ({e})")
+        return out
+    if not all(f.converged for f in fits):
+        return out
+    a, b = fits
+    for i, n in enumerate(res.free_names):
+        sa, sb = float(a.std[i]), float(b.std[i])
+        if not (np.isfinite(sa) and np.isfinite(sb)) or sa + sb <= 0:
+            continue
+        z = abs(a.value(n) - b.value(n)) / math.hypot(sa, sb)
+        if z > CONSISTENCY_Z:
+            out[n] = (a.value(n), sa, b.value(n), sb)
+    say("diagnose: halves of the estimation data " +
+        (f"disagree on {', '.join(out)}" if out else "agree on every parameter"))
+    return out
 
 
 def _validation_source(validation: FlightLog | None, split: float) -> str:

@@ -41,8 +41,9 @@ from .data import FlightLog
 from .errors import ConvergenceWarning, GreyboxInputError, SolverError
 from .integrate import n_substeps, rk4_step
 from .model import OUTPUTS, QuadrotorModel
+from .residuals import fitted_trajectory, output_residuals, whiteness_fraction
 
-__all__ = ["fit", "FitResult", "GreyBoxEstimator", "estimate_noise", "initial_node_states",
+__all__ = ["fit", "FitResult", "Certificate", "GreyBoxEstimator", "estimate_noise", "sensor_noise", "initial_node_states",
            "DEFAULT_INTERVAL_S", "default_interval", "MANOEUVRE_ADVICE"]
 
 DEFAULT_INTERVAL_S = 0.05
@@ -146,6 +147,87 @@ def initial_node_states(model: QuadrotorModel, log: FlightLog, idx: np.ndarray,
 
 
 # ------------------------------------------------------------------------------ result
+STEP_TOLERANCE = 0.1
+"""A fit is at its optimum when one more undamped Gauss-Newton step would move no free
+parameter by more than this fraction of its standard deviation, nor any node state by more
+than this fraction of its noise scale: further iterations cannot change a conclusion."""
+GAP_TOLERANCE = 0.1
+"""Largest continuity gap allowed at a certified optimum, as a fraction of the state's noise
+scale (output-error fits; with process noise the gaps are residuals)."""
+NOISE_RATIO_ADEQUATE = 2.0
+"""Residual RMS up to this multiple of the sensor noise (estimated from the measurements'
+high-frequency content) counts as "at the noise level"."""
+MAX_RESTARTS = 2
+"""Times a fit whose end point is not certified is solved on from there."""
+WHITENESS_ADEQUATE = 0.2
+"""Fraction of autocorrelation lags outside the 99 % band up to which residuals count as white."""
+
+
+@dataclass
+class Certificate:
+    """Whether a fit reached the optimum of its own problem (first-order optimality, closed
+    shooting gaps), and whether its residuals look like sensor noise.
+
+    The first is what makes test statistics at that fit meaningful (``optimal``); the second
+    says whether the model explains the data (``adequate``): an optimal fit of a model that
+    misses physics has residuals far above the noise, and coloured.
+    """
+
+    optimal: bool
+    step_over_std: float                 # largest remaining GN parameter step / its std
+    state_step_over_noise: float         # largest remaining GN node-state step / noise scale
+    gap_over_noise: float                # largest continuity gap / the state's noise scale
+    held: list[str]                      # parameters held on a bound (the step is projected)
+    residual_over_noise: dict[str, float]   # per channel: RMS residual / sensor noise of the data
+    whiteness: dict[str, float]          # per channel: fraction of lags outside the 99 % band
+    sensor_noise: dict[str, float]       # per channel: noise estimated from the measurements
+    reasons: list[str] = field(default_factory=list)   # why not optimal, in words
+
+    @property
+    def adequate(self) -> bool:
+        """Residuals at the noise level and white in every channel."""
+        return all(r <= NOISE_RATIO_ADEQUATE for r in self.residual_over_noise.values()) and \
+            all(not (w > WHITENESS_ADEQUATE) for w in self.whiteness.values())
+
+    def off_channels(self) -> list[str]:
+        """Channels whose residuals are above the noise level or coloured."""
+        return [ch for ch, r in self.residual_over_noise.items()
+                if r > NOISE_RATIO_ADEQUATE or self.whiteness.get(ch, 0.0) > WHITENESS_ADEQUATE]
+
+    def text(self) -> str:
+        """The certificate in words."""
+        if self.optimal:
+            head = (f"optimum certified: one more Gauss-Newton step would move the parameters by "
+                    f"{self.step_over_std:.2g} std at most, the largest gap is {self.gap_over_noise:.2g} of the noise")
+        else:
+            head = "optimum NOT certified: " + "; ".join(self.reasons)
+        if self.held:
+            head += f"; held on a bound: {', '.join(self.held)}"
+        off = self.off_channels()
+        if off:
+            tail = ("residuals above the sensor noise or coloured in " +
+                    ", ".join(f"{ch} ({self.residual_over_noise[ch]:.3g}x noise, "
+                              f"{100 * self.whiteness.get(ch, 0.0):.0f} % of lags outside the band)" for ch in off) +
+                    ": the model does not explain these channels")
+        else:
+            tail = "residuals at the sensor noise and white"
+        return f"{head}. {tail}."
+
+    def as_dict(self) -> dict:
+        return {"optimal": self.optimal, "adequate": self.adequate, "step_over_std": _finite(self.step_over_std),
+                "state_step_over_noise": _finite(self.state_step_over_noise),
+                "gap_over_noise": _finite(self.gap_over_noise), "held": list(self.held),
+                "residual_over_noise": {k: _finite(v) for k, v in self.residual_over_noise.items()},
+                "whiteness": {k: _finite(v) for k, v in self.whiteness.items()},
+                "sensor_noise": {k: _finite(v) for k, v in self.sensor_noise.items()},
+                "reasons": list(self.reasons), "text": self.text()}
+
+
+def _finite(v: float) -> float | None:
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
 @dataclass
 class FitResult:
     """The outcome of :func:`fit`.
@@ -177,6 +259,7 @@ class FitResult:
     channel_count: dict[str, int] = field(default_factory=dict)    # measured samples per channel
     process_noise: dict[str, float] | None = None   # q per state when continuity was soft
     process_cost: float = 0.0           # 0.5 * sum of squared gaps / q^2 (soft continuity)
+    certificate: Certificate | None = None   # ``converged`` is ``certificate.optimal``
 
     @property
     def parameters(self) -> dict[str, dict[str, float | None]]:
@@ -201,6 +284,8 @@ class FitResult:
             lines.append(f"{name:<12} {v:13.6g} {s:11.3g} {rel:>7}")
         lines.append(f"status: {self.status}; {self.iterations} iterations; "
                      f"evaluator: {self.evaluator}")
+        if self.certificate is not None:
+            lines.append(self.certificate.text())
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -636,6 +721,7 @@ class _Session:
             # hold the worst violator only, then look again: the others may turn inward
             frozen[np.flatnonzero(out)[np.argmax(np.abs(dth[out]))]] = True
         dz[:, nx:] = np.where(frozen, 0.0, dz[:, nx:])
+        self.last_held = frozen
         lam = sol[(kkt.lams[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
         return dz, lam, H, gg, cz
 
@@ -740,6 +826,73 @@ class _Session:
                       q2=self._q2())
         P = P[kkt.znodes[0] + nx + np.arange(nth)]
         return 0.5 * (P + P.T)
+
+
+    def state_noise_scale(self, sensor: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """Per state, the size of a change the measurements could just see: the sensor noise
+        of its channel (positions, angles, gyro), over one shooting interval for velocities
+        (and body rates without a gyro); 1e-3 of its spread for effect states."""
+        dt = float(np.median(self.data.Hs[self.data.Hs > 0])) if np.any(self.data.Hs > 0) else 1.0
+        T = max(self.interval, 1) * dt
+        sig = dict(zip(OUTPUTS, sensor))
+        measured = {n for c, n in enumerate(OUTPUTS) if self.data.mask[c].any()}
+        out = np.empty(self.nx)
+        for j, name in enumerate(self.model.state_names):
+            if name in ("x", "y", "z", "phi", "theta", "psi"):
+                out[j] = sig[name]
+            elif name in ("vx", "vy", "vz"):
+                out[j] = sig["xyz"[j - 6]] / T
+            elif name in ("p", "q", "r"):
+                out[j] = sig[name] if name in measured else sig[("phi", "theta", "psi")[j - 9]] / T
+            else:
+                out[j] = 1e-3 * (float(np.std(X[:, j])) + 1e-6 * (1.0 + float(np.abs(X[:, j]).max())))
+        return out
+
+    def optimality(self, X, th, blocks, P: np.ndarray, s2: float, sensor: np.ndarray
+                   ) -> tuple[float, float, float, list[str], list[str]]:
+        """First-order optimality at (X, th): the undamped Gauss-Newton step (projected onto
+        the bounds) in parameter standard deviations and in state noise scales, and the
+        largest continuity gap against the state's noise scale. At an optimum the step is
+        zero whatever the size of the residuals. Returns (step/std, state step/noise,
+        gap/noise, held parameters, reasons it is not optimal)."""
+        reasons: list[str] = []
+        names = [self.model.param_names[i] for i in self.free_idx]
+        try:
+            dz, _, _, _, cz = self.step(X, th, blocks, 0.0)
+        except SolverError as e:
+            return math.inf, math.inf, math.inf, [], [f"the Gauss-Newton system is singular at the end point ({e})"]
+        held = [n for n, h in zip(names, self.last_held) if h]
+        scale = self.state_noise_scale(sensor, X)
+        var = s2 * np.diag(P)
+        ok = var > 0
+        if not np.all(ok):
+            reasons.append("the information matrix is singular in " +
+                           ", ".join(n for n, k in zip(names, ok) if not k))
+        dth = dz[0, self.nx:]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(ok, np.abs(dth) / np.sqrt(np.abs(var)), np.inf)
+        ratio = np.where(self.last_held, 0.0, ratio)
+        step_std = float(ratio.max()) if ratio.size else 0.0
+        state_step = float((np.abs(dz[:, :self.nx]) / scale).max())
+        gap = 0.0 if self.q is not None else float((np.abs(cz[:, :self.nx]) / scale).max())
+        if step_std > STEP_TOLERANCE and np.all(ok):
+            worst = names[int(np.argmax(ratio))]
+            reasons.append(f"one more Gauss-Newton step would move {worst} by {step_std:.3g} std")
+        if state_step > STEP_TOLERANCE:
+            j = int(np.argmax((np.abs(dz[:, :self.nx]) / scale).max(axis=0)))
+            reasons.append(f"one more Gauss-Newton step would move the state {self.model.state_names[j]} by "
+                           f"{state_step:.3g} of its noise scale")
+        if gap > GAP_TOLERANCE:
+            j = int(np.argmax((np.abs(cz[:, :self.nx]) / scale).max(axis=0)))
+            reasons.append(f"shooting gaps are open (largest in {self.model.state_names[j]}: {gap:.3g} of its noise scale)")
+        return step_std, state_step, gap, held, reasons
+
+
+def sensor_noise(logs: Sequence[FlightLog]) -> np.ndarray:
+    """Per output channel, the noise standard deviation estimated from the measurements'
+    high-frequency content (:func:`estimate_noise`), never from model residuals; floored at
+    the resolution below which no sensor reports (0.1 mm, 0.1 mrad, 1 mrad/s)."""
+    return _noise_levels(logs, None)
 
 
 def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free: Iterable[str] | None = None,
@@ -876,29 +1029,52 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         # the weights did not change: finish the settled solve to the full tolerance
         X, th, mu, iters, converged, status, blocks = ses.solve(X, th, mu, max_iter, tol)
         total_iters += iters
+    sensor = sensor_noise(logs)
+    n_res = int(data.mask.sum())
+    dof = max(n_res - ses.nth - ses.nx * len(logs), 1)
+
+    def check(X_, th_, blocks_):
+        P_ = ses.covariance(X_, blocks_)
+        s2_ = 2 * ses.total_cost(X_, blocks_[0], blocks_[4]) / dof
+        return P_, s2_, ses.optimality(X_, th_, blocks_, P_, s2_, sensor)
+
+    P, s2, opt = check(X, th, blocks)
+    for _ in range(MAX_RESTARTS):
+        if not opt[4] or status == "maximum iterations reached":   # the user's budget is spent
+            break
+        # Not there yet: a line search that found no decrease on an l1 merit whose weights
+        # only grow, or an iteration cap. Solve on from here with fresh damping and merit
+        # weights; the certificate, not the solver's stopping rule, decides.
+        say(f"fit: not certified ({'; '.join(opt[4])}): solving on with fresh damping and merit weights")
+        X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-3, max_iter, tol)
+        total_iters += iters
+        P, s2, opt = check(X, th, blocks)
+    step_std, state_step, gap, held, reasons = opt
+    if not reasons and not converged:
+        status = f"converged (certified optimum; the solver stopped on: {status})"
+    elif reasons:
+        status = f"{'' if status.startswith('converged') else status + '; '}optimum not certified: {'; '.join(reasons)}"
+    converged = not reasons
     t_solve = time.perf_counter() - t0
     sigma, scale, nth, nx = ses.sigma, ses.scale, ses.nth, ses.nx
     cch = blocks[4]
-
-    P = ses.covariance(X, blocks)
-    n_res = int(data.mask.sum())
-    dof = max(n_res - nth - nx * len(logs), 1)
     cost = ses.total_cost(X, blocks[0], cch)
-    s2 = 2 * cost / dof
     cov = s2 * P * np.outer(scale, scale)
     var = np.diag(cov)
     warnings: list[str] = []
     if np.any(var <= 0) or not np.all(np.isfinite(var)):
         warnings.append("information matrix is singular: some parameters are not identifiable from these data")
-    std = np.sqrt(np.abs(var))
+    # a non-positive variance is no variance: its std is unknown (NaN), not sqrt(|v|), and it
+    # has no correlations (a correlation outside [-1, 1] was once reported from one)
+    std = np.where(var > 0, np.sqrt(np.abs(var)), np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         corr = cov / np.outer(std, std)
-    corr = np.nan_to_num(corr)
+    corr = np.clip(np.nan_to_num(corr), -1.0, 1.0)
     p_out = p.copy()
     p_out[free_idx] = th * scale
     warnings += _identifiability_warnings(free_names, p_out[free_idx], std, corr, P)
     if not converged:
-        warnings.insert(0, f"solver did not converge: {status}")
+        warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
         import warnings as _w
         _w.warn(f"fit did not converge: {status}", ConvergenceWarning, stacklevel=2)
 
@@ -908,6 +1084,22 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     for _, M in data.flights:
         node_states.append(X[k:k + M + 1].copy())
         k += M + 1
+    # the residual check: RMS against the noise of the data, whiteness of the residual series
+    white: dict[str, list[float]] = {}
+    p_fit = p.copy()
+    p_fit[free_idx] = th * scale
+    probe = FitResult(model, p_fit, free_names, np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0)), converged,
+                      status, 0, 0.0, 0, {}, {}, node_states, data.node_index, interval=interval)
+    for f, log in enumerate(logs):
+        E = output_residuals(log, fitted_trajectory(model, probe, log, f)[1])
+        for c, n in enumerate(OUTPUTS):
+            if n_c[c]:
+                white.setdefault(n, []).append(whiteness_fraction(E[:, c]))
+    certificate = Certificate(
+        converged, step_std, state_step, gap, held,
+        {n: float(resid_rms[n] / sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
+        {n: float(np.nanmean(v)) if np.any(np.isfinite(v)) else float("nan") for n, v in white.items()},
+        {n: float(sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, reasons)
     timings = {"build": ses.t_build, "solve": t_solve, "total": time.perf_counter() - t_start}
     say(f"fit: {status} after {total_iters} iterations in {timings['total']:.2f} s")
     return FitResult(model, p_out, free_names, std, cov, corr, converged, status, total_iters, cost,
@@ -916,7 +1108,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
                      {n: float(cc[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
                      {n: int(n_c[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
                      dict(zip(model.state_names, map(float, ses.q))) if soft else None,
-                     cost - 0.5 * float(cch.sum()))
+                     cost - 0.5 * float(cch.sum()), certificate)
 
 
 def _identifiability_warnings(names: list[str], values: np.ndarray, std: np.ndarray, corr: np.ndarray,

@@ -7,7 +7,8 @@ import pytest
 from greybox import QuadrotorModel
 from greybox.cli import main
 from greybox.data import save_log
-from greybox.diagnosis import _long_run_factor, diagnose
+from greybox.diagnosis import diagnose
+from greybox.residuals import long_run_factor
 from greybox.synth import SensorSpec, synthesize
 
 from conftest import AIRFRAMES
@@ -30,11 +31,11 @@ def normal_flight(paper):
 def test_long_run_factor_of_white_and_coloured_noise():
     rng = np.random.default_rng(0)
     white = rng.standard_normal(20000)
-    assert _long_run_factor(white) == pytest.approx(1.0, abs=0.25)   # ~2.5 sampling sd
+    assert long_run_factor(white) == pytest.approx(1.0, abs=0.25)   # ~2.5 sampling sd
     ar = np.zeros(20000)
     for k in range(1, ar.size):     # AR(1), rho = 0.8: long-run factor (1+rho)/(1-rho) = 9
         ar[k] = 0.8 * ar[k - 1] + white[k]
-    assert 6.5 < _long_run_factor(ar) < 10
+    assert 6.5 < long_run_factor(ar) < 10
 
 
 @pytest.mark.slow
