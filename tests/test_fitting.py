@@ -50,6 +50,30 @@ def test_fit_recovers_base_parameters_from_far_off(paper_model, flight):
     assert np.allclose(np.diag(res.correlation), 1.0)
 
 
+def test_certificate_of_a_right_model_a_wrong_model_and_a_stopped_fit(paper_model, flight):
+    """Certified means at the optimum (whatever the residuals); adequate means residuals at
+    the noise. A fit stopped after one iteration is neither converged nor certified."""
+    est, _ = flight.log.split()
+    good = fit(paper_model, est, p0=OFF)
+    c = good.certificate
+    assert good.converged and c.optimal and c.adequate and not c.reasons
+    assert c.step_over_std < 0.1 and c.gap_over_noise < 0.1
+    assert c.sensor_noise["x"] == pytest.approx(0.003, rel=0.2)          # from the data, not the fit
+    assert all(0.8 < r < 1.2 for r in c.residual_over_noise.values())    # residuals are the noise
+    assert "optimum certified" in good.summary() and "residuals at the sensor noise" in good.summary()
+    # the model without the rotor reaction torque: an optimum, but the yaw channels are far off
+    wrong = fit(paper_model.without("yaw_torque"), est, p0={k: v for k, v in OFF.items() if k != "b"})
+    assert wrong.converged and wrong.certificate.optimal and not wrong.certificate.adequate
+    assert {"psi", "r"} <= set(wrong.certificate.off_channels())
+    assert wrong.certificate.residual_over_noise["r"] > 3
+    stopped = fit(paper_model, est, p0=OFF, max_iter=1, reweight=False)
+    assert not stopped.converged and not stopped.certificate.optimal
+    assert stopped.certificate.step_over_std > 1                      # the step still to go, in std
+    assert "not certified" in stopped.status and "would move" in stopped.status
+    d = stopped.certificate.as_dict()
+    assert d["optimal"] is False and "NOT certified" in d["text"]
+
+
 def test_several_flights_share_parameters(paper_model, flight):
     other = synthesize(paper_model, duration=10.0, seed=12)
     one = fit(paper_model, flight.log.split()[0], p0=OFF)
