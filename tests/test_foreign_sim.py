@@ -1,0 +1,239 @@
+"""Sanity checks of the independent simulator (tests/foreign_sim.py) against hand-derived
+physics, without greybox: if these hold, the simulator is a fair referee for greybox's fit
+and diagnosis."""
+import ast
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import foreign_sim as fs
+from foreign_sim import (Dynamics, Effects, Move, crazyflie, euler_zyx, hover_state, one_kg,
+                         pack, rot_zyx, simulate_flight, simulate_open_loop, unpack)
+
+
+def test_independent_of_greybox_model_code():
+    """foreign_sim imports only greybox.data (the FlightLog container, save_log)."""
+    tree = ast.parse(Path(fs.__file__).read_text())
+    mods = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            mods |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            mods.add(node.module or "")
+    assert {m for m in mods if m.startswith("greybox")} <= {"greybox.data"}
+
+
+def test_euler_round_trip():
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        e = rng.uniform([-1.2, -1.4, -3.1], [1.2, 1.4, 3.1])
+        R = rot_zyx(*e)
+        assert np.allclose(R @ R.T, np.eye(3), atol=1e-12)
+        assert np.allclose(euler_zyx(R), e, atol=1e-10)
+    # body x axis of a yaw of +90 degrees points east (NED y)
+    assert np.allclose(rot_zyx(0, 0, math.pi / 2) @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize("make", [crazyflie, one_kg])
+def test_hover_rotor_speed(make):
+    veh = make()
+    fl = simulate_flight(veh, duration=2.0, seed=3, manoeuvres="hover")
+    t, W = fl.log.t, fl.log.inputs
+    w_expected = math.sqrt(veh.mass * veh.gravity / (4 * veh.K_T))
+    w_mean = W[t > 1.0].mean(axis=0)
+    assert np.all(np.abs(w_mean / w_expected - 1) < 0.005), (w_mean, w_expected)
+
+
+def test_hover_tracking_with_disturbances():
+    """The closed loop holds its set point against disturbances its trim does not know
+    (wind on linear drag), with a wrong controller K_T, a CoG offset and a weak motor
+    (position error < 5 cm RMS), and settles after a set-point jump."""
+    fl = simulate_flight("crazyflie", duration=3.0, seed=1, manoeuvres="hover",
+                         ctrl_K_T_factor=1.1, cog_offset=[0.002, -0.001, 0.0],
+                         motor_gains=[1.0, 1.0, 0.93, 1.0], linear_drag=[0.01, 0.01, 0.015],
+                         wind=[1.0, -0.5, 0.0])
+    P = fl.log.outputs[:, :3]
+    ok = np.isfinite(P[:, 0])
+    err = P[ok] - fl.states["ref_pos"][ok]
+    rms = np.sqrt(np.mean(np.sum(err ** 2, axis=1)))
+    assert rms < 0.05, rms
+    # a 0.2 m jump of the set point (x, y and z) is reached within 2.5 s (to 2 cm)
+    fl = simulate_flight("crazyflie", duration=3.0, seed=1,
+                         manoeuvres=[Move(dx=0.2, dy=-0.2, dz=-0.2), Move(hold=3.0)])
+    err = fl.states["pos"] - fl.states["ref_pos"]
+    late = fl.states["t"] > 2.5
+    assert np.max(np.abs(err[late])) < 0.02
+    # and the manoeuvring flight follows its reference
+    fl = simulate_flight("crazyflie", duration=6.0, seed=1)
+    err = fl.states["pos"] - fl.states["ref_pos"]
+    assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) < 0.10
+
+
+def _level(veh, w, omega=(0.0, 0.0, 0.0), height=1.0):
+    return pack([0, 0, -height], np.zeros(3), np.eye(3), omega, w)
+
+
+def test_yaw_sign_follows_contract_spin_convention():
+    """Speeding up the spin=+1 rotors (thrust unchanged) gives r_dot = b*sum(spin w^2)/Jz > 0,
+    the contract's reaction torque spin_i*b*w_i^2 about body +z."""
+    for veh in (crazyflie(), one_kg()):
+        _, spin = veh.rotor_geometry()
+        wh = veh.w_hover
+        w2 = np.where(spin > 0, 1.1 * wh ** 2, 0.9 * wh ** 2)       # same total thrust
+        w = np.sqrt(w2)
+        dyn = Dynamics(veh)
+        d = dyn.rhs(0.0, _level(veh, w), w)
+        expected = veh.b * (spin @ w2) / veh.inertia[2]
+        assert expected > 0
+        assert d[17] == pytest.approx(expected, rel=1e-9)
+        assert abs(d[5]) < 1e-9 * veh.gravity               # thrust unchanged: no climb
+        run = simulate_open_loop(veh, _level(veh, w), w, duration=0.1)
+        r = run["s"][:, 17]
+        assert r[-1] == pytest.approx(0.1 * expected, rel=1e-3)
+        assert euler_zyx(run["s"][-1, 6:15].reshape(3, 3))[2] > 0
+    # closed loop: a positive yaw step first speeds up the spin=+1 rotors and yaws positive
+    veh = crazyflie()
+    _, spin = veh.rotor_geometry()
+    fl = simulate_flight(veh, duration=0.6, seed=0, manoeuvres=[Move(hold=0.1), Move(dpsi=1.0, T=0.4)])
+    st = fl.states
+    k = np.flatnonzero((st["t"] > 0.12) & (st["t"] < 0.2))
+    assert np.all(st["w"][k] ** 2 @ spin > 0)
+    assert st["omega"][k[-1], 2] > 0 and st["euler"][-1, 2] > 0.3
+
+
+def test_roll_and_pitch_torque_signs():
+    """Plus layout (contract): roll torque l*K_T*(w4^2 - w2^2), pitch torque l*K_T*(w1^2 - w3^2)."""
+    veh = one_kg()
+    wh, l, J = veh.w_hover, veh.arm_length, veh.inertia
+    w = np.array([wh, 0.95 * wh, wh, 1.05 * wh])
+    d = Dynamics(veh).rhs(0.0, _level(veh, w), w)
+    assert d[15] == pytest.approx(l * veh.K_T * (w[3] ** 2 - w[1] ** 2) / J[0], rel=1e-9)
+    assert d[15] > 0
+    w = np.array([1.05 * wh, wh, 0.95 * wh, wh])
+    d = Dynamics(veh).rhs(0.0, _level(veh, w), w)
+    assert d[16] == pytest.approx(l * veh.K_T * (w[0] ** 2 - w[2] ** 2) / J[1], rel=1e-9)
+    assert d[16] > 0
+    # X layout: rotors 1 and 3 are in front, 2 and 4 behind
+    veh = crazyflie()
+    wh = veh.w_hover
+    w = np.array([1.05 * wh, 0.95 * wh, 1.05 * wh, 0.95 * wh])
+    d = Dynamics(veh).rhs(0.0, _level(veh, w), w)
+    a = veh.arm_length / math.sqrt(2)
+    assert d[16] == pytest.approx(a * veh.K_T * 2 * ((1.05 * wh) ** 2 - (0.95 * wh) ** 2)
+                                  / veh.inertia[1], rel=1e-9)
+
+
+def test_gyroscopic_torque_sign():
+    """Contract: roll torque +J_r*q*Omega_r with Omega_r = sum(spin_i w_i)."""
+    veh = one_kg(rotor_inertia=1e-4)
+    _, spin = veh.rotor_geometry()
+    w = veh.w_hover * np.where(spin > 0, 1.05, 0.95)
+    om_r = spin @ w
+    q = 0.7
+    d = Dynamics(veh).rhs(0.0, _level(veh, w, omega=(0.0, q, 0.0)), w)
+    assert d[15] == pytest.approx(veh.rotor_inertia * q * om_r / veh.inertia[0], rel=1e-9)
+
+
+def test_torque_free_rotation_conserves_angular_momentum():
+    veh = crazyflie(inertia=(1.1e-5, 1.5e-5, 2.2e-5), rotor_inertia=0.0, tau_motor=1.0)
+    s0 = pack([0, 0, -1], np.zeros(3), rot_zyx(0.3, -0.2, 1.0), [3.0, -2.0, 5.0], np.zeros(4))
+    run = simulate_open_loop(veh, s0, np.zeros(4), duration=1.0, dt=0.01)
+    J = veh.J
+    L = np.array([unpack(s)[2] @ J @ unpack(s)[3] for s in run["s"]])
+    E = np.array([unpack(s)[3] @ J @ unpack(s)[3] for s in run["s"]])
+    assert np.max(np.abs(L - L[0])) < 1e-6 * np.linalg.norm(L[0])
+    assert np.max(np.abs(E - E[0])) < 1e-6 * E[0]
+    # free fall
+    assert unpack(run["s"][-1])[1][2] == pytest.approx(veh.gravity * 1.0, rel=1e-9)
+
+
+def test_rotor_drag_damps_body_rates():
+    """Hub drag at hubs above the CoG: a pure roll rate decays, initially at the hand-derived
+    rate k*sum(w)*hub_z^2/Jx; without the effect it does not decay."""
+    veh = crazyflie()
+    k = 1e-5
+    w = np.full(4, veh.w_hover)
+    s0 = _level(veh, w, omega=(3.0, 0.0, 0.0))
+    d = Dynamics(veh, Effects(rotor_drag_hub=k)).rhs(0.0, s0, w)
+    assert d[15] == pytest.approx(-k * w.sum() * veh.hub_z ** 2 * 3.0 / veh.inertia[0], rel=1e-9)
+    with_drag = simulate_open_loop(veh, s0, w, 0.15, effects=Effects(rotor_drag_hub=k))
+    without = simulate_open_loop(veh, s0, w, 0.15)
+    p_with, p_without = with_drag["s"][-1, 15], without["s"][-1, 15]
+    assert p_without == pytest.approx(3.0, rel=1e-6)
+    assert 0 < p_with < 0.95 * p_without
+    # and a horizontal body velocity is braked in proportion to rotor speed
+    s1 = pack([0, 0, -1], [1.0, 0, 0], np.eye(3), np.zeros(3), w)
+    d = Dynamics(veh, Effects(rotor_drag_hub=k)).rhs(0.0, s1, w)
+    assert d[3] == pytest.approx(-k * w.sum() * 1.0 / veh.mass, rel=1e-9)
+
+
+def test_ground_effect_raises_thrust_near_ground():
+    veh = crazyflie()
+    w = np.full(4, veh.w_hover)
+    h_cog = 0.02
+    s = _level(veh, w, height=h_cog)
+    d_ge = Dynamics(veh, Effects(ground_effect=True)).rhs(0.0, s, w)
+    d_no = Dynamics(veh).rhs(0.0, s, w)
+    h_hub = h_cog - veh.hub_z
+    f = 1 / (1 - (veh.rotor_radius / (4 * h_hub)) ** 2)
+    assert d_no[5] == pytest.approx(0.0, abs=1e-9)
+    assert d_ge[5] == pytest.approx(veh.gravity * (1 - f), rel=1e-9)
+    assert d_ge[5] < 0                                      # pushed up (NED)
+    # far from the ground the factor is ~1; on it, capped at 2
+    dyn = Dynamics(veh, Effects(ground_effect=True))
+    assert dyn.ground_factor(np.array([0, 0, -5.0]), np.eye(3)) == pytest.approx(np.ones(4), abs=1e-5)
+    assert np.all(dyn.ground_factor(np.array([0, 0, 0.1]), np.eye(3)) == 2.0)
+    # closed loop: the same hover needs slower rotors low than high
+    low = crazyflie(start_height=0.03)
+    fl_lo = simulate_flight(low, 1.0, 0, ground_effect=True, manoeuvres="hover")
+    fl_hi = simulate_flight(low, 1.0, 0, ground_effect=False, manoeuvres="hover")
+    assert fl_lo.log.inputs.mean() < 0.995 * fl_hi.log.inputs.mean()
+
+
+def test_log_format_and_seeding():
+    fl = simulate_flight("crazyflie", duration=1.0, seed=7, manoeuvres="hover", pos_dropout=0.1,
+                         pos_gaps=[(0.5, 0.6)])
+    log = fl.log
+    assert log.input_names == ["w1", "w2", "w3", "w4"]
+    assert log.output_names == ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
+    assert len(log) == 501 and np.allclose(np.diff(log.t), 0.002)
+    x = log.output("x")
+    assert 70 <= np.isfinite(x).sum() <= 101                 # 100 Hz with 10 % dropouts
+    assert not np.any(np.isfinite(x[(log.t >= 0.5) & (log.t <= 0.6)]))
+    assert np.all(np.isfinite(log.output("phi")))
+    assert np.all(np.isfinite(log.inputs))
+    again = simulate_flight("crazyflie", duration=1.0, seed=7, manoeuvres="hover", pos_dropout=0.1,
+                            pos_gaps=[(0.5, 0.6)])
+    assert np.array_equal(np.isnan(log.outputs), np.isnan(again.log.outputs))
+    assert np.allclose(np.nan_to_num(log.outputs), np.nan_to_num(again.log.outputs))
+    other = simulate_flight("crazyflie", duration=1.0, seed=8, manoeuvres="hover")
+    assert not np.allclose(np.nan_to_num(log.outputs[:, 3]), np.nan_to_num(other.log.outputs[:, 3]))
+    # psi is logged wrapped to (-pi, pi]
+    fl = simulate_flight("crazyflie", duration=0.2, seed=0, manoeuvres="hover", psi0=math.pi - 0.001)
+    assert np.all(np.abs(fl.log.output("psi")) <= math.pi)
+
+
+def test_airframe_dict_is_accepted():
+    from greybox.airframe import airframe_from_dict
+    af = airframe_from_dict(fs.airframe_dict(crazyflie(), K_T_guess_factor=1.3))
+    assert af.layout == "x" and af.mass == pytest.approx(0.0325)
+    assert af.parameters["K_T"] == pytest.approx(1.3 * 2.3e-8)
+    truth = simulate_flight("one_kg", 0.2, 0, manoeuvres="hover").truth
+    af = airframe_from_dict(truth["airframe"])
+    assert af.parameters["K_T"] == 2e-5 and af.parameters["b"] == 5e-7
+
+
+def test_save_round_trip(tmp_path):
+    from greybox.airframe import load_airframe
+    from greybox.data import load_log
+    fl = simulate_flight("crazyflie", 0.5, 2, manoeuvres="hover", accel=True, pos_dropout=0.2)
+    paths = fl.save(tmp_path)
+    log = load_log(paths["log"])
+    assert np.allclose(log.inputs, fl.log.inputs)
+    assert np.array_equal(np.isnan(log.outputs), np.isnan(fl.log.outputs))
+    assert set(log.extras) == {"ax", "ay", "az"}
+    assert np.nanmean(log.extras["az"]) == pytest.approx(-9.81, abs=0.05)   # hover: -g
+    af = load_airframe(paths["airframe"])
+    assert af.parameters["K_T"] == pytest.approx(2.3e-8) and af.layout == "x"
