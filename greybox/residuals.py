@@ -6,16 +6,13 @@ and the diagnosis (where does the model fail, how coloured is the error).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
 from .data import FlightLog
 from .integrate import n_substeps, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .fitting import FitResult
 
 __all__ = ["fitted_trajectory", "output_residuals", "whiteness_fraction", "long_run_factor",
            "WHITENESS_LAGS"]
@@ -24,10 +21,12 @@ WHITENESS_LAGS = 30
 """Autocorrelation lags (in measured samples) examined by :func:`whiteness_fraction`."""
 
 
-def fitted_trajectory(model: QuadrotorModel, res: "FitResult", log: FlightLog, flight: int = 0
+def fitted_trajectory(model: QuadrotorModel, res: Any, log: FlightLog, flight: int = 0
                       ) -> tuple[np.ndarray, np.ndarray]:
     """States and outputs at every sample of ``log`` (flight number ``flight`` of the fit),
-    integrated over each shooting interval from the fitted node states."""
+    integrated over each shooting interval from the fitted node states. ``res`` is a
+    :class:`~greybox.fitting.FitResult`, or anything with its ``p``, ``node_states``,
+    ``node_index`` and ``interval``."""
     log = model.prepare_log(log)
     nodes, idx = res.node_states[flight], res.node_index[flight]
     N = res.interval
