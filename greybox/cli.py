@@ -168,8 +168,10 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
     """The contract's fit JSON, with extra detail (status, correlations, warnings)."""
     params = {}
     for name, v in res.parameters.items():
-        entry = {"value": v["value"], "std": v["std"] if v["std"] is not None else 0.0}
-        if v["std"] is None:
+        std = v["std"]
+        # fixed: std 0; free but not determined (non-positive variance): null, never NaN in JSON
+        entry = {"value": v["value"], "std": 0.0 if std is None else (std if np.isfinite(std) else None)}
+        if std is None:
             entry["fixed"] = True
         params[name] = entry
     out = {"parameters": params, "effects": model.effect_names}
@@ -178,6 +180,7 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
     out.update({"converged": res.converged, "status": res.status, "iterations": res.iterations,
                 "free": res.free_names, "correlation": res.correlation.tolist(),
                 "noise": res.sigma, "residual_rms": res.residual_rms, "warnings": res.warnings,
+                "certificate": res.certificate.as_dict() if res.certificate is not None else None,
                 "time_s": res.timings.get("total")})
     return out
 

@@ -162,6 +162,9 @@ def test_fit_cli_json_contract(paper_model, flight, tmp_path, paper_airframe_pat
     assert set(r["validation"]["channels"]) >= {"x", "y", "z", "phi", "theta", "psi"}
     assert r["validation"]["nrmse"] == pytest.approx(np.mean(list(r["validation"]["channels"].values())))
     assert (tmp_path / "plots" / "compare.png").exists()
+    cert = r["certificate"]
+    assert cert["optimal"] is True and cert["adequate"] is True and cert["step_over_std"] < 0.1
+    assert set(cert["residual_over_noise"]) >= {"x", "psi"} and "optimum certified" in cert["text"]
 
 
 @pytest.mark.parametrize("rows, message", [
