@@ -164,9 +164,6 @@ logs a tiny systematic error is already far outside the whiteness band; it is no
 failure of the model."""
 MAX_RESTARTS = 2
 """Times a fit whose end point is not certified is solved on from there."""
-MAX_PARAMETER_STEP = 0.5
-"""Largest change of a parameter in one Gauss-Newton iteration, relative to its scale (its
-starting value): a trust region that keeps a poor linearisation from throwing the fit off."""
 WHITENESS_ADEQUATE = 0.2
 """Fraction of autocorrelation lags outside the 99 % band up to which residuals count as white."""
 
@@ -767,11 +764,7 @@ class _Session:
             else:
                 merit0 = cost + float((rho * np.abs(c)).sum())
                 slope = float((gg * dz).sum()) - float((rho * np.abs(c)).sum())
-            # a trust region on the parameters (scaled by their starting values): a linearisation
-            # far from the optimum can ask for a sign change or a tenfold value in one step
-            big = float(np.max(np.abs(dth))) if self.nth else 0.0
-            alpha = min(1.0, MAX_PARAMETER_STEP / big) if big > 0 else 1.0
-            accepted, trial = False, None
+            alpha, accepted, trial = 1.0, False, None
             for ls in range(14):
                 # projected step: parameters are clipped onto their bounds
                 Xt, tht = X + alpha * dX, np.clip(th + alpha * dth, self.lo_s, self.hi_s)

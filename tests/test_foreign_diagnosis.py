@@ -74,3 +74,21 @@ def test_one_kg_per_rotor_ground_effect_is_named():
     top = d.ranking[0]
     assert top.channels_after["z"] < d.baseline_prediction.nrmse["z"]
     assert top.explained is not None and top.explained > 0.5
+
+
+@pytest.mark.slow
+def test_one_kg_weak_rotor_is_named_and_its_deviations_recovered():
+    """Rotor 3 at 90 % (thrust and reaction torque): greybox's K_T_dev are deviations from the
+    mean, d_i = g_i / mean(g) - 1, and K_T is the mean rotor's coefficient."""
+    gains = np.array([1.0, 1.0, 0.9, 1.0])
+    est, val = _flights(one_kg(), motor_gains=list(gains), motor_gains_torque=True)
+    d = diagnose(_model(one_kg()), est.log, validation=val.log, iterate=False)
+    assert d.baseline_certified and d.verdict == "motor_asymmetry", d.summary()
+    top = d.ranking[0]
+    assert top.explained > 0.9
+    f = top.fit
+    dev = gains / gains.mean() - 1
+    for i in range(3):
+        v, s = f.value(f"K_T_dev[{i}]"), f.std[f.free_names.index(f"K_T_dev[{i}]")]
+        assert abs(v - dev[i]) < max(3 * s, 1e-3), (i, v, dev[i], s)
+    assert f.value("K_T") == pytest.approx(est.truth["K_T"] * gains.mean(), rel=0.01)
