@@ -618,7 +618,14 @@ def _negligible(fr: FitResult, effect: str) -> str:
     """Words saying that the fitted parameters of ``effect`` are physically negligible (all
     below :data:`NEGLIGIBLE_FRACTION` of their plausible magnitude for the airframe), or ""."""
     model = fr.model
-    kt = fr.value("K_T") if "K_T" in model.param_names else model.default_parameters()[0]
+    # the vehicle's size sets the plausible magnitudes: the airframe's K_T when the fit's is
+    # not positive (a compensating refit can push it onto its bound)
+    kt = fr.value("K_T") if "K_T" in model.param_names else 0.0
+    if not kt > 0:
+        kt = float(model.default_parameters()[model.param_names.index("K_T")]) \
+            if "K_T" in model.param_names else 0.0
+    if not kt > 0:
+        return ""
     plausible = fx.example_values(effect, model.airframe, kt)
     parts = []
     for par in model.parameters:
