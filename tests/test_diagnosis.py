@@ -169,3 +169,41 @@ def test_demo_finds_the_hidden_ground_effect(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "validation flight demo_ground_effect_validation.csv" in out and "verdict: ground_effect" in out
     assert (tmp_path / "rep" / "report.html").exists()
+
+
+def test_a_physically_negligible_effect_is_judged_against_the_airframe_size(paper):
+    """A CoG offset of 50 um is nothing on the paper's 1 kg quad (plausible ~1 cm) but not on
+    a 30 g one with 46 mm arms (1 % of its plausible ~2.8 mm is 28 um); nanometres are nothing
+    anywhere. Such an effect is never the verdict, whatever its likelihood ratio."""
+    from types import SimpleNamespace
+    from greybox import effects
+    from greybox.airframe import airframe_from_dict
+    from greybox.diagnosis import _negligible
+    small = QuadrotorModel(airframe_from_dict({"airframe": {"mass": 0.03, "inertia": [1.4e-5, 1.4e-5, 2.2e-5],
+                                                            "arm_length": 0.046, "layout": "x"},
+                                               "parameters": {"K_T": 2.3e-8, "b": 1.4e-10}}))
+
+    def fitted(model, r_cog):
+        m = model + effects.by_name("cog_offset")
+        p = m.parameter_vector({"r_cog": r_cog})
+        return SimpleNamespace(model=m, value=lambda n: float(p[m.param_names.index(n)]))
+
+    assert _negligible(fitted(paper, [5e-5, 0.0]), "cog_offset").startswith("r_cog[0] = 5e-05 m")
+    assert _negligible(fitted(small, [5e-5, 0.0]), "cog_offset") == ""
+    assert _negligible(fitted(small, [1e-9, -1e-9]), "cog_offset") != ""
+    assert _negligible(fitted(paper, [0.01, 0.0]), "cog_offset") == ""
+
+
+def test_explained_fraction_is_the_share_of_the_residual_above_the_noise_removed():
+    """(rms/noise)^2 - 1 summed over channels: x at 3x the noise and y at the noise leave an
+    excess of 8; bringing x to 2x leaves 3, i.e. 62.5 % explained; to the noise, 100 %."""
+    from types import SimpleNamespace
+    from greybox.diagnosis import _explained_fraction
+
+    def res(ratios):
+        return SimpleNamespace(certificate=SimpleNamespace(residual_over_noise=ratios))
+
+    base = res({"x": 3.0, "y": 1.0})
+    assert _explained_fraction(base, res({"x": 2.0, "y": 1.0})) == pytest.approx(0.625)
+    assert _explained_fraction(base, res({"x": 1.0, "y": 0.9})) == pytest.approx(1.0)
+    assert _explained_fraction(res({"x": 1.0}), res({"x": 1.0})) is None     # nothing to explain
