@@ -65,6 +65,7 @@ MIN_VALIDATION_GAIN = 0.05
 (while the total nrmse may not rise by more than :data:`MAX_VALIDATION_LOSS`)."""
 MAX_VALIDATION_LOSS = 0.01
 N_REFIT = 4
+"""Candidates refitted after screening (the rest keep their screening statistic)."""
 NEGLIGIBLE_FRACTION = 0.01
 """An effect whose fitted parameters are all below this fraction of their physically plausible
 magnitude for the airframe (:func:`greybox.effects.example_values`) is negligible: never the
@@ -75,7 +76,6 @@ noise (and coloured) are reported as what the model misses beyond every candidat
 CONSISTENCY_Z = 3.0
 """A parameter whose estimates on the two halves of the estimation data differ by more than
 this many standard deviations (of the difference) is flagged as absorbing something else."""
-"""Candidates refitted after screening (the rest keep their screening statistic)."""
 
 DISTINGUISH = {
     frozenset({"linear_drag", "rotor_drag"}): "fly the same speeds at different thrust levels (climbing and "
@@ -277,14 +277,10 @@ class Diagnosis:
                      if top is not None and top.explained is not None else "")
             lines.append(f"   verdict: {self.verdict}{share}")
             if self.unexplained:
-                lines.append("   and the model still misses something no candidate explains: residuals in " +
-                             ", ".join(f"{ch} ({v:.3g}x the sensor noise)" for ch, v in self.unexplained.items()) +
-                             " stay far above the noise")
+                lines.append(f"   and the model still misses something no candidate explains: {self._far_off()}")
         elif self.unexplained:
-            lines.append("   verdict: null -- the model is missing something no candidate explains: residuals in " +
-                         ", ".join(f"{ch} ({v:.3g}x the sensor noise)" for ch, v in self.unexplained.items()) +
-                         " stay far above the noise and coloured" +
-                         (f"; {self.findings[0].text}" if self.findings else ""))
+            lines.append(f"   verdict: null -- the model is missing something no candidate explains: "
+                         f"{self._far_off()} and coloured" + (f"; {self.findings[0].text}" if self.findings else ""))
         elif not self.baseline_certified:
             lines.append("   verdict: null (cannot tell: the baseline fit is not certified)")
         else:
@@ -302,6 +298,10 @@ class Diagnosis:
                     lines.append(f"   {name} = {self.final_fit.value(name):.5g} ± {s:.2g}")
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
+
+    def _far_off(self) -> str:
+        return "residuals in " + ", ".join(f"{ch} ({v:.3g}x the sensor noise)" for ch, v in self.unexplained.items()) + \
+            " stay far above the noise"
 
     def report(self, directory: str | Path) -> Path:
         """Write ``report.html`` (plots embedded) and the plots as PNG files into ``directory``."""
@@ -631,8 +631,8 @@ def _negligible(fr: FitResult, effect: str) -> str:
     for par in model.parameters:
         if par.effect != effect:
             continue
-        ref = np.abs(np.atleast_1d(np.asarray(plausible.get(par.name, par.scale / NEGLIGIBLE_FRACTION * 1e-3),
-                                              dtype=float)))
+        # no plausible size known: a tenth of the parameter's nominal scale
+        ref = np.abs(np.atleast_1d(np.asarray(plausible.get(par.name, 0.1 * par.scale), dtype=float)))
         ref = np.resize(np.max(ref), par.size)
         for comp, r in zip(par.component_names, ref):
             v = fr.value(comp) - par.null

@@ -841,7 +841,6 @@ class _Session:
         P = P[kkt.znodes[0] + nx + np.arange(nth)]
         return 0.5 * (P + P.T)
 
-
     def state_noise_scale(self, sensor: np.ndarray, X: np.ndarray) -> np.ndarray:
         """Per state, the size of a change the measurements could just see: the sensor noise
         of its channel (positions, angles, gyro), over one shooting interval for velocities
@@ -1129,11 +1128,9 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     # the residual check: RMS against the noise of the data, whiteness of the residual series.
     # With process noise the fitted states follow the data through the gaps, so residuals at
     # the nodes say nothing about the model: it is judged open loop instead, over intervals of
-    # the default length (50 ms) started from the smoothed states.
+    # the default length (50 ms) started from the fitted states.
     white: dict[str, list[float]] = {}
     sq: dict[str, list[float]] = {}
-    p_fit = p.copy()
-    p_fit[free_idx] = th * scale
     check_n = default_interval(logs) if soft else interval
     for f, log in enumerate(logs):
         nodes, idx = node_states[f], data.node_index[f]
@@ -1141,7 +1138,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             M = math.ceil(len(log) / check_n)
             idx = np.minimum(np.arange(M + 1) * check_n, len(log) - 1)
             nodes = nodes[idx]          # soft fits have a node at every sample
-        probe = FitResult(model, p_fit, free_names, np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0)), converged,
+        probe = FitResult(model, p_out, free_names, np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0)), converged,
                           status, 0, 0.0, 0, {}, {}, [nodes], [idx], interval=check_n)
         E = output_residuals(log, fitted_trajectory(model, probe, log, 0)[1])
         for c, n in enumerate(OUTPUTS):
