@@ -4,24 +4,49 @@ Main entry points::
 
     from greybox import load_airframe, QuadrotorModel, effects, load_log, simulate
     model = QuadrotorModel(load_airframe("quad.toml")) + effects.GroundEffect()
+
+The names below are imported on first use (PEP 562), so that ``import greybox`` and the
+command line start fast and an early Ctrl-C is handled by the CLI, not by an import.
 """
+from __future__ import annotations
+
+import importlib
+
 __version__ = "0.1.0"
 
-from . import effects  # noqa: E402
-from .airframe import Airframe, load_airframe  # noqa: E402
-from .data import FlightLog, load_log, save_log  # noqa: E402
-from .errors import GreyboxError, GreyboxInputError, SolverError  # noqa: E402
-from .integrate import simulate  # noqa: E402
-from .model import QuadrotorModel  # noqa: E402
-from .fitting import FitResult, GreyBoxEstimator, fit  # noqa: E402
-from .validation import Prediction, compare_plot, nrmse, predict, residual_plot  # noqa: E402
-from .diagnosis import Diagnosis, diagnose  # noqa: E402
-from .linearize import LinearModel, hover_trim, linearize  # noqa: E402
-from .control import dlqr, dlqry, reference_gain  # noqa: E402
-from .n4sid import StateSpaceModel, n4sid  # noqa: E402
+_EXPORTS = {
+    "effects": (".effects", None),
+    "Airframe": (".airframe", "Airframe"), "load_airframe": (".airframe", "load_airframe"),
+    "FlightLog": (".data", "FlightLog"), "load_log": (".data", "load_log"), "save_log": (".data", "save_log"),
+    "GreyboxError": (".errors", "GreyboxError"), "GreyboxInputError": (".errors", "GreyboxInputError"),
+    "SolverError": (".errors", "SolverError"),
+    "simulate": (".integrate", "simulate"),
+    "QuadrotorModel": (".model", "QuadrotorModel"),
+    "FitResult": (".fitting", "FitResult"), "GreyBoxEstimator": (".fitting", "GreyBoxEstimator"),
+    "fit": (".fitting", "fit"),
+    "Prediction": (".validation", "Prediction"), "compare_plot": (".validation", "compare_plot"),
+    "nrmse": (".validation", "nrmse"), "predict": (".validation", "predict"),
+    "residual_plot": (".validation", "residual_plot"),
+    "Diagnosis": (".diagnosis", "Diagnosis"), "diagnose": (".diagnosis", "diagnose"),
+    "LinearModel": (".linearize", "LinearModel"), "hover_trim": (".linearize", "hover_trim"),
+    "linearize": (".linearize", "linearize"),
+    "dlqr": (".control", "dlqr"), "dlqry": (".control", "dlqry"), "reference_gain": (".control", "reference_gain"),
+    "StateSpaceModel": (".n4sid", "StateSpaceModel"), "n4sid": (".n4sid", "n4sid"),
+}
 
-__all__ = ["effects", "Airframe", "load_airframe", "FlightLog", "load_log", "save_log",
-           "GreyboxError", "GreyboxInputError", "SolverError", "simulate", "QuadrotorModel",
-           "fit", "FitResult", "GreyBoxEstimator", "Prediction", "predict", "nrmse", "compare_plot",
-           "residual_plot", "diagnose", "Diagnosis", "linearize", "hover_trim", "LinearModel", "dlqr",
-           "dlqry", "reference_gain", "n4sid", "StateSpaceModel", "__version__"]
+__all__ = list(_EXPORTS) + ["__version__"]
+
+
+def __getattr__(name: str):
+    try:
+        module, attr = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'greybox' has no attribute {name!r}") from None
+    mod = importlib.import_module(module, __name__)
+    value = mod if attr is None else getattr(mod, attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -18,8 +18,8 @@ import numpy as np
 from . import __version__
 from . import effects as fx
 from .airframe import load_airframe
-from .data import FlightLog, atomic_write, read_csv_table, save_log
-from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError
+from .data import FlightLog, atomic_write, check_rotor_speed_units, check_sample_times, read_csv_table, save_log
+from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, raise_terminated
 from .integrate import simulate
 from .model import QuadrotorModel
 
@@ -27,9 +27,68 @@ __all__ = ["main"]
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # argparse's own usage errors: exit 2 as well
-        self.print_usage(sys.stderr)
-        raise GreyboxInputError(message)
+    def error(self, message: str) -> None:
+        # argparse's own usage errors: exit 2 as well, in one line that says where help is
+        raise GreyboxInputError(f"{message} (see '{self.prog} --help')")
+
+
+def _number_type(kind: str, low: float | None = None, high: float | None = None,
+                 integer: bool = False, low_open: bool = False, high_open: bool = False):
+    """An argparse ``type`` that accepts finite numbers in a range and names the rule otherwise."""
+    def convert(text: str):
+        try:
+            v = int(text) if integer else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if integer else 'a number'}") from None
+        if not np.isfinite(v):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+        if (low is not None and (v <= low if low_open else v < low)) or \
+                (high is not None and (v >= high if high_open else v > high)):
+            raise argparse.ArgumentTypeError(f"{text!r}: must be {kind}")
+        return v
+    convert.__name__ = kind   # argparse names the type in some messages
+    return convert
+
+
+_finite = _number_type("a finite number")
+_positive = _number_type("positive", 0.0, low_open=True)
+_non_negative = _number_type("zero or positive", 0.0)
+_probability = _number_type("in [0, 1)", 0.0, 1.0, high_open=True)
+_positive_int = _number_type("a positive integer", 1, integer=True)
+_digits = _number_type("between 3 and 17", 3, 17, integer=True)
+_seed = _number_type("zero or a positive integer", 0, integer=True)
+
+OUTPUT_OPTIONS = {"json": ("--json", "file"), "out": ("--out", "file"),
+                  "airframe_out": ("--airframe-out", "file"), "plots": ("--plots", "folder"),
+                  "report": ("--report", "folder"), "out_dir": ("--out-dir", "folder")}
+"""Options that name something the command writes: checked before any computation."""
+
+
+def check_output_path(path: str | Path, option: str, kind: str = "file") -> None:
+    """Raise a :class:`GreyboxInputError` naming ``option`` unless ``path`` can be written as a
+    ``kind`` (``"file"`` or ``"folder"``): a file must not be a folder, a folder not a file,
+    and the nearest existing folder above it must accept a new file (tried, not guessed)."""
+    import os
+    import tempfile
+    p = Path(path)
+    if kind == "file" and p.is_dir():
+        raise GreyboxInputError(f"{option} {path}: is a folder; give a file name")
+    if kind == "folder" and p.exists() and not p.is_dir():
+        raise GreyboxInputError(f"{option} {path}: exists and is not a folder")
+    if kind == "file" and str(path).endswith(("/", os.sep)):
+        raise GreyboxInputError(f"{option} {path}: names a folder; give a file name")
+    here = p if kind == "folder" else p.parent
+    here = Path(os.path.abspath(here))
+    while not here.exists():
+        here = here.parent
+    if not here.is_dir():
+        raise GreyboxInputError(f"{option} {path}: {here} is a file, not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".greybox-probe-", dir=here)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise GreyboxInputError(f"{option} {path}: cannot write in {here} ({e.strerror or e})") from None
 
 
 def write_json(path: str | Path, obj: object) -> None:
@@ -45,9 +104,12 @@ def parse_sets(items: Sequence[str] | None) -> dict[str, list[float]]:
             raise GreyboxInputError(f"--set {item!r}: expected NAME=VALUE")
         name, _, text = item.partition("=")
         try:
-            out[name.strip()] = [float(v) for v in text.split(",")]
+            vals = [float(v) for v in text.split(",")]
         except ValueError:
             raise GreyboxInputError(f"--set {item!r}: {text!r} is not a number or a comma list") from None
+        if not all(np.isfinite(vals)):
+            raise GreyboxInputError(f"--set {item!r}: {text!r} is not a finite number")
+        out[name.strip()] = vals
     return out
 
 
@@ -74,11 +136,13 @@ def _parse_x0(text: str | None) -> list[float] | None:
         raise GreyboxInputError(f"--x0 {text!r}: expected 12 comma-separated numbers") from None
     if len(vals) != 12:
         raise GreyboxInputError(f"--x0 needs 12 values (x,y,z,phi,theta,psi,vx,vy,vz,p,q,r), got {len(vals)}")
+    if not all(np.isfinite(vals)):
+        raise GreyboxInputError(f"--x0 {text!r}: every value must be a finite number")
     return vals
 
 
-def _read_inputs(path: str, model: QuadrotorModel) -> tuple[np.ndarray, np.ndarray]:
-    header, data = read_csv_table(path)
+def _read_inputs(path: str, model: QuadrotorModel, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    header, data, lines = read_csv_table(path, line_numbers=True)
     names = ["t"] + model.input_names
     for n in names:
         if n not in header:
@@ -89,19 +153,15 @@ def _read_inputs(path: str, model: QuadrotorModel) -> tuple[np.ndarray, np.ndarr
     bad = np.argwhere(np.isnan(M))
     if bad.size:
         r, c = bad[0]
-        raise GreyboxInputError(f"{path}: row {r + 2}, column {names[c]!r}: missing value")
+        raise GreyboxInputError(f"{path}: row {lines[r]}, column {names[c]!r}: missing value")
     t = M[:, 0]
-    k = np.flatnonzero(np.diff(t) <= 0)
-    if k.size:
-        raise GreyboxInputError(f"{path}: row {k[0] + 3}, column 't': time is not strictly increasing")
+    check_sample_times(t, path, lines)
     U = M[:, 1:]
     if model.inputs == "rotor_speeds":
-        from .data import MAX_ROTOR_SPEED
-        over = np.argwhere(np.abs(U) > MAX_ROTOR_SPEED)
-        if over.size:
-            r, c = over[0]
-            raise GreyboxInputError(f"{path}: row {r + 2}, column {model.input_names[c]!r}: rotor speed "
-                                    f"{U[r, c]:g} is not plausible in rad/s; is it RPM? rad/s = RPM * pi/30")
+        n_rot = model.airframe.n_rotors
+        for note in check_rotor_speed_units(U[:, :n_rot], model.input_names[:n_rot], path, lines):
+            print(f"note: {note}", file=sys.stderr)
+        model.check_rotor_speeds(U[:, :n_rot], p, path)
     return t, U
 
 
@@ -109,7 +169,7 @@ def _read_inputs(path: str, model: QuadrotorModel) -> tuple[np.ndarray, np.ndarr
 def cmd_simulate(args: argparse.Namespace) -> int:
     model = build_model(args.airframe, args.effects, args.without)
     p = model.parameter_vector(parse_sets(args.set))
-    t, U = _read_inputs(args.inputs, model)
+    t, U = _read_inputs(args.inputs, model, p)
     sim = simulate(model, t, U, p, _parse_x0(args.x0), method=args.integrator)
     log = FlightLog(t, U, model.input_names, sim.outputs, list(model.output_names))
     save_log(log, args.out)
@@ -186,12 +246,15 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
 
 
 def _load_fit_inputs(args: argparse.Namespace):
+    """Model, starting parameters (``--set``) and the log, each checked before any work."""
     model = build_model(args.airframe, args.effects, args.without)
-    return model, _load_model_log(model, args.log)
+    p0 = model.parameter_vector(parse_sets(args.set))
+    return model, p0, _load_model_log(model, args.log, p0)
 
 
-def _load_model_log(model: QuadrotorModel, path: str):
-    """A rotor-speed log checked against ``model``'s rotors and ready to fit."""
+def _load_model_log(model: QuadrotorModel, path: str, p0: np.ndarray):
+    """A rotor-speed log checked against ``model``'s rotors (and their plausible speeds with
+    parameters ``p0``) and ready to fit."""
     from .data import load_log
     log = load_log(path, inputs="rotor_speeds")
     for note in log.notes:
@@ -199,6 +262,7 @@ def _load_model_log(model: QuadrotorModel, path: str):
     if log.input_names != model.command_names:
         raise GreyboxInputError(f"{path}: has rotor speeds {','.join(log.input_names)} but the airframe "
                                 f"has {model.airframe.n_rotors} rotors")
+    model.check_rotor_speeds(log.inputs[:, :model.airframe.n_rotors], p0, path)
     log = model.prepare_log(log)
     log.check_fittable()
     return log
@@ -246,9 +310,9 @@ def cmd_vision(args: argparse.Namespace) -> int:
                             tilt_sigma=args.tilt_sigma, corner_sigma_px=args.corner_sigma)
     attitude = None
     if args.imu:
-        from .data import load_log
+        # t, phi, theta (psi optional): an attitude-only log will do, rotor speeds are not needed
         from .vision import imu_attitude
-        attitude = imu_attitude(load_log(args.imu, optional=("x", "y", "z", "psi")))
+        attitude = imu_attitude(args.imu)
     frames, n = read_frames(args.frames, timestamps=args.timestamps, fps=args.fps, t0=args.t0)
     res = tracker.run(frames, attitude=attitude, progress=not args.quiet and sys.stderr.isatty(), n_frames=n)
     if len(res.t) == 0:
@@ -300,9 +364,8 @@ def cmd_render(args: argparse.Namespace) -> int:
 def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting import fit
     from .validation import compare_plot, predict, residual_plot
-    model, log = _load_fit_inputs(args)
+    model, p0, log = _load_fit_inputs(args)
     est, val = log.split(0.8)
-    p0 = model.parameter_vector(parse_sets(args.set))
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # said below, once, as the error
         res = fit(model, est, free=_names(args.free), fixed=_names(args.fixed), p0=p0,
@@ -326,10 +389,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
-    model, log = _load_fit_inputs(args)
-    validation = _load_model_log(model, args.validation) if args.validation else None
+    model, p0, log = _load_fit_inputs(args)
+    validation = _load_model_log(model, args.validation, p0) if args.validation else None
     diag = diagnose(model, log, candidates=_names(args.candidates), iterate=not args.no_iterate,
-                    p0=model.parameter_vector(parse_sets(args.set)), progress=not args.quiet,
+                    p0=p0, progress=not args.quiet,
                     process_noise=args.process_noise, validation=validation)
     print(diag.summary())
     if args.report:
@@ -362,6 +425,8 @@ def _floats(text: str, n: int, opt: str) -> list[float]:
         raise GreyboxInputError(f"{opt} {text!r}: expected {n} comma-separated numbers") from None
     if len(vals) != n:
         raise GreyboxInputError(f"{opt} needs {n} values, got {len(vals)}")
+    if not all(np.isfinite(vals)):
+        raise GreyboxInputError(f"{opt} {text!r}: every value must be a finite number")
     return vals
 
 
@@ -399,20 +464,20 @@ def _parser() -> argparse.ArgumentParser:
     y.add_argument("--effects", help="hidden effects to add (comma list); unset parameters take plausible magnitudes")
     y.add_argument("--without", help="effects to remove from the base model")
     y.add_argument("--set", action="append", metavar="NAME=VALUE", help="true parameter value (repeatable)")
-    y.add_argument("--seed", type=int, default=0)
-    y.add_argument("--duration", type=float, default=50.0, help="s (default 50)")
-    y.add_argument("--rate", type=float, default=1000.0, help="log / IMU rate, Hz (default 1000)")
-    y.add_argument("--vision-rate", type=float, default=60.0, help="position rate, Hz (default 60)")
-    y.add_argument("--pos-noise", type=float, default=0.003, help="m (default 0.003)")
-    y.add_argument("--att-noise", type=float, default=0.003, help="rad (default 0.003)")
-    y.add_argument("--gyro-noise", type=float, default=0.005, help="rad/s; 0 leaves p,q,r out (default 0.005)")
-    y.add_argument("--input-noise", type=float, default=0.0, help="rad/s on logged rotor speeds")
-    y.add_argument("--dropout", type=float, default=0.05, help="probability of a missing vision frame")
-    y.add_argument("--excitation", type=float, default=0.03, help="relative RMS rotor-speed excitation")
-    y.add_argument("--altitude", type=float, default=1.0, help="hover height above ground, m")
+    y.add_argument("--seed", type=_seed, default=0)
+    y.add_argument("--duration", type=_positive, default=50.0, help="s (default 50)")
+    y.add_argument("--rate", type=_positive, default=1000.0, help="log / IMU rate, Hz (default 1000)")
+    y.add_argument("--vision-rate", type=_positive, default=60.0, help="position rate, Hz (default 60)")
+    y.add_argument("--pos-noise", type=_non_negative, default=0.003, help="m (default 0.003)")
+    y.add_argument("--att-noise", type=_non_negative, default=0.003, help="rad (default 0.003)")
+    y.add_argument("--gyro-noise", type=_non_negative, default=0.005, help="rad/s; 0 leaves p,q,r out (default 0.005)")
+    y.add_argument("--input-noise", type=_non_negative, default=0.0, help="rad/s on logged rotor speeds")
+    y.add_argument("--dropout", type=_probability, default=0.05, help="probability of a missing vision frame")
+    y.add_argument("--excitation", type=_non_negative, default=0.03, help="relative RMS rotor-speed excitation")
+    y.add_argument("--altitude", type=_positive, default=1.0, help="hover height above ground, m")
     y.add_argument("--manoeuvres", default="hover,step_x,step_y,step_z,yaw,fast,ground",
                    help="comma list from hover,step_x,step_y,step_z,yaw,fast,ground,sprint")
-    y.add_argument("--digits", type=int, default=17, help="significant digits in the CSV (default 17: exact)")
+    y.add_argument("--digits", type=_digits, default=17, help="significant digits in the CSV (default 17: exact)")
     y.add_argument("--json", help="write the truth (effects, parameters, seed) here")
     y.set_defaults(func=cmd_synth)
 
@@ -423,11 +488,11 @@ def _parser() -> argparse.ArgumentParser:
     _model_args(f, "starting value (repeatable)")
     f.add_argument("--free", help="comma list of parameters to fit (default: all that are free by default)")
     f.add_argument("--fixed", help="comma list of parameters to hold at their starting values")
-    f.add_argument("--interval", type=int, help="samples per shooting interval (default: nearest 50 ms)")
-    f.add_argument("--max-iter", type=int, default=60, help="Gauss-Newton iteration limit (default 60)")
+    f.add_argument("--interval", type=_positive_int, help="samples per shooting interval (default: nearest 50 ms)")
+    f.add_argument("--max-iter", type=_positive_int, default=60, help="Gauss-Newton iteration limit (default 60)")
     f.add_argument("--process-noise", choices=["auto"],
                    help="'auto': treat shooting gaps as process noise (real logs; see README)")
-    f.add_argument("--horizon", type=float, default=1.0, help="validation prediction horizon, s (default 1)")
+    f.add_argument("--horizon", type=_positive, default=1.0, help="validation prediction horizon, s (default 1)")
     f.add_argument("--plots", help="folder for compare/residual plots")
     f.add_argument("--quiet", action="store_true", help="no progress lines")
     f.add_argument("--json", help="write the result here")
@@ -455,7 +520,7 @@ def _parser() -> argparse.ArgumentParser:
                                    "A = df/dx, B = df/du (and C, D of the measurement map).")
     _model_args(z, "parameter value (repeatable)")
     z.add_argument("--at", help="hover position x,y,z (NED; default 0,0 and 1 m above the ground plane)")
-    z.add_argument("--psi", type=float, default=0.0, help="hover heading, rad (default 0)")
+    z.add_argument("--psi", type=_finite, default=0.0, help="hover heading, rad (default 0)")
     z.add_argument("--json", required=True, help="write the result here")
     z.set_defaults(func=cmd_linearize)
 
@@ -469,7 +534,7 @@ def _parser() -> argparse.ArgumentParser:
     nb.add_argument("file", help="NanoBench CSV")
     nb.add_argument("--out", required=True, help="flight log CSV to write")
     nb.add_argument("--airframe-out", help="also write a Crazyflie 2.1 airframe TOML here")
-    nb.add_argument("--mass", type=float, default=0.030, help="vehicle mass for the airframe, kg (default 0.030)")
+    nb.add_argument("--mass", type=_positive, default=0.030, help="vehicle mass for the airframe, kg (default 0.030)")
     nb.add_argument("--pwm-map", default="0.04076521,380.8359",
                     help="a,c of w[rad/s] = a*PWM + c (default: Förster 2015 Crazyflie map)")
     nb.add_argument("--held", choices=["interpolate", "hold"], default="interpolate",
@@ -485,14 +550,14 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--camera", required=True, help="camera / mirror / marker TOML")
     v.add_argument("--out", required=True, help="positions CSV to write (t,x,y,z,psi)")
     v.add_argument("--timestamps", help="CSV with a column t, one row per frame")
-    v.add_argument("--fps", type=float, help="frame rate, if no --timestamps (t = t0 + i/fps)")
-    v.add_argument("--t0", type=float, default=0.0, help="time of the first frame with --fps (default 0)")
-    v.add_argument("--max-reprojection", type=float, default=2.0, help="reject frames above this RMS, px (default 2)")
-    v.add_argument("--max-speed", type=float, default=10.0, help="reject jumps faster than this, m/s (default 10)")
+    v.add_argument("--fps", type=_positive, help="frame rate, if no --timestamps (t = t0 + i/fps)")
+    v.add_argument("--t0", type=_finite, default=0.0, help="time of the first frame with --fps (default 0)")
+    v.add_argument("--max-reprojection", type=_positive, default=2.0, help="reject frames above this RMS, px (default 2)")
+    v.add_argument("--max-speed", type=_positive, default=10.0, help="reject jumps faster than this, m/s (default 10)")
     v.add_argument("--imu", help="flight / IMU log with phi,theta (same clock): its tilt refines each pose "
                                  "(IMU-aided: millimetres instead of centimetres laterally)")
-    v.add_argument("--tilt-sigma", type=float, default=0.01, help="IMU roll/pitch accuracy, rad (default 0.01)")
-    v.add_argument("--corner-sigma", type=float, default=0.2, help="corner accuracy, px (default 0.2)")
+    v.add_argument("--tilt-sigma", type=_positive, default=0.01, help="IMU roll/pitch accuracy, rad (default 0.01)")
+    v.add_argument("--corner-sigma", type=_positive, default=0.2, help="corner accuracy, px (default 0.2)")
     v.add_argument("--quiet", action="store_true", help="no progress lines")
     v.add_argument("--json")
     v.set_defaults(func=cmd_vision)
@@ -504,7 +569,7 @@ def _parser() -> argparse.ArgumentParser:
     mg.add_argument("log", help="IMU / rotor-speed CSV (t, w1..wN, phi, theta[, psi, p, q, r]; x,y,z may be absent)")
     mg.add_argument("--vision", required=True, help="positions CSV from `greybox vision`")
     mg.add_argument("--out", required=True, help="flight log CSV to write")
-    mg.add_argument("--offset", type=float, default=0.0, help="seconds added to the vision times (clock offset)")
+    mg.add_argument("--offset", type=_finite, default=0.0, help="seconds added to the vision times (clock offset)")
     mg.add_argument("--psi", choices=["auto", "imu", "vision"], default="auto",
                     help="where the yaw comes from (auto: the log's if it has any, else vision's)")
     mg.set_defaults(func=cmd_merge)
@@ -515,12 +580,12 @@ def _parser() -> argparse.ArgumentParser:
     rd.add_argument("log", help="flight log with x,y,z,phi,theta,psi")
     rd.add_argument("--camera", required=True, help="camera / mirror / marker TOML")
     rd.add_argument("--out-dir", required=True, help="folder for the frames")
-    rd.add_argument("--fps", type=float, default=60.0, help="frame rate (default 60)")
-    rd.add_argument("--corner-noise", type=float, default=0.0, help="extra noise on the marker corner positions, px (default 0)")
-    rd.add_argument("--pixel-noise", type=float, default=2.0, help="image noise, grey levels (default 2)")
-    rd.add_argument("--exposure-time", type=float, default=0.0, help="motion blur exposure, s (default 0)")
-    rd.add_argument("--rolling-shutter", type=float, default=0.0, help="row readout time, s (default 0)")
-    rd.add_argument("--seed", type=int, default=0)
+    rd.add_argument("--fps", type=_positive, default=60.0, help="frame rate (default 60)")
+    rd.add_argument("--corner-noise", type=_non_negative, default=0.0, help="extra noise on the marker corner positions, px (default 0)")
+    rd.add_argument("--pixel-noise", type=_non_negative, default=2.0, help="image noise, grey levels (default 2)")
+    rd.add_argument("--exposure-time", type=_non_negative, default=0.0, help="motion blur exposure, s (default 0)")
+    rd.add_argument("--rolling-shutter", type=_non_negative, default=0.0, help="row readout time, s (default 0)")
+    rd.add_argument("--seed", type=_seed, default=0)
     rd.set_defaults(func=cmd_render)
 
     d = sub.add_parser("demo", help="the greybox story on bundled data",
@@ -538,9 +603,20 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    import signal
     ap = _parser()
     try:
+        previous = signal.signal(signal.SIGTERM, raise_terminated)
+        # Ctrl-C / kill -INT always interrupts, also when started in the background by a
+        # shell script (which starts its background jobs with SIGINT ignored)
+        previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
+    except ValueError:          # not the main thread (e.g. called from a worker): no handler
+        previous = previous_int = None
+    try:
         args = ap.parse_args(argv)
+        for attr, (option, kind) in OUTPUT_OPTIONS.items():
+            if getattr(args, attr, None) is not None:
+                check_output_path(getattr(args, attr), option, kind)
         with _warnings.catch_warnings():
             # a warning reaches a CLI user as one line, not as Python's file:line form
             _warnings.showwarning = _show_warning
@@ -551,6 +627,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except GreyboxError as e:
         print(f"greybox: failed: {e}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("greybox: interrupted", file=sys.stderr)
+        return 130
+    except Terminated:
+        print("greybox: terminated", file=sys.stderr)
+        return 143
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+            signal.signal(signal.SIGINT, previous_int)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -11,13 +11,18 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
+import warnings
 from pathlib import Path
 
 import casadi as ca
+import numpy as np
 
-__all__ = ["compiled", "precompile", "cache_dir", "compiler_available"]
+from .errors import CacheWarning
+
+__all__ = ["compiled", "precompile", "cache_dir", "compiler_available", "CacheWarning"]
 
 
 def cache_dir() -> Path:
@@ -46,52 +51,173 @@ def _lib_path(f: ca.Function, key: str | None, opt: str) -> Path:
     return cache_dir() / f"{f.name()}_{digest}.so"
 
 
-def _generate(f: ca.Function, tmp: str) -> Path:
-    src = Path(tmp) / f"{f.name()}.c"
-    cg = ca.CodeGenerator(str(src.name), {"with_header": False})
+def _generate(f: ca.Function, folder: str) -> Path:
+    # generate() writes into the given folder (with a trailing separator), no chdir needed
+    src = Path(folder) / f"{f.name()}.c"
+    cg = ca.CodeGenerator(src.name, {"with_header": False})
     cg.add(f)
-    cwd = os.getcwd()
-    os.chdir(tmp)
-    try:
-        cg.generate()
-    finally:
-        os.chdir(cwd)
+    cg.generate(str(folder) + os.sep)
     return src
+
+
+_warned: set[str] = set()
+
+
+def _note(text: str) -> None:
+    """Warn once per process (the CLI prints it as one ``greybox: warning:`` line)."""
+    if text not in _warned:
+        _warned.add(text)
+        warnings.warn(text, CacheWarning, stacklevel=3)
+
+
+def _compile_command(cc: str, opt: str, src: Path, out: Path) -> list[str]:
+    return [cc, opt, "-fPIC", "-shared", str(src), "-o", str(out), "-lm"]
+
+
+def _start_compiler(cmd: list[str], folder: Path) -> subprocess.Popen:
+    # its own process group, so that an interrupt can end the driver *and* its cc1/as/ld;
+    # its temporary files in our folder, which is removed whatever happens
+    env = dict(os.environ, TMPDIR=str(folder))
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True, env=env)
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    """End a compiler's whole process group: SIGTERM (gcc removes its files), then SIGKILL."""
+    for sig, wait in ((signal.SIGTERM, 2.0), (signal.SIGKILL, None)):
+        try:
+            os.killpg(proc.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            break
+        try:
+            proc.wait(timeout=wait)
+            break
+        except subprocess.TimeoutExpired:
+            continue
+    proc.wait()
+
+
+def _writable_cache() -> bool:
+    try:
+        cache_dir().mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".probe-", dir=cache_dir())
+        os.close(fd)
+        os.unlink(probe)
+        return True
+    except OSError as e:
+        _note(f"compile cache {cache_dir()} is not writable ({e.strerror or e}); using CasADi's "
+              "virtual machine (several times slower). Set GREYBOX_CACHE to a writable folder.")
+        return False
 
 
 def precompile(items: "list[tuple[ca.Function, str | None]]", workers: int = 2, opt: str = "-O1") -> None:
     """Compile several functions into the cache at once, ``workers`` compilers in parallel
-    (code generation is serial; the C compiler runs concurrently)."""
+    (code generation is serial; the C compiler runs concurrently). An interrupt kills every
+    compiler started (their whole process groups) before it propagates."""
     cc = compiler_available()
     if cc is None:
         return
     todo = [(f, _lib_path(f, key, opt)) for f, key in items]
     todo = [(f, lib) for f, lib in todo if not lib.exists()]
-    if not todo:
+    if not todo or not _writable_cache():
         return
-    cache_dir().mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory() as tmp:
-        jobs = []
-        for i, (f, lib) in enumerate(todo):
-            d = Path(tmp) / str(i)
-            d.mkdir()
-            jobs.append((_generate(f, str(d)), d / "lib.so", lib))
-        running: list = []
-        for src, out, lib in jobs:
-            while len(running) >= workers:
+    running: list = []
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            jobs = []
+            for i, (f, lib) in enumerate(todo):
+                d = Path(tmp) / str(i)
+                d.mkdir()
+                jobs.append((_generate(f, str(d)), d / "lib.so", lib))
+            for src, out, lib in jobs:
+                while len(running) >= workers:
+                    _finish(running.pop(0))
+                running.append((_start_compiler(_compile_command(cc, opt, src, out), Path(tmp)), out, lib))
+            while running:
                 _finish(running.pop(0))
-            running.append((subprocess.Popen([cc, opt, "-fPIC", "-shared", str(src), "-o", str(out), "-lm"],
-                                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL), out, lib))
-        for r in running:
-            _finish(r)
+    except BaseException:
+        for proc, _, _ in running:
+            _kill(proc)
+        raise
 
 
 def _finish(job) -> None:
     proc, out, lib = job
     if proc.wait() == 0 and out.exists():
-        tmp_lib = lib.with_suffix(f".{os.getpid()}.tmp")
+        _install(out, lib)
+
+
+def _install(out: Path, lib: Path) -> None:
+    # copy then rename: concurrent runs never load a half-written library
+    tmp_lib = lib.with_suffix(f".{os.getpid()}.tmp")
+    try:
         shutil.copyfile(out, tmp_lib)
         os.replace(tmp_lib, lib)
+    except OSError:
+        try:
+            tmp_lib.unlink()
+        except OSError:
+            pass
+
+
+def _build(f: ca.Function, lib: Path, cc: str, opt: str) -> bool:
+    """Compile ``f`` into ``lib``; False if the compiler fails. Interrupts kill the compiler."""
+    with tempfile.TemporaryDirectory() as tmp:
+        src = _generate(f, tmp)
+        out = Path(tmp) / "lib.so"
+        proc = _start_compiler(_compile_command(cc, opt, src, out), Path(tmp))
+        try:
+            rc = proc.wait(timeout=600)
+        except BaseException:      # interrupt, SIGTERM, timeout: no orphaned cc1 left behind
+            _kill(proc)
+            raise
+        if rc != 0 or not out.exists():
+            return False
+        _install(out, lib)
+        return lib.exists()
+
+
+def _load_checked(f: ca.Function, lib: Path, private: bool = False) -> ca.Function | None:
+    """The library's function if it is ``f``'s twin (same signature, same values at a test
+    point), else None: a corrupt or foreign file under a cache name is never used.
+
+    ``private`` loads a copy under a new name: the dynamic loader returns a library already
+    loaded under the same path, so a rebuilt file must not be loaded by its old name."""
+    path = lib
+    try:
+        if private:
+            path = lib.with_suffix(f".{os.getpid()}.{id(f)}.so")
+            shutil.copyfile(lib, path)
+        g = ca.external(f.name(), str(path))
+    except (RuntimeError, OSError):
+        return None
+    finally:
+        if private:
+            try:
+                path.unlink()     # the loaded mapping stays valid
+            except OSError:
+                pass
+    if g.n_in() != f.n_in() or g.n_out() != f.n_out():
+        return None
+    for i in range(f.n_in()):
+        if g.sparsity_in(i) != f.sparsity_in(i):
+            return None
+    for i in range(f.n_out()):
+        if g.sparsity_out(i) != f.sparsity_out(i):
+            return None
+    rng = np.random.default_rng(0)
+    args = [rng.uniform(0.5, 1.5, f.sparsity_in(i).nnz()) for i in range(f.n_in())]
+    args = [ca.DM(f.sparsity_in(i), a) for i, a in enumerate(args)]
+    try:
+        want = f.call(args)
+        got = g.call(args)
+    except RuntimeError:
+        return None
+    for a, b in zip(want, got):
+        a, b = np.asarray(a.nonzeros()), np.asarray(b.nonzeros())
+        if not np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
+            return None
+    return g
 
 
 def compiled(f: ca.Function, key: str | None = None, opt: str = "-O1") -> tuple[ca.Function, str]:
@@ -99,28 +225,32 @@ def compiled(f: ca.Function, key: str | None = None, opt: str = "-O1") -> tuple[
     or ``f`` itself (``how`` = ``"virtual machine"``) when no compiler works.
 
     ``key`` must determine ``f`` completely (with greybox's source, which is added); without
-    it the serialised function is hashed, which is exact but slower for large functions."""
+    it the serialised function is hashed, which is exact but slower for large functions.
+    A cached library is checked against ``f`` before use; a broken one is rebuilt. When the
+    cache cannot be written, a warning says so once and ``f`` runs as is."""
     cc = compiler_available()
     if cc is None:
         return f, "virtual machine"
     lib = _lib_path(f, key, opt)
-    how = "cached"
-    if not lib.exists():
-        how = "compiled"
+    broken = False
+    if lib.exists():
+        g = _load_checked(f, lib)
+        if g is not None:
+            return g, "cached"
+        broken = True
+        _note(f"compile cache: {lib.name} was broken or not this function's; rebuilt")
         try:
-            lib.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory() as tmp:
-                src = _generate(f, tmp)
-                out = Path(tmp) / "lib.so"
-                subprocess.run([cc, opt, "-fPIC", "-shared", str(src), "-o", str(out), "-lm"],
-                               check=True, capture_output=True, timeout=600)
-                # rename is atomic: concurrent fits never load a half-written library
-                tmp_lib = lib.with_suffix(f".{os.getpid()}.tmp")
-                shutil.copyfile(out, tmp_lib)
-                os.replace(tmp_lib, lib)
-        except (OSError, subprocess.SubprocessError):
-            return f, "virtual machine"
-    try:
-        return ca.external(f.name(), str(lib)), how
-    except RuntimeError:
+            lib.unlink()
+        except OSError:
+            pass
+    if not _writable_cache():
         return f, "virtual machine"
+    if not _build(f, lib, cc, opt):
+        _note("the C compiler failed on a generated function; using CasADi's virtual machine")
+        return f, "virtual machine"
+    g = _load_checked(f, lib, private=broken)
+    if g is None:
+        _note(f"compile cache: the library built for {f.name()} does not reproduce it; using "
+              "CasADi's virtual machine")
+        return f, "virtual machine"
+    return g, "compiled"

@@ -23,13 +23,29 @@ import numpy as np
 from .errors import GreyboxInputError
 
 __all__ = ["FlightLog", "load_log", "save_log", "read_csv_table", "atomic_write",
-           "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED"]
+           "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
+           "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units"]
 
 REQUIRED_OUTPUTS = ["x", "y", "z", "phi", "theta", "psi"]
 OPTIONAL_OUTPUTS = ["p", "q", "r"]
 MAX_ROTOR_SPEED = 8000.0
 """rad/s (about 76,000 RPM). Faster "rotor speeds" are taken for RPM or another unit."""
 MIN_FIT_SAMPLES = 50
+MAX_MEDIAN_STEP = 0.2
+"""s. A flight log samples its inputs at 5 Hz or faster (real ones at 50 Hz and more); a
+slower median step means the time column is in another unit (milliseconds, microseconds)."""
+MAX_GAP = 10.0
+"""s. A longer pause between two rows is refused (split the log there); shorter gaps are
+filled with held-input rows (see :meth:`FlightLog.fill_gaps`)."""
+MAX_DURATION = 6 * 3600.0
+"""s. Longer than any battery flight; a longer span is a unit mistake or a corrupt time stamp."""
+GAP_FILL_FACTOR = 3.0
+"""Steps longer than this many median steps are filled by :meth:`FlightLog.fill_gaps`."""
+OUTPUT_LIMITS = {"x": (1e5, "m"), "y": (1e5, "m"), "z": (1e5, "m"),
+                 "phi": (4 * math.pi, "rad"), "theta": (4 * math.pi, "rad"), "psi": (1e4, "rad"),
+                 "p": (1e3, "rad/s"), "q": (1e3, "rad/s"), "r": (1e3, "rad/s")}
+"""Largest plausible magnitude of each output; a larger value is a corrupt cell or a unit
+mistake (degrees for radians), named with its row rather than left to make a fit diverge."""
 
 
 @dataclass
@@ -134,6 +150,45 @@ class FlightLog:
         return FlightLog(tn, U, list(self.input_names), Y, list(self.output_names), extras,
                          list(self.notes), self.source)
 
+    def fill_gaps(self, factor: float = GAP_FILL_FACTOR) -> "FlightLog":
+        """The log with rows inserted in every step longer than ``factor`` median steps:
+        inputs and extras held, outputs not measured (NaN).
+
+        The model holds inputs between samples anyway, so this changes nothing it computes;
+        it only keeps the integrator's sub-step count (set by the longest step, and compiled
+        into every interval function) from being dictated by one dropout.
+        """
+        if len(self) < 3:
+            return self
+        dt = np.diff(self.t)
+        step = float(np.median(dt))
+        long = np.flatnonzero(dt > factor * step)
+        if long.size == 0:
+            return self
+        pieces = []
+        last = 0
+        for k in long:
+            pieces.append(np.arange(last, k + 1))
+            n_new = int(math.ceil(dt[k] / step)) - 1
+            pieces.append(np.full(n_new, -1 - k))   # marker: inserted after row k
+            last = k + 1
+        pieces.append(np.arange(last, len(self)))
+        src = np.concatenate(pieces)
+        inserted = src < 0
+        held = np.where(inserted, -1 - src, src)
+        t = self.t[held].copy()
+        # inserted times: evenly spaced inside their gap
+        for k in long:
+            sel = np.flatnonzero(src == -1 - k)
+            t[sel] = self.t[k] + dt[k] * (np.arange(1, sel.size + 1) / (sel.size + 1))
+        Y = self.outputs[held].copy()
+        Y[inserted] = np.nan
+        note = (f"{self.source or 'log'}: {long.size} gap(s) longer than {factor:g} median steps "
+                f"({step:.4g} s; the longest {dt.max():.4g} s at t = {self.t[long[np.argmax(dt[long])]]:.6g} s) "
+                f"filled with {int(inserted.sum())} rows of held inputs and no measurements")
+        return FlightLog(t, self.inputs[held], list(self.input_names), Y, list(self.output_names),
+                         {n: v[held] for n, v in self.extras.items()}, self.notes + [note], self.source)
+
     def check_fittable(self, min_samples: int = MIN_FIT_SAMPLES) -> None:
         """Raise a clear error if the log is too short or too sparse to fit a model to."""
         where = self.source or "log"
@@ -169,10 +224,12 @@ def atomic_write(path: str | Path, text: str) -> None:
         raise
 
 
-def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
+def read_csv_table(path: str | Path, line_numbers: bool = False):
     """Header and float matrix of a numeric CSV file; empty cells and ``nan`` become NaN.
 
-    Errors name the file, the line number and the column of the first bad cell.
+    With ``line_numbers``, also the line of the file each data row starts on (a quoted
+    cell may span lines), for messages that name a row. Errors name the file, the line
+    number and the column of the first bad cell.
     """
     path = Path(path)
     try:
@@ -181,11 +238,12 @@ def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
         raise GreyboxInputError(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError) as e:
         raise GreyboxInputError(f"{path}: cannot read: {e}") from None
-    rows = list(csv.reader(io.StringIO(text)))
+    rows, lines = _csv_rows(path, text)
     while rows and not any(c.strip() for c in rows[-1]):
         rows.pop()
     if not rows:
         raise GreyboxInputError(f"{path}: empty file (no header row)")
+    lines = lines[:len(rows)]
     header = [h.strip() for h in rows[0]]
     if any(not h for h in header):
         raise GreyboxInputError(f"{path}: row 1: empty column name in the header "
@@ -198,13 +256,13 @@ def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
             raise GreyboxInputError(f"{path}: row 1: column {h!r} appears twice")
         seen.add(h)
     data = np.empty((len(rows) - 1, len(header)))
-    for i, row in enumerate(rows[1:], start=2):
+    for k, (i, row) in enumerate(zip(lines[1:], rows[1:])):
         if len(row) != len(header):
             raise GreyboxInputError(f"{path}: row {i}: {len(row)} cells, the header has {len(header)}")
         for j, cell in enumerate(row):
             c = cell.strip()
             if c == "" or c.lower() == "nan":
-                data[i - 2, j] = np.nan
+                data[k, j] = np.nan
                 continue
             try:
                 v = float(c)
@@ -212,8 +270,68 @@ def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
                 raise GreyboxInputError(f"{path}: row {i}, column {header[j]!r}: not a number: {c!r}") from None
             if math.isinf(v):
                 raise GreyboxInputError(f"{path}: row {i}, column {header[j]!r}: infinite value {c!r}")
-            data[i - 2, j] = v
-    return header, data
+            data[k, j] = v
+    return (header, data, np.asarray(lines[1:], dtype=int)) if line_numbers else (header, data)
+
+
+def _csv_rows(path: Path, text: str) -> tuple[list[list[str]], list[int]]:
+    """Rows of a CSV text and the line each starts on; malformed CSV (an unbalanced quote, a
+    cell longer than the csv module allows) is one error naming the line."""
+    reader = csv.reader(io.StringIO(text))
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    start = 1
+    try:
+        for row in reader:
+            if reader.line_num > start and any("\n" in c or "\r" in c for c in row):
+                raise GreyboxInputError(
+                    f"{path}: row {start}: a quote (\") opened here is closed only on line "
+                    f"{reader.line_num}: unbalanced quote")
+            rows.append(row)
+            lines.append(start)
+            start = reader.line_num + 1
+    except csv.Error as e:
+        why = ("a cell longer than the CSV reader's limit (an unbalanced quote?)"
+               if "field limit" in str(e) else f"malformed CSV ({e})")
+        raise GreyboxInputError(f"{path}: row {start}: {why}") from None
+    return rows, lines
+
+
+def check_sample_times(t: np.ndarray, where: str, rows: np.ndarray | None = None) -> None:
+    """Raise a :class:`GreyboxInputError` naming the row if the time column is not a flight
+    log's: not strictly increasing, a median step above :data:`MAX_MEDIAN_STEP` (said to
+    look like milliseconds or microseconds when it does), a gap above :data:`MAX_GAP`, or a
+    span above :data:`MAX_DURATION`. ``rows[k]`` is the file line of sample ``k`` (default
+    ``k + 2``: a header line, one row per line)."""
+    t = np.asarray(t, dtype=float)
+    rows = np.arange(t.size) + 2 if rows is None else np.asarray(rows)
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise GreyboxInputError(f"{where}: row {rows[bad[0]]}, column 't': time is not a finite number")
+    if t.size < 2:
+        return
+    with np.errstate(over="ignore", invalid="ignore"):
+        dt = np.diff(t)
+    bad = np.flatnonzero(~(dt > 0))
+    if bad.size:
+        k = bad[0]
+        raise GreyboxInputError(f"{where}: row {rows[k + 1]}, column 't': time {t[k + 1]:.10g} is not "
+                                f"after the previous row's {t[k]:.10g} (t must be strictly increasing)")
+    step = float(np.median(dt))
+    if step > MAX_MEDIAN_STEP:
+        unit = (" - it looks like milliseconds: divide t by 1000" if 0.5 <= step <= 100 else
+                " - it looks like microseconds: divide t by 1e6" if 500 <= step <= 1e5 else "")
+        raise GreyboxInputError(f"{where}: column 't': median time step {step:.4g} s, but a flight log "
+                                f"samples at {1 / MAX_MEDIAN_STEP:g} Hz or faster{unit}")
+    k = int(np.argmax(dt))
+    if not np.isfinite(dt[k]) or dt[k] > MAX_GAP:
+        raise GreyboxInputError(f"{where}: row {rows[k + 1]}, column 't': time jumps by {dt[k]:.4g} s "
+                                f"from the previous row (longest gap allowed {MAX_GAP:g} s): a corrupt "
+                                "time stamp, or two flights in one file - split the log there")
+    span = t[-1] - t[0]
+    if not np.isfinite(span) or span > MAX_DURATION:
+        raise GreyboxInputError(f"{where}: column 't': the log spans {span:.4g} s, more than "
+                                f"{MAX_DURATION / 3600:g} h - is t in seconds?")
 
 
 def _is_number(s: str) -> bool:
@@ -238,7 +356,7 @@ def load_log(path: str | Path, inputs: str = "auto", optional: Iterable[str] = (
             ``("x", "y", "z")`` for an IMU log that vision positions will be merged into.
     """
     path = Path(path)
-    header, data = read_csv_table(path)
+    header, data, lines = read_csv_table(path, line_numbers=True)
     col = {h: j for j, h in enumerate(header)}
     if "t" not in col:
         raise GreyboxInputError(f"{path}: missing required column 't'")
@@ -275,31 +393,48 @@ def load_log(path: str | Path, inputs: str = "auto", optional: Iterable[str] = (
     for name in ["t"] + in_names:
         bad = np.flatnonzero(np.isnan(data[:, col[name]]))
         if bad.size:
-            raise GreyboxInputError(f"{path}: row {bad[0] + 2}, column {name!r}: missing value "
+            raise GreyboxInputError(f"{path}: row {lines[bad[0]]}, column {name!r}: missing value "
                                     "(time and inputs may never be missing)")
-    dt = np.diff(t)
-    bad = np.flatnonzero(dt <= 0)
-    if bad.size:
-        k = bad[0]
-        raise GreyboxInputError(f"{path}: row {k + 3}, column 't': time {t[k + 1]!r} is not after the "
-                                f"previous row's {t[k]!r} (t must be strictly increasing)")
+    check_sample_times(t, str(path), lines)
     U = data[:, [col[n] for n in in_names]]
+    notes = []
     if inputs == "rotor_speeds":
-        over = np.argwhere(np.abs(U) > MAX_ROTOR_SPEED)
-        if over.size:
-            r, c = over[0]
-            raise GreyboxInputError(
-                f"{path}: row {r + 2}, column {in_names[c]!r}: rotor speed {U[r, c]:g} is not "
-                f"plausible in rad/s (above {MAX_ROTOR_SPEED:g}); is it RPM? rad/s = RPM * pi/30")
+        notes += check_rotor_speed_units(U, in_names, str(path), lines)
     Y = np.column_stack([data[:, col[n]] if n in col else np.full(data.shape[0], np.nan)
                          for n in out_names])
+    for j, name in enumerate(out_names):
+        limit, unit = OUTPUT_LIMITS[name]
+        bad = np.flatnonzero(np.abs(Y[:, j]) > limit)
+        if bad.size:
+            hint = " - is it in degrees?" if unit == "rad" and abs(Y[bad[0], j]) < 400 else ""
+            raise GreyboxInputError(f"{path}: row {lines[bad[0]]}, column {name!r}: {Y[bad[0], j]:g} is not "
+                                    f"plausible in {unit} (|{name}| <= {limit:g}){hint}")
     used = {"t", *in_names, *out_names}
     extra_names = [h for h in header if h not in used]
     extras = {h: data[:, col[h]] for h in extra_names}
-    notes = []
     if extra_names:
         notes.append(f"{path}: ignored extra column(s) {', '.join(extra_names)} (kept as extras)")
-    return FlightLog(t, U, in_names, Y, out_names, extras, notes, str(path))
+    return FlightLog(t, U, in_names, Y, out_names, extras, notes, str(path)).fill_gaps()
+
+
+def check_rotor_speed_units(U: np.ndarray, names: list[str], where: str,
+                            rows: np.ndarray | None = None) -> list[str]:
+    """Refuse rotor speeds no rotor reaches in rad/s (naming the cell, asking whether they
+    are RPM); return notes on what is accepted but odd (negative speeds)."""
+    rows = np.arange(U.shape[0]) + 2 if rows is None else rows
+    over = np.argwhere(np.abs(U) > MAX_ROTOR_SPEED)
+    if over.size:
+        r, c = over[0]
+        raise GreyboxInputError(
+            f"{where}: row {rows[r]}, column {names[c]!r}: rotor speed {U[r, c]:g} is not "
+            f"plausible in rad/s (above {MAX_ROTOR_SPEED:g}); is it RPM? rad/s = RPM * pi/30")
+    neg = np.argwhere(U < 0)
+    if neg.size:
+        r, c = neg[0]
+        return [f"{where}: {len(np.unique(neg[:, 0]))} row(s) have negative rotor speeds (first: row "
+                f"{rows[r]}, column {names[c]!r}, {U[r, c]:g}); the model's thrust and torque go with "
+                "w^2 and do not reverse - if the sign encodes the spin direction, log magnitudes"]
+    return []
 
 
 def save_log(log: FlightLog, path: str | Path, extras: bool = True, digits: int = 17) -> None:
@@ -316,7 +451,8 @@ def save_log(log: FlightLog, path: str | Path, extras: bool = True, digits: int 
     buf = io.StringIO()
     buf.write(",".join(names) + "\n")
     for row in M:
-        buf.write(",".join(_fmt(v) for v in row) + "\n")
+        # time always exactly: rounded times could collide and the log would not load again
+        buf.write(repr(float(row[0])) + "," + ",".join(_fmt(v) for v in row[1:]) + "\n")
     atomic_write(path, buf.getvalue())
 
 

@@ -778,8 +778,8 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
                                 f"< {100 * MIN_VALIDATION_GAIN:.0f} % of the error in every channel)")
         else:
             cand.significant = True
-            cand.reason = f"p = {cand.p_value:.2g}; validation {best_ch} -{100 * falls[best_ch]:.0f} %, " \
-                          f"total -{100 * gain:.0f} %"
+            cand.reason = f"p = {cand.p_value:.2g}; validation {best_ch} {-100 * falls[best_ch]:+.0f} %, " \
+                          f"total {-100 * gain:+.0f} %"
         say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
             f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s)")
     for c in out:

@@ -26,3 +26,18 @@ class ConvergenceWarning(UserWarning):
 class AirframeWarning(UserWarning):
     """An airframe accepted with a doubt (e.g. inertias that break ``J1 + J2 >= J3`` within
     measurement error)."""
+
+
+class CacheWarning(UserWarning):
+    """The compile cache could not be used as is (not writable, a broken library rebuilt);
+    the work goes on, perhaps slower."""
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised like Ctrl-C's ``KeyboardInterrupt`` so the same clean-up runs (compilers
+    killed, temporary files removed, no output written)."""
+
+
+def raise_terminated(signum, frame) -> None:
+    """A SIGTERM handler: turn the signal into :class:`Terminated`."""
+    raise Terminated()

@@ -127,6 +127,18 @@ def simulate(model: QuadrotorModel, t: np.ndarray, inputs: np.ndarray, p: np.nda
     if x0.shape != (model.nx,):
         raise GreyboxInputError(f"x0 needs {model.nx} values, got {x0.size}")
 
+    if t.size > 2 and method == "rk4" and np.diff(t).max() > 3 * np.median(np.diff(t)):
+        # a long step would set the sub-step count of every step (it is compiled in): split
+        # long steps on a finer grid with the input held, and report the original samples
+        step = float(np.median(np.diff(t)))
+        n_in = np.maximum(np.ceil(np.diff(t) / step).astype(int), 1)
+        keep = np.concatenate([[0], np.cumsum(n_in)])
+        t_fine = np.concatenate([t[k] + np.arange(m) * (t[k + 1] - t[k]) / m
+                                 for k, m in enumerate(n_in)] + [t[-1:]])
+        fine = simulate(model, t_fine, np.repeat(U, np.append(n_in, 1), axis=0), p, x0, method,
+                        max_step, rtol, atol)
+        return Simulation(t, fine.states[keep], fine.outputs[keep], fine.state_names, fine.output_names)
+
     n = t.size
     X = np.empty((n, model.nx))
     X[0] = x0

@@ -37,7 +37,7 @@ BASE_STATES = ["x", "y", "z", "phi", "theta", "psi", "vx", "vy", "vz", "p", "q",
 OUTPUTS = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
 
 THRUST = Parameter("K_T", 1, 2e-5, "N/(rad/s)^2", 0.0, np.inf, 1e-5, 0.0, True,
-                   "rotor thrust coefficient", "base")
+                   "rotor thrust coefficient", "base", lower_exclusive=True)
 
 
 def rotation_matrix(phi, theta, psi):
@@ -237,6 +237,7 @@ class QuadrotorModel:
                 raise GreyboxInputError(
                     f"{self.airframe.source or 'airframe'}: parameter {name!r} needs "
                     f"{known[name].size} values, got {n}")
+            known[name].check_values(value, f"{self.airframe.source or 'airframe'}: [parameters]")
 
     def default_parameters(self) -> np.ndarray:
         """Flat parameter vector: the airframe's ``[parameters]`` where given, else defaults."""
@@ -259,6 +260,8 @@ class QuadrotorModel:
             if key in names:
                 if arr.size != 1:
                     raise GreyboxInputError(f"parameter {key!r} takes one value, got {arr.size}")
+                owner = self.parameters[self._component_owner(key)]
+                owner.check_values(arr[0], "parameter", component=key)
                 out[names.index(key)] = arr[0]
                 continue
             par = next((p for p in self.parameters if p.name == key), None)
@@ -270,8 +273,13 @@ class QuadrotorModel:
                 arr = np.full(par.size, arr[0])
             if arr.size != par.size:
                 raise GreyboxInputError(f"parameter {key!r} needs {par.size} values, got {arr.size}")
+            par.check_values(arr, "parameter")
             out[idx] = arr
         return out
+
+    def _component_owner(self, component: str) -> int:
+        """Index in :attr:`parameters` of the parameter a component name belongs to."""
+        return next(i for i, p in enumerate(self.parameters) if component in p.component_names)
 
     def parameter_dict(self, vector: np.ndarray) -> dict[str, float]:
         """``{component name: value}`` of a flat parameter vector."""
@@ -388,6 +396,28 @@ class QuadrotorModel:
     def output(self) -> ca.Function:
         """CasADi ``Function`` ``output(x, u, p, t) -> y`` (``OUTPUTS`` order)."""
         return self._ensure_built()[1]
+
+    ROTOR_SPEED_PLAUSIBLE_FACTOR = 5.0
+    """Logged rotor speeds typically above this many hover speeds (25 times the weight in
+    thrust) are refused as a unit mistake: RPM read as rad/s is 9.5 times."""
+
+    def check_rotor_speeds(self, w: np.ndarray, p: np.ndarray | None = None, where: str = "log") -> None:
+        """Raise a :class:`GreyboxInputError` if logged rotor speeds ``w`` (n, n_rotors) are far
+        above the hover speed the airframe's mass and ``K_T`` imply (RPM logged as rad/s)."""
+        w = np.abs(np.asarray(w, dtype=float))
+        if w.size == 0:
+            return
+        p = self.default_parameters() if p is None else p
+        typical = float(np.median(w.mean(axis=1)))
+        hover = self.hover_speed(p)
+        if typical > self.ROTOR_SPEED_PLAUSIBLE_FACTOR * hover:
+            ratio = typical / hover
+            raise GreyboxInputError(
+                f"{where}: columns {','.join(self.command_names[:w.shape[1]])}: the rotor speeds are "
+                f"typically {typical:.4g}, {ratio:.1f} times the hover speed {hover:.4g} rad/s that "
+                f"mass {self.airframe.mass:g} kg and K_T {p[self.param_names.index('K_T')]:.3g} imply "
+                f"(thrust {ratio ** 2:.0f} times the weight): are they RPM? rad/s = RPM * pi/30 "
+                "(or is K_T too large?)")
 
     def hover_speed(self, p: np.ndarray | None = None) -> float:
         """Equal rotor speed that balances gravity with the nominal ``K_T`` (level, no effects)."""

@@ -5,6 +5,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import GreyboxInputError
+
 __all__ = ["Parameter", "flat_names"]
 
 
@@ -22,6 +24,8 @@ class Parameter:
         null: value at which the parameter's effect vanishes (used by the diagnosis).
         free: whether fitting estimates it by default (else it is held fixed).
         description: one line for docs and reports.
+        lower_exclusive: the value must lie strictly above ``lower`` (e.g. ``K_T > 0``: a
+            rotor without thrust is not a model the fitter or the hover trim can use).
     """
 
     name: str
@@ -35,6 +39,21 @@ class Parameter:
     free: bool = True
     description: str = ""
     effect: str = field(default="base", compare=False)
+    lower_exclusive: bool = False
+
+    def check_values(self, values, where: str, component: str | None = None) -> None:
+        """Raise a :class:`GreyboxInputError` naming ``where`` if a value is not finite or
+        lies outside ``[lower, upper]`` (``(lower, upper]`` when ``lower_exclusive``)."""
+        arr = np.atleast_1d(np.asarray(values, dtype=float))
+        for i, v in enumerate(arr):
+            name = component or (self.name if arr.size == 1 else f"{self.name}[{i}]")
+            if not np.isfinite(v):
+                raise GreyboxInputError(f"{where}: {name} = {v:g} is not a finite number")
+            below = v <= self.lower if self.lower_exclusive else v < self.lower
+            if below or v > self.upper:
+                lo = "(" if self.lower_exclusive else "["
+                raise GreyboxInputError(f"{where}: {name} = {v:g} is outside its range "
+                                        f"{lo}{self.lower:g}, {self.upper:g}] ({self.unit or 'no unit'})")
 
     @property
     def component_names(self) -> list[str]:

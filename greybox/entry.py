@@ -1,0 +1,49 @@
+"""The ``greybox`` console script: signal handling first, then the (heavy) imports.
+
+Ctrl-C or SIGTERM at any moment, also while numpy, scipy and CasADi are still being
+imported, ends the run with one line and exit status 130 (143 for SIGTERM).
+"""
+from __future__ import annotations
+
+import os
+import signal
+import sys
+from typing import Sequence
+
+from .errors import Terminated, raise_terminated
+
+__all__ = ["run"]
+
+
+def run(argv: Sequence[str] | None = None) -> int:
+    """Install the signal handlers, import the CLI and run it (the process's entry point:
+    after an interrupt it ends the process itself, see below)."""
+    try:
+        signal.signal(signal.SIGTERM, raise_terminated)
+        # kill -INT interrupts also when a shell script started us in the background
+        # (which it does with SIGINT ignored)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    except ValueError:      # not the main thread
+        return _run(argv)
+    code = _run(argv)
+    if code in (130, 143):
+        # An interrupt that landed inside code an extension module ran through the C API
+        # (e.g. while CasADi was being imported) marks it "unhandled" for the interpreter,
+        # which would then kill itself with SIGINT at exit although we handled it: leave now,
+        # with our status (every clean-up has run: the exception went through it).
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def _run(argv: Sequence[str] | None) -> int:
+    try:
+        from .cli import main
+        return main(argv)
+    except KeyboardInterrupt:
+        print("greybox: interrupted", file=sys.stderr)
+        return 130
+    except Terminated:
+        print("greybox: terminated", file=sys.stderr)
+        return 143

@@ -1,0 +1,474 @@
+"""Every bad input, path, signal and cache state ends in one clear line (issue 16).
+
+Each test takes a valid file, breaks it the way a user or a disk would, and checks the
+contract's promise: exit status 2 and one ``greybox: error:`` line naming the problem (file,
+row, column or option), nothing written, no traceback, never a silent wrong result.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from greybox import codegen
+from greybox.cli import main
+from greybox.data import MAX_GAP, load_log, save_log
+from greybox.errors import CacheWarning, GreyboxInputError
+from greybox.integrate import simulate
+from greybox.model import QuadrotorModel
+from greybox.airframe import load_airframe
+
+DATA = resources.files("greybox") / "data"
+PAPER = str(DATA / "airframes" / "paper.toml")
+X_QUAD = str(DATA / "airframes" / "x_quad.toml")
+DEMO = str(DATA / "logs" / "demo_ground_effect.csv")
+
+
+def _lines(path: str | Path) -> list[str]:
+    return Path(path).read_text().splitlines()
+
+
+def _write(path: Path, lines: list[str]) -> Path:
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _cli(capsys, *argv: str) -> tuple[int, str]:
+    rc = main(list(argv))
+    err = capsys.readouterr().err
+    return rc, err
+
+
+def _one_error(err: str) -> str:
+    """The single ``greybox: error:`` line of ``err``."""
+    assert "Traceback" not in err
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("greybox: error: "), err
+    return lines[0]
+
+
+@pytest.fixture
+def short_log(tmp_path) -> Path:
+    """The first 3 s of the bundled demo log (paper airframe, 200 Hz)."""
+    lines = _lines(DEMO)
+    return _write(tmp_path / "short.csv", lines[:601])
+
+
+# ---------------------------------------------------------------- 1. malformed CSV
+def test_stray_quote_names_the_row(tmp_path):
+    lines = _lines(DEMO)[:200]
+    lines[2] = '"' + lines[2]
+    with pytest.raises(GreyboxInputError, match=r"row 3: .*(quote|limit)"):
+        load_log(_write(tmp_path / "q.csv", lines))
+
+
+def test_huge_cell_names_the_row(tmp_path):
+    lines = _lines(DEMO)[:50]
+    lines[5] += "1" * 200_000
+    with pytest.raises(GreyboxInputError, match=r"row 6: a cell longer"):
+        load_log(_write(tmp_path / "big.csv", lines))
+
+
+def test_quote_closed_on_a_later_line_names_where_it_opened(tmp_path):
+    lines = _lines(DEMO)[:50]
+    lines[3] = '"' + lines[3]
+    lines[6] = lines[6] + '"'
+    with pytest.raises(GreyboxInputError, match=r"row 4: a quote .* closed only on line 7"):
+        load_log(_write(tmp_path / "q2.csv", lines))
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.text(alphabet='0123456789.,-+e"\n\rnaNi \t x', max_size=60), max_size=40),
+       st.integers(0, 3), st.integers(0, 200_000))
+def test_fuzzed_csv_gives_only_greybox_errors(tmp_path, rows, big_row, big_len):
+    """Whatever the bytes, the loader returns a log or raises the project's own error."""
+    body = list(rows)
+    if body and big_len > 100_000:
+        body[big_row % len(body)] += "7" * big_len
+    path = tmp_path / "fuzz.csv"
+    path.write_text("t,w1,w2,w3,w4,x,y,z,phi,theta,psi\n" + "\n".join(body) + "\n")
+    try:
+        load_log(path)
+    except GreyboxInputError:
+        pass
+
+
+# ---------------------------------------------------------------- 2. time stamps
+def test_absurd_last_time_names_the_row(tmp_path):
+    lines = _lines(DEMO)[:300]
+    cells = lines[-1].split(",")
+    cells[0] = "1e308"
+    lines[-1] = ",".join(cells)
+    with pytest.raises(GreyboxInputError, match=r"row 300, column 't': time jumps by"):
+        load_log(_write(tmp_path / "t.csv", lines))
+
+
+def test_huge_gap_is_refused_with_the_row(tmp_path):
+    lines = _lines(DEMO)[:300]
+    for i in range(150, 300):
+        cells = lines[i].split(",")
+        cells[0] = repr(float(cells[0]) + 1e6)
+        lines[i] = ",".join(cells)
+    with pytest.raises(GreyboxInputError, match=r"row 151, column 't': time jumps by 1e\+06 s .*split"):
+        load_log(_write(tmp_path / "gap.csv", lines))
+
+
+@pytest.mark.parametrize("factor,unit", [(1e3, "milliseconds"), (1e6, "microseconds")])
+def test_time_in_another_unit_is_named(tmp_path, factor, unit):
+    lines = _lines(DEMO)[:300]
+    for i in range(1, 300):
+        cells = lines[i].split(",")
+        cells[0] = repr(float(cells[0]) * factor)
+        lines[i] = ",".join(cells)
+    with pytest.raises(GreyboxInputError, match=unit):
+        load_log(_write(tmp_path / "ms.csv", lines))
+
+
+def test_non_increasing_time_prints_plain_numbers(tmp_path):
+    lines = _lines(DEMO)[:50]
+    lines[10] = lines[9]
+    with pytest.raises(GreyboxInputError) as e:
+        load_log(_write(tmp_path / "dup.csv", lines))
+    assert "row 11" in str(e.value) and "np.float64" not in str(e.value)
+
+
+def test_a_moderate_gap_is_filled_with_held_rows_and_changes_nothing(tmp_path):
+    """A 0.8 s dropout: rows with the inputs held and no measurements are inserted (with a
+    note), so the integrator's step stays the log's; simulating the filled log gives the
+    same states at the original samples as simulating through the gap exactly."""
+    log = load_log(DEMO)
+    keep = np.r_[0:400, 560:800]                       # 0.8 s missing at 200 Hz
+    gappy = log.slice(0, 800)
+    gappy = type(log)(gappy.t[keep], gappy.inputs[keep], gappy.input_names, gappy.outputs[keep],
+                      gappy.output_names, source="gappy")
+    save_log(gappy, tmp_path / "gappy.csv")
+    filled = load_log(tmp_path / "gappy.csv")
+    assert any("filled with" in n for n in filled.notes)
+    assert np.diff(filled.t).max() <= 3 * np.median(np.diff(gappy.t)) + 1e-12
+    orig = np.searchsorted(filled.t, gappy.t)
+    assert np.array_equal(filled.t[orig], gappy.t)
+    assert np.array_equal(filled.inputs[orig], gappy.inputs)
+    assert np.isnan(np.delete(filled.outputs, orig, axis=0)).all()
+    # exact ZOH on a fine grid vs simulate()'s own splitting of the long step
+    model = QuadrotorModel(load_airframe(PAPER))
+    direct = simulate(model, gappy.t, gappy.inputs)
+    via_fill = simulate(model, filled.t, filled.inputs)
+    np.testing.assert_allclose(direct.states, via_fill.states[orig], rtol=1e-9, atol=1e-9)
+    assert MAX_GAP >= 1.0
+
+
+# ---------------------------------------------------------------- 3. rotor speed units
+def _rpm_log(tmp_path) -> Path:
+    log = load_log(DEMO).slice(0, 600)
+    log.inputs = log.inputs * 30 / np.pi           # ~3050 "rad/s": below the absolute limit
+    save_log(log, tmp_path / "rpm.csv")
+    return tmp_path / "rpm.csv"
+
+
+def test_rpm_below_the_absolute_limit_is_caught_against_the_airframe(tmp_path, capsys):
+    rpm = _rpm_log(tmp_path)
+    rc, err = _cli(capsys, "fit", str(rpm), "--airframe", PAPER, "--quiet", "--json", str(tmp_path / "o.json"))
+    assert rc == 2 and "RPM" in _one_error(err) and "hover speed" in err
+    assert not (tmp_path / "o.json").exists()
+    inputs = tmp_path / "inputs.csv"
+    log = load_log(rpm)
+    inputs.write_text("t,w1,w2,w3,w4\n" + "\n".join(
+        ",".join(f"{v!r}" for v in map(float, [t, *u])) for t, u in zip(log.t, log.inputs)) + "\n")
+    rc, err = _cli(capsys, "simulate", "--airframe", PAPER, "--inputs", str(inputs), "--out", str(tmp_path / "s.csv"))
+    assert rc == 2 and "RPM" in _one_error(err)
+    assert not (tmp_path / "s.csv").exists()
+
+
+def test_rad_s_with_a_rough_K_T_guess_is_not_taken_for_rpm(short_log, tmp_path, capsys):
+    """A starting K_T 10x too large puts the hover speed 3.2x lower: still accepted."""
+    model = QuadrotorModel(load_airframe(PAPER))
+    p = model.parameter_vector({"K_T": 10 * model.default_parameters()[0]})
+    model.check_rotor_speeds(load_log(short_log).inputs, p, "log")
+
+
+def test_negative_rotor_speeds_get_a_note(tmp_path):
+    lines = _lines(DEMO)[:100]
+    cells = lines[20].split(",")
+    cells[2] = "-" + cells[2]
+    lines[20] = ",".join(cells)
+    log = load_log(_write(tmp_path / "neg.csv", lines))
+    assert any("negative rotor speeds" in n and "row 21" in n and "'w2'" in n for n in log.notes)
+
+
+def test_absurd_output_value_names_the_cell(tmp_path):
+    lines = _lines(DEMO)[:100]
+    cells = lines[40].split(",")
+    cells[5] = "1e308"
+    lines[40] = ",".join(cells)
+    with pytest.raises(GreyboxInputError, match=r"row 41, column 'x': 1e\+308 is not plausible"):
+        load_log(_write(tmp_path / "out.csv", lines))
+
+
+def test_attitude_in_degrees_is_named(tmp_path):
+    lines = _lines(DEMO)[:100]
+    cells = lines[40].split(",")
+    cells[8] = "25.0"
+    lines[40] = ",".join(cells)
+    with pytest.raises(GreyboxInputError, match=r"column 'phi'.*degrees"):
+        load_log(_write(tmp_path / "deg.csv", lines))
+
+
+# ---------------------------------------------------------------- 4. output paths
+def _output_cases(tmp_path: Path):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    a_dir = tmp_path / "a_dir"
+    a_dir.mkdir()
+    return [
+        ("--json", str(a_dir), "is a folder"),
+        ("--json", str(a_file / "x.json"), "is a file, not a folder"),
+        ("--json", "/proc/x.json", "cannot write"),
+        ("--plots", str(a_file), "not a folder"),
+    ]
+
+
+def test_output_paths_fail_before_any_work(short_log, tmp_path, capsys, monkeypatch):
+    # an empty cache that must stay empty: nothing is compiled before the paths are checked
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("GREYBOX_CACHE", str(cache))
+    for option, path, words in _output_cases(tmp_path):
+        t0 = time.perf_counter()
+        rc, err = _cli(capsys, "fit", str(short_log), "--airframe", PAPER, "--quiet", option, path)
+        assert rc == 2 and option in _one_error(err) and words in err, (option, path, err)
+        assert time.perf_counter() - t0 < 2.0
+    rc, err = _cli(capsys, "diagnose", str(short_log), "--airframe", PAPER, "--quiet",
+                   "--report", str(tmp_path / "a_file"))
+    assert rc == 2 and "--report" in _one_error(err)
+    inputs = tmp_path / "in.csv"
+    inputs.write_text("t,w1,w2,w3,w4\n0,320,320,320,320\n0.01,320,320,320,320\n")
+    rc, err = _cli(capsys, "simulate", "--airframe", PAPER, "--inputs", str(inputs), "--out", str(tmp_path / "a_dir"))
+    assert rc == 2 and "--out" in _one_error(err)
+    assert not cache.exists() or not any(cache.iterdir())
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_folder_is_refused(short_log, tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        rc, err = _cli(capsys, "fit", str(short_log), "--airframe", PAPER, "--json", str(ro / "o.json"))
+        assert rc == 2 and "cannot write" in _one_error(err)
+    finally:
+        ro.chmod(0o755)
+
+
+# ---------------------------------------------------------------- 5. option values
+@pytest.mark.parametrize("argv,words", [
+    (["fit", "{log}", "--airframe", PAPER, "--horizon", "nan"], "--horizon"),
+    (["fit", "{log}", "--airframe", PAPER, "--horizon", "0"], "--horizon"),
+    (["fit", "{log}", "--airframe", PAPER, "--horizon", "-1"], "--horizon"),
+    (["fit", "{log}", "--airframe", PAPER, "--max-iter", "-1"], "--max-iter"),
+    (["fit", "{log}", "--airframe", PAPER, "--interval", "0"], "--interval"),
+    (["fit", "{log}", "--airframe", PAPER, "--set", "K_T=0"], "K_T = 0 is outside its range"),
+    (["fit", "{log}", "--airframe", PAPER, "--set", "K_T=nan"], "--set"),
+    (["fit", "{log}", "--airframe", PAPER, "--set", "K_T=inf"], "--set"),
+    (["fit", "{log}", "--airframe", PAPER, "--set", "Kd[1]=-1"], "Kd[1] = -1 is outside"),
+    (["linearize", "--airframe", PAPER, "--psi", "nan", "--json", "{out}"], "--psi"),
+    (["linearize", "--airframe", PAPER, "--at", "0,nan,-1", "--json", "{out}"], "--at"),
+    (["simulate", "--airframe", PAPER, "--inputs", "{log}", "--out", "{out}", "--x0", "0,0,nan,0,0,0,0,0,0,0,0,0"], "--x0"),
+    (["synth", "--airframe", PAPER, "--out", "{out}", "--digits", "0"], "--digits"),
+    (["synth", "--airframe", PAPER, "--out", "{out}", "--duration", "inf"], "--duration"),
+    (["synth", "--airframe", PAPER, "--out", "{out}", "--dropout", "1.5"], "--dropout"),
+    (["synth", "--airframe", PAPER, "--out", "{out}", "--seed", "-3"], "--seed"),
+])
+def test_bad_option_values_name_the_option(short_log, tmp_path, capsys, argv, words):
+    out = tmp_path / "out.json"
+    argv = [a.format(log=short_log, out=out) for a in argv]
+    rc, err = _cli(capsys, *argv)
+    assert rc == 2 and words in _one_error(err), err
+    assert not out.exists()
+
+
+def test_airframe_with_negative_K_T_is_refused(tmp_path, capsys):
+    text = Path(X_QUAD).read_text().replace("K_T = 1.8e-5", "K_T = -1.8e-5")
+    af = tmp_path / "neg.toml"
+    af.write_text(text)
+    rc, err = _cli(capsys, "linearize", "--airframe", str(af), "--json", str(tmp_path / "o.json"))
+    assert rc == 2 and "neg.toml" in _one_error(err) and "K_T = -1.8e-05 is outside" in err
+
+
+def test_synth_with_few_digits_writes_a_log_greybox_loads(tmp_path, capsys):
+    rc, _ = _cli(capsys, "synth", "--airframe", PAPER, "--out", str(tmp_path / "s.csv"),
+                 "--digits", "3", "--duration", "2", "--rate", "500")
+    assert rc == 0
+    assert len(load_log(tmp_path / "s.csv")) == 1001
+
+
+# ---------------------------------------------------------------- 6. interrupts
+def _long_log(tmp_path: Path) -> Path:
+    out = tmp_path / "long.csv"
+    assert main(["synth", "--airframe", PAPER, "--out", str(out), "--duration", "40", "--seed", "3"]) == 0
+    return out
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+        return True
+    except ProcessLookupError:
+        return False
+
+
+def _processes_mentioning(text: str) -> list[str]:
+    out = subprocess.run(["ps", "axww", "-o", "args"], capture_output=True, text=True).stdout
+    return [l for l in out.splitlines() if text in l and not l.startswith("ps ")]
+
+
+@pytest.mark.parametrize("sig,when,rc_want,word", [
+    (signal.SIGINT, "compiling", 130, "interrupted"),
+    (signal.SIGINT, 1.5, 130, "interrupted"),
+    (signal.SIGINT, 4.0, 130, "interrupted"),
+    (signal.SIGTERM, "compiling", 143, "terminated"),
+])
+def test_interrupt_ends_cleanly(tmp_path, capsys, sig, when, rc_want, word):
+    """Exit 130 (143) with one line, no output file, no compiler left running, no temporary
+    folder left behind: at a given moment, or while the C compiler runs."""
+    if codegen.compiler_available() is None and when == "compiling":
+        pytest.skip("no C compiler")
+    log = _long_log(tmp_path)
+    capsys.readouterr()
+    scratch = tmp_path / "scratch"          # the run's TMPDIR: where its compilers work
+    scratch.mkdir()
+    env = dict(os.environ, GREYBOX_CACHE=str(tmp_path / "cache"), OPENBLAS_NUM_THREADS="1",
+               TMPDIR=str(scratch))
+    env.pop("GREYBOX_NO_COMPILE", None)
+    out = tmp_path / "o.json"
+    proc = subprocess.Popen([sys.executable, "-m", "greybox", "fit", str(log), "--airframe", PAPER,
+                             "--quiet", "--json", str(out)], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    if when == "compiling":
+        deadline = time.time() + 60
+        while not _processes_mentioning(str(scratch)) and proc.poll() is None and time.time() < deadline:
+            time.sleep(0.02)
+    else:
+        time.sleep(when)
+    if proc.poll() is not None:
+        proc.communicate()
+        pytest.skip("the fit finished before the signal")
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == rc_want, err
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert lines == [f"greybox: {word}"], err
+    assert not out.exists()
+    time.sleep(0.3)
+    assert not _group_alive(proc.pid)
+    assert not _processes_mentioning(str(scratch)), "a compiler of the run survived it"
+    assert not list(scratch.iterdir()), "temporary files left behind"
+    cache = tmp_path / "cache"
+    assert not (cache.exists() and list(cache.glob("*.tmp")))
+
+
+# ---------------------------------------------------------------- 7. compile cache
+def _tiny_function(name: str, k: float):
+    import casadi as ca
+    x = ca.SX.sym("x", 3)
+    return ca.Function(name, [x], [k * ca.sin(x) + x ** 2])
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    if codegen.compiler_available() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("GREYBOX_CACHE", str(tmp_path / "cache"))
+    codegen._warned.clear()
+    return tmp_path / "cache"
+
+
+def _replace(path: Path, data: bytes) -> None:
+    # a new file under the name (as another process would leave it): overwriting a library
+    # this process has mapped in place would crash it (SIGBUS), which no loader can prevent
+    tmp = path.with_suffix(".new")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def _value(f) -> np.ndarray:
+    return np.asarray(f(np.array([0.1, 0.2, 0.3]))).ravel()
+
+
+def _compile_elsewhere(cache: Path, name: str, k: float, key: str) -> None:
+    """Compile into the cache in another process (as an earlier run would have): a library
+    loaded in this process stays loaded under its path whatever happens to the file."""
+    code = (f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r}); "
+            f"from test_hardening import _tiny_function; from greybox import codegen; "
+            f"print(codegen.compiled(_tiny_function({name!r}, {k}), {key!r})[1])")
+    env = dict(os.environ, GREYBOX_CACHE=str(cache))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "compiled", out
+
+
+def test_garbage_cache_file_is_rebuilt_not_used_forever(cache):
+    f = _tiny_function("gb_test_a", 2.0)
+    _compile_elsewhere(cache, "gb_test_a", 2.0, "test-a")
+    lib = codegen._lib_path(f, "test-a", "-O1")
+    _replace(lib, b"garbage")
+    with pytest.warns(CacheWarning, match="rebuilt"):
+        g, how = codegen.compiled(f, "test-a")
+    assert how == "compiled" and np.allclose(_value(g), _value(f))
+    assert lib.read_bytes()[:4] == b"\x7fELF"       # healed for the next run
+
+
+def test_foreign_library_under_a_cache_name_is_never_used(cache):
+    f = _tiny_function("gb_test_b", 2.0)
+    _compile_elsewhere(cache, "gb_test_b", 5.0, "test-b-other")   # same name and shape, other values
+    lib_f = codegen._lib_path(f, "test-b", "-O1")
+    lib_o = codegen._lib_path(_tiny_function("gb_test_b", 5.0), "test-b-other", "-O1")
+    _replace(lib_f, lib_o.read_bytes())
+    with pytest.warns(CacheWarning, match="rebuilt"):
+        g, _ = codegen.compiled(f, "test-b")
+    np.testing.assert_allclose(_value(g), _value(f), rtol=1e-12)
+
+
+def test_unwritable_cache_falls_back_with_one_warning(tmp_path, monkeypatch):
+    if codegen.compiler_available() is None:
+        pytest.skip("no C compiler")
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    monkeypatch.setenv("GREYBOX_CACHE", str(blocker / "cache"))
+    codegen._warned.clear()
+    f = _tiny_function("gb_test_c", 1.0)
+    with pytest.warns(CacheWarning, match="not writable"):
+        g, how = codegen.compiled(f, "test-c")
+    assert how == "virtual machine" and g is f
+    codegen.precompile([(f, "test-c")])          # the diagnosis' path: no crash either
+
+
+def test_diagnose_runs_with_an_unwritable_cache(short_log, tmp_path, capsys, monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    monkeypatch.setenv("GREYBOX_CACHE", str(blocker / "cache"))
+    codegen._warned.clear()
+    rc, err = _cli(capsys, "diagnose", str(short_log), "--airframe", PAPER, "--quiet",
+                   "--candidates", "ground_effect", "--no-iterate", "--json", str(tmp_path / "d.json"))
+    assert rc == 0, err
+    assert "greybox: warning: compile cache" in err and "Traceback" not in err
+    assert json.loads((tmp_path / "d.json").read_text())["effects"]
+
+
+# ---------------------------------------------------------------- 8. warnings as one line
+def test_warnings_reach_the_terminal_as_one_line_without_source(tmp_path, capsys):
+    text = Path(X_QUAD).read_text().replace("inertia = [0.011, 0.012, 0.021]", "inertia = [0.011, 0.010, 0.022]")
+    af = tmp_path / "flat.toml"
+    af.write_text(text)
+    rc, err = _cli(capsys, "linearize", "--airframe", str(af), "--json", str(tmp_path / "o.json"))
+    assert rc == 0
+    warn = [l for l in err.splitlines() if "warning" in l]
+    assert warn and all(l.startswith("greybox: warning: ") for l in warn)
+    assert ".py:" not in err
