@@ -554,8 +554,9 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--t0", type=_finite, default=0.0, help="time of the first frame with --fps (default 0)")
     v.add_argument("--max-reprojection", type=_positive, default=2.0, help="reject frames above this RMS, px (default 2)")
     v.add_argument("--max-speed", type=_positive, default=10.0, help="reject jumps faster than this, m/s (default 10)")
-    v.add_argument("--imu", help="flight / IMU log with phi,theta (same clock): its tilt refines each pose "
-                                 "(IMU-aided: millimetres instead of centimetres laterally)")
+    v.add_argument("--imu", help="CSV with t,phi,theta (a flight log or an attitude-only log, same clock): its "
+                                 "tilt refines each pose (IMU-aided: millimetres instead of centimetres "
+                                 "laterally); frames outside its time span are vision-only, with a warning")
     v.add_argument("--tilt-sigma", type=_positive, default=0.01, help="IMU roll/pitch accuracy, rad (default 0.01)")
     v.add_argument("--corner-sigma", type=_positive, default=0.2, help="corner accuracy, px (default 0.2)")
     v.add_argument("--quiet", action="store_true", help="no progress lines")
