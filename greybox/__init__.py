@@ -11,6 +11,8 @@ command line start fast and an early Ctrl-C is handled by the CLI, not by an imp
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 
 __version__ = "0.1.0"
 
@@ -19,7 +21,8 @@ _EXPORTS = {
     "Airframe": (".airframe", "Airframe"), "load_airframe": (".airframe", "load_airframe"),
     "FlightLog": (".data", "FlightLog"), "load_log": (".data", "load_log"), "save_log": (".data", "save_log"),
     "GreyboxError": (".errors", "GreyboxError"), "GreyboxInputError": (".errors", "GreyboxInputError"),
-    "SolverError": (".errors", "SolverError"),
+    "SolverError": (".errors", "SolverError"), "ConvergenceWarning": (".errors", "ConvergenceWarning"),
+    "AirframeWarning": (".errors", "AirframeWarning"), "CacheWarning": (".errors", "CacheWarning"),
     "simulate": (".integrate", "simulate"),
     "QuadrotorModel": (".model", "QuadrotorModel"),
     "FitResult": (".fitting", "FitResult"), "GreyBoxEstimator": (".fitting", "GreyBoxEstimator"),
@@ -35,6 +38,22 @@ _EXPORTS = {
 }
 
 __all__ = list(_EXPORTS) + ["__version__"]
+
+# Functions named like their module (``linearize``, ``n4sid``): importing the submodule makes
+# the import system bind it to the package's attribute of that name, which would hide the
+# function (``from greybox import LinearModel, linearize`` gave the module). The function wins,
+# as it did when this file imported everything eagerly.
+_SHADOWED = {name for name, (module, attr) in _EXPORTS.items() if module == "." + name and attr}
+
+
+class _Package(types.ModuleType):
+    def __setattr__(self, name: str, value) -> None:
+        if name in _SHADOWED and isinstance(value, types.ModuleType):
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
 
 
 def __getattr__(name: str):

@@ -1,4 +1,4 @@
-"""Airframe description: mass, inertia, rotor geometry (contract §3).
+"""Airframe description: mass, inertia, rotor geometry (README, "Airframe (TOML)").
 
 An :class:`Airframe` holds the known physical constants of a vehicle and the initial
 guesses of the parameters to fit. It is read from TOML with :func:`load_airframe`; every
@@ -42,7 +42,7 @@ class Rotor:
 
 
 def rotors_for_layout(layout: str, arm_length: float) -> list[Rotor]:
-    """Rotor positions and spins of the contract's standard layouts ``plus`` and ``x``."""
+    """Rotor positions and spins of the standard layouts ``plus`` and ``x`` (README, "Conventions")."""
     l = float(arm_length)
     if layout == "plus":
         pos = [(l, 0.0, 0.0), (0.0, l, 0.0), (-l, 0.0, 0.0), (0.0, -l, 0.0)]
@@ -72,6 +72,14 @@ class Airframe:
         layout: "plus", "x" or "custom".
         parameters: initial guesses of model parameters by name (values or lists).
         source: file the airframe was read from, if any.
+
+    Example::
+
+        from greybox import load_airframe
+        af = load_airframe("greybox/data/airframes/paper.toml")
+        af.mass, af.inertia, af.n_rotors        # 1.0, 3x3 array, 4
+        af.rotor_positions, af.spins            # (4, 3) body FRD, m; +-1
+        af.parameters["K_T"]                    # the file's initial guess
     """
 
     mass: float
@@ -109,7 +117,7 @@ class Airframe:
         return np.vstack([np.ones(self.n_rotors), -P[:, 1], P[:, 0], self.spins])
 
     def to_toml(self) -> str:
-        """The airframe as TOML text in the contract's format (explicit rotors if custom)."""
+        """The airframe as TOML text in the format :func:`load_airframe` reads (explicit rotors if custom)."""
         lines = ["[airframe]", f'name = "{self.name}"', f"mass = {self.mass!r}"]
         J = self.inertia
         if np.allclose(J, np.diag(np.diag(J))):
@@ -263,7 +271,18 @@ def airframe_from_dict(doc: Mapping[str, Any], source: str = "<airframe>") -> Ai
 
 
 def load_airframe(path: str | Path) -> Airframe:
-    """Read and validate an airframe TOML file (contract §3)."""
+    """Read and validate an airframe TOML file (README, "Airframe (TOML)").
+
+    Errors name the file and the key (:class:`~greybox.errors.GreyboxInputError`); an inertia
+    that breaks ``J1 + J2 >= J3`` within measurement error gives an
+    :class:`~greybox.errors.AirframeWarning`.
+
+    Example::
+
+        from greybox import QuadrotorModel, load_airframe
+        af = load_airframe("greybox/data/airframes/x_quad.toml")
+        model = QuadrotorModel(af)
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")

@@ -1,4 +1,4 @@
-"""The ``greybox`` command line (contract §5): a thin layer over the library.
+"""The ``greybox`` command line (README, "Command line"): a thin layer over the library.
 
 User mistakes print one ``greybox: error: ...`` line and exit with status 2; results given
 with ``--json`` are written atomically.
@@ -225,7 +225,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict:
-    """The contract's fit JSON, with extra detail (status, correlations, warnings)."""
+    """The fit JSON (README, "Command line"), with extra detail (status, correlations, warnings)."""
     params = {}
     for name, v in res.parameters.items():
         std = v["std"]
@@ -525,7 +525,7 @@ def _parser() -> argparse.ArgumentParser:
     z.set_defaults(func=cmd_linearize)
 
     i = sub.add_parser("import", help="convert another tool's log into a greybox flight log",
-                       description="Convert a log of another format into a flight log (contract §2).")
+                       description="Convert a log of another format into a flight log (README: 'Flight log (CSV)').")
     isub = i.add_subparsers(dest="format", required=True, parser_class=_Parser)
     nb = isub.add_parser("nanobench", help="NanoBench Crazyflie 2.1 CSV (Vicon + onboard logs)",
                          description="Convert a NanoBench CSV: z-up world -> NED, FLU -> FRD, attitude from the "
@@ -566,7 +566,7 @@ def _parser() -> argparse.ArgumentParser:
     mg = sub.add_parser("merge", help="join vision positions with an IMU / rotor-speed log",
                         description="Merge t,x,y,z[,psi] from `greybox vision` into a log with t,w1..wN and "
                                     "attitude: vision samples keep their own times (inputs held from the previous "
-                                    "row), giving a multi-rate flight log (contract §2).")
+                                    "row), giving a multi-rate flight log (README: 'Flight log (CSV)').")
     mg.add_argument("log", help="IMU / rotor-speed CSV (t, w1..wN, phi, theta[, psi, p, q, r]; x,y,z may be absent)")
     mg.add_argument("--vision", required=True, help="positions CSV from `greybox vision`")
     mg.add_argument("--out", required=True, help="flight log CSV to write")

@@ -229,7 +229,8 @@ def step_metrics(t: np.ndarray, y: np.ndarray, t_step: float, y_before: float, y
 # ------------------------------------------------------------------------------ cascaded PID
 PID_GAINS = ("kp_xy", "ki_xy", "kd_xy", "kp_z", "ki_z", "kd_z", "kp_att", "kd_att")
 """Gains of :class:`CascadedPID`: outer position loop (P, I, D on the error's rate, seed eqs.
-13-16 with the ERRATA correction), inner attitude loop (P, D); yaw uses the attitude gains."""
+13-16 as corrected in the README's "Departures from the seed paper"), inner attitude loop (P, D);
+yaw uses the attitude gains."""
 
 
 @dataclass

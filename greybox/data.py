@@ -1,4 +1,4 @@
-"""Flight logs (contract §2): load, validate, save, split, resample.
+"""Flight logs (README, "Flight log (CSV)"): load, validate, save, split, resample.
 
 A log is one CSV with a header row. Inputs (``w1..wN`` rad/s, or ``u1..u4``) and ``t``
 are present on every row; output columns (``x,y,z`` world NED, ``phi,theta,psi``, optional
@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import GreyboxInputError
 
-__all__ = ["FlightLog", "load_log", "save_log", "read_csv_table", "atomic_write",
+__all__ = ["FlightLog", "load_log", "save_log", "read_csv_table", "atomic_write", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units"]
 
@@ -61,6 +61,14 @@ class FlightLog:
         extras: other columns (e.g. ``vbat``, or ``u1..u4`` beside rotor speeds).
         notes: remarks made while loading (ignored columns...).
         source: file name, if read from one.
+
+    Example::
+
+        from greybox import load_log
+        log = load_log("greybox/data/logs/demo_ground_effect.csv")
+        len(log), log.duration, log.input_names     # 6001, 30.0, ['w1', 'w2', 'w3', 'w4']
+        est, val = log.split(0.8)                   # first 80 % / last 20 % in time
+        df = log.to_dataframe()                     # pandas; FlightLog.from_dataframe(df) back
     """
 
     t: np.ndarray
@@ -189,6 +197,86 @@ class FlightLog:
         return FlightLog(t, self.inputs[held], list(self.input_names), Y, list(self.output_names),
                          {n: v[held] for n, v in self.extras.items()}, self.notes + [note], self.source)
 
+    @classmethod
+    def from_dataframe(cls, df, inputs: str = "auto", optional: Iterable[str] = (),
+                       source: str | None = None) -> "FlightLog":
+        """A flight log from a pandas DataFrame with the CSV's columns (README, "Flight log
+        (CSV)"): ``t``, ``w1..wN`` (or ``u1..u4``), ``x, y, z, phi, theta, psi``, optionally
+        ``p, q, r``, any others kept as extras; NaN (or ``None``/``pd.NA``) where an output
+        was not measured.
+
+        It is checked exactly as :func:`load_log` checks a file (same options), and errors
+        name the row by its DataFrame index (``row index 17``) and the column. A ``t`` held
+        in the index (``df.set_index("t")``) is taken from there. ``source`` names the log
+        in messages and becomes ``log.source`` (default ``"DataFrame"``). Needs pandas
+        (``pip install pandas``).
+
+        Example::
+
+            import pandas as pd
+            from greybox import FlightLog
+            df = pd.read_csv("greybox/data/logs/demo_ground_effect.csv")   # or any DataFrame
+            log = FlightLog.from_dataframe(df)
+            df2 = log.to_dataframe()                    # and back
+        """
+        pd = _pandas("FlightLog.from_dataframe")
+        if not isinstance(df, pd.DataFrame):
+            raise GreyboxInputError(f"FlightLog.from_dataframe: expected a pandas DataFrame, got "
+                                    f"{type(df).__name__}")
+        where = source or "DataFrame"
+        labels = df.index
+        if "t" not in df.columns and df.index.name == "t":
+            df = df.reset_index()
+        header = []
+        for c in df.columns:
+            if not isinstance(c, str):
+                raise GreyboxInputError(f"{where}: column names must be strings like 't', 'w1', 'x'; "
+                                        f"got {c!r}")
+            header.append(c.strip())
+        seen = set()
+        for h in header:
+            if h in seen:
+                raise GreyboxInputError(f"{where}: column {h!r} appears twice")
+            seen.add(h)
+        if len(df) == 0:
+            raise GreyboxInputError(f"{where}: no data rows")
+        rows = np.asarray(["index " + str(i) for i in labels], dtype=object)
+        data = np.empty((len(df), len(header)))
+        for j, name in enumerate(header):
+            s = df.iloc[:, j]
+            if s.dtype.kind in "mM":
+                raise GreyboxInputError(f"{where}: column {name!r} holds dates or durations; give "
+                                        "seconds (e.g. (df.t - df.t.iloc[0]).dt.total_seconds())")
+            try:
+                data[:, j] = s.to_numpy(dtype=float, na_value=np.nan)
+            except (TypeError, ValueError):
+                for k, v in enumerate(s.to_numpy(dtype=object)):
+                    try:
+                        float(v if v is not None and v is not pd.NA else "nan")
+                    except (TypeError, ValueError):
+                        raise GreyboxInputError(f"{where}: row {rows[k]}, column {name!r}: not a number: "
+                                                f"{v!r}") from None
+                raise GreyboxInputError(f"{where}: column {name!r}: not numbers ({s.dtype})") from None
+        return log_from_table(header, data, rows, where, inputs, optional)
+
+    def to_dataframe(self):
+        """The log as a pandas DataFrame with the CSV's columns: ``t``, the inputs, the
+        outputs (NaN where not measured), then the extras; one row per sample, a default
+        index. :meth:`from_dataframe` reads it back. Needs pandas (``pip install pandas``).
+
+        Example::
+
+            from greybox import load_log
+            df = load_log("greybox/data/logs/demo_ground_effect.csv").to_dataframe()
+            df.plot(x="t", y=["x", "z"])
+        """
+        pd = _pandas("FlightLog.to_dataframe")
+        cols = {"t": self.t.copy()}
+        cols.update({n: self.inputs[:, j].copy() for j, n in enumerate(self.input_names)})
+        cols.update({n: self.outputs[:, j].copy() for j, n in enumerate(self.output_names)})
+        cols.update({n: np.asarray(v, dtype=float).copy() for n, v in self.extras.items() if n not in cols})
+        return pd.DataFrame(cols)
+
     def check_fittable(self, min_samples: int = MIN_FIT_SAMPLES) -> None:
         """Raise a clear error if the log is too short or too sparse to fit a model to."""
         where = self.source or "log"
@@ -203,9 +291,18 @@ class FlightLog:
                                         "measurements in the estimation part (first 80 %), need 5")
 
 
-def atomic_write(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: readers never see a
-    half-written file, and a crash leaves the old file (or none)."""
+def _pandas(what: str):
+    """pandas, imported only where a DataFrame is asked for (it is an optional dependency)."""
+    try:
+        import pandas
+    except ImportError:
+        raise ImportError(f"{what} needs pandas, which is not installed: pip install pandas") from None
+    return pandas
+
+
+def atomic_write(path: str | Path, text: str | bytes) -> None:
+    """Write ``text`` (or bytes) to ``path`` through a temporary file and a rename: readers
+    never see a half-written file, and a crash leaves the old file (or none)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -213,7 +310,8 @@ def atomic_write(path: str | Path, text: str) -> None:
     os.umask(umask)
     os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would make results private to one user
     try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
+        with (os.fdopen(fd, "wb") if isinstance(text, bytes)
+              else os.fdopen(fd, "w", encoding="utf-8", newline="")) as f:
             f.write(text)
         os.replace(tmp, path)
     except BaseException:
@@ -347,59 +445,86 @@ _U = re.compile(r"^u([1-4])$")
 
 
 def load_log(path: str | Path, inputs: str = "auto", optional: Iterable[str] = ()) -> FlightLog:
-    """Read and validate a flight log CSV (contract §2).
+    """Read and validate a flight log CSV (README, "Flight log (CSV)").
 
     Args:
         inputs: ``"rotor_speeds"`` (require ``w1..wN``), ``"controls"`` (require ``u1..u4``) or
             ``"auto"`` (rotor speeds when present, else controls).
         optional: required outputs that may be absent here (then all-empty), e.g.
             ``("x", "y", "z")`` for an IMU log that vision positions will be merged into.
+
+    Example::
+
+        from greybox import load_log
+        log = load_log("greybox/data/logs/demo_ground_effect.csv")
+        est, val = log.split(0.8)          # estimation and validation parts
+        log.output("z"), log.rate("x")     # a channel (NaN where not measured), its rate in Hz
     """
     path = Path(path)
     header, data, lines = read_csv_table(path, line_numbers=True)
+    return log_from_table(header, data, lines, str(path), inputs, optional)
+
+
+def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs: str = "auto",
+                   optional: Iterable[str] = (), source: str | None = None) -> FlightLog:
+    """Validate a table of named numeric columns as a flight log and return it (gaps filled).
+
+    The checks :func:`load_log` makes once the CSV is read, shared with
+    :meth:`FlightLog.from_dataframe`: required columns, missing times and inputs, non-finite
+    cells, sample times (:func:`check_sample_times`), rotor speed units
+    (:func:`check_rotor_speed_units`), implausible outputs (:data:`OUTPUT_LIMITS`); then
+    dropouts are filled (:meth:`FlightLog.fill_gaps`). ``data`` is ``(n, len(header))``
+    with NaN for an empty cell; ``rows[k]`` names data row ``k`` in messages (the file's line
+    number, or ``"index <label>"`` for a DataFrame); ``where`` names the file or object.
+    """
+    source = where if source is None else source
     col = {h: j for j, h in enumerate(header)}
     if "t" not in col:
-        raise GreyboxInputError(f"{path}: missing required column 't'")
+        raise GreyboxInputError(f"{where}: missing required column 't'")
     w_cols = sorted((int(m.group(1)), h) for h in header if (m := _W.match(h)))
     u_cols = sorted((int(m.group(1)), h) for h in header if (m := _U.match(h)))
     if inputs == "auto":
         inputs = "rotor_speeds" if w_cols else "controls" if u_cols else "rotor_speeds"
     if inputs == "rotor_speeds":
         if not w_cols:
-            raise GreyboxInputError(f"{path}: missing required rotor speed columns 'w1'..'w4'")
+            raise GreyboxInputError(f"{where}: missing required rotor speed columns 'w1'..'w4'")
         idx = [i for i, _ in w_cols]
         if idx != list(range(1, len(idx) + 1)):
             missing = sorted(set(range(1, max(idx) + 1)) - set(idx))
-            raise GreyboxInputError(f"{path}: missing required column 'w{missing[0]}' "
+            raise GreyboxInputError(f"{where}: missing required column 'w{missing[0]}' "
                                     f"(rotor speeds must be w1..wN without gaps)")
         in_names = [h for _, h in w_cols]
     elif inputs == "controls":
         if [i for i, _ in u_cols] != [1, 2, 3, 4]:
             have = {i for i, _ in u_cols}
             miss = next(i for i in range(1, 5) if i not in have)
-            raise GreyboxInputError(f"{path}: missing required column 'u{miss}'")
+            raise GreyboxInputError(f"{where}: missing required column 'u{miss}'")
         in_names = ["u1", "u2", "u3", "u4"]
     else:
         raise GreyboxInputError(f"inputs must be 'auto', 'rotor_speeds' or 'controls', got {inputs!r}")
     optional = set(optional)
     for name in REQUIRED_OUTPUTS:
         if name not in col and name not in optional:
-            raise GreyboxInputError(f"{path}: missing required column {name!r}")
+            raise GreyboxInputError(f"{where}: missing required column {name!r}")
     out_names = REQUIRED_OUTPUTS + [n for n in OPTIONAL_OUTPUTS if n in col]
 
     if data.shape[0] == 0:
-        raise GreyboxInputError(f"{path}: no data rows after the header")
+        raise GreyboxInputError(f"{where}: no data rows after the header")
+    inf = np.argwhere(np.isinf(data))
+    if inf.size:
+        r, c = inf[0]
+        raise GreyboxInputError(f"{where}: row {rows[r]}, column {header[c]!r}: infinite value {float(data[r, c])!r}")
     t = data[:, col["t"]]
     for name in ["t"] + in_names:
         bad = np.flatnonzero(np.isnan(data[:, col[name]]))
         if bad.size:
-            raise GreyboxInputError(f"{path}: row {lines[bad[0]]}, column {name!r}: missing value "
+            raise GreyboxInputError(f"{where}: row {rows[bad[0]]}, column {name!r}: missing value "
                                     "(time and inputs may never be missing)")
-    check_sample_times(t, str(path), lines)
+    check_sample_times(t, where, rows)
     U = data[:, [col[n] for n in in_names]]
     notes = []
     if inputs == "rotor_speeds":
-        notes += check_rotor_speed_units(U, in_names, str(path), lines)
+        notes += check_rotor_speed_units(U, in_names, where, rows)
     Y = np.column_stack([data[:, col[n]] if n in col else np.full(data.shape[0], np.nan)
                          for n in out_names])
     for j, name in enumerate(out_names):
@@ -407,14 +532,14 @@ def load_log(path: str | Path, inputs: str = "auto", optional: Iterable[str] = (
         bad = np.flatnonzero(np.abs(Y[:, j]) > limit)
         if bad.size:
             hint = " - is it in degrees?" if unit == "rad" and abs(Y[bad[0], j]) < 400 else ""
-            raise GreyboxInputError(f"{path}: row {lines[bad[0]]}, column {name!r}: {Y[bad[0], j]:g} is not "
+            raise GreyboxInputError(f"{where}: row {rows[bad[0]]}, column {name!r}: {Y[bad[0], j]:g} is not "
                                     f"plausible in {unit} (|{name}| <= {limit:g}){hint}")
     used = {"t", *in_names, *out_names}
     extra_names = [h for h in header if h not in used]
-    extras = {h: data[:, col[h]] for h in extra_names}
+    extras = {h: data[:, col[h]].copy() for h in extra_names}
     if extra_names:
-        notes.append(f"{path}: ignored extra column(s) {', '.join(extra_names)} (kept as extras)")
-    return FlightLog(t, U, in_names, Y, out_names, extras, notes, str(path)).fill_gaps()
+        notes.append(f"{where}: ignored extra column(s) {', '.join(extra_names)} (kept as extras)")
+    return FlightLog(t.copy(), U, in_names, Y, out_names, extras, notes, source).fill_gaps()
 
 
 def check_rotor_speed_units(U: np.ndarray, names: list[str], where: str,
@@ -439,7 +564,15 @@ def check_rotor_speed_units(U: np.ndarray, names: list[str], where: str,
 
 def save_log(log: FlightLog, path: str | Path, extras: bool = True, digits: int = 17) -> None:
     """Write a flight log CSV atomically; NaN outputs become empty cells. ``digits``
-    significant digits per value (17 round-trips exactly; fewer make smaller files)."""
+    significant digits per value (17 round-trips exactly; fewer make smaller files).
+
+    Example::
+
+        from greybox import load_log, save_log
+        log = load_log("greybox/data/logs/demo_ground_effect.csv")
+        est, val = log.split(0.8)
+        save_log(val, "validation.csv", digits=8)
+    """
     _fmt = (lambda v: "" if np.isnan(v) else repr(float(v))) if digits >= 17 else \
         (lambda v: "" if np.isnan(v) else f"{v:.{digits}g}")
     names = ["t"] + list(log.input_names) + list(log.output_names)

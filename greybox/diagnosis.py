@@ -205,7 +205,15 @@ class Round:
 
 @dataclass
 class Diagnosis:
-    """Everything :func:`diagnose` found; ``report(dir)`` writes it as HTML with plots."""
+    """Everything :func:`diagnose` found; ``report(dir)`` writes it as HTML with plots.
+
+    Example::
+
+        d = diagnose(model, log, validation=other_flight)
+        d.verdict, [c.effect for c in d.ranking]     # 'ground_effect', best first
+        print(d.summary()); d.report("report/")      # text; HTML with the plots
+        d.final_model, d.final_prediction.total      # the model with what was added
+    """
 
     model: QuadrotorModel
     baseline: FitResult
@@ -235,7 +243,7 @@ class Diagnosis:
         return bool(self.baseline.converged)
 
     def as_json(self) -> dict:
-        """The contract's diagnose JSON (plus findings, warnings and the added effects)."""
+        """The diagnose JSON (README, "Command line"), plus findings, warnings and the added effects."""
         out = {"baseline": {"nrmse": self.baseline_prediction.total,
                             "channels": dict(self.baseline_prediction.nrmse)},
                "ranking": [c.as_dict() for c in self.ranking],
@@ -814,6 +822,15 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
             real logs); candidates are then fitted with the baseline's process noise.
         validation: a separate flight to validate on; then all of ``log`` is estimation
             data and ``split`` is not used.
+
+    Example::
+
+        from greybox import QuadrotorModel, diagnose, load_airframe, load_log
+        model = QuadrotorModel(load_airframe("greybox/data/airframes/paper.toml"))
+        log = load_log("greybox/data/logs/demo_ground_effect.csv")
+        val = load_log("greybox/data/logs/demo_ground_effect_validation.csv")
+        d = diagnose(model, log, validation=val)     # about a minute
+        print(d.summary())                           # verdict: ground_effect
     """
     t_start = time.perf_counter()
     say = (lambda m: print(m, file=__import__("sys").stderr, flush=True)) if progress is True else \

@@ -1,11 +1,14 @@
-"""Composable physical effects (contract §4).
+"""Composable physical effects (README, "Effects").
 
 An effect is a small object that adds its own parameters, and possibly states, forces,
 torques or measurement terms, to the quadrotor model — much as a PySINDy library term adds
 a candidate function. Effects combine with ``+`` into an :class:`EffectLibrary`, and a
-model plus an effect is a new model::
+model plus an effect is a new model.
 
-    from greybox import QuadrotorModel, effects
+Example::
+
+    from greybox import QuadrotorModel, effects, load_airframe
+    airframe = load_airframe("greybox/data/airframes/paper.toml")
     model = QuadrotorModel(airframe) + effects.GroundEffect() + effects.MotorLag()
     model = model.without("yaw_torque")
 
@@ -52,7 +55,7 @@ __all__ = [
 class ModelContext:
     """Symbolic quantities shared by the effects while the model is built.
 
-    Frames: world NED, body FRD, ``R`` maps body vectors to world (contract §1).
+    Frames: world NED, body FRD, ``R`` maps body vectors to world (README, "Conventions").
     """
 
     airframe: "Airframe"
@@ -206,7 +209,7 @@ class LinearDrag(Effect):
 class Gyroscopic(Effect):
     """Rotor gyroscopic torque ``J_r * Omega_r * (omega x e_z)``, ``Omega_r = sum(spin_i*w_i)``.
 
-    Contract §1 sign convention: roll ``+J_r*q*Omega_r``, pitch ``-J_r*p*Omega_r``.
+    Sign convention (README, "Conventions"): roll ``+J_r*q*Omega_r``, pitch ``-J_r*p*Omega_r``.
     ``J_r`` defaults to the airframe's ``rotor_inertia`` and is held fixed when fitting
     unless freed: it is rarely identifiable from flight data.
     """
@@ -472,10 +475,10 @@ CATALOGUE: dict[str, type[Effect]] = {
                 MotorLag, CogOffset, MotorAsymmetry, Wind, ThrustDrift, PositionDelay,
                 AttitudeBias)
 }
-"""The contract's effects (§4), by name, in the order they are applied."""
+"""The catalogue of effects (README, "Effects"), by name, in the order they are applied."""
 
 SIGNAL_EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (RotorMap, BatteryVoltage)}
-"""Effects beyond the contract's catalogue, tied to what a log records (a command map, the
+"""Effects beyond the catalogue, tied to what a log records (a command map, the
 battery voltage). Applied before the catalogue's effects, since they change the command.
 ``diagnose`` considers ``battery_voltage`` when the log has a ``vbat`` column."""
 

@@ -8,29 +8,81 @@ from __future__ import annotations
 
 
 class GreyboxError(Exception):
-    """Base class of greybox's own errors."""
+    """Base class of greybox's own errors.
+
+    Example::
+
+        from greybox import GreyboxError, load_log
+        try:
+            log = load_log("flight.csv")
+        except GreyboxError as e:           # a bad input or a failed solver
+            print(e)
+    """
 
 
 class GreyboxInputError(GreyboxError, ValueError):
-    """Bad input from the user: the message names the file, row, column or parameter."""
+    """Bad input from the user: the message names the file, row, column or parameter.
+
+    Example::
+
+        from greybox import GreyboxInputError, load_log
+        try:
+            log = load_log("flight.csv")
+        except GreyboxInputError as e:      # also a ValueError
+            print(e)    # flight.csv: row 17, column 'w2': missing value (time and inputs ...)
+    """
 
 
 class SolverError(GreyboxError, RuntimeError):
-    """A numerical solver failed; the message carries the solver's own reason."""
+    """A numerical solver failed; the message carries the solver's own reason.
+
+    Example::
+
+        try:
+            x_trim, u_trim = hover_trim(model, p)
+        except SolverError as e:            # e.g. no hover trim: IPOPT's status
+            print(e)
+    """
 
 
 class ConvergenceWarning(UserWarning):
-    """A fit stopped before converging; its result says why (``FitResult.status``)."""
+    """A fit stopped before a certified optimum; its result says why (``FitResult.status``,
+    ``FitResult.certificate``). Warned, not raised: the result is still returned.
+
+    Example::
+
+        import warnings
+        from greybox import ConvergenceWarning, fit
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", ConvergenceWarning)   # an uncertified fit raises
+            res = fit(model, log)
+    """
 
 
 class AirframeWarning(UserWarning):
     """An airframe accepted with a doubt (e.g. inertias that break ``J1 + J2 >= J3`` within
-    measurement error)."""
+    measurement error).
+
+    Example::
+
+        import warnings
+        from greybox import AirframeWarning, load_airframe
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", AirframeWarning)      # accept no doubtful airframe
+            af = load_airframe("greybox/data/airframes/paper.toml")
+    """
 
 
 class CacheWarning(UserWarning):
     """The compile cache could not be used as is (not writable, a broken library rebuilt);
-    the work goes on, perhaps slower."""
+    the work goes on, perhaps slower.
+
+    Example::
+
+        import warnings
+        from greybox import CacheWarning
+        warnings.filterwarnings("ignore", category=CacheWarning)   # e.g. on a read-only home
+    """
 
 
 class Terminated(BaseException):

@@ -5,8 +5,8 @@ The problem: find the free parameters ``theta`` and the states ``s_j`` at shooti
 measured sample of every channel, subject to continuity: integrating the model (RK4, input
 held) from ``s_j`` over interval j must land on ``s_{j+1}``.
 
-How it is solved (a structure-exploiting constrained Gauss–Newton, see
-``shared/MEASURED.md`` for why):
+How it is solved (a structure-exploiting constrained Gauss–Newton; README, "How the fit
+is solved", says why):
 
 * One CasADi function per interval folds over the interval's samples and returns the
   interval's end state, the Jacobian of that end state with respect to ``z_j = (s_j, theta)``
@@ -243,6 +243,13 @@ class FitResult:
 
     ``parameters`` holds every model parameter (fitted or fixed) by component name;
     ``std`` and ``correlation`` refer to the free ones (``free_names`` order).
+
+    Example::
+
+        res = fit(model, est)
+        res.converged, res.status               # a certified optimum? what is open, in words
+        res.parameters["Kd[2]"], res.free_names, res.correlation
+        pred = predict(model, res.p, val)       # res.p: the flat parameter vector
     """
 
     model: QuadrotorModel
@@ -938,6 +945,14 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             state at the starting point and is re-estimated (downwards only) after each
             solve. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
             fit of such data can only shrink the parameters until the model stops moving.
+
+    Example::
+
+        from greybox import QuadrotorModel, fit, load_airframe, load_log
+        model = QuadrotorModel(load_airframe("greybox/data/airframes/paper.toml"))
+        est, val = load_log("greybox/data/logs/demo_ground_effect.csv").split(0.8)
+        res = fit(model, est, p0={"K_T": 3e-5})
+        print(res.summary()); res.parameters["K_T"]     # {"value": ..., "std": ...}
     """
     t_start = time.perf_counter()
     say = _progress_printer() if progress is True else (progress or (lambda _m: None))

@@ -1,7 +1,7 @@
-"""Import flight logs recorded by other tools into the flight-log contract (§2).
+"""Import flight logs recorded by other tools as flight logs (README, "Flight log (CSV)").
 
-NanoBench (Crazyflie 2.1, Vicon + onboard logs on a 100 Hz grid; see
-``shared/realdata/README.md`` and arXiv 2603.09908) is converted as follows:
+NanoBench (Crazyflie 2.1, Vicon + onboard logs on a 100 Hz grid; see the data set's own
+README and arXiv 2603.09908) is converted as follows:
 
 * **Frames.** NanoBench's world is z-up (x, y, z) and its body frame FLU. Both become
   NED / FRD by a rotation of pi about x: ``x, -y, -z``; ZYX Euler angles

@@ -113,6 +113,18 @@ def simulate(model: QuadrotorModel, t: np.ndarray, inputs: np.ndarray, p: np.nda
         x0: full initial state (``model.nx``) or the 12 base states (default: rest at the
             origin, level; effect states from the first input).
         method: ``"rk4"`` (sub-stepped so no step exceeds ``max_step``) or ``"cvodes"``.
+
+    Returns a :class:`Simulation` (``t``, ``states``, ``outputs`` and their names).
+
+    Example::
+
+        import numpy as np
+        from greybox import QuadrotorModel, load_airframe, simulate
+        model = QuadrotorModel(load_airframe("greybox/data/airframes/paper.toml"))
+        t = np.arange(0.0, 2.0, 0.01)
+        w = np.full((t.size, 4), 1.01 * model.hover_speed())    # a little above hover
+        sim = simulate(model, t, w)
+        sim.output("z")[-1]                                     # climbing: z < 0 (NED)
     """
     t = np.asarray(t, dtype=float).ravel()
     U = np.asarray(inputs, dtype=float)

@@ -28,7 +28,19 @@ _SHIFTING = {"cog_offset", "motor_asymmetry", "ground_effect", "thrust_drift", "
 @dataclass
 class LinearModel:
     """``dx/dt = A dx + B du``, ``dy = C dx + D du`` about ``(x_op, u_op)`` (continuous),
-    or the discrete equivalent when ``dt`` is set."""
+    or the discrete equivalent when ``dt`` is set.
+
+    Example::
+
+        import numpy as np
+        from greybox import QuadrotorModel, load_airframe, linearize, dlqr
+        model = QuadrotorModel(load_airframe("greybox/data/airframes/paper.toml"))
+        lin = linearize(model)                  # at the hover trim: lin.x_op, lin.u_op
+        d = lin.discretize(0.01)                # zero-order hold
+        K, S, E = dlqr(d, np.eye(12), 1e-3 * np.eye(4))    # or dlqr(d.A, d.B, Q, R)
+        lin.save_mat("hover.mat")               # A, B, C, D, x_trim, u_trim, names for MATLAB
+        sys = lin.to_control()                  # python-control; LinearModel.from_control(sys) back
+    """
 
     A: np.ndarray
     B: np.ndarray
@@ -61,6 +73,84 @@ class LinearModel:
         args = (self.A, self.B, self.C, self.D) + ((self.dt,) if self.dt is not None else ())
         return control.ss(*args, states=self.state_names, inputs=self.input_names, outputs=self.output_names)
 
+    @classmethod
+    def from_control(cls, sys, x_trim=None, u_trim=None) -> "LinearModel":
+        """A :class:`LinearModel` from a python-control system (a ``StateSpace``, or anything
+        ``control.ss`` converts, such as a ``TransferFunction``): its A, B, C, D, its signal
+        names (``state_labels``, ``input_labels``, ``output_labels``) and its time base
+        (``dt = 0``: continuous, ``dt = None`` here; ``dt = True``: discrete with the period
+        unspecified, kept as ``True``). The operating point is zero unless ``x_trim`` /
+        ``u_trim`` give it. Round trip: ``LinearModel.from_control(lin.to_control(),
+        lin.x_op, lin.u_op)`` equals ``lin``.
+
+        Example::
+
+            import control
+            from greybox import LinearModel
+            sys = control.ss([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], [[0]], 0.01,
+                             states=["z", "vz"], inputs=["T"], outputs=["z"])
+            lin = LinearModel.from_control(sys)     # lin.dt == 0.01, lin.state_names == ["z", "vz"]
+        """
+        try:
+            import control
+        except ImportError as e:  # pragma: no cover - depends on the optional extra
+            raise GreyboxInputError("python-control is not installed: pip install 'greybox[compare]'") from e
+        if not isinstance(sys, control.StateSpace):
+            if not isinstance(sys, control.LTI):
+                raise GreyboxInputError(f"LinearModel.from_control: expected a python-control system "
+                                        f"(StateSpace or TransferFunction), got {type(sys).__name__}")
+            sys = control.ss(sys)
+        A, B, C, D = (np.array(M, dtype=float, ndmin=2) for M in (sys.A, sys.B, sys.C, sys.D))
+        n, m = sys.nstates, sys.ninputs
+        A, B = A.reshape(n, n), B.reshape(n, m)
+        C, D = C.reshape(sys.noutputs, n), D.reshape(sys.noutputs, m)
+        dt = sys.dt
+        dt = True if dt is True else None if dt is None or dt == 0 else float(dt)
+
+        def _point(v, size: int, name: str) -> np.ndarray:
+            if v is None:
+                return np.zeros(size)
+            v = np.asarray(v, dtype=float).ravel()
+            if v.size != size or not np.all(np.isfinite(v)):
+                raise GreyboxInputError(f"LinearModel.from_control: {name} must be {size} finite values "
+                                        f"(the system's {'states' if name == 'x_trim' else 'inputs'}), "
+                                        f"got {v.size}")
+            return v
+
+        return cls(A, B, C, D, list(sys.state_labels), list(sys.input_labels), list(sys.output_labels),
+                   _point(x_trim, n, "x_trim"), _point(u_trim, m, "u_trim"), dt)
+
+    def save_mat(self, path) -> None:
+        """Write the model as a MATLAB ``.mat`` file (``scipy.io.savemat``; written whole or not
+        at all): ``A, B, C, D``, ``x_trim`` and ``u_trim`` (the operating point, columns),
+        ``state_names``, ``input_names``, ``output_names`` (cell arrays of strings) and ``dt``
+        (MATLAB's ``Ts``: 0 continuous, -1 discrete with an unspecified period). The file is
+        written at exactly ``path``. In MATLAB: ``m = load("hover.mat"); sys = ss(m.A, m.B,
+        m.C, m.D, m.dt, "StateName", m.state_names)``.
+
+        Example::
+
+            lin = linearize(model)
+            lin.save_mat("hover.mat")
+            m = scipy.io.loadmat("hover.mat")       # m["A"], m["x_trim"], m["state_names"]
+        """
+        import io
+
+        from scipy.io import savemat
+
+        from .data import atomic_write
+        dt = 0.0 if self.dt is None else -1.0 if self.dt is True else float(self.dt)
+        buf = io.BytesIO()
+        savemat(buf, {"A": np.asarray(self.A, float), "B": np.asarray(self.B, float),
+                      "C": np.asarray(self.C, float), "D": np.asarray(self.D, float),
+                      "x_trim": np.asarray(self.x_op, float).ravel(),
+                      "u_trim": np.asarray(self.u_op, float).ravel(), "dt": dt,
+                      "state_names": np.array(list(self.state_names), dtype=object),
+                      "input_names": np.array(list(self.input_names), dtype=object),
+                      "output_names": np.array(list(self.output_names), dtype=object)},
+                oned_as="column")
+        atomic_write(path, buf.getvalue())
+
 
 def _closed_form_ok(model: QuadrotorModel) -> bool:
     af = model.airframe
@@ -79,6 +169,13 @@ def hover_trim(model: QuadrotorModel, p: np.ndarray | None = None, position=(0.0
     Closed form ``w_i = sqrt(m g / (N K_T))`` where it applies; otherwise IPOPT solves
     ``xdot(x, u) = 0`` for the inputs (closest to equal rotor speeds), roll, pitch and the
     effects' states.
+
+    Example::
+
+        from greybox import QuadrotorModel, effects, hover_trim, load_airframe
+        model = QuadrotorModel(load_airframe("greybox/data/airframes/paper.toml"))
+        x_trim, u_trim = hover_trim(model)                          # 1 m above the ground
+        x_trim, u_trim = hover_trim(model + effects.CogOffset(), position=(0, 0, -2.0))
     """
     p = model.default_parameters() if p is None else np.asarray(p, dtype=float)
     af = model.airframe
@@ -117,7 +214,15 @@ def hover_trim(model: QuadrotorModel, p: np.ndarray | None = None, position=(0.0
 
 def linearize(model: QuadrotorModel, p: np.ndarray | None = None, x: np.ndarray | None = None,
               u: np.ndarray | None = None, t: float = 0.0) -> LinearModel:
-    """Continuous-time Jacobians of ``model`` at ``(x, u)`` (default: the hover trim)."""
+    """Continuous-time Jacobians of ``model`` at ``(x, u)`` (default: the hover trim).
+
+    Example::
+
+        from greybox import QuadrotorModel, linearize, load_airframe
+        model = QuadrotorModel(load_airframe("greybox/data/airframes/paper.toml"))
+        lin = linearize(model)                      # a LinearModel: A, B, C, D with names
+        lin.discretize(0.01).to_control()           # python-control, 100 Hz
+    """
     p = model.default_parameters() if p is None else np.asarray(p, dtype=float)
     if x is None or u is None:
         x_t, u_t = hover_trim(model, p)

@@ -12,11 +12,12 @@ The model is built once, symbolically, into CasADi ``Function`` objects
 (:attr:`QuadrotorModel.rhs`, :attr:`QuadrotorModel.output`) that are then evaluated or
 mapped over data many times.
 
-Departures from the seed paper's printed equations (see ``ERRATA.md``): the rotation
+Departures from the seed paper's printed equations (README, "Departures from the seed
+paper"): the rotation
 matrix and Euler-rate matrix are the correct ZYX ones, thrust acts along body -z rotated
 to the world (eq. 4 holds only level), the yaw Coriolis term is ``(J_x - J_y) p q`` (in
 general ``-omega x J omega`` with the full inertia matrix), and the gyroscopic torque
-follows contract §1 (the paper's pitch term has the wrong sign).
+follows the README's "Conventions" (the paper's pitch term has the wrong sign).
 """
 from __future__ import annotations
 
@@ -82,6 +83,14 @@ class QuadrotorModel:
         inputs: ``"rotor_speeds"`` (``w1..wN``) or ``"controls"`` (``u1..u4``).
 
     Models are immutable: ``model + effect`` and ``model.without(name)`` return new ones.
+
+    Example::
+
+        from greybox import QuadrotorModel, effects, load_airframe
+        model = QuadrotorModel(load_airframe("greybox/data/airframes/paper.toml"))
+        model = model + effects.GroundEffect()      # a new model with one more effect
+        model.param_names, model.state_names        # ['K_T', 'b', 'Kd[0]', ...], ['x', ...]
+        xdot = model.rhs(model.initial_state(), [400.0] * 4, model.default_parameters(), 0.0)
     """
 
     def __init__(self, airframe: Airframe, effects: Iterable[fx.Effect | str] | None = None,

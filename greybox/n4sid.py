@@ -47,7 +47,14 @@ __all__ = ["n4sid", "StateSpaceModel", "fit_percent", "order_plot"]
 @dataclass
 class StateSpaceModel:
     """Discrete-time ``x+ = A x + B u``, ``y = C x + D u`` around an operating point
-    (``u0``, ``y0`` are subtracted before and added after)."""
+    (``u0``, ``y0`` are subtracted before and added after).
+
+    Example::
+
+        ss = n4sid(u, y, dt=0.01)               # a StateSpaceModel
+        ss.order, ss.is_stable(), ss.simulate(u)
+        ss.to_control()                         # python-control StateSpace
+    """
 
     A: np.ndarray
     B: np.ndarray
@@ -308,6 +315,12 @@ def n4sid(u: np.ndarray, y: np.ndarray, dt: float, order: int | str = "auto", ho
         method: ``"pbsid"`` (default: predictor-based, consistent on closed-loop data; the
             horizon is its past window ``p``) or ``"oblique"`` (the classical N4SID oblique
             projection, biased in closed loop; kept for comparison).
+
+    Example::
+
+        from greybox import n4sid
+        ss = n4sid(u, y, dt=0.01)           # u: (N, 4) rotor speeds, y: (N, 6) x..psi, 100 Hz
+        ss.order, ss.predict_windows(u, y, horizon=100, init=20)   # 1-s-ahead fit % per output
     """
     if method not in ("pbsid", "oblique"):
         raise GreyboxInputError(f"n4sid: method must be 'pbsid' or 'oblique', got {method!r}")

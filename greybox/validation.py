@@ -38,7 +38,14 @@ PSI = OUTPUTS.index("psi")
 
 @dataclass
 class Prediction:
-    """k-step-ahead predictions of a model on a log."""
+    """k-step-ahead predictions of a model on a log.
+
+    Example::
+
+        pred = predict(model, res.p, val)       # 1 s ahead on the validation part
+        pred.total, pred.nrmse["z"], pred.fit_percent["z"]
+        pred.predicted[:, 2]                    # z predicted (NaN outside windows)
+    """
 
     log: FlightLog
     predicted: np.ndarray            # (n, 9) predictions, NaN outside windows
@@ -143,7 +150,15 @@ def _prediction_function(model: QuadrotorModel, n_steps: int, n_sub: int, n_wind
 def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,
             init_window: float = DEFAULT_INIT_WINDOW, sigma: np.ndarray | None = None,
             compile: str = "auto") -> Prediction:
-    """k-step-ahead prediction of ``model`` with parameters ``p`` on ``log`` (see module doc)."""
+    """k-step-ahead prediction of ``model`` with parameters ``p`` on ``log`` (see module doc).
+
+    Example::
+
+        from greybox import fit, predict
+        est, val = log.split(0.8)
+        res = fit(model, est)
+        pred = predict(model, res.p, val, horizon=1.0)   # pred.nrmse per channel, pred.total
+    """
     log = model.prepare_log(log)
     p = np.asarray(p, dtype=float)
     t = log.t
@@ -193,7 +208,12 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
 
 def nrmse(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,
           **kw) -> dict:
-    """``{"nrmse": total, "channels": {name: value}}`` of the k-step-ahead prediction."""
+    """``{"nrmse": total, "channels": {name: value}}`` of the k-step-ahead prediction.
+
+    Example::
+
+        nrmse(model, res.p, val)                # {"nrmse": 0.05, "channels": {"x": ..., ...}}
+    """
     pr = predict(model, p, log, horizon, **kw)
     return {"nrmse": pr.total, "channels": dict(pr.nrmse)}
 
@@ -218,7 +238,12 @@ def _save(fig, path: str | Path) -> Path:
 
 def compare_plot(pred: Prediction | Sequence[Prediction], path: str | Path,
                  labels: Sequence[str] | None = None, title: str = "") -> Path:
-    """Measured vs predicted per channel (MATLAB's ``compare``), written to ``path`` (PNG)."""
+    """Measured vs predicted per channel (MATLAB's ``compare``), written to ``path`` (PNG).
+
+    Example::
+
+        compare_plot([pred_base, pred_new], "compare.png", labels=["base", "+ ground effect"])
+    """
     plt = _plt()
     preds = [pred] if isinstance(pred, Prediction) else list(pred)
     labels = list(labels or [f"model {i + 1}" for i in range(len(preds))])
@@ -245,7 +270,12 @@ def compare_plot(pred: Prediction | Sequence[Prediction], path: str | Path,
 
 
 def residual_plot(pred: Prediction, path: str | Path) -> Path:
-    """Prediction errors against time, and their histograms, per channel."""
+    """Prediction errors against time, and their histograms, per channel.
+
+    Example::
+
+        residual_plot(predict(model, res.p, val), "residuals.png")
+    """
     plt = _plt()
     chans = pred.channels
     fig, axs = plt.subplots(len(chans), 2, figsize=(10, 1.6 * len(chans) + 0.8),

@@ -15,7 +15,7 @@ The seed paper's quadrotor watches a ground marker with its forward camera throu
   nearest the IMU's, and refine it on the corners (IPPE alone is not maximum-likelihood).
 
 Frames: OpenCV camera axes (x right, y down, z along the optical axis). World NED, body
-FRD (contract §1). The rig (camera, optional mirror, markers) is one TOML file, see
+FRD (README, "Conventions"). The rig (camera, optional mirror, markers) is one TOML file, see
 :func:`load_rig` and README section "Vision".
 """
 from __future__ import annotations
@@ -980,8 +980,8 @@ def merge_vision(log: FlightLog, t_vis: np.ndarray, values: np.ndarray, names: l
     """Join vision positions with an IMU / rotor-speed log into one multi-rate flight log.
 
     Every vision sample keeps its own time (``t_vis + offset``): where it falls between log
-    rows a row is inserted whose inputs are the previous row's (zero-order hold, contract
-    §2) and whose other outputs are empty. Vision samples before the log's first row or
+    rows a row is inserted whose inputs are the previous row's (zero-order hold, README,
+    "Flight log (CSV)") and whose other outputs are empty. Vision samples before the log's first row or
     after its last cannot hold an input and are dropped (with a note). The log's own
     ``x, y, z`` are replaced (they are what vision measures). ``psi``: ``"imu"`` keeps the
     log's yaw, ``"vision"`` uses the vision yaw, ``"auto"`` the log's if it has any, else
