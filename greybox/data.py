@@ -88,6 +88,14 @@ class FlightLog:
     def __len__(self) -> int:
         return self.t.size
 
+    def __repr__(self) -> str:
+        from .display import flightlog_text
+        return flightlog_text(self)
+
+    def _repr_html_(self) -> str:
+        from .display import flightlog_html
+        return flightlog_html(self)
+
     @property
     def duration(self) -> float:
         return float(self.t[-1] - self.t[0]) if len(self) else 0.0

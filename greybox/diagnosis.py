@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import math
 import time
 import warnings as _warnings
@@ -53,7 +52,7 @@ from .fitting import FitResult, _free_indices, _Session, _ShootingProblem, fit, 
 from .integrate import n_substeps, rk4_step
 from .model import OUTPUTS, QuadrotorModel, rotation_matrices
 from .residuals import fitted_trajectory, long_run_factor, output_residuals, whiteness_fraction
-from .validation import Prediction, compare_plot, predict
+from .validation import Prediction, predict
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
            "MIN_VALIDATION_GAIN", "DISTINGUISH", "EXCITED_BY", "distinguishing_manoeuvre"]
@@ -314,6 +313,14 @@ class Diagnosis:
     def report(self, directory: str | Path) -> Path:
         """Write ``report.html`` (plots embedded) and the plots as PNG files into ``directory``."""
         return _write_report(self, Path(directory))
+
+    def __repr__(self) -> str:
+        from .display import diagnosis_text
+        return diagnosis_text(self)
+
+    def _repr_html_(self) -> str:
+        from .display import diagnosis_html
+        return diagnosis_html(self)
 
 
 # ------------------------------------------------------------------------------ residuals
@@ -991,67 +998,12 @@ def _validation_source(validation: FlightLog | None, split: float) -> str:
 
 
 # ------------------------------------------------------------------------------ report
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.tight_layout()
-    fig.savefig(buf, format="png", dpi=90)
-    import matplotlib.pyplot as plt
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode()
-
-
 def _write_report(d: Diagnosis, out: Path) -> Path:
-    import matplotlib
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from .plotting import report_figures, save
     out.mkdir(parents=True, exist_ok=True)
     images: dict[str, str] = {}
-    compare_plot(d.baseline_prediction, out / "compare_baseline.png", ["baseline"])
-    images["compare_baseline"] = base64.b64encode((out / "compare_baseline.png").read_bytes()).decode()
-    if d.final_prediction is not None and d.final_model is not None and d.final_model is not d.model:
-        added = [e for e in d.final_model.effect_names if e not in d.model.effect_names]
-        compare_plot([d.baseline_prediction, d.final_prediction], out / "compare_after.png",
-                     ["baseline", "+ " + ", ".join(added)])
-        images["compare_after"] = base64.b64encode((out / "compare_after.png").read_bytes()).decode()
-    # residual whiteness
-    if d.residuals is not None:
-        chans = [c for c in OUTPUTS if c in d.whiteness]
-        fig, axs = plt.subplots(1, len(chans), figsize=(2.0 * len(chans), 2.4), sharey=True)
-        for ax, ch in zip(np.atleast_1d(axs), chans):
-            e = d.residuals[:, OUTPUTS.index(ch)]
-            e = e[np.isfinite(e)]
-            e = e - e.mean()
-            ac = [float(e[j:] @ e[:-j]) / float(e @ e) for j in range(1, 31)]
-            ax.bar(range(1, 31), ac, color="C0")
-            band = 2.576 / math.sqrt(e.size)
-            ax.axhspan(-band, band, color="0.85")
-            ax.set_title(ch, fontsize=9)
-            ax.set_xlabel("lag", fontsize=8)
-        np.atleast_1d(axs)[0].set_ylabel("autocorrelation")
-        images["whiteness"] = _png(fig)
-        fig.savefig(out / "whiteness.png")
-        # regimes of the strongest findings
-        top = [f for f in d.findings if f.values is not None][:4]
-        if top:
-            fig, axs = plt.subplots(1, len(top), figsize=(3.3 * len(top), 2.8))
-            for ax, f in zip(np.atleast_1d(axs), top):
-                ax.plot(f.values, f.errors, ".", ms=1.5, alpha=0.5)
-                ax.set_xlabel(f.variable, fontsize=8)
-                ax.set_ylabel(f"{f.channel} error" + ("" if f.variable == "time into the flight" else
-                                                      " (RMS over 0.2 s)"), fontsize=8)
-                ax.set_title(f"r = {f.r:+.2f}", fontsize=9)
-            images["regimes"] = _png(fig)
-            fig.savefig(out / "regimes.png")
-    # ranking bar chart
-    if d.ranking:
-        fig, ax = plt.subplots(figsize=(7, 0.35 * len(d.ranking) + 1))
-        vals = [(c.lr if c.lr is not None else c.score) for c in d.ranking][::-1]
-        cols = ["C2" if c.significant else "0.6" for c in d.ranking][::-1]
-        ax.barh([c.effect for c in d.ranking][::-1], np.maximum(vals, 1e-3), color=cols)
-        ax.set_xscale("log")
-        ax.set_xlabel("statistic (LR after refit, else score); green = significant")
-        images["ranking"] = _png(fig)
-        fig.savefig(out / "ranking.png")
+    for name, fig in report_figures(d).items():
+        images[name] = base64.b64encode(save(fig, out / f"{name}.png").read_bytes()).decode()
     esc = html.escape
     rows = "".join(
         f"<tr><td>{esc(c.effect)}</td><td>{'yes' if c.significant else 'no'}</td>"

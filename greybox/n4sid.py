@@ -395,29 +395,9 @@ def n_init_min(n: int, l: int) -> int:
 
 def order_plot(model: StateSpaceModel, path: str | Path) -> Path:
     """Singular values of the oblique projection (log scale) with the chosen order, and the
-    validation fit of each order when it was chosen automatically."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    validation fit of each order when it was chosen automatically, written to ``path``
+    (:func:`greybox.plotting.n4sid_order` gives the ``Figure``)."""
+    from .plotting import n4sid_order
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(1, 2 if model.order_scores else 1, figsize=(9 if model.order_scores else 5, 3.5),
-                             squeeze=False)
-    s = model.singular_values
-    ax = axes[0, 0]
-    ax.semilogy(np.arange(1, s.size + 1), s, "o-", ms=3)
-    ax.axvline(model.order, color="r", ls="--", label=f"order {model.order}")
-    ax.set_xlabel("index")
-    ax.set_ylabel("singular value")
-    ax.legend()
-    if model.order_scores:
-        ax = axes[0, 1]
-        ks = sorted(model.order_scores)
-        ax.plot(ks, [model.order_scores[k] for k in ks], "o-", ms=3)
-        ax.axvline(model.order, color="r", ls="--")
-        ax.set_xlabel("order")
-        ax.set_ylabel("held-out fit %")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    n4sid_order(model, path=path)
     return path

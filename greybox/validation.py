@@ -219,76 +219,33 @@ def nrmse(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float =
 
 
 # ------------------------------------------------------------------------------ plots
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def _save(fig, path: str | Path) -> Path:
-    """Lay out, write (PNG) and close a figure."""
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    _plt().close(fig)
-    return path
-
-
 def compare_plot(pred: Prediction | Sequence[Prediction], path: str | Path,
                  labels: Sequence[str] | None = None, title: str = "") -> Path:
     """Measured vs predicted per channel (MATLAB's ``compare``), written to ``path`` (PNG).
+
+    Writes :func:`greybox.plotting.compare`'s figure; use that for a ``Figure`` (notebooks,
+    your own axes).
 
     Example::
 
         compare_plot([pred_base, pred_new], "compare.png", labels=["base", "+ ground effect"])
     """
-    plt = _plt()
-    preds = [pred] if isinstance(pred, Prediction) else list(pred)
-    labels = list(labels or [f"model {i + 1}" for i in range(len(preds))])
-    chans = preds[0].channels
-    fig, axs = plt.subplots(len(chans), 1, figsize=(10, 1.7 * len(chans) + 0.8), sharex=True)
-    axs = np.atleast_1d(axs)
-    log = preds[0].log
-    for ax, ch in zip(axs, chans):
-        c = OUTPUTS.index(ch)
-        y = log.output(ch)
-        k = np.isfinite(y)
-        ax.plot(log.t[k], y[k], ".", ms=1.5, color="0.4", label="measured")
-        for pr, lab in zip(preds, labels):
-            ax.plot(log.t, pr.predicted[:, c], lw=1.0,
-                    label=f"{lab} (fit {pr.fit_percent.get(ch, float('nan')):.1f} %)")
-        for a, _ in preds[0].windows:
-            ax.axvline(log.t[a], color="0.85", lw=0.5, zorder=0)
-        ax.set_ylabel(ch)
-        ax.legend(fontsize=7, loc="upper right")
-    axs[-1].set_xlabel("t (s)")
-    fig.suptitle(title or f"{preds[0].horizon:g} s-ahead prediction vs measurement "
-                 "(grey lines: window starts)", fontsize=10)
-    return _save(fig, path)
+    from .plotting import compare
+    path = Path(path)
+    compare(pred, path=path, labels=labels, title=title or None)
+    return path
 
 
 def residual_plot(pred: Prediction, path: str | Path) -> Path:
-    """Prediction errors against time, and their histograms, per channel.
+    """Prediction errors against time, and their histograms, per channel, written to ``path``.
+
+    Writes :func:`greybox.plotting.residuals`'s figure.
 
     Example::
 
         residual_plot(predict(model, res.p, val), "residuals.png")
     """
-    plt = _plt()
-    chans = pred.channels
-    fig, axs = plt.subplots(len(chans), 2, figsize=(10, 1.6 * len(chans) + 0.8),
-                            gridspec_kw={"width_ratios": [4, 1]})
-    axs = np.atleast_2d(axs)
-    for row, ch in zip(axs, chans):
-        c = OUTPUTS.index(ch)
-        e = pred.errors[:, c]
-        k = np.isfinite(e)
-        row[0].plot(pred.log.t[k], e[k], lw=0.6)
-        row[0].axhline(0, color="k", lw=0.5)
-        row[0].set_ylabel(f"{ch} error")
-        row[1].hist(e[k], bins=40, orientation="horizontal", color="C1")
-    axs[-1, 0].set_xlabel("t (s)")
-    fig.suptitle("prediction residuals (measured - predicted)", fontsize=10)
-    return _save(fig, path)
+    from .plotting import residuals
+    path = Path(path)
+    residuals(pred, path=path)
+    return path
