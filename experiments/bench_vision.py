@@ -40,7 +40,8 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from greybox.synthcam import SyntheticCamera  # noqa: E402
-from greybox.vision import (MarkerTracker, _euler_to_rotation, default_detector_parameters,  # noqa: E402
+from greybox.rotations import rotation as _euler_to_rotation  # noqa: E402
+from greybox.vision import (MarkerTracker, default_detector_parameters,  # noqa: E402
                             load_rig, position_crb, read_frames)
 
 RIG = Path(__file__).resolve().parents[1] / "greybox" / "data" / "cameras" / "mirror_down.toml"

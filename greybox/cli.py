@@ -19,7 +19,7 @@ from . import __version__
 from . import effects as fx
 from .airframe import load_airframe
 from .data import FlightLog, atomic_write, check_rotor_speed_units, check_sample_times, read_csv_table, save_log
-from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, raise_terminated
+from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, forget_signals, raise_interrupted, raise_terminated, signal_received
 from .integrate import simulate
 from .model import QuadrotorModel
 
@@ -58,7 +58,7 @@ _positive_int = _number_type("a positive integer", 1, integer=True)
 _digits = _number_type("between 3 and 17", 3, 17, integer=True)
 _seed = _number_type("zero or a positive integer", 0, integer=True)
 
-OUTPUT_OPTIONS = {"json": ("--json", "file"), "out": ("--out", "file"),
+OUTPUT_OPTIONS = {"json": ("--json", "file"), "out": ("--out", "file"), "save": ("--save", "file"),
                   "airframe_out": ("--airframe-out", "file"), "plots": ("--plots", "folder"),
                   "report": ("--report", "folder"), "out_dir": ("--out-dir", "folder")}
 """Options that name something the command writes: checked before any computation."""
@@ -117,7 +117,10 @@ def build_model(airframe_path: str, effects: str | None = None, without: str | N
                 inputs: str = "rotor_speeds") -> QuadrotorModel:
     """The base model of an airframe file, plus ``effects``, minus ``without`` (comma lists)."""
     af = load_airframe(airframe_path)
-    model = QuadrotorModel(af, inputs=inputs)
+    return _edit_model(QuadrotorModel(af, inputs=inputs), effects, without)
+
+
+def _edit_model(model: QuadrotorModel, effects: str | None, without: str | None) -> QuadrotorModel:
     for name in fx.parse_effect_names(effects):
         if name not in model.effects:
             model = model + fx.by_name(name)
@@ -125,6 +128,25 @@ def build_model(airframe_path: str, effects: str | None = None, without: str | N
     if drop:
         model = model.without(*drop)
     return model
+
+
+def model_from_args(args: argparse.Namespace, effects: str | None = "from args") -> tuple[QuadrotorModel, dict]:
+    """The model an ``--airframe A.toml`` or ``--model M.json`` option names, with
+    ``--effects``/``--without`` applied, and the parameter values it brings (a saved model's
+    fitted values; none for an airframe, whose ``[parameters]`` are the model's defaults)."""
+    effects = getattr(args, "effects", None) if effects == "from args" else effects
+    if getattr(args, "model", None):
+        from .fitted import load
+        fm = load(args.model)
+        values = fm.parameters_
+        model = _edit_model(fm.model, effects, args.without)
+        return model, {k: v for k, v in values.items() if k in model.param_names}
+    return build_model(args.airframe, effects, args.without), {}
+
+
+def _parameters(model: QuadrotorModel, brought: dict, sets) -> np.ndarray:
+    """Parameter vector: the model's defaults, then a saved model's values, then ``--set``."""
+    return model.parameter_vector(parse_sets(sets), model.parameter_vector(brought))
 
 
 def _parse_x0(text: str | None) -> list[float] | None:
@@ -167,8 +189,8 @@ def _read_inputs(path: str, model: QuadrotorModel, p: np.ndarray) -> tuple[np.nd
 
 # ---------------------------------------------------------------------------- commands
 def cmd_simulate(args: argparse.Namespace) -> int:
-    model = build_model(args.airframe, args.effects, args.without)
-    p = model.parameter_vector(parse_sets(args.set))
+    model, brought = model_from_args(args)
+    p = _parameters(model, brought, args.set)
     t, U = _read_inputs(args.inputs, model, p)
     sim = simulate(model, t, U, p, _parse_x0(args.x0), method=args.integrator)
     log = FlightLog(t, U, model.input_names, sim.outputs, list(model.output_names))
@@ -185,9 +207,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_synth(args: argparse.Namespace) -> int:
     from .synth import SensorSpec, model_with_hidden_effects, synthesize
-    base = build_model(args.airframe, None, args.without)
+    base, brought = model_from_args(args, effects=None)
     hidden = fx.parse_effect_names(args.effects)
-    model, p = model_with_hidden_effects(base, hidden, parse_sets(args.set))
+    model, p = model_with_hidden_effects(base, hidden, {**brought, **parse_sets(args.set)})
     sensors = SensorSpec(rate=args.rate, vision_rate=args.vision_rate, pos_noise=args.pos_noise,
                          att_noise=args.att_noise, gyro_noise=args.gyro_noise,
                          input_noise=args.input_noise, dropout=args.dropout)
@@ -247,8 +269,8 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
 
 def _load_fit_inputs(args: argparse.Namespace):
     """Model, starting parameters (``--set``) and the log, each checked before any work."""
-    model = build_model(args.airframe, args.effects, args.without)
-    p0 = model.parameter_vector(parse_sets(args.set))
+    model, brought = model_from_args(args)
+    p0 = _parameters(model, brought, args.set)
     return model, p0, _load_model_log(model, args.log, p0)
 
 
@@ -384,6 +406,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(f"plots: {out / 'compare.png'}, {out / 'residuals.png'}")
     if args.json:
         write_json(args.json, fit_result_json(model, res, {**pred.as_dict()}))
+    if args.save:
+        print(f"model: {res.save(args.save)}")
     return 0
 
 
@@ -399,13 +423,15 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"report: {diag.report(args.report)}")
     if args.json:
         write_json(args.json, diag.as_json())
+    if args.save:
+        print(f"model: {diag.fitted_model.save(args.save)}")
     return 0
 
 
 def cmd_linearize(args: argparse.Namespace) -> int:
     from .linearize import hover_trim, linearize
-    model = build_model(args.airframe, args.effects, args.without)
-    p = model.parameter_vector(parse_sets(args.set))
+    model, brought = model_from_args(args)
+    p = _parameters(model, brought, args.set)
     at = [0.0, 0.0, None] if args.at is None else _floats(args.at, 3, "--at")
     x_t, u_t = hover_trim(model, p, position=at, psi=args.psi)
     lin = linearize(model, p, x_t, u_t)
@@ -432,8 +458,13 @@ def _floats(text: str, n: int, opt: str) -> list[float]:
 
 # ---------------------------------------------------------------------------- parser
 def _model_args(ap: argparse.ArgumentParser, set_help: str) -> None:
-    """The options that choose a model: airframe, added and removed effects, parameter values."""
-    ap.add_argument("--airframe", required=True, help="airframe TOML")
+    """The options that choose a model: airframe or saved model, added and removed effects,
+    parameter values."""
+    which = ap.add_mutually_exclusive_group(required=True)
+    which.add_argument("--airframe", help="airframe TOML")
+    which.add_argument("--model", metavar="MODEL.json",
+                       help="a fitted model saved by 'greybox fit --save' (structure and parameters), "
+                            "instead of --airframe")
     ap.add_argument("--effects", help="comma list of effects to add to the base model")
     ap.add_argument("--without", help="comma list of effects to remove from the base model")
     ap.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
@@ -459,7 +490,9 @@ def _parser() -> argparse.ArgumentParser:
     y = sub.add_parser("synth", help="make a synthetic closed-loop flight log",
                        description="Fly the model (with hidden effects) closed loop through varied "
                                    "manoeuvres and log it with sensor noise, multi-rate vision and dropouts.")
-    y.add_argument("--airframe", required=True)
+    which = y.add_mutually_exclusive_group(required=True)
+    which.add_argument("--airframe", help="airframe TOML")
+    which.add_argument("--model", metavar="MODEL.json", help="a saved fitted model, instead of --airframe")
     y.add_argument("--out", required=True, help="flight log CSV to write")
     y.add_argument("--effects", help="hidden effects to add (comma list); unset parameters take plausible magnitudes")
     y.add_argument("--without", help="effects to remove from the base model")
@@ -496,6 +529,8 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--plots", help="folder for compare/residual plots")
     f.add_argument("--quiet", action="store_true", help="no progress lines")
     f.add_argument("--json", help="write the result here")
+    f.add_argument("--save", metavar="MODEL.json",
+                   help="save the fitted model (structure, parameters, covariance) for --model and greybox.load")
     f.set_defaults(func=cmd_fit)
 
     g = sub.add_parser("diagnose", help="find where the model fails and which effect is missing",
@@ -513,6 +548,7 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--report", help="folder for the HTML report and its plots")
     g.add_argument("--quiet", action="store_true", help="no progress lines")
     g.add_argument("--json", help="write the result here")
+    g.add_argument("--save", metavar="MODEL.json", help="save the final fitted model (with the effects added)")
     g.set_defaults(func=cmd_diagnose)
 
     z = sub.add_parser("linearize", help="hover trim and continuous-time Jacobians",
@@ -606,11 +642,12 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 def main(argv: Sequence[str] | None = None) -> int:
     import signal
     ap = _parser()
+    forget_signals()
     try:
         previous = signal.signal(signal.SIGTERM, raise_terminated)
         # Ctrl-C / kill -INT always interrupts, also when started in the background by a
         # shell script (which starts its background jobs with SIGINT ignored)
-        previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
+        previous_int = signal.signal(signal.SIGINT, raise_interrupted)
     except ValueError:          # not the main thread (e.g. called from a worker): no handler
         previous = previous_int = None
     try:
@@ -634,6 +671,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Terminated:
         print("greybox: terminated", file=sys.stderr)
         return 143
+    except Exception:
+        # an interrupt that a C extension turned into another exception (CasADi: SystemError)
+        sig = signal_received()
+        if sig is None:
+            raise
+        print("greybox: interrupted" if sig == signal.SIGINT else "greybox: terminated", file=sys.stderr)
+        return 130 if sig == signal.SIGINT else 143
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -40,7 +40,7 @@ def source_fingerprint() -> str:
     """Hash of the source that defines compiled functions: changing it invalidates cached libraries."""
     h = hashlib.sha1(ca.__version__.encode())
     # the modules that define what gets compiled (not the CLI, reports, ...)
-    for name in ("airframe", "codegen", "effects", "fitting", "integrate", "model", "parameters"):
+    for name in ("airframe", "codegen", "effects", "shooting", "integrate", "model", "parameters", "rotations"):
         h.update((Path(__file__).parent / f"{name}.py").read_bytes())
     return h.hexdigest()
 
@@ -177,6 +177,43 @@ def _build(f: ca.Function, lib: Path, cc: str, opt: str) -> bool:
         return lib.exists()
 
 
+def _elf_complete(path: Path) -> bool:
+    """Whether ``path`` is a whole ELF shared library: every segment to be mapped and the
+    section header table lie inside the file. A truncated file would pass ``dlopen`` and
+    kill the process with SIGBUS on first use; garbage fails here too."""
+    import struct
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+            size = os.fstat(fh.fileno()).st_size
+            if len(head) < 52 or head[:4] != b"\x7fELF" or head[4] not in (1, 2) or head[5] not in (1, 2):
+                return False
+            is64, end = head[4] == 2, "<" if head[5] == 1 else ">"
+            if is64:
+                if len(head) < 64:
+                    return False
+                phoff, shoff = struct.unpack_from(end + "QQ", head, 32)
+                phentsize, phnum, shentsize, shnum = struct.unpack_from(end + "HHHH", head, 54)
+            else:
+                phoff, shoff = struct.unpack_from(end + "II", head, 28)
+                phentsize, phnum, shentsize, shnum = struct.unpack_from(end + "HHHH", head, 42)
+            if shoff + shnum * shentsize > size or phoff + phnum * phentsize > size:
+                return False
+            fh.seek(phoff)
+            table = fh.read(phnum * phentsize)
+            for k in range(phnum):
+                entry = table[k * phentsize:(k + 1) * phentsize]
+                if is64:
+                    p_type, _, p_offset, _, _, p_filesz = struct.unpack_from(end + "IIQQQQ", entry)
+                else:
+                    p_type, p_offset, _, _, p_filesz = struct.unpack_from(end + "IIIII", entry)
+                if p_type == 1 and p_offset + p_filesz > size:      # PT_LOAD beyond the end
+                    return False
+            return True
+    except (OSError, struct.error):
+        return False
+
+
 def _load_checked(f: ca.Function, lib: Path, private: bool = False) -> ca.Function | None:
     """The library's function if it is ``f``'s twin (same signature, same values at a test
     point), else None: a corrupt or foreign file under a cache name is never used.
@@ -184,6 +221,8 @@ def _load_checked(f: ca.Function, lib: Path, private: bool = False) -> ca.Functi
     ``private`` loads a copy under a new name: the dynamic loader returns a library already
     loaded under the same path, so a rebuilt file must not be loaded by its old name."""
     path = lib
+    if not _elf_complete(lib):
+        return None    # loading a truncated library would crash the process (SIGBUS)
     try:
         if private:
             path = lib.with_suffix(f".{os.getpid()}.{id(f)}.so")

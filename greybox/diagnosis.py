@@ -48,7 +48,8 @@ from scipy import stats
 from . import effects as fx
 from .data import FlightLog, atomic_write
 from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError
-from .fitting import FitResult, _free_indices, _Session, _ShootingProblem, fit, initial_node_states
+from .fitting import FitResult, FitSession, fit, progress_printer
+from .shooting import ShootingProblem, free_indices, initial_node_states
 from .integrate import n_substeps, rk4_step
 from .model import OUTPUTS, QuadrotorModel, rotation_matrices
 from .residuals import fitted_trajectory, long_run_factor, output_residuals, whiteness_fraction
@@ -241,6 +242,18 @@ class Diagnosis:
         """Whether the baseline fit is at a certified optimum (else no candidate was tested)."""
         return bool(self.baseline.converged)
 
+    @property
+    def fitted_model(self) -> FitResult:
+        """The final fitted model (with the effects added; the baseline's when none was): a
+        :class:`~greybox.FittedModel` to predict, linearize or ``save``."""
+        return self.final_fit if self.final_fit is not None else self.baseline
+
+    def parameter_table(self) -> dict[str, dict[str, float | None]]:
+        """The final model's parameters: ``{name: {"value": v, "std": s}}`` (std None when
+        held fixed or not determined)."""
+        return {n: {"value": _num(v["value"]), "std": None if v["std"] is None else _num(v["std"])}
+                for n, v in self.fitted_model.parameters.items()}
+
     def as_json(self) -> dict:
         """The diagnose JSON (README, "Command line"), plus findings, warnings and the added effects."""
         out = {"baseline": {"nrmse": self.baseline_prediction.total,
@@ -259,6 +272,8 @@ class Diagnosis:
             out["added"] = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
             out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
                             "channels": dict(self.final_prediction.nrmse)}
+        out["model"] = {"effects": self.fitted_model.model.effect_names, "parameters": self.parameter_table(),
+                        "certified": bool(self.fitted_model.converged)}
         out["time_s"] = self.timings.get("total")
         return out
 
@@ -303,6 +318,10 @@ class Diagnosis:
                 if _effect_of(self.final_model, name) in added:
                     s = self.final_fit.std[self.final_fit.free_names.index(name)]
                     lines.append(f"   {name} = {self.final_fit.value(name):.5g} ± {s:.2g}")
+        fm = self.fitted_model
+        lines.append("   final model: " + ", ".join(
+            f"{n} = {fm.value(n):.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "")
+            for n, s in zip(fm.free_names, fm.std)))
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -528,9 +547,9 @@ def _screen(model: QuadrotorModel, res: FitResult, log: FlightLog, name: str, si
             compile: str) -> tuple[float, int]:
     """Score statistic and degrees of freedom of candidate ``name`` at the baseline optimum."""
     ext, p, free = _extended(model, res, name)
-    free_idx = _free_indices(ext, free, None)
+    free_idx = free_indices(ext, free, None)
     log = ext.prepare_log(log)
-    ses = _Session(ext, [log], free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
+    ses = FitSession(ext, [log], free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
                    lambda _m: None)
     if res.process_noise is not None:
         ses.q = np.array(list(_process_noise(ext, res).values()))
@@ -674,12 +693,12 @@ def _precompile(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_s
     items, quick = [], []
     for name in names:
         ext, _, free = _extended(model, res, name)
-        blk, val, key = _ShootingProblem.step_functions(ext, _free_indices(ext, free, None), n_sub)
+        blk, val, key = ShootingProblem.step_functions(ext, free_indices(ext, free, None), n_sub)
         if what == "screen":
             quick.append((blk, key + "blocks"))
         else:
             items += [(blk, key + "blocks"), (val, key + "value")]
-            blk0, _, key0 = _ShootingProblem.step_functions(ext, [], n_sub)
+            blk0, _, key0 = ShootingProblem.step_functions(ext, [], n_sub)
             items.append((blk0, key0 + "blocks"))
     if quick:
         precompile(quick, opt="-O0")
@@ -840,7 +859,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
         print(d.summary())                           # verdict: ground_effect
     """
     t_start = time.perf_counter()
-    say = (lambda m: print(m, file=__import__("sys").stderr, flush=True)) if progress is True else \
+    say = progress_printer() if progress is True else \
         (progress or (lambda _m: None))
     if candidates is None:
         candidates = [n for n in fx.CATALOGUE if n not in model.effects]
@@ -1019,6 +1038,10 @@ def _write_report(d: Diagnosis, out: Path) -> Path:
                             f"<td>{100 * (f.nrmse.get(ch, 0) / b.nrmse[ch] - 1) if b.nrmse[ch] else 0:+.0f} %</td></tr>"
                             for ch in b.nrmse)
     img = lambda k: f'<img src="data:image/png;base64,{images[k]}"/>' if k in images else ""
+    param_rows = "".join(
+        f"<tr><td>{esc(n)}</td><td>{v['value']:.6g}</td>"
+        f"<td>{'fixed' if v['std'] is None else format(v['std'], '.3g')}</td></tr>"
+        for n, v in d.parameter_table().items() if v["value"] is not None)
     text = f"""<!doctype html><html><head><meta charset="utf-8"><title>greybox diagnosis</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 8px}}img{{max-width:100%}}</style></head><body>
@@ -1032,6 +1055,7 @@ td,th{{border:1px solid #ccc;padding:3px 8px}}img{{max-width:100%}}</style></hea
 <th>p</th><th>nrmse before</th><th>nrmse after</th><th>why</th></tr>{rows}</table>{img('ranking')}
 <h2>4. Added, and the error falls</h2>
 <table><tr><th>channel</th><th>before</th><th>after</th><th>change</th></tr>{chan_rows}</table>{img('compare_after')}
+<h2>Fitted parameters of the final model</h2><table><tr><th>parameter</th><th>value</th><th>std</th></tr>{param_rows}</table>
 <h2>Warnings</h2><ul>{''.join(f'<li>{esc(w)}</li>' for w in d.warnings) or '<li>none</li>'}</ul>
 </body></html>"""
     path = out / "report.html"

@@ -111,6 +111,18 @@ class Effect:
     def modify_measurement(self, ctx: ModelContext, y: dict[str, ca.SX]) -> None:
         pass
 
+    def options(self) -> dict:
+        """Constructor arguments that make this effect what it is (e.g. ``BatteryVoltage``'s
+        ``v_ref``), as saved with a fitted model: by default every instance attribute."""
+        return {k: v for k, v in vars(self).items() if not k.startswith("_")}
+
+    def with_options(self, options: dict) -> "Effect":
+        """A new effect of this class built from :meth:`options`' output."""
+        try:
+            return type(self)(**options)
+        except TypeError as e:
+            raise GreyboxInputError(f"effect {self.name!r}: bad options {options!r} ({e})") from None
+
     # composition, PySINDy style
     def __add__(self, other: "Effect | EffectLibrary") -> "EffectLibrary":
         return EffectLibrary([self]) + other

@@ -10,7 +10,7 @@ import signal
 import sys
 from typing import Sequence
 
-from .errors import Terminated, raise_terminated
+from .errors import Terminated, raise_interrupted, raise_terminated, signal_received
 
 __all__ = ["run"]
 
@@ -22,7 +22,7 @@ def run(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, raise_terminated)
         # kill -INT interrupts also when a shell script started us in the background
         # (which it does with SIGINT ignored)
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGINT, raise_interrupted)
     except ValueError:      # not the main thread
         return _run(argv)
     code = _run(argv)
@@ -47,3 +47,10 @@ def _run(argv: Sequence[str] | None) -> int:
     except Terminated:
         print("greybox: terminated", file=sys.stderr)
         return 143
+    except BaseException:
+        # an interrupt that a C extension turned into another exception
+        sig = signal_received()
+        if sig is None:
+            raise
+        print("greybox: interrupted" if sig == signal.SIGINT else "greybox: terminated", file=sys.stderr)
+        return 130 if sig == signal.SIGINT else 143

@@ -90,6 +90,28 @@ class Terminated(BaseException):
     killed, temporary files removed, no output written)."""
 
 
+_SIGNALS_RECEIVED: list[int] = []   # process-wide, like the signal handlers themselves
+
+
 def raise_terminated(signum, frame) -> None:
-    """A SIGTERM handler: turn the signal into :class:`Terminated`."""
+    """A SIGTERM handler: turn the signal into :class:`Terminated` (and remember it)."""
+    _SIGNALS_RECEIVED.append(signum)
     raise Terminated()
+
+
+def raise_interrupted(signum, frame) -> None:
+    """A SIGINT handler: ``KeyboardInterrupt``, as Python's own, but remembered: an interrupt
+    raised inside a C extension's callback can surface as another exception (CasADi turns
+    it into ``SystemError``), and the CLI must still report it as an interrupt."""
+    _SIGNALS_RECEIVED.append(signum)
+    raise KeyboardInterrupt()
+
+
+def forget_signals() -> None:
+    """Forget the signals received so far (at the start of a command run in-process)."""
+    _SIGNALS_RECEIVED.clear()
+
+
+def signal_received() -> int | None:
+    """The last SIGINT/SIGTERM received through the handlers above, or None."""
+    return _SIGNALS_RECEIVED[-1] if _SIGNALS_RECEIVED else None

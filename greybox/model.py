@@ -29,6 +29,7 @@ import numpy as np
 from . import effects as fx
 from .airframe import Airframe
 from .errors import GreyboxInputError
+from .rotations import euler_rate_matrix, rotation_matrices, rotation_matrix  # noqa: F401 (public here too)
 from .parameters import Parameter, flat_names
 
 __all__ = ["QuadrotorModel", "BASE_STATES", "OUTPUTS", "rotation_matrix", "rotation_matrices",
@@ -39,38 +40,6 @@ OUTPUTS = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
 
 THRUST = Parameter("K_T", 1, 2e-5, "N/(rad/s)^2", 0.0, np.inf, 1e-5, 0.0, True,
                    "rotor thrust coefficient", "base", lower_exclusive=True)
-
-
-def rotation_matrix(phi, theta, psi):
-    """R = Rz(psi) Ry(theta) Rx(phi): body (FRD) vectors to world (NED). Works on SX or floats."""
-    cph, sph = ca.cos(phi), ca.sin(phi)
-    cth, sth = ca.cos(theta), ca.sin(theta)
-    cps, sps = ca.cos(psi), ca.sin(psi)
-    return ca.vertcat(
-        ca.horzcat(cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps),
-        ca.horzcat(cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps),
-        ca.horzcat(-sth, sph * cth, cph * cth),
-    )
-
-
-def rotation_matrices(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
-    """:func:`rotation_matrix` for arrays of angles, in numpy: (n, 3, 3) body -> world."""
-    cph, sph, cth, sth = np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta)
-    cps, sps = np.cos(psi), np.sin(psi)
-    return np.stack([np.stack([cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps], -1),
-                     np.stack([cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps], -1),
-                     np.stack([-sth, sph * cth, cph * cth], -1)], 1)
-
-
-def euler_rate_matrix(phi, theta):
-    """W with d/dt [phi, theta, psi] = W [p, q, r] (ZYX Euler angles, body rates)."""
-    cph, sph = ca.cos(phi), ca.sin(phi)
-    cth, tth = ca.cos(theta), ca.tan(theta)
-    return ca.vertcat(
-        ca.horzcat(1, sph * tth, cph * tth),
-        ca.horzcat(0, cph, -sph),
-        ca.horzcat(0, sph / cth, cph / cth),
-    )
 
 
 class QuadrotorModel:
@@ -417,12 +386,15 @@ class QuadrotorModel:
         if w.size == 0:
             return
         p = self.default_parameters() if p is None else p
-        typical = float(np.median(w.mean(axis=1)))
         hover = self.hover_speed(p)
+        # per rotor: one column in RPM among rad/s ones is as wrong as all of them
+        per_rotor = np.median(w, axis=0)
+        j = int(np.argmax(per_rotor))
+        typical = float(per_rotor[j])
         if typical > self.ROTOR_SPEED_PLAUSIBLE_FACTOR * hover:
             ratio = typical / hover
             raise GreyboxInputError(
-                f"{where}: columns {','.join(self.command_names[:w.shape[1]])}: the rotor speeds are "
+                f"{where}: column {self.command_names[j]}: the rotor speeds are "
                 f"typically {typical:.4g}, {ratio:.1f} times the hover speed {hover:.4g} rad/s that "
                 f"mass {self.airframe.mass:g} kg and K_T {p[self.param_names.index('K_T')]:.3g} imply "
                 f"(thrust {ratio ** 2:.0f} times the weight): are they RPM? rad/s = RPM * pi/30 "

@@ -28,6 +28,7 @@ from scipy.signal import bilinear, lfilter
 from .data import FlightLog
 from .errors import GreyboxInputError
 from .model import QuadrotorModel
+from .rotations import body_rates_from_euler_rates, rotation_matrices
 
 __all__ = ["RecursiveLeastSquares", "online_thrust_yaw", "OnlineEstimate"]
 
@@ -134,13 +135,9 @@ def online_thrust_yaw(model: QuadrotorModel, log: FlightLog, p: np.ndarray | Non
     else:
         ed = np.column_stack([filt(bD, aD, ang[:, i]) for i in range(3)])
         ph0, th0 = ang[:, 0], ang[:, 1]
-        rates = np.column_stack([ed[:, 0] - np.sin(th0) * ed[:, 2],
-                                 np.cos(ph0) * ed[:, 1] + np.sin(ph0) * np.cos(th0) * ed[:, 2],
-                                 -np.sin(ph0) * ed[:, 1] + np.cos(ph0) * np.cos(th0) * ed[:, 2]])
+        rates = body_rates_from_euler_rates(ph0, th0, ed)
     # body z axis in the world (third column of R): thrust direction is its negative
-    ez_b = np.column_stack([np.cos(phi) * np.sin(th) * np.cos(psi) + np.sin(phi) * np.sin(psi),
-                            np.cos(phi) * np.sin(th) * np.sin(psi) - np.sin(phi) * np.cos(psi),
-                            np.cos(phi) * np.cos(th)])
+    ez_b = rotation_matrices(phi, th, psi)[:, :, 2]
     g = af.gravity
     force = af.mass * (acc - np.array([0.0, 0.0, g])) + kd * vel
     y1 = -np.sum(ez_b * force, axis=1)

@@ -22,7 +22,8 @@ import numpy as np
 
 from .data import atomic_write
 from .errors import GreyboxInputError
-from .vision import VisionRig, _euler_to_rotation, rotation_to_euler
+from .rotations import euler_from_rotation as rotation_to_euler, rotation
+from .vision import VisionRig
 
 __all__ = ["SyntheticCamera", "RenderedFrame", "trajectory_pose", "write_sequence"]
 
@@ -40,7 +41,7 @@ def trajectory_pose(t: np.ndarray, position: np.ndarray, euler: np.ndarray) -> C
     def pose(tq: float) -> Pose:
         p = np.array([np.interp(tq, t, position[:, i]) for i in range(3)])
         e = [float(np.interp(tq, t, euler[:, i])) for i in range(3)]
-        return _euler_to_rotation(*e), p
+        return rotation(*e), p
 
     return pose
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from .data import FlightLog
 from .errors import GreyboxInputError
-from .fitting import _ShootingProblem, estimate_noise, initial_node_states
+from .shooting import ShootingProblem, estimate_noise, initial_node_states
 from .integrate import n_substeps, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 
@@ -96,7 +96,7 @@ def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts
         raise GreyboxInputError("state estimation needs L samples before every start")
     sigma = _sigma(log) if sigma is None else sigma
     n_sub = n_substeps(float(np.diff(log.t).max()))
-    prob = _ShootingProblem(model, [], L, n_sub, compile)
+    prob = ShootingProblem(model, [], L, n_sub, compile)
     nW = starts.size
     Fb = prob.mapped(nW).blocks
     idx = (starts[:, None] - L + np.arange(L)[None, :]).ravel()

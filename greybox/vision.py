@@ -35,7 +35,7 @@ import numpy as np
 
 from .data import FlightLog, atomic_write, read_csv_table
 from .errors import GreyboxInputError
-from .model import rotation_matrices
+from .rotations import euler_from_rotation as rotation_to_euler, rotation, rotation_matrices  # noqa: F401 (rotation_to_euler: public here too)
 
 __all__ = ["Camera", "Mirror", "Marker", "VisionRig", "load_rig", "rig_from_dict",
            "VisionEstimate", "VisionResult", "MarkerTracker", "read_frames", "position_crb",
@@ -348,17 +348,6 @@ def load_rig(path: str | Path) -> VisionRig:
 # ---------------------------------------------------------------------------------------
 # geometry helpers
 # ---------------------------------------------------------------------------------------
-
-def rotation_to_euler(R: np.ndarray) -> tuple[float, float, float]:
-    """ZYX Euler angles ``(phi, theta, psi)`` of ``R = Rz(psi) Ry(theta) Rx(phi)``."""
-    theta = -math.asin(max(-1.0, min(1.0, R[2, 0])))
-    return math.atan2(R[2, 1], R[2, 2]), theta, math.atan2(R[1, 0], R[0, 0])
-
-
-def _euler_to_rotation(phi: float, theta: float, psi: float) -> np.ndarray:
-    """The model's ZYX rotation (:func:`greybox.model.rotation_matrices`) of one attitude."""
-    return rotation_matrices(np.atleast_1d(phi), np.atleast_1d(theta), np.atleast_1d(psi))[0]
-
 
 def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
@@ -709,7 +698,7 @@ class MarkerTracker:
         and pitch are used, the yaw is vision's."""
         if image is None or image.size == 0:
             return "unreadable"
-        prior = None if attitude is None else _euler_to_rotation(*attitude)
+        prior = None if attitude is None else rotation(*attitude)
         corners = self.detect(image)
         with_tilt = prior is not None and self.tilt_sigma is not None
         # the tilt-aided refinement below replaces the corner-only one

@@ -145,7 +145,7 @@ def test_estimator_api(paper_model, flight):
     est, val = flight.log.split()
     e = GreyBoxEstimator(paper_model, p0=OFF).fit(est)
     assert e.params_["K_T"] == pytest.approx(2.395e-5, rel=0.01) and "Kd[0]" in e.std_
-    assert e.score(val) < 0.5
+    assert -0.5 < e.score(val) < 0   # minus the nrmse: higher is better
 
 
 def test_fit_cli_json_contract(paper_model, flight, tmp_path, paper_airframe_path):

@@ -189,6 +189,14 @@ def test_rpm_below_the_absolute_limit_is_caught_against_the_airframe(tmp_path, c
     assert not (tmp_path / "s.csv").exists()
 
 
+def test_one_rotor_column_in_rpm_is_named(tmp_path, capsys):
+    log = load_log(DEMO).slice(0, 600)
+    log.inputs[:, 2] *= 30 / np.pi
+    save_log(log, tmp_path / "w3.csv")
+    rc, err = _cli(capsys, "fit", str(tmp_path / "w3.csv"), "--airframe", PAPER, "--quiet")
+    assert rc == 2 and "column w3" in _one_error(err) and "RPM" in err
+
+
 def test_rad_s_with_a_rough_K_T_guess_is_not_taken_for_rpm(short_log, tmp_path, capsys):
     """A starting K_T 10x too large puts the hover speed 3.2x lower: still accepted."""
     model = QuadrotorModel(load_airframe(PAPER))
@@ -423,6 +431,18 @@ def test_garbage_cache_file_is_rebuilt_not_used_forever(cache):
         g, how = codegen.compiled(f, "test-a")
     assert how == "compiled" and np.allclose(_value(g), _value(f))
     assert lib.read_bytes()[:4] == b"\x7fELF"       # healed for the next run
+
+
+def test_truncated_cache_file_is_rebuilt_without_crashing(cache):
+    """Half a library passes dlopen and dies with SIGBUS on first use: it is caught before."""
+    f = _tiny_function("gb_test_t", 3.0)
+    _compile_elsewhere(cache, "gb_test_t", 3.0, "test-t")
+    lib = codegen._lib_path(f, "test-t", "-O1")
+    whole = lib.read_bytes()
+    _replace(lib, whole[:len(whole) // 2])
+    with pytest.warns(CacheWarning, match="rebuilt"):
+        g, how = codegen.compiled(f, "test-t")
+    assert how == "compiled" and np.allclose(_value(g), _value(f))
 
 
 def test_foreign_library_under_a_cache_name_is_never_used(cache):

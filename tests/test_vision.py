@@ -8,6 +8,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from greybox.rotations import rotation
 import pytest
 
 from greybox.cli import main
@@ -15,7 +17,7 @@ from greybox.data import load_log, log_from_arrays, save_log
 from greybox.errors import GreyboxInputError
 from greybox.synthcam import SyntheticCamera, trajectory_pose, write_sequence
 from greybox.vision import (AttitudeSpanWarning, MarkerTracker, imu_attitude, load_rig, merge_vision,
-                            position_crb, read_frames, rig_from_dict, rotation_to_euler, _euler_to_rotation,
+                            position_crb, read_frames, rig_from_dict, rotation_to_euler,
                             _rodrigues)
 
 RIG_PATH = resources.files("greybox") / "data" / "cameras" / "mirror_down.toml"
@@ -84,7 +86,7 @@ def test_pose_from_exact_corners(mirror, dist):
     rng = np.random.default_rng(3)
     for _ in range(20):
         e = (rng.normal(0, 0.15), rng.normal(0, 0.15), rng.uniform(-math.pi, math.pi))
-        R = _euler_to_rotation(*e)
+        R = rotation(*e)
         p = np.array([*rng.uniform(-0.2, 0.2, 2), -rng.uniform(0.5, 1.5)])
         est = tracker.pose_from_corners({0: _detector_corners(rig, R, p)}, prior=R)
         assert not isinstance(est, str)
@@ -97,14 +99,14 @@ def test_pose_from_exact_corners(mirror, dist):
 
 def test_yaw_sign_by_hand(rig):
     # body turned +0.5 rad (nose east of north): vision must say psi = +0.5, not -0.5
-    R = _euler_to_rotation(0.0, 0.0, 0.5)
+    R = rotation(0.0, 0.0, 0.5)
     p = np.array([0.0, 0.0, -1.0])
     est = MarkerTracker(rig).pose_from_corners({0: _detector_corners(rig, R, p)})
     assert est.euler[2] == pytest.approx(0.5, abs=1e-6)
 
 
 def test_rendered_frame_pose_and_handedness(rig):
-    R = _euler_to_rotation(0.05, -0.04, 0.7)
+    R = rotation(0.05, -0.04, 0.7)
     p = np.array([0.06, -0.04, -0.8])
     frame = SyntheticCamera(rig, pixel_noise=2.0, seed=1).render(lambda t: (R, p), 0.0)
     tracker = MarkerTracker(rig)
@@ -127,9 +129,9 @@ def test_accuracy_reaches_cramer_rao_bound(rig):
     for _ in range(400):
         h = rng.uniform(0.5, 1.5)
         e = (rng.normal(0, 0.1), rng.normal(0, 0.1), rng.uniform(-math.pi, math.pi))
-        R, p = _euler_to_rotation(*e), np.array([*rng.uniform(-0.15, 0.15, 2) * h, -h])
+        R, p = rotation(*e), np.array([*rng.uniform(-0.15, 0.15, 2) * h, -h])
         c = _detector_corners(rig, R, p) + rng.normal(0, sigma, (4, 2))
-        est = tracker.pose_from_corners({0: c}, prior=_euler_to_rotation(*(np.array(e) + rng.normal(0, 0.01, 3))))
+        est = tracker.pose_from_corners({0: c}, prior=rotation(*(np.array(e) + rng.normal(0, 0.01, 3))))
         assert not isinstance(est, str)
         err2.append(np.sum((est.position - p) ** 2))
         crb.append(np.trace(position_crb(rig, R, p, sigma)))
@@ -178,7 +180,7 @@ def test_skips_are_counted_never_crash(rig, tmp_path):
 
 
 def test_mild_blur_and_rolling_shutter_still_track(rig):
-    pose = lambda t: (_euler_to_rotation(0.0, 0.0, 0.3 * t), np.array([0.4 * t, 0.1, -1.0]))
+    pose = lambda t: (rotation(0.0, 0.0, 0.3 * t), np.array([0.4 * t, 0.1, -1.0]))
     cam = SyntheticCamera(rig, pixel_noise=2.0, exposure_time=0.004, rolling_shutter=0.015, seed=4)
     times = np.arange(0, 0.5, 1 / 60)
     res = MarkerTracker(rig).run(((i, f.t, f.image) for i, f in enumerate(cam.frames(pose, times))),
@@ -287,7 +289,7 @@ def test_cli_errors_exit_2_without_output(tmp_path, capsys):
 
 def test_cli_vision_reads_a_video(tmp_path, rig):
     cam = SyntheticCamera(rig, pixel_noise=1.0, seed=6)
-    pose = lambda t: (_euler_to_rotation(0.0, 0.0, 0.2), np.array([0.1 * t, 0.0, -1.0]))
+    pose = lambda t: (rotation(0.0, 0.0, 0.2), np.array([0.1 * t, 0.0, -1.0]))
     writer = cv2.VideoWriter(str(tmp_path / "flight.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (640, 480), False)
     assert writer.isOpened()
     for f in cam.frames(pose, np.arange(10) / 30):
@@ -307,7 +309,7 @@ def test_rendered_frame_with_lens_distortion():
     doc = _doc()
     doc["camera"]["distortion"] = [-0.12, 0.03, 0.002, -0.003, 0.0]
     rig = rig_from_dict(doc)
-    R, p = _euler_to_rotation(0.05, -0.04, 0.7), np.array([0.06, -0.04, -0.8])
+    R, p = rotation(0.05, -0.04, 0.7), np.array([0.06, -0.04, -0.8])
     frame = SyntheticCamera(rig, pixel_noise=2.0, seed=1).render(lambda t: (R, p), 0.0)
     tracker = MarkerTracker(rig)
     found = tracker.detect(frame.image)[0]
@@ -326,7 +328,7 @@ def _position_rms_over_crb(rig, tracker, h, sigma, n, seed, refine):
     err2, crb = [], []
     for _ in range(n):
         e = (rng.normal(0, 0.1), rng.normal(0, 0.1), rng.uniform(-math.pi, math.pi))
-        R, p = _euler_to_rotation(*e), np.array([*rng.uniform(-0.15, 0.15, 2) * h, -h])
+        R, p = rotation(*e), np.array([*rng.uniform(-0.15, 0.15, 2) * h, -h])
         est = tracker.pose_from_corners({0: _detector_corners(rig, R, p) + rng.normal(0, sigma, (4, 2))},
                                         refine=refine)
         assert not isinstance(est, str)
@@ -358,7 +360,7 @@ def test_refined_pose_minimises_corner_error_through_the_mirror(rig):
     P_w = rig.markers[0].corners_world(rig.marker_size)
     for _ in range(10):
         e = (rng.normal(0, 0.1), rng.normal(0, 0.1), rng.uniform(-math.pi, math.pi))
-        R, p = _euler_to_rotation(*e), np.array([*rng.uniform(-0.1, 0.1, 2), -rng.uniform(0.4, 1.0)])
+        R, p = rotation(*e), np.array([*rng.uniform(-0.1, 0.1, 2), -rng.uniform(0.4, 1.0)])
         obs = _detector_corners(rig, R, p) + rng.normal(0, sigma, (4, 2))
         real = obs.copy()
         real[:, 0] = rig.camera.width - 1 - real[:, 0]            # back to the camera's own image
@@ -504,7 +506,7 @@ def test_imu_yaw_reference_plays_no_part(rig):
     # same pose as the true yaw (before, a 0.2 rad yaw offset cost 1.5 cm here, more than
     # vision alone)
     e, p = _wobbly_flight(np.array([0.1]))
-    R = _euler_to_rotation(*e[0])
+    R = rotation(*e[0])
     image = SyntheticCamera(rig, pixel_noise=2.0, seed=12).render(lambda t: (R, p[0]), 0.0).image
     poses = [MarkerTracker(rig).process(image, 0.0, attitude=(e[0, 0], e[0, 1], psi))
              for psi in (e[0, 2], 0.0, e[0, 2] + 1.0)]

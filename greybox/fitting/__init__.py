@@ -1,0 +1,24 @@
+"""Fitting grey-box parameters to flight logs by multiple shooting.
+
+* :func:`fit` (:mod:`greybox.fitting.api`) — the entry point, returning a :class:`FitResult`
+  (a :class:`~greybox.FittedModel`: predict, simulate, linearize, save);
+* :class:`Solver`, :class:`GaussNewton` (:mod:`greybox.fitting.gauss_newton`) — the solver
+  seam and the default structure-exploiting Gauss–Newton; :class:`FitSession` is the problem
+  as solvers see it;
+* :class:`Certificate` (:mod:`greybox.fitting.certificate`) — whether the end point is the
+  optimum and the model adequate;
+* :class:`GreyBoxEstimator` (:mod:`greybox.fitting.estimator`) — scikit-learn's contract.
+
+The problem itself (interval functions, data layout, initial states, noise) is
+:mod:`greybox.shooting`.
+"""
+from ..shooting import (DEFAULT_INTERVAL_S, default_interval, estimate_noise, initial_node_states,
+                        sensor_noise)
+from .api import MANOEUVRE_ADVICE, MAX_RESTARTS, TRUST_REGION, FitResult, fit, progress_printer
+from .certificate import Certificate
+from .estimator import GreyBoxEstimator
+from .gauss_newton import FitSession, GaussNewton, Solver
+
+__all__ = ["fit", "FitResult", "Certificate", "GreyBoxEstimator", "Solver", "GaussNewton", "FitSession",
+           "estimate_noise", "sensor_noise", "initial_node_states", "DEFAULT_INTERVAL_S",
+           "default_interval", "MANOEUVRE_ADVICE", "MAX_RESTARTS", "TRUST_REGION", "progress_printer"]

@@ -1,0 +1,435 @@
+"""``fit``: the public entry of multiple-shooting least-squares fitting, and its result.
+
+The problem is described in :mod:`greybox.shooting`, solved by a :class:`Solver`
+(:class:`GaussNewton` by default, :mod:`greybox.fitting.gauss_newton`), and its end point
+certified (:class:`~greybox.fitting.certificate.Certificate`). Channel noise levels are
+estimated from the data (robust second differences) and re-estimated from the residuals
+after a first solve; uncertainty is the Gauss–Newton covariance of the constrained problem
+scaled by the residual variance.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from ..data import FlightLog
+from ..errors import ConvergenceWarning, GreyboxInputError, SolverError
+from ..fitted import FittedModel, provenance
+from ..model import OUTPUTS, QuadrotorModel
+from ..residuals import fitted_trajectory, output_residuals, whiteness_fraction
+from ..shooting import default_interval, free_indices, noise_levels, sensor_noise
+from .certificate import (GAP_TOLERANCE, NOISE_RATIO_ADEQUATE, NOISE_RATIO_COLOURED, STEP_TOLERANCE,
+                          WHITENESS_ADEQUATE, Certificate)
+from .gauss_newton import FitSession, GaussNewton, Solver
+
+__all__ = ["fit", "FitResult", "progress_printer", "MANOEUVRE_ADVICE", "MAX_RESTARTS", "TRUST_REGION"]
+
+MANOEUVRE_ADVICE = {
+    "K_T": "vertical steps (step_z) and climbs at varied thrust",
+    "b": "yaw steps (yaw) with large rotor-speed differences",
+    "Kd": "fast translations (fast) along each axis, and vertical steps for Kd[2]",
+    "J_r": "fast roll/pitch motions with high rotor speeds",
+    "Kq": "translations at several different speeds (fast)",
+    "k_rd": "horizontal flight at different thrust levels (fast, step_z while moving)",
+    "k_ge": "a slow pass close to the ground (ground)",
+    "tau_m": "rapid rotor-speed changes (steps, excitation)",
+    "r_cog": "hover and attitude steps",
+    "K_T_dev": "roll and pitch steps with varied thrust",
+    "wind": "horizontal flight in several directions",
+    "K_T_drift": "a longer flight, repeating the same manoeuvres early and late",
+    "tau_pos": "fast translations (fast)",
+    "att_bias": "hover and slow translations",
+}
+
+
+
+MAX_RESTARTS = 2
+"""Times a fit whose end point is not certified is solved on from there."""
+TRUST_REGION = 0.5
+"""Largest change of a parameter in one iteration (relative to its scale, the starting value)
+in the second strategy, tried from the start when the first ends uncertified."""
+
+
+def progress_printer(stream=None) -> Callable[[str], None]:
+    """``say(line)``: print a progress line to ``stream`` (default stderr) at once. The one
+    progress printer of the package (fit, diagnosis and vision use it)."""
+    stream = stream or sys.stderr
+
+    def say(msg: str) -> None:
+        print(msg, file=stream, flush=True)
+    return say
+
+
+@dataclass(repr=False)   # FittedModel's short repr: the arrays would fill a screen
+class FitResult(FittedModel):
+    """The outcome of :func:`fit`: a :class:`~greybox.FittedModel` (predict, simulate,
+    linearize, save) with the solver's record.
+
+    ``parameters`` holds every model parameter (fitted or fixed) by component name;
+    ``std`` and ``correlation`` refer to the free ones (``free_names`` order).
+
+    Example::
+
+        res = fit(model, est)
+        res.converged, res.status               # a certified optimum? what is open, in words
+        res.parameters["Kd[2]"], res.free_names, res.correlation
+        pred = predict(model, res.p, val)       # res.p: the flat parameter vector
+    """
+
+    model: QuadrotorModel
+    p: np.ndarray                       # full flat parameter vector
+    free_names: list[str]
+    std: np.ndarray                     # standard deviations of the free parameters
+    covariance: np.ndarray
+    correlation: np.ndarray
+    converged: bool
+    status: str
+    iterations: int
+    cost: float                         # 0.5 * sum of squared weighted residuals
+    n_residuals: int
+    sigma: dict[str, float]             # channel noise levels used as weights
+    residual_rms: dict[str, float]      # RMS residual per channel (units of the channel)
+    node_states: list[np.ndarray]       # per flight, (M+1, nx)
+    node_index: list[np.ndarray]        # per flight, sample index of each node
+    warnings: list[str] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+    evaluator: str = ""
+    interval: int = 50
+    channel_cost: dict[str, float] = field(default_factory=dict)   # sum of squared weighted residuals
+    channel_count: dict[str, int] = field(default_factory=dict)    # measured samples per channel
+    process_noise: dict[str, float] | None = None   # q per state when continuity was soft
+    process_cost: float = 0.0           # 0.5 * sum of squared gaps / q^2 (soft continuity)
+    certificate: Certificate | None = None   # ``converged`` is ``certificate.optimal``
+    provenance: dict = field(default_factory=dict)   # logs, greybox version, time (saved with the model)
+
+    @property
+    def parameters(self) -> dict[str, dict[str, float | None]]:
+        """``{name: {"value": v, "std": s or None (fixed)}}`` for every component."""
+        out: dict[str, dict[str, float | None]] = {}
+        for name, v in zip(self.model.param_names, self.p):
+            s = None
+            if name in self.free_names:
+                s = float(self.std[self.free_names.index(name)])
+            out[name] = {"value": float(v), "std": s}
+        return out
+
+    def value(self, name: str) -> float:
+        return float(self.p[self.model.param_names.index(name)])
+
+    def summary(self) -> str:
+        """A readable table of the fitted parameters."""
+        lines = [f"{'parameter':<12} {'value':>13} {'std':>11} {'rel':>7}"]
+        for name in self.free_names:
+            v, s = self.value(name), float(self.std[self.free_names.index(name)])
+            rel = f"{abs(s / v) * 100:6.2f}%" if v != 0 else "     - "
+            lines.append(f"{name:<12} {v:13.6g} {s:11.3g} {rel:>7}")
+        lines.append(f"status: {self.status}; {self.iterations} iterations; "
+                     f"evaluator: {self.evaluator}")
+        if self.certificate is not None:
+            lines.append(self.certificate.text())
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+
+def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free: Iterable[str] | None = None,
+        fixed: Iterable[str] | None = None, p0: np.ndarray | Mapping[str, float] | None = None,
+        interval: int | None = None, noise: Mapping[str, float] | None = None,
+        max_iter: int = 60, tol: float = 1e-7, reweight: bool = True, compile: str = "auto",
+        progress: bool | Callable[[str], None] = False, initial_states: Sequence[np.ndarray] | None = None,
+        process_noise: str | Mapping[str, float] | None = None, solver: Solver | None = None) -> FitResult:
+    """Fit the free parameters of ``model`` to one or several flight logs.
+
+    Args:
+        model: the grey-box model (its effects decide the parameters).
+        logs: one log or a list of logs (several flights share the parameters; each has its
+            own states). Fit on the estimation part (``log.split()``); validate with
+            :func:`greybox.validation.predict` on the rest.
+        free / fixed: parameter (or component) names to estimate / hold. Default: every
+            parameter whose ``Parameter.free`` is set (``J_r`` is fixed by default).
+        p0: starting values (flat vector or ``{name: value}``); default the airframe's guesses.
+        interval: samples per shooting interval (default: the number nearest 50 ms).
+        noise: channel noise standard deviations ``{"x": 0.003, ...}``; others are estimated.
+        reweight: re-estimate channel noise from the residuals and solve again.
+        compile: ``"auto"`` (compile the step functions to C when a compiler exists), ``"quick"``
+            (compile without optimisation: faster to build, slower to run) or ``"never"``.
+        progress: True to print iterations to stderr, or a callable taking a line of text.
+        initial_states: per flight (M+1, nx) node state guesses (default: from the data).
+        process_noise: ``None`` (default): the model is exact between measurements, the
+            shooting gaps must close (output error). ``"auto"`` or ``{state: std}``: the
+            gaps are process noise, penalised by ``|gap_i|^2 / (2 q_i^2)`` (a filter-error
+            / smoothing formulation); with ``"auto"`` ``q`` starts as the RMS gap of each
+            state at the starting point and is re-estimated (downwards only) after each
+            solve. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
+            fit of such data can only shrink the parameters until the model stops moving.
+        solver: the strategy that runs the iterations (a :class:`~greybox.fitting.Solver`);
+            default :class:`~greybox.fitting.GaussNewton`. Whichever solver ran, the end
+            point is certified the same way (``FitResult.certificate``).
+
+    Example::
+
+        from greybox import QuadrotorModel, fit, load_airframe, load_log
+        model = QuadrotorModel(load_airframe("greybox/data/airframes/paper.toml"))
+        est, val = load_log("greybox/data/logs/demo_ground_effect.csv").split(0.8)
+        res = fit(model, est, p0={"K_T": 3e-5})
+        print(res.summary()); res.parameters["K_T"]     # {"value": ..., "std": ...}
+    """
+    t_start = time.perf_counter()
+    say = progress_printer() if progress is True else (progress or (lambda _m: None))
+    logs = [logs] if isinstance(logs, FlightLog) else list(logs)
+    if not logs:
+        raise GreyboxInputError("no flight logs to fit")
+    if interval is None:
+        # with process noise every sample is a node: the model is only trusted one step ahead
+        interval = 1 if process_noise is not None else default_interval(logs)
+    if interval < 1:
+        raise GreyboxInputError(f"interval must be >= 1 sample, got {interval}")
+    soft = process_noise is not None
+    if soft:   # checked before anything is built
+        if isinstance(process_noise, str) and process_noise != "auto":
+            raise GreyboxInputError(f"process_noise must be None, 'auto' or {{state: std}}, got {process_noise!r}")
+        q_given = {} if isinstance(process_noise, str) else dict(process_noise)
+        for k in q_given:
+            if k not in model.state_names:
+                raise GreyboxInputError(f"process_noise: unknown state {k!r}; states are "
+                                        f"{', '.join(model.state_names)}")
+    logs = [model.prepare_log(log) for log in logs]
+    for log in logs:
+        log.check_fittable(min_samples=max(2 * interval, 20))
+    if isinstance(p0, Mapping):
+        p = model.parameter_vector(p0)
+    else:
+        p = model.default_parameters() if p0 is None else np.array(p0, dtype=float)
+    free_idx = free_indices(model, free, fixed)
+    free_names = [model.param_names[i] for i in free_idx]
+    sigma = noise_levels(logs, noise)
+    ses = FitSession(model, logs, free_idx, p, sigma, interval, compile, say, solver)
+    say(f"fit: {len(logs)} flight(s), {sum(len(l) for l in logs)} samples, {len(free_idx)} free "
+        f"parameters, interval {interval} samples; interval function: {ses.prob.how} ({ses.t_build:.1f} s)")
+    if initial_states is not None:
+        X = np.vstack([np.array(s, dtype=float) for s in initial_states])
+    else:
+        X = ses.initial_nodes(p)
+    th = p[free_idx] / ses.scale
+    data = ses.data
+    n_c = data.mask.sum(axis=1)
+    user_sigma = np.array([n in (noise or {}) for n in OUTPUTS])
+
+    def residual_rms(c: np.ndarray) -> np.ndarray:
+        return np.sqrt(np.where(n_c > 0, c.sum(axis=1) / np.maximum(n_c, 1), 1.0))
+
+    t0 = time.perf_counter()
+    if soft:
+        def estimate_q(X_, th_) -> np.ndarray:
+            xe = ses.evaluate(X_, th_, blocks=False)[0]
+            rms = np.sqrt(np.mean(ses.gaps(X_, xe) ** 2, axis=0))
+            floor = 1e-6 * (np.abs(X_).max(axis=0) + 1e-3)
+            q = np.maximum(rms, floor)
+            if ses.q is not None:
+                # only downwards: grown process noise would let the states follow measurement
+                # noise, and the gaps grow with it (the degenerate end of joint Q estimation)
+                q = np.minimum(q, ses.q)
+            for name, v in q_given.items():
+                q[model.state_names.index(name)] = float(v)
+            return q
+
+        ses.q = estimate_q(X, th)
+        say("fit: process noise (RMS gap per state): " +
+            ", ".join(f"{n}={v:.2g}" for n, v in zip(model.state_names, ses.q)))
+    sensor = sensor_noise(logs)
+    n_res = int(data.mask.sum())
+    dof = max(n_res - ses.nth - ses.nx * len(logs), 1)
+
+    def check(X_, th_, blocks_):
+        P_ = ses.covariance(X_, blocks_)
+        s2_ = 2 * ses.total_cost(X_, blocks_[0], blocks_[4]) / dof
+        return P_, s2_, ses.optimality(X_, th_, blocks_, P_, s2_, sensor)
+
+    def attempt(X, th):
+        if reweight and not soft:
+            # Where the starting model misses a channel by far more than the sensor noise (real
+            # data: unmodelled physics dwarfs a mocap's 0.1 mm), noise weights would let that one
+            # channel dictate the fit; start from weights of the size of the starting residuals.
+            rms0 = residual_rms(ses.evaluate(X, th, blocks=False)[1])
+            inflate = np.where((n_c > 0) & ~user_sigma & (rms0 > 10.0), rms0 / 10.0, 1.0)
+            if np.any(inflate > 1):
+                ses.set_sigma(ses.sigma * inflate)
+                say("fit: starting weights from the first residuals: " +
+                    ", ".join(f"{n}={s:.3g}" for n, s, k in zip(OUTPUTS, ses.sigma, inflate) if k > 1))
+        polished = not (reweight and not soft)
+        X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-3, max_iter, tol, rough=not polished)
+        total_iters = iters
+        for _ in range(3 if soft and process_noise == "auto" else 0):
+            if not converged:
+                break
+            q_new = estimate_q(X, th)
+            if np.all(np.abs(q_new / ses.q - 1) < 0.2):
+                break
+            ses.q = q_new
+            say("fit: process noise re-estimated: " + ", ".join(f"{n}={v:.2g}" for n, v in zip(model.state_names, ses.q)))
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
+            total_iters += iters
+        for _ in range(3 if reweight and not soft else 0):
+            if not converged:
+                break
+            # channel noise re-estimated from the residuals: weights match the data
+            rms_w = residual_rms(blocks[4])
+            fix = np.where((n_c > 0) & ~user_sigma, rms_w, 1.0)
+            if not np.any(np.abs(fix - 1) > 0.05):
+                break
+            ses.set_sigma(ses.sigma * fix)
+            say("fit: noise re-estimated from residuals: " +
+                ", ".join(f"{n}={s:.3g}" for n, s, k in zip(OUTPUTS, ses.sigma, n_c) if k))
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
+            total_iters += iters
+            polished = True
+        if not polished and converged:
+            # the weights did not change: finish the settled solve to the full tolerance
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, mu, max_iter, tol)
+            total_iters += iters
+        P, s2, opt = check(X, th, blocks)
+        for _ in range(MAX_RESTARTS):
+            if not opt[4] or status == "maximum iterations reached":   # the user's budget is spent
+                break
+            # Not there yet: a line search that found no decrease on an l1 merit whose weights
+            # only grow, or an iteration cap. Solve on from here with fresh damping and merit
+            # weights; the certificate, not the solver's stopping rule, decides.
+            say(f"fit: not certified ({'; '.join(opt[4])}): solving on with fresh damping and merit weights")
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-3, max_iter, tol)
+            total_iters += iters
+            P, s2, opt = check(X, th, blocks)
+        return X, th, mu, total_iters, converged, status, blocks, P, s2, opt
+
+    start = (X.copy(), th.copy(), ses.sigma.copy(), None if ses.q is None else ses.q.copy())
+    X, th, mu, total_iters, converged, status, blocks, P, s2, opt = attempt(X, th)
+    if opt[4] and status != "maximum iterations reached":
+        # A second strategy from the same start: a trust region on the parameters. Far from
+        # the optimum a linearisation can ask for a sign change or a tenfold value in one step
+        # (a foreign 1 kg flight with a weak rotor went there and never came back); kept for
+        # the retry because it slows a fit that would have got there anyway.
+        say(f"fit: not certified ({'; '.join(opt[4])}); again from the start with a trust region "
+            f"of {100 * TRUST_REGION:.0f} % per iteration on the parameters")
+        first = (X, th, mu, total_iters, converged, status, blocks, P, s2, opt)
+        kept_sigma, kept_q = ses.sigma.copy(), ses.q
+        X0, th0, sigma0, q0 = start
+        ses.set_sigma(sigma0)
+        ses.q = q0
+        ses.max_step = TRUST_REGION
+        second = attempt(X0.copy(), th0.copy())
+        ses.max_step = None
+        if second[9][4]:      # not certified either: keep the first, and its weights
+            ses.set_sigma(kept_sigma)
+            ses.q = kept_q
+            X, th, mu, total_iters, converged, status, blocks, P, s2, opt = first
+            total_iters += second[3]
+        else:
+            X, th, mu, total_iters, converged, status, blocks, P, s2, opt = second
+            total_iters += first[3]
+    step_std, state_step, gap, held, reasons = opt
+    if not reasons and not converged:
+        status = f"converged (certified optimum; the solver stopped on: {status})"
+    elif reasons:
+        status = f"{'' if status.startswith('converged') else status + '; '}optimum not certified: {'; '.join(reasons)}"
+    converged = not reasons
+    t_solve = time.perf_counter() - t0
+    sigma, scale, nth, nx = ses.sigma, ses.scale, ses.nth, ses.nx
+    cch = blocks[4]
+    cost = ses.total_cost(X, blocks[0], cch)
+    cov = s2 * P * np.outer(scale, scale)
+    var = np.diag(cov)
+    warnings: list[str] = []
+    if np.any(var <= 0) or not np.all(np.isfinite(var)):
+        warnings.append("information matrix is singular: some parameters are not identifiable from these data")
+    # a non-positive variance is no variance: its std is unknown (NaN), not sqrt(|v|), and it
+    # has no correlations (a correlation outside [-1, 1] was once reported from one)
+    std = np.where(var > 0, np.sqrt(np.abs(var)), np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = cov / np.outer(std, std)
+    corr = np.clip(np.nan_to_num(corr), -1.0, 1.0)
+    p_out = p.copy()
+    p_out[free_idx] = th * scale
+    warnings += _identifiability_warnings(free_names, p_out[free_idx], std, corr, P)
+    if not converged:
+        warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
+        import warnings as _w
+        _w.warn(f"fit did not converge: {status}", ConvergenceWarning, stacklevel=2)
+
+    cc = cch.sum(axis=1)
+    resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
+    node_states, k = [], 0
+    for _, M in data.flights:
+        node_states.append(X[k:k + M + 1].copy())
+        k += M + 1
+    # the residual check: RMS against the noise of the data, whiteness of the residual series.
+    # With process noise the fitted states follow the data through the gaps, so residuals at
+    # the nodes say nothing about the model: it is judged open loop instead, over intervals of
+    # the default length (50 ms) started from the fitted states.
+    white: dict[str, list[float]] = {}
+    sq: dict[str, list[float]] = {}
+    check_n = default_interval(logs) if soft else interval
+    for f, log in enumerate(logs):
+        nodes, idx = node_states[f], data.node_index[f]
+        if check_n != interval:
+            M = math.ceil(len(log) / check_n)
+            idx = np.minimum(np.arange(M + 1) * check_n, len(log) - 1)
+            nodes = nodes[idx]          # soft fits have a node at every sample
+        probe = FitResult(model, p_out, free_names, np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0)), converged,
+                          status, 0, 0.0, 0, {}, {}, [nodes], [idx], interval=check_n)
+        E = output_residuals(log, fitted_trajectory(model, probe, log, 0)[1])
+        for c, n in enumerate(OUTPUTS):
+            if n_c[c]:
+                white.setdefault(n, []).append(whiteness_fraction(E[:, c]))
+                sq.setdefault(n, []).append(float(np.nansum(E[:, c] ** 2)))
+    check_rms = {n: math.sqrt(sum(sq[n]) / n_c[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}
+    certificate = Certificate(
+        converged, step_std, state_step, gap, held,
+        {n: float(check_rms[n] / sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
+        {n: float(np.nanmean(v)) if np.any(np.isfinite(v)) else float("nan") for n, v in white.items()},
+        {n: float(sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, reasons)
+    timings = {"build": ses.t_build, "solve": t_solve, "total": time.perf_counter() - t_start}
+    say(f"fit: {status} after {total_iters} iterations in {timings['total']:.2f} s")
+    return FitResult(model, p_out, free_names, std, cov, corr, converged, status, total_iters, cost,
+                     n_res, {n: float(sigma[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, resid_rms,
+                     node_states, data.node_index, warnings, timings, ses.prob.how, interval,
+                     {n: float(cc[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
+                     {n: int(n_c[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
+                     dict(zip(model.state_names, map(float, ses.q))) if soft else None,
+                     cost - 0.5 * float(cch.sum()), certificate,
+                     provenance(logs, status=status, converged=bool(converged), interval=interval,
+                                process_noise=process_noise if isinstance(process_noise, str) else
+                                (dict(process_noise) if process_noise else None)))
+
+
+def _identifiability_warnings(names: list[str], values: np.ndarray, std: np.ndarray, corr: np.ndarray,
+                              P: np.ndarray) -> list[str]:
+    out = []
+
+    def advice(n: str) -> str:
+        base = n.split("[")[0]
+        return MANOEUVRE_ADVICE.get(base, "more varied manoeuvres")
+
+    n = len(names)
+    for i in range(n):
+        for j in range(i + 1, n):
+            if abs(corr[i, j]) > 0.95:
+                out.append(f"{names[i]} and {names[j]} are strongly correlated (r = {corr[i, j]:+.3f}): "
+                           f"the data hardly tell them apart; fly {advice(names[i])} / {advice(names[j])}")
+    for i in range(n):
+        if values[i] != 0 and std[i] > 0.5 * abs(values[i]):
+            out.append(f"{names[i]} is poorly determined ({std[i]:.3g} on {values[i]:.3g}); "
+                       f"fly {advice(names[i])}")
+    # near-singular information: the weakest direction of the scaled covariance
+    w, V = np.linalg.eigh(0.5 * (P + P.T))
+    if w.size and w[-1] > 0 and w[0] > 0 and w[-1] / w[0] > 1e10:
+        v = V[:, -1]
+        top = [names[k] for k in np.argsort(-np.abs(v))[:3] if abs(v[k]) > 0.3]
+        out.append(f"near-singular information (condition {w[-1] / w[0]:.1e}); weakest combination "
+                   f"involves {', '.join(top)}")
+    return out
+
+

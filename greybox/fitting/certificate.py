@@ -1,0 +1,93 @@
+"""The certificate of a fit's end point: is it the optimum, and is the model adequate?"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+__all__ = ["Certificate", "STEP_TOLERANCE", "GAP_TOLERANCE", "NOISE_RATIO_ADEQUATE",
+           "NOISE_RATIO_COLOURED", "WHITENESS_ADEQUATE"]
+
+STEP_TOLERANCE = 0.1
+"""A fit is at its optimum when one more undamped Gauss-Newton step would move no free
+parameter by more than this fraction of its standard deviation, nor any node state by more
+than this fraction of its noise scale: further iterations cannot change a conclusion."""
+GAP_TOLERANCE = 0.1
+"""Largest continuity gap allowed at a certified optimum, as a fraction of the state's noise
+scale (output-error fits; with process noise the gaps are residuals)."""
+NOISE_RATIO_ADEQUATE = 2.0
+"""Residual RMS up to this multiple of the sensor noise (estimated from the measurements'
+high-frequency content) counts as "at the noise level" when the residuals are white."""
+NOISE_RATIO_COLOURED = math.sqrt(2.0)
+"""Coloured residuals are systematic: they count as the model's error once their systematic
+part, ``sqrt(rms^2 - noise^2)``, is as large as the noise itself (RMS ratio sqrt(2)). On long
+logs a tiny systematic error is already far outside the whiteness band; it is not yet a
+failure of the model."""
+WHITENESS_ADEQUATE = 0.2
+"""Fraction of autocorrelation lags outside the 99 % band up to which residuals count as white."""
+
+
+@dataclass
+class Certificate:
+    """Whether a fit reached the optimum of its own problem (first-order optimality, closed
+    shooting gaps), and whether its residuals look like sensor noise.
+
+    The first is what makes test statistics at that fit meaningful (``optimal``); the second
+    says whether the model explains the data (``adequate``): an optimal fit of a model that
+    misses physics has residuals far above the noise, and coloured.
+    """
+
+    optimal: bool
+    step_over_std: float                 # largest remaining GN parameter step / its std
+    state_step_over_noise: float         # largest remaining GN node-state step / noise scale
+    gap_over_noise: float                # largest continuity gap / the state's noise scale
+    held: list[str]                      # parameters held on a bound (the step is projected)
+    residual_over_noise: dict[str, float]   # per channel: RMS residual / sensor noise of the data
+    whiteness: dict[str, float]          # per channel: fraction of lags outside the 99 % band
+    sensor_noise: dict[str, float]       # per channel: noise estimated from the measurements
+    reasons: list[str] = field(default_factory=list)   # why not optimal, in words
+
+    @property
+    def adequate(self) -> bool:
+        """No channel's residuals are far above the noise, or coloured and above it."""
+        return not self.off_channels()
+
+    def off_channels(self) -> list[str]:
+        """Channels whose residuals are far above the noise level, or coloured with a
+        systematic part as large as the noise."""
+        return [ch for ch, r in self.residual_over_noise.items()
+                if r > NOISE_RATIO_ADEQUATE or (r > NOISE_RATIO_COLOURED and
+                                                self.whiteness.get(ch, 0.0) > WHITENESS_ADEQUATE)]
+
+    def text(self) -> str:
+        """The certificate in words."""
+        if self.optimal:
+            head = (f"optimum certified: one more Gauss-Newton step would move the parameters by "
+                    f"{self.step_over_std:.2g} std at most, the largest gap is {self.gap_over_noise:.2g} of the noise")
+        else:
+            head = "optimum NOT certified: " + "; ".join(self.reasons)
+        if self.held:
+            head += f"; held on a bound: {', '.join(self.held)}"
+        off = self.off_channels()
+        if off:
+            tail = ("residuals above the sensor noise in " +
+                    ", ".join(f"{ch} ({self.residual_over_noise[ch]:.3g}x noise, "
+                              f"{100 * self.whiteness.get(ch, 0.0):.0f} % of lags outside the band)" for ch in off) +
+                    ": the model does not explain these channels")
+        else:
+            tail = "residuals at the sensor noise"
+        return f"{head}. {tail}."
+
+    def as_dict(self) -> dict:
+        return {"optimal": self.optimal, "adequate": self.adequate, "step_over_std": _finite(self.step_over_std),
+                "state_step_over_noise": _finite(self.state_step_over_noise),
+                "gap_over_noise": _finite(self.gap_over_noise), "held": list(self.held),
+                "residual_over_noise": {k: _finite(v) for k, v in self.residual_over_noise.items()},
+                "whiteness": {k: _finite(v) for k, v in self.whiteness.items()},
+                "sensor_noise": {k: _finite(v) for k, v in self.sensor_noise.items()},
+                "reasons": list(self.reasons), "text": self.text()}
+
+
+def _finite(v: float) -> float | None:
+    v = float(v)
+    return v if math.isfinite(v) else None
+

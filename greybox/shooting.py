@@ -1,0 +1,351 @@
+"""The multiple-shooting problem of a fit, apart from any solver.
+
+The problem: find the free parameters ``theta`` and the states ``s_j`` at shooting nodes
+(every ``interval`` samples) that minimise the weighted measurement residuals at every
+measured sample of every channel, subject to continuity: integrating the model (RK4, input
+held) from ``s_j`` over interval j must land on ``s_{j+1}``.
+
+This module holds what describes that problem: the CasADi interval functions
+(:class:`ShootingProblem`, compiled to C and cached by :mod:`greybox.codegen`), the flights
+laid out as padded intervals (:class:`ShootingData`), state guesses from the measurements
+(:func:`initial_node_states`), channel noise estimates and the parameters' bounds. The
+solvers live in :mod:`greybox.fitting`; :mod:`greybox.validation` uses the problem's
+functions for predictions.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterable, Mapping, Sequence
+
+import casadi as ca
+import numpy as np
+from scipy.signal import savgol_filter
+
+from .codegen import compiled
+from .data import FlightLog
+from .errors import GreyboxInputError
+from .integrate import rk4_step
+from .model import OUTPUTS, QuadrotorModel
+from .rotations import body_rates_from_euler_rates
+
+__all__ = ["ShootingProblem", "MappedPair", "ShootingData", "layout", "initial_node_states",
+           "estimate_noise", "noise_levels", "sensor_noise", "free_indices", "parameter_bounds",
+           "DEFAULT_INTERVAL_S", "default_interval", "effect_source"]
+
+DEFAULT_INTERVAL_S = 0.05
+"""Default shooting interval in seconds: 50 samples at 1 kHz, chosen by
+``experiments/bench_fit.py``; at other rates the nearest whole number of samples."""
+
+
+def effect_source(effect) -> str:
+    """What defines an effect's equations beyond its options, for compile-cache keys: nothing
+    for greybox's own (their source is hashed with the package), the class's source code for
+    an effect defined elsewhere (editing it must not reload old compiled code)."""
+    import inspect
+    cls = type(effect)
+    if cls.__module__.startswith("greybox."):
+        return ""
+    try:
+        return inspect.getsource(cls)
+    except (OSError, TypeError):
+        # no source to read (defined interactively): never share a cached library
+        return f"{cls.__module__}.{cls.__qualname__}@{id(cls)}"
+
+
+def default_interval(logs: "Sequence[FlightLog]") -> int:
+    """Samples per shooting interval closest to :data:`DEFAULT_INTERVAL_S`."""
+    dt = float(np.median(np.concatenate([np.diff(l.t) for l in logs])))
+    return max(1, int(round(DEFAULT_INTERVAL_S / dt)))
+
+PSI = OUTPUTS.index("psi")
+
+# ------------------------------------------------------------------------------ noise
+def estimate_noise(y: np.ndarray) -> float:
+    """Noise standard deviation of a (possibly sparse) channel from robust second
+    differences of its measured samples: for white noise ``var(y[k+1]-2y[k]+y[k-1]) = 6 s^2``.
+    """
+    v = y[np.isfinite(y)]
+    if v.size < 5:
+        return float("nan")
+    d2 = v[2:] - 2 * v[1:-1] + v[:-2]
+    mad = np.median(np.abs(d2 - np.median(d2)))
+    s = 1.4826 * mad / math.sqrt(6.0)
+    if s <= 0:
+        s = float(np.std(d2)) / math.sqrt(6.0)
+    return float(s)
+
+
+# ------------------------------------------------------------------------------ initial states
+def _fill(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    k = np.isfinite(y)
+    if k.sum() == 0:
+        return np.zeros_like(y)
+    if k.sum() == 1:
+        return np.full_like(y, y[k][0])
+    return np.interp(t, t[k], y[k])
+
+
+def _smooth(t: np.ndarray, y: np.ndarray, window_s: float, deriv: int = 0) -> np.ndarray:
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    win = int(round(window_s / dt)) | 1
+    win = max(5, min(win, (t.size - 1) | 1 if t.size % 2 == 0 else t.size))
+    if win > t.size:
+        win = t.size if t.size % 2 else t.size - 1
+    if win < 5:
+        return np.gradient(y, t) if deriv else y.copy()
+    return savgol_filter(y, win, 2, deriv=deriv, delta=dt, mode="interp")
+
+
+def initial_node_states(model: QuadrotorModel, log: FlightLog, idx: np.ndarray,
+                        p: np.ndarray | None = None) -> np.ndarray:
+    """State guesses at samples ``idx`` from the measurements: positions and angles
+    interpolated and smoothed, velocities and (without gyro) body rates from smoothed
+    numerical derivatives, effect states from the logged inputs. Returns (len(idx), nx)."""
+    t = log.t
+    X = np.zeros((t.size, 12))
+    for i, name in enumerate(["x", "y", "z"]):
+        yi = _fill(t, log.output(name))
+        X[:, i] = _smooth(t, yi, 0.1)
+        X[:, 6 + i] = _smooth(t, yi, 0.2, deriv=1)
+    ang = np.column_stack([_fill(t, log.output(n)) for n in ("phi", "theta", "psi")])
+    ang[:, 2] = np.unwrap(ang[:, 2])
+    for i in range(3):
+        X[:, 3 + i] = _smooth(t, ang[:, i], 0.03)
+    if all(n in log.output_names for n in ("p", "q", "r")) and np.isfinite(log.output("p")).sum() > 5:
+        for i, n in enumerate(("p", "q", "r")):
+            X[:, 9 + i] = _smooth(t, _fill(t, log.output(n)), 0.03)
+    else:
+        rates = np.column_stack([_smooth(t, ang[:, i], 0.06, deriv=1) for i in range(3)])
+        X[:, 9:12] = body_rates_from_euler_rates(X[:, 3], X[:, 4], rates)
+    out = np.zeros((idx.size, model.nx))
+    out[:, :12] = X[idx]
+    if model.nx > 12:
+        for r, k in enumerate(idx):
+            out[r] = model.initial_state(out[r, :12], log.inputs[k], p)
+    return out
+
+class ShootingProblem:
+    """CasADi functions for the interval blocks of a given model, free set and interval.
+
+    The per-sample step functions (small) are compiled to C and cached; the fold over an
+    interval's samples and the map over intervals stay CasADi constructs around them.
+    """
+
+    @staticmethod
+    def step_functions(model: QuadrotorModel, free_idx: list[int], n_sub: int
+                       ) -> tuple[ca.Function, ca.Function, str]:
+        """Per-sample Gauss-Newton step functions and the cache key that determines them."""
+        nx, nu, ny, npar = model.nx, model.nu, model.ny, model.n_params
+        nth = len(free_idx)
+        nz = nx + nth
+        step = rk4_step(model, n_sub)
+        x = ca.SX.sym("x", nx)
+        S = ca.SX.sym("S", nx, nz)
+        H = ca.SX.sym("H", nz, nz)
+        g = ca.SX.sym("g", nz)
+        c = ca.SX.sym("c", ny)
+        u = ca.SX.sym("u", nu)
+        t = ca.SX.sym("t")
+        h = ca.SX.sym("h")
+        ym = ca.SX.sym("ym", ny)
+        w = ca.SX.sym("w", ny)
+        th = ca.SX.sym("th", nth)          # scaled free parameters
+        sc = ca.SX.sym("scale", nth)
+        pfix = ca.SX.sym("pfix", npar)
+        p = ca.SX(pfix)
+        for i, k in enumerate(free_idx):
+            p[k] = th[i] * sc[i]
+        y = model.output(x, u, p, t)
+        d = ym - y
+        d[PSI] = ca.atan2(ca.sin(d[PSI]), ca.cos(d[PSI]))  # yaw residual wrapped to (-pi, pi]
+        e = w * d
+        xn = step(x, u, p, t, h)
+        z = ca.vertcat(x, th)
+        E0 = ca.horzcat(ca.SX.zeros(nth, nx), ca.SX.eye(nth))  # d theta / d z
+        Jy = ca.jacobian(y, z)
+        Jx = ca.jacobian(xn, z)
+        Je = -w * (Jy[:, :nx] @ S + Jy[:, nx:] @ E0)   # (ny, nz); w broadcasts over rows
+        Sn = Jx[:, :nx] @ S + Jx[:, nx:] @ E0
+        step_blk = ca.Function("gb_step_blocks", [x, S, H, g, c, u, t, h, ym, w, th, sc, pfix],
+                               [xn, Sn, H + Je.T @ Je, g + Je.T @ e, c + e * e])
+        step_val = ca.Function("gb_step_value", [x, c, u, t, h, ym, w, th, sc, pfix], [xn, c + e * e])
+        af = model.airframe
+        key = repr((af.mass, af.inertia.tolist(), af.rotor_positions.tolist(), af.spins.tolist(),
+                    af.gravity, af.ground_z, af.rotor_inertia,
+                    af.parameters if model.inputs == "controls" else None,
+                    [(e.name, sorted(e.options().items()), effect_source(e)) for e in model.effects],
+                    model.inputs, free_idx, n_sub))
+        return step_blk, step_val, key
+
+    def __init__(self, model: QuadrotorModel, free_idx: list[int], N: int, n_sub: int,
+                 compile_mode: str):
+        self.model, self.free_idx, self.N = model, free_idx, N
+        nx, nu, ny, npar = model.nx, model.nu, model.ny, model.n_params
+        nth = len(free_idx)
+        nz = nx + nth
+        self.nx, self.nth, self.nz, self.ny = nx, nth, nz, ny
+        step_blk, step_val, key = self.step_functions(model, free_idx, n_sub)
+        self.how = "virtual machine"
+        if compile_mode != "never":
+            # "quick": a faster build, slower code, for functions evaluated once or twice
+            opt = "-O0" if compile_mode == "quick" else "-O1"
+            step_blk, self.how = compiled(step_blk, key + "blocks", opt)
+            # the line-search function compiles when first used (screening never needs it)
+            self._value_step = (step_val, key + "value", opt)
+        else:
+            self._value_step = (step_val, None, None)
+        self._N = N
+
+        # fold over the interval's samples; theta, scale and fixed parameters are repeated
+        acc_b = step_blk.mapaccum("acc", N, [0, 1, 2, 3, 4], [0, 1, 2, 3, 4])
+        xs = ca.MX.sym("s", nx)
+        ths = ca.MX.sym("th", nth)
+        scs = ca.MX.sym("scale", nth)
+        pf = ca.MX.sym("pfix", npar)
+        U = ca.MX.sym("U", nu, N)
+        T = ca.MX.sym("T", 1, N)
+        Hs = ca.MX.sym("h", 1, N)
+        Y = ca.MX.sym("Y", ny, N)
+        W = ca.MX.sym("W", ny, N)
+        const = [ca.repmat(ths, 1, N), ca.repmat(scs, 1, N), ca.repmat(pf, 1, N)]
+        S0 = ca.horzcat(ca.MX.eye(nx), ca.MX.zeros(nx, nth))
+        r = acc_b(xs, S0, ca.MX.zeros(nz, nz), ca.MX.zeros(nz, 1), ca.MX.zeros(ny, 1), U, T, Hs, Y, W, *const)
+        ins = [xs, ths, scs, pf, U, T, Hs, Y, W]
+        self.blocks = ca.Function("gb_interval_blocks", ins,
+                                  [r[0][:, -1], r[1][:, -nz:], r[2][:, -nz:], r[3][:, -1], r[4][:, -1]])
+        self._value_args = (ins, const)
+        self._value: ca.Function | None = None
+        self._maps: dict[int, "MappedPair"] = {}
+
+    @property
+    def value(self) -> ca.Function:
+        if self._value is None:
+            step_val, key, opt = self._value_step
+            if key is not None:
+                step_val, _ = compiled(step_val, key, opt)
+            ins, const = self._value_args
+            xs, U, T, Hs, Y, W = ins[0], ins[4], ins[5], ins[6], ins[7], ins[8]
+            acc_v = step_val.mapaccum("accv", self._N, [0, 1], [0, 1])
+            rv = acc_v(xs, ca.MX.zeros(self.ny, 1), U, T, Hs, Y, W, *const)
+            self._value = ca.Function("gb_interval_value", ins, [rv[0][:, -1], rv[1][:, -1]])
+        return self._value
+
+    def mapped(self, M: int) -> "MappedPair":
+        if M not in self._maps:
+            self._maps[M] = MappedPair(self, M)
+        return self._maps[M]
+
+
+class MappedPair:
+    """The interval functions mapped over M intervals; the value function on first use."""
+
+    def __init__(self, prob: ShootingProblem, M: int):
+        self.prob, self.M = prob, M
+        self.blocks = prob.blocks.map(M, "thread", 2)
+        self._value = None
+
+    @property
+    def value(self) -> ca.Function:
+        if self._value is None:
+            self._value = self.prob.value.map(self.M, "thread", 2)
+        return self._value
+
+
+@dataclass
+class ShootingData:
+    """One or several flights laid out as padded intervals."""
+
+    U: np.ndarray      # (nu, M*N)
+    T: np.ndarray
+    Hs: np.ndarray
+    Y: np.ndarray      # (ny, M*N), NaN -> 0
+    W: np.ndarray      # (ny, M*N) weights (1/sigma, 0 where missing)
+    mask: np.ndarray   # (ny, M*N) measured
+    flights: list[tuple[int, int]]   # per flight: first interval, number of intervals
+    node_index: list[np.ndarray]
+
+
+def layout(model: QuadrotorModel, logs: Sequence[FlightLog], N: int, sigma: np.ndarray) -> ShootingData:
+    Us, Ts, Hs, Ys, flights, node_index = [], [], [], [], [], []
+    j0 = 0
+    for log in logs:
+        n = len(log)
+        M = math.ceil(n / N)
+        pad = M * N - n
+        h = np.append(np.diff(log.t), 0.0)
+        Y = np.full((n, model.ny), np.nan)
+        for c, name in enumerate(OUTPUTS):
+            if name in log.output_names:
+                Y[:, c] = log.output(name)
+        Us.append(np.vstack([log.inputs, np.repeat(log.inputs[-1:], pad, 0)]))
+        Ts.append(np.append(log.t, np.full(pad, log.t[-1])))
+        Hs.append(np.append(h, np.zeros(pad)))
+        Ys.append(np.vstack([Y, np.full((pad, model.ny), np.nan)]))
+        flights.append((j0, M))
+        node_index.append(np.minimum(np.arange(M + 1) * N, n - 1))
+        j0 += M
+    Y = np.vstack(Ys).T
+    mask = np.isfinite(Y)
+    W = np.where(mask, 1.0 / sigma[:, None], 0.0)
+    return ShootingData(np.vstack(Us).T, np.concatenate(Ts)[None, :], np.concatenate(Hs)[None, :],
+                 np.where(mask, Y, 0.0), W, mask, flights, node_index)
+
+
+def free_indices(model: QuadrotorModel, free: Iterable[str] | None,
+                  fixed: Iterable[str] | None) -> list[int]:
+    names = model.param_names
+
+    def expand(items):
+        out = []
+        for it in items:
+            if it in names:
+                out.append(it)
+                continue
+            par = next((p for p in model.parameters if p.name == it), None)
+            if par is None:
+                raise GreyboxInputError(f"unknown parameter {it!r}; the model's parameters are "
+                                        f"{', '.join(p.name for p in model.parameters)}")
+            out += par.component_names
+        return out
+
+    if free is not None:
+        chosen = set(expand(free))
+    else:
+        chosen = {n for p in model.parameters if p.free for n in p.component_names}
+    chosen -= set(expand(fixed or []))
+    if not chosen:
+        raise GreyboxInputError("no free parameters to fit")
+    return [i for i, n in enumerate(names) if n in chosen]
+
+
+def parameter_bounds(model: QuadrotorModel) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = [], []
+    for p in model.parameters:
+        lo += [p.lower] * p.size
+        hi += [p.upper] * p.size
+    return np.array(lo), np.array(hi)
+
+
+def noise_levels(logs: Sequence[FlightLog], noise: Mapping[str, float] | None) -> np.ndarray:
+    sigma = np.ones(len(OUTPUTS))
+    given = dict(noise or {})
+    for c, name in enumerate(OUTPUTS):
+        if name in given:
+            sigma[c] = float(given[name])
+            continue
+        vals = [estimate_noise(l.output(name)) for l in logs if name in l.output_names]
+        vals = [v for v in vals if np.isfinite(v)]
+        sigma[c] = float(np.median(vals)) if vals else 1.0
+    floor = {"x": 1e-4, "y": 1e-4, "z": 1e-4, "phi": 1e-4, "theta": 1e-4, "psi": 1e-4,
+             "p": 1e-3, "q": 1e-3, "r": 1e-3}
+    return np.maximum(sigma, [floor[n] for n in OUTPUTS])
+
+
+def sensor_noise(logs: Sequence[FlightLog]) -> np.ndarray:
+    """Per output channel, the noise standard deviation estimated from the measurements'
+    high-frequency content (:func:`estimate_noise`), never from model residuals; floored at
+    the resolution below which no sensor reports (0.1 mm, 0.1 mrad, 1 mrad/s)."""
+    return noise_levels(logs, None)
+
+

@@ -1,0 +1,164 @@
+"""A fitted model you can hold (issue 17): save/load bit for bit, the CLI's --save/--model,
+scikit-learn's contract for the estimator, the solver seam."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import greybox
+from greybox import effects as fx
+from greybox.cli import main
+from greybox.data import save_log
+from greybox.errors import GreyboxInputError
+from greybox.fitted import FORMAT_VERSION, FittedModel, load
+from greybox.fitting import FitResult, GaussNewton, GreyBoxEstimator, fit
+from greybox.model import QuadrotorModel
+from greybox.synth import SensorSpec, model_with_hidden_effects, synthesize
+
+from conftest import AIRFRAMES
+
+OFF = {"K_T": 2.395e-5 * 1.2, "b": 6.8429e-7 * 0.8}
+
+
+@pytest.fixture(scope="module")
+def paper_model():
+    return QuadrotorModel(greybox.load_airframe(AIRFRAMES / "paper.toml"))
+
+
+@pytest.fixture(scope="module")
+def flight(paper_model):
+    model, p = model_with_hidden_effects(paper_model, [])
+    return synthesize(model, p, 12.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=5).log
+
+
+@pytest.fixture(scope="module")
+def fitted(paper_model, flight) -> FitResult:
+    est, _ = flight.split()
+    return fit(paper_model, est, p0=OFF, max_iter=40)
+
+
+def test_fit_result_is_a_fitted_model_that_saves_and_reloads_bit_for_bit(fitted, flight, tmp_path):
+    assert isinstance(fitted, FittedModel) and fitted.converged
+    _, val = flight.split()
+    path = fitted.save(tmp_path / "m.json")
+    doc = json.loads(path.read_text())
+    assert doc["format_version"] == FORMAT_VERSION and doc["greybox_version"] == greybox.__version__
+    assert doc["free"] == fitted.free_names and doc["provenance"]["converged"] is True
+    back = greybox.load(path)
+    assert back.model.effect_names == fitted.model.effect_names
+    assert np.array_equal(back.p, fitted.p)                       # exact floats
+    assert np.array_equal(back.covariance, fitted.covariance)
+    a, b = fitted.predict(val), back.predict(val)
+    assert a.total == b.total and all(a.nrmse[c] == b.nrmse[c] for c in a.nrmse)
+    np.testing.assert_array_equal(a.predicted, b.predicted)
+    # the hover trim and linearisation go with it
+    x_t, u_t = back.hover_trim()
+    kt = back.value("K_T")
+    m, g = back.model.airframe.mass, back.model.airframe.gravity
+    assert u_t[0] == pytest.approx(np.sqrt(m * g / (4 * kt)), rel=1e-9)
+    lin = back.linearize()
+    assert lin.A.shape == (12, 12) and lin.B.shape == (12, 4)
+
+
+def test_effect_options_are_saved(tmp_path, paper_model):
+    model = paper_model + fx.BatteryVoltage(v_ref=3.7)
+    fm = FittedModel(model, model.default_parameters())
+    back = greybox.load(fm.save(tmp_path / "bv.json"))
+    bv = next(e for e in back.model.effects if e.name == "battery_voltage")
+    assert bv.v_ref == 3.7
+
+
+def test_bad_model_files_are_one_clear_error(tmp_path, fitted):
+    doc = fitted.to_dict()
+    doc["format_version"] = 99
+    (tmp_path / "future.json").write_text(json.dumps(doc))
+    with pytest.raises(GreyboxInputError, match="format_version 99 is not supported"):
+        load(tmp_path / "future.json")
+    (tmp_path / "other.json").write_text('{"parameters": {}}')
+    with pytest.raises(GreyboxInputError, match="not a greybox fitted model"):
+        load(tmp_path / "other.json")
+    doc = fitted.to_dict()
+    del doc["parameters"]["K_T"]
+    (tmp_path / "partial.json").write_text(json.dumps(doc))
+    with pytest.raises(GreyboxInputError, match="missing K_T"):
+        load(tmp_path / "partial.json")
+    with pytest.raises(GreyboxInputError, match="has 3 values"):
+        FittedModel(fitted.model, [1.0, 2.0, 3.0])
+
+
+def test_cli_fit_save_then_model_everywhere(flight, tmp_path, capsys):
+    log = tmp_path / "f.csv"
+    save_log(flight, log)
+    af = str(AIRFRAMES / "paper.toml")
+    assert main(["fit", str(log), "--airframe", af, "--quiet", "--set", "K_T=2.8e-5",
+                 "--json", str(tmp_path / "r.json"), "--save", str(tmp_path / "m.json")]) == 0
+    reported = json.loads((tmp_path / "r.json").read_text())["validation"]["nrmse"]
+    _, val = greybox.load_log(log).split(0.8)
+    assert greybox.load(tmp_path / "m.json").predict(val).total == reported   # exactly
+    # --model instead of --airframe: linearize at the fitted K_T
+    assert main(["linearize", "--model", str(tmp_path / "m.json"), "--json", str(tmp_path / "lin.json")]) == 0
+    lin = json.loads((tmp_path / "lin.json").read_text())
+    kt = json.loads((tmp_path / "r.json").read_text())["parameters"]["K_T"]["value"]
+    assert lin["parameters"]["K_T"] == kt
+    # diagnose starting from the saved model, saving its final model
+    assert main(["diagnose", str(log), "--model", str(tmp_path / "m.json"), "--quiet", "--candidates",
+                 "ground_effect", "--no-iterate", "--json", str(tmp_path / "d.json"),
+                 "--save", str(tmp_path / "final.json")]) == 0
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["model"]["parameters"]["K_T"]["value"] == pytest.approx(kt, rel=1e-3)
+    assert greybox.load(tmp_path / "final.json").model.effect_names == d["model"]["effects"]
+    capsys.readouterr()
+    rc = main(["fit", str(log), "--airframe", af, "--model", str(tmp_path / "m.json")])
+    assert rc == 2 and "not allowed with argument" in capsys.readouterr().err
+
+
+def test_estimator_keeps_every_option_through_sklearn_clone(paper_model, flight):
+    sklearn = pytest.importorskip("sklearn")
+    from sklearn.base import clone
+    solver = GaussNewton()
+    est = GreyBoxEstimator(paper_model, free=["K_T", "b"], p0=OFF, max_iter=25, interval=10,
+                           reweight=False, solver=solver, horizon=0.5)
+    c = clone(est)
+    got, want = c.get_params(), est.get_params()
+    assert set(got) == set(want)
+    for k in want:
+        if k == "model":      # clone deep-copies objects that are not estimators
+            assert got[k].effect_names == want[k].effect_names
+            assert np.array_equal(got[k].default_parameters(), want[k].default_parameters())
+        elif k == "solver":
+            assert type(got[k]) is GaussNewton
+        else:
+            assert got[k] == want[k], k
+    assert c.get_params()["max_iter"] == 25 and c.get_params()["free"] == ["K_T", "b"]
+    assert c.set_params(max_iter=30).max_iter == 30
+    with pytest.raises(ValueError, match="invalid parameter"):
+        c.set_params(maxiter=3)
+    tr, val = flight.split()
+    est.fit(tr)
+    assert set(est.std_) == {"K_T", "b"}
+    assert est.params_["K_T"] == pytest.approx(2.395e-5, rel=0.01)
+    score = est.score(val)
+    assert score == -est.predict(val).total and score < 0    # higher is better
+    assert sklearn.__version__
+
+
+class CountingSolver:
+    """A solver of our own, plugged in through the seam: Gauss-Newton with a count."""
+
+    def __init__(self):
+        self.calls = 0
+        self.inner = GaussNewton()
+
+    def solve(self, session, X, th, mu, max_iter, tol, rough=False):
+        self.calls += 1
+        return self.inner.solve(session, X, th, mu, max_iter, tol, rough)
+
+
+def test_a_solver_is_injected(paper_model, flight, fitted):
+    est, _ = flight.split()
+    s = CountingSolver()
+    res = fit(paper_model, est, p0=OFF, max_iter=40, solver=s)
+    assert s.calls >= 1
+    np.testing.assert_allclose(res.p, fitted.p, rtol=1e-9)
