@@ -176,8 +176,8 @@ def compare(pred: "Prediction | Sequence[Prediction]", ax: "Axes | None" = None,
 
     >>> fig = compare([before, after], labels=["base", "+ ground_effect"])  # doctest: +SKIP
     """
-    from .validation import Prediction
-    preds = [pred] if isinstance(pred, Prediction) else list(pred)
+    # a Prediction (duck-typed: plotting imports no module that plots through it)
+    preds = [pred] if hasattr(pred, "nrmse") and hasattr(pred, "predicted") else list(pred)
     if not preds:
         raise GreyboxInputError("compare: no prediction given")
     labels = list(labels or ([f"model {i + 1}" for i in range(len(preds))] if len(preds) > 1 else ["model"]))
@@ -250,8 +250,7 @@ def whiteness(d: "Diagnosis | np.ndarray", ax: "Axes | None" = None, path: str |
     MATLAB's ``resid``. ``d``: a :class:`~greybox.diagnosis.Diagnosis` (its baseline's
     estimation residuals) or an ``(n, 9)`` residual array in output order. ``ax=``: one
     channel (default the least white)."""
-    from .diagnosis import Diagnosis
-    if isinstance(d, Diagnosis):
+    if hasattr(d, "whiteness") and hasattr(d, "residuals"):      # a Diagnosis
         res, score = d.residuals, dict(d.whiteness)
         available = [c for c in OUTPUTS if c in d.whiteness]
     else:
