@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from greybox import QuadrotorModel, effects, load_airframe
-from greybox.diagnosis import CHANNEL_EFFECTS, Diagnosis, diagnose
+from greybox.diagnosis import Diagnosis, diagnose
 from greybox.synth import SensorSpec, model_with_hidden_effects, synthesize
 
 HERE = Path(__file__).resolve().parent
@@ -71,7 +71,7 @@ def affected_fall(d: Diagnosis, effect: str) -> dict:
     c = next((c for c in d.ranking if c.effect == effect), None)
     if c is None or c.channels_after is None:
         return {}
-    chans = [ch for ch in CHANNEL_EFFECTS[effect] if ch in c.channels_after]
+    chans = [ch for ch in effects.effect_class(effect).channels if ch in c.channels_after]
     before = np.mean([d.baseline_prediction.nrmse[ch] for ch in chans])
     after = np.mean([c.channels_after[ch] for ch in chans])
     return {"affected": chans, "affected_before": before, "affected_after": after,

@@ -25,323 +25,22 @@
 Each figure writes ``figN*.png`` and ``figN.json``; ``summary.md`` collects the tables.
 ``--quick`` shortens flights for a smoke run (the notebook uses it).
 """
+# The computations are greybox.paper (importable from an installed greybox; the notebook
+# uses it); this is its command line.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
-import time
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
-
-from greybox import QuadrotorModel, load_airframe  # noqa: E402
-from greybox.closedloop import (design_lqr, simulate_linear_lqr, simulate_lqr, simulate_pid,  # noqa: E402
-                                step_metrics, step_reference, tune_pid)
-from greybox.data import FlightLog  # noqa: E402
-from greybox.fitting import fit  # noqa: E402
-from greybox.model import OUTPUTS  # noqa: E402
-from greybox.n4sid import n4sid  # noqa: E402
-from greybox.synth import SensorSpec, model_with_hidden_effects, synthesize  # noqa: E402
-from greybox.validation import predict  # noqa: E402
+from greybox.errors import GreyboxInputError  # noqa: E402
+from greybox.paper import FIGURES, run  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
-AIRFRAME = HERE.parent / "greybox" / "data" / "airframes" / "paper.toml"
-STEPS = (("x", 1.0, 0.0, 1.0), ("y", 6.0, 0.0, 1.0), ("z", 11.0, -1.0, -2.0))
-HOVER_MANOEUVRES = ("hover", "step_x", "step_y", "step_z")
-
-
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def paper_model() -> QuadrotorModel:
-    return QuadrotorModel(load_airframe(AIRFRAME))
-
-
-def _metrics(t: np.ndarray, series: dict[str, np.ndarray]) -> dict[str, dict]:
-    return {ax: step_metrics(t, series[ax], t0, a, b) for ax, t0, a, b in STEPS}
-
-
-# ------------------------------------------------------------------------------- Fig. 1
-def fig1(out: Path, duration: float = 20.0, yaw_rate: float = 0.2) -> dict:
-    """Hover with a yaw-rate disturbance, with and without the yaw reaction torque."""
-    model = paper_model()
-    p = model.default_parameters()
-    p_nob = p.copy()
-    p_nob[model.param_names.index("b")] = 0.0
-    design = design_lqr(model, p)
-    t = np.arange(0, duration, design.dt)
-    ref = step_reference(t, steps=[])
-    w_h = model.hover_speed(p)
-    x0 = model.initial_state([0, 0, -1, 0, 0, 0, 0, 0, 0, 0, 0, yaw_rate], np.full(model.nu, w_h), p)
-    runs = {"with b (full model)": simulate_lqr(model, p, design, ref, x0=x0),
-            "b = 0 (no yaw reaction torque)": simulate_lqr(model, p_nob, design, ref, x0=x0)}
-    names = model.state_names
-    res = {}
-    for k, cl in runs.items():
-        psi, r = cl.output("psi", names), cl.output("r", names)
-        pos_err = np.linalg.norm(cl.states[:, :3] - ref[:, :3], axis=1)
-        res[k] = {"psi_end_rad": float(psi[-1]), "yaw_rate_end_rad_s": float(r[-1]),
-                  "max_position_error_m": float(pos_err.max())}
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
-    for k, cl in runs.items():
-        axes[0].plot(t, np.degrees(cl.output("psi", names)), label=k)
-        axes[1].plot(t, 1000 * np.linalg.norm(cl.states[:, :3] - ref[:, :3], axis=1), label=k)
-    axes[0].set_ylabel("yaw psi, deg")
-    axes[1].set_ylabel("position error, mm")
-    for a in axes:
-        a.set_xlabel("t, s")
-        a.grid(alpha=0.3)
-    axes[0].legend()
-    fig.suptitle(f"Fig. 1: hover under LQR after a {yaw_rate} rad/s yaw-rate disturbance")
-    fig.tight_layout()
-    fig.savefig(out / "fig1_yaw_without_reaction_torque.png", dpi=110)
-    plt.close(fig)
-    return res
-
-
-# ------------------------------------------------------------------------------- Fig. 2
-def fig2(out: Path, max_evals: int = 300) -> dict:
-    """LQR vs automatically tuned cascaded PID on the grey-box model."""
-    model = paper_model()
-    p = model.default_parameters()
-    design = design_lqr(model, p)
-    t = np.arange(0, 20, design.dt)
-    ref = step_reference(t)
-    t0 = time.perf_counter()
-    pid = tune_pid(model, p, max_evals=max_evals)
-    t_tune = time.perf_counter() - t0
-    loops = {"LQR": simulate_lqr(model, p, design, ref), "PID": simulate_pid(model, p, pid, ref)}
-    names = model.state_names
-    res = {"pid_gains": pid.gains, "pid_tuning_s": t_tune}
-    for k, cl in loops.items():
-        res[k] = {"metrics": _metrics(t, {ax: cl.output(ax, names) for ax in "xyz"}),
-                  "saturated_fraction": cl.saturated}
-    plt = _plt()
-    fig, axes = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
-    for k, cl in loops.items():
-        for i, ax in enumerate("xyz"):
-            axes[i].plot(t, cl.output(ax, names), label=k)
-        axes[3].plot(t, cl.inputs[:, 0], label=f"{k}: w1")
-    for i, ax in enumerate("xyz"):
-        axes[i].plot(t, ref[:, i], color="0.6", lw=0.8, label="reference")
-        axes[i].set_ylabel(f"{ax}, m")
-    axes[3].set_ylabel("rotor 1, rad/s")
-    axes[3].set_xlabel("t, s")
-    axes[0].legend()
-    fig.suptitle("Fig. 2: LQR (dlqry, Q = 1, R = 0.001, Kr) vs cascaded PID (tuned on ITAE), grey-box model")
-    fig.tight_layout()
-    fig.savefig(out / "fig2_lqr_vs_pid.png", dpi=110)
-    plt.close(fig)
-    return res
-
-
-# ------------------------------------------------------------------------------- Fig. 3
-def controls_log(log: FlightLog, model: QuadrotorModel, kt: float, b: float) -> FlightLog:
-    """The log with U1..U4 computed from its rotor speeds with coefficients ``kt``, ``b``."""
-    G = model.airframe.allocation_matrix()
-    U = (np.diag([kt, kt, kt, b]) @ G @ (log.inputs ** 2).T).T
-    return FlightLog(log.t, U, ["u1", "u2", "u3", "u4"], log.outputs.copy(), list(log.output_names), {}, [],
-                     f"{log.source or 'log'} (U from w)")
-
-
-def fig3(out: Path, duration: float = 30.0, n_flights: int = 3, kt_error: float = 0.04,
-         b_error: float = -0.07) -> dict:
-    """Rotor-speed inputs (K_T, b, Kd fitted) vs U1..U4 inputs (bench K_T, b; Kd fitted)."""
-    model = paper_model()
-    truth = model.default_parameters()
-    kt_true, b_true = truth[model.param_names.index("K_T")], truth[model.param_names.index("b")]
-    kt_bench, b_bench = kt_true * (1 + kt_error), b_true * (1 + b_error)
-    kd_true = np.array([model.parameter_dict(truth)[f"Kd[{i}]"] for i in range(3)])
-    model_u = model.with_inputs("controls")
-    sensors = SensorSpec(rate=200.0, vision_rate=60.0)
-    flights = [synthesize(model, duration=duration, sensors=sensors, seed=31 + k,
-                          manoeuvres=("hover", "step_x", "step_y", "step_z", "yaw")).log for k in range(n_flights)]
-    start = {"K_T": kt_true * 1.3, "b": b_true * 0.7, "Kd": [0.13, 0.07, 0.2]}
-    kinds = {"rotor speeds": (model, flights, None, start),
-             "U1..U4 (bench K_T, b)": (model_u, [controls_log(f, model, kt_bench, b_bench) for f in flights],
-                                        ["K_T", "b"], {"K_T": kt_bench, "b": b_bench, "Kd": [0.13, 0.07, 0.2]})}
-    res = {"bench_error": {"K_T": kt_error, "b": b_error}}
-    for kind, (m, logs, fixed, p0) in kinds.items():
-        fits = [fit(m, lg.split(0.8)[0], fixed=fixed, p0=p0) for lg in logs]
-        kd = np.array([[r.value(f"Kd[{i}]") for i in range(3)] for r in fits])
-        cross, own = [], []
-        for a, r in enumerate(fits):
-            for bb, lg in enumerate(logs):
-                pr = predict(m, r.p, lg if a != bb else lg.split(0.8)[1])
-                (own if a == bb else cross).append(pr.nrmse)
-        chans = list(cross[0])
-        res[kind] = {"Kd": kd.tolist(), "Kd_mean": kd.mean(axis=0).tolist(),
-                     "Kd_spread_pct": (100 * kd.std(axis=0, ddof=1) / kd.mean(axis=0)).tolist() if len(fits) > 1 else None,
-                     "Kd_error_pct": (100 * (kd.mean(axis=0) / kd_true - 1)).tolist(),
-                     "converged": [bool(r.converged) for r in fits],
-                     "cross_flight_nrmse": {c: float(np.mean([d[c] for d in cross])) for c in chans},
-                     "own_flight_nrmse": {c: float(np.mean([d[c] for d in own])) for c in chans}}
-        res[kind]["cross_flight_nrmse_mean"] = float(np.mean(list(res[kind]["cross_flight_nrmse"].values())))
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
-    chans = list(res["rotor speeds"]["cross_flight_nrmse"])
-    for k, kind in enumerate(kinds):
-        axes[0].bar(np.arange(len(chans)) + 0.4 * k - 0.2, [res[kind]["cross_flight_nrmse"][c] for c in chans],
-                    0.4, label=kind)
-        kd = np.array(res[kind]["Kd"])
-        for i in range(3):
-            axes[1].plot(np.full(kd.shape[0], i + 0.15 * (2 * k - 1)), kd[:, i], "os"[k], color=f"C{k}",
-                         label=kind if i == 0 else None)
-    axes[0].set_xticks(range(len(chans)), chans)
-    axes[0].set_ylabel("1-s prediction NRMSE on the other flights")
-    axes[0].legend()
-    axes[1].plot(range(3), kd_true, "k_", ms=30, label="truth")
-    axes[1].set_yscale("log")
-    axes[1].set_xticks(range(3), ["Kd x", "Kd y", "Kd z"])
-    axes[1].set_ylabel("fitted drag, N s/m (one point per flight)")
-    axes[1].legend()
-    fig.suptitle(f"Fig. 3: rotor speeds vs U1..U4 inputs (bench K_T {100 * kt_error:+.0f} %, b {100 * b_error:+.0f} %)")
-    fig.tight_layout()
-    fig.savefig(out / "fig3_rotor_speeds_vs_controls.png", dpi=110)
-    plt.close(fig)
-    return res
-
-
-# ----------------------------------------------------------------------------- Figs. 5/6
-def fig56(out: Path, duration: float = 50.0, rate: float = 1000.0, order: int | str = 12) -> dict:
-    """Grey-box, n4sid black-box and the 'experimental' flight under the same LQR design."""
-    base = paper_model()
-    truth_model, p_true = model_with_hidden_effects(base, ["quadratic_drag"])
-    syn = synthesize(truth_model, p_true, duration=duration, manoeuvres=HOVER_MANOEUVRES, seed=5,
-                     sensors=SensorSpec(rate=rate, vision_rate=min(rate, 100.0)))
-    est, _ = syn.log.split(0.8)
-    t0 = time.perf_counter()
-    grey = fit(base, est, p0={"K_T": 2.395e-5 * 1.2, "b": 6.8429e-7 * 0.8, "Kd": [0.12, 0.08, 0.18]})
-    t_grey = time.perf_counter() - t0
-    # n4sid on the noise-free-sampled flight decimated to 100 Hz (block means), 80 %
-    k = max(int(round(rate / 100.0)), 1)
-    outs = ["x", "y", "z", "phi", "theta", "psi"]
-    Y = syn.outputs_true[:, [OUTPUTS.index(c) for c in outs]]
-    Yn = np.column_stack([syn.log.output(c) for c in outs])
-    Y = np.where(np.isnan(Yn), Y, Yn)      # measured where measured, truth-interpolated between vision samples
-    n = (len(syn.log) // k) * k
-    u = syn.log.inputs[:n].reshape(-1, k, base.nu).mean(axis=1)
-    y = Y[:n].reshape(-1, k, len(outs)).mean(axis=1)
-    ne = int(0.8 * u.shape[0])
-    t0 = time.perf_counter()
-    black = n4sid(u[:ne], y[:ne], dt=k / rate, order=order, input_names=base.command_names, output_names=outs)
-    t_black = time.perf_counter() - t0
-
-    design = design_lqr(base, grey.p, dt=k / rate)
-    t = np.arange(0, 20, design.dt)
-    ref = step_reference(t)
-    names = base.state_names
-    grey_cl = simulate_lqr(base, grey.p, design, ref)
-    flight_cl = simulate_lqr(truth_model, p_true, design, ref)
-    black_cl = simulate_linear_lqr(black, ref)
-    series = {"flight (truth)": {c: flight_cl.output(c, truth_model.state_names) for c in outs},
-              "grey-box": {c: grey_cl.output(c, names) for c in outs},
-              "black-box (n4sid)": {c: black_cl.output(c) for c in outs}}
-    res = {"grey_box": {"parameters": {n_: grey.value(n_) for n_ in grey.free_names}, "fit_s": t_grey},
-           "black_box": {"order": black.order, "identify_s": t_black, "stable": black.is_stable(),
-                         "closed_loop_poles_max": float(np.max(np.abs(black_cl.poles)))},
-           "metrics": {k_: _metrics(t, s) for k_, s in series.items()},
-           "rms_gap_to_flight_m_or_rad": {k_: {c: float(np.sqrt(np.mean((s[c] - series["flight (truth)"][c]) ** 2)))
-                                               for c in outs} for k_, s in series.items() if k_ != "flight (truth)"}}
-    plt = _plt()
-    for fig_no, chans, unit in ((5, ["x", "y", "z"], "m"), (6, ["phi", "theta", "psi"], "deg")):
-        fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
-        for i, c in enumerate(chans):
-            for (k_, s), style in zip(series.items(), ("k-", "C0--", "C1:")):
-                v = s[c] if unit == "m" else np.degrees(s[c])
-                axes[i].plot(t, v, style, label=k_)
-            if unit == "m":
-                axes[i].plot(t, ref[:, i], color="0.6", lw=0.8, label="reference")
-            axes[i].set_ylabel(f"{c}, {unit}")
-        axes[0].legend(fontsize=8)
-        axes[2].set_xlabel("t, s")
-        fig.suptitle(f"Fig. {fig_no}: {'position' if unit == 'm' else 'attitude'} under the same LQR design")
-        fig.tight_layout()
-        fig.savefig(out / f"fig{fig_no}_{'position' if unit == 'm' else 'attitude'}.png", dpi=110)
-        plt.close(fig)
-    return res
-
-
-FIGURES = {"fig1": fig1, "fig2": fig2, "fig3": fig3, "fig56": fig56}
-QUICK = {"fig1": {"duration": 10.0}, "fig2": {"max_evals": 60}, "fig3": {"duration": 20.0, "n_flights": 2},
-         "fig56": {"duration": 30.0, "rate": 200.0}}
-
-
-def summary_markdown(results: dict) -> str:
-    L = ["# The seed paper's figures, reproduced", ""]
-    if "fig1" in results:
-        L += ["## Fig. 1: yaw without the reaction torque", "", "| model | psi at end, rad | yaw rate at end, rad/s "
-              "| max position error, m |", "|---|---|---|---|"]
-        L += [f"| {k} | {v['psi_end_rad']:.3f} | {v['yaw_rate_end_rad_s']:.4f} | {v['max_position_error_m']:.4f} |"
-              for k, v in results["fig1"].items()]
-    if "fig2" in results:
-        r = results["fig2"]
-        L += ["", "## Fig. 2: LQR vs PID (grey-box model)", "", "| controller | axis | rise s | overshoot % | "
-              "settling s | ITAE |", "|---|---|---|---|---|---|"]
-        for c in ("LQR", "PID"):
-            for ax, m in r[c]["metrics"].items():
-                L.append(f"| {c} | {ax} | {m['rise_time']:.3f} | {m['overshoot_pct']:.1f} | "
-                         f"{m['settling_time']:.3f} | {m['itae']:.4f} |")
-        L.append(f"\nPID gains (tuned in {r['pid_tuning_s']:.1f} s): "
-                 + ", ".join(f"{k} = {v:.3g}" for k, v in r["pid_gains"].items()))
-    if "fig3" in results:
-        r = results["fig3"]
-        L += ["", "## Fig. 3: rotor speeds vs U1..U4 inputs", "",
-              f"Bench coefficients used for U: K_T {100 * r['bench_error']['K_T']:+.0f} %, "
-              f"b {100 * r['bench_error']['b']:+.0f} %.", "",
-              "| inputs | Kd mean (x, y, z) | Kd error % | Kd spread across flights % | cross-flight NRMSE (mean) "
-              "| fits converged |", "|---|---|---|---|---|---|"]
-        for kind in ("rotor speeds", "U1..U4 (bench K_T, b)"):
-            v = r[kind]
-            spread = ", ".join(f"{s:.1f}" for s in v["Kd_spread_pct"]) if v["Kd_spread_pct"] else "-"
-            L.append(f"| {kind} | {', '.join(f'{k:.4f}' for k in v['Kd_mean'])} | "
-                     f"{', '.join(f'{e:+.1f}' for e in v['Kd_error_pct'])} | {spread} | "
-                     f"{v['cross_flight_nrmse_mean']:.4f} | {sum(v['converged'])} of {len(v['converged'])} |")
-        L.append("\nCross-flight NRMSE per channel: " + "; ".join(
-            f"{kind}: " + ", ".join(f"{c} {v:.3f}" for c, v in r[kind]["cross_flight_nrmse"].items())
-            for kind in ("rotor speeds", "U1..U4 (bench K_T, b)")))
-    if "fig56" in results:
-        r = results["fig56"]
-        L += ["", "## Figs. 5/6: grey-box, black-box and flight under the same LQR design", "",
-              f"n4sid order {r['black_box']['order']} in {r['black_box']['identify_s']:.2f} s "
-              f"(stable: {r['black_box']['stable']}); grey-box fit {r['grey_box']['fit_s']:.1f} s.", "",
-              "| response of | x rise s | x overshoot % | x settling s | y settling s | z rise s | z settling s |",
-              "|---|---|---|---|---|---|---|"]
-        for k, m in r["metrics"].items():
-            L.append(f"| {k} | {m['x']['rise_time']:.3f} | {m['x']['overshoot_pct']:.1f} | "
-                     f"{m['x']['settling_time']:.3f} | {m['y']['settling_time']:.3f} | {m['z']['rise_time']:.3f} | "
-                     f"{m['z']['settling_time']:.3f} |")
-        L += ["", "RMS gap to the flight: " + "; ".join(
-            f"{k}: " + ", ".join(f"{c} {v:.4f}" for c, v in g.items()) for k, g in r["rms_gap_to_flight_m_or_rad"].items())]
-    return "\n".join(L) + "\n"
-
-
-def run(out: Path, only: list[str] | None = None, quick: bool = False, progress: bool = True) -> dict:
-    """Make the figures (all, or ``only``) into ``out``; returns their numbers."""
-    out.mkdir(parents=True, exist_ok=True)
-    results = {}
-    for name in only or list(FIGURES):
-        if name not in FIGURES:
-            raise SystemExit(f"unknown figure {name!r}; known: {', '.join(FIGURES)}")
-        t0 = time.perf_counter()
-        if progress:
-            print(f"{name} ...", file=sys.stderr, flush=True)
-        results[name] = FIGURES[name](out, **(QUICK[name] if quick else {}))
-        (out / f"{name}.json").write_text(json.dumps(results[name], indent=2, default=float))
-        if progress:
-            print(f"{name}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
-    (out / "summary.md").write_text(summary_markdown(results))
-    return results
 
 
 def main(argv=None) -> int:
@@ -350,7 +49,10 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="short flights (smoke run)")
     ap.add_argument("--out", default=str(HERE / "out" / "paper_figures"))
     args = ap.parse_args(argv)
-    run(Path(args.out), args.only.split(",") if args.only else None, args.quick)
+    try:
+        run(Path(args.out), args.only.split(",") if args.only else None, args.quick)
+    except GreyboxInputError as e:     # an unknown figure name
+        raise SystemExit(str(e)) from None
     print((Path(args.out) / "summary.md").read_text())
     return 0
 

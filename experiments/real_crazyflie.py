@@ -17,16 +17,14 @@ import time
 import tomllib
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure   # a bare Figure: no backend selected, no pyplot
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from greybox import QuadrotorModel, diagnose  # noqa: E402
-from greybox.airframe import airframe_from_dict  # noqa: E402
-from greybox.importers import crazyflie_airframe_toml, import_nanobench  # noqa: E402
-from greybox.model import rotation_matrices  # noqa: E402
+from greybox import QuadrotorModel, diagnose
+from greybox.airframe import airframe_from_dict
+from greybox.importers import crazyflie_airframe_toml, import_nanobench
+from greybox.model import rotation_matrices
+from greybox.plotting import save
 
 HERE = Path(__file__).resolve().parent
 REAL = HERE.parents[1] / "shared" / "realdata" / "nanobench"
@@ -48,7 +46,7 @@ def imu_drag(log, out_png: Path, title: str) -> dict[str, float]:
     # smooth both sides the same way (IMU noise, differentiated positions)
     kern = np.ones(9) / 9
     sm = lambda y: np.convolve(y, kern, mode="same")  # noqa: E731
-    out, fig = {}, plt.figure(figsize=(8, 3.5))
+    out, fig = {}, Figure(figsize=(8, 3.5))
     for i, ax_name in enumerate("xy"):
         f = sm(log.extras[f"acc_{ax_name}"])
         vv = sm(vb[:, i])
@@ -66,8 +64,7 @@ def imu_drag(log, out_png: Path, title: str) -> dict[str, float]:
         ax.legend(fontsize=8)
     fig.suptitle(f"{title}: IMU drag cross-check")
     fig.tight_layout()
-    fig.savefig(out_png, dpi=110)
-    plt.close(fig)
+    save(fig, out_png, dpi=110)
     return out
 
 

@@ -223,6 +223,37 @@ def cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_effects(args: argparse.Namespace) -> int:
+    """Every known effect with its summary, parameters (unit, null, default, bounds) and origin."""
+    if args.airframe:
+        af = load_airframe(args.airframe)
+    else:
+        with resources.as_file(resources.files("greybox") / "data" / "airframes" / "paper.toml") as p:
+            af = load_airframe(p)
+    registered = fx.registered_effects()
+    out = []
+    for name, cls in fx.known_effects().items():
+        origin = ("base" if name in fx.BASE_EFFECTS else "catalogue" if name in fx.CATALOGUE else
+                  "signal" if name in fx.SIGNAL_EFFECTS else registered.get(name, "registered"))
+        params = [{"name": p.name, "size": p.size, "unit": p.unit, "null": p.null,
+                   "default": p.default_vector().tolist(), "lower": _num_or_none(p.lower),
+                   "upper": _num_or_none(p.upper), "free": p.free, "description": p.description}
+                  for p in cls().parameters(af)]
+        out.append({"name": name, "origin": origin, "summary": cls.summary, "parameters": params,
+                    "states": cls().state_names(af), "signals": list(cls.signals), "channels": list(cls.channels),
+                    "excited_by": cls.excited_by, "shifts_trim": cls.shifts_trim})
+        pstr = "; ".join(f"{p['name']}" + (f"[{p['size']}]" if p["size"] > 1 else "") +
+                         f" ({p['unit'] or '-'}, null {p['null']:g})" for p in params) or "no parameters"
+        print(f"{name:<18} {origin:<10} {cls.summary}\n{'':<29}{pstr}")
+    if args.json:
+        write_json(args.json, {"effects": out})
+    return 0
+
+
+def _num_or_none(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     """The greybox story on a bundled log: compare, where it fails, ranking, add, error falls."""
     from .data import load_log
@@ -457,6 +488,12 @@ def _floats(text: str, n: int, opt: str) -> list[float]:
 
 
 # ---------------------------------------------------------------------------- parser
+def _effects_file_arg(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--effects-file", action="append", metavar="FILE.py",
+                    help="a Python file defining effects of your own (Effect subclasses with a name): "
+                         "usable like catalogue effects (repeatable)")
+
+
 def _model_args(ap: argparse.ArgumentParser, set_help: str) -> None:
     """The options that choose a model: airframe or saved model, added and removed effects,
     parameter values."""
@@ -465,6 +502,7 @@ def _model_args(ap: argparse.ArgumentParser, set_help: str) -> None:
     which.add_argument("--model", metavar="MODEL.json",
                        help="a fitted model saved by 'greybox fit --save' (structure and parameters), "
                             "instead of --airframe")
+    _effects_file_arg(ap)
     ap.add_argument("--effects", help="comma list of effects to add to the base model")
     ap.add_argument("--without", help="comma list of effects to remove from the base model")
     ap.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
@@ -494,6 +532,7 @@ def _parser() -> argparse.ArgumentParser:
     which.add_argument("--airframe", help="airframe TOML")
     which.add_argument("--model", metavar="MODEL.json", help="a saved fitted model, instead of --airframe")
     y.add_argument("--out", required=True, help="flight log CSV to write")
+    _effects_file_arg(y)
     y.add_argument("--effects", help="hidden effects to add (comma list); unset parameters take plausible magnitudes")
     y.add_argument("--without", help="effects to remove from the base model")
     y.add_argument("--set", action="append", metavar="NAME=VALUE", help="true parameter value (repeatable)")
@@ -625,6 +664,15 @@ def _parser() -> argparse.ArgumentParser:
     rd.add_argument("--seed", type=_seed, default=0)
     rd.set_defaults(func=cmd_render)
 
+    e = sub.add_parser("effects", help="list every known effect: summary, parameters, units, null values",
+                       description="List the catalogue's effects, the signal effects and those registered "
+                                   "(--effects-file, greybox.effects.register, the 'greybox.effects' entry points).")
+    _effects_file_arg(e)
+    e.add_argument("--airframe", help="airframe TOML for the parameters' defaults and bounds (default: the "
+                                      "bundled paper airframe)")
+    e.add_argument("--json", help="write the list here")
+    e.set_defaults(func=cmd_effects)
+
     d = sub.add_parser("demo", help="the greybox story on bundled data",
                        description="Diagnose the seed paper's base model on a bundled flight log with a hidden "
                                    "effect: compare, where it fails, ranking, add, error falls; writes a report.")
@@ -655,6 +703,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for attr, (option, kind) in OUTPUT_OPTIONS.items():
             if getattr(args, attr, None) is not None:
                 check_output_path(getattr(args, attr), option, kind)
+        for path in getattr(args, "effects_file", None) or []:
+            fx.load_effects_file(path)
         with _warnings.catch_warnings():
             # a warning reaches a CLI user as one line, not as Python's file:line form
             _warnings.showwarning = _show_warning

@@ -56,7 +56,7 @@ from .residuals import fitted_trajectory, long_run_factor, output_residuals, whi
 from .validation import Prediction, predict
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
-           "MIN_VALIDATION_GAIN", "DISTINGUISH", "EXCITED_BY", "distinguishing_manoeuvre"]
+           "MIN_VALIDATION_GAIN", "distinguishing_manoeuvre"]
 
 ALPHA = 0.01
 """Family-wise significance level of the likelihood-ratio tests (Bonferroni over candidates)."""
@@ -77,59 +77,9 @@ CONSISTENCY_Z = 3.0
 """A parameter whose estimates on the two halves of the estimation data differ by more than
 this many standard deviations (of the difference) is flagged as absorbing something else."""
 
-DISTINGUISH = {
-    frozenset({"linear_drag", "rotor_drag"}): "fly the same speeds at different thrust levels (climbing and "
-                                              "descending translations): rotor drag scales with rotor speed",
-    frozenset({"quadratic_drag", "rotor_drag"}): "fly several speeds at a constant thrust, and the same speed at "
-                                                 "another thrust",
-    frozenset({"quadratic_drag", "wind"}): "fly the same speed upwind and downwind",
-    frozenset({"rotor_drag", "wind"}): "fly in several directions: wind has a fixed direction",
-    frozenset({"cog_offset", "motor_asymmetry"}): "hover at several thrust levels and yaw angles",
-    frozenset({"cog_offset", "attitude_bias"}): "fly roll and pitch steps: a bias shifts readings, an offset "
-                                                 "needs torque",
-    frozenset({"thrust_drift", "ground_effect"}): "repeat the same climb early and late in the flight, away "
-                                                  "from the ground",
-    frozenset({"thrust_drift", "battery_voltage"}): "vary the thrust level: the voltage sags with the "
-                                                    "current drawn, time does not",
-    frozenset({"motor_lag", "position_delay"}): "fast rotor-speed steps with attitude recorded: motor lag "
-                                                "delays attitude too, a vision delay only position",
-}
-
-EXCITED_BY = {  # the manoeuvre in which each effect shows (for pairs DISTINGUISH does not name)
-    "yaw_torque": "yaw turns", "linear_drag": "translations at moderate speed along each axis",
-    "gyroscopic": "fast roll and pitch motions during yaw turns",
-    "quadratic_drag": "translations at several speeds, up to the fastest you can fly",
-    "rotor_drag": "translations at one speed with different thrust (climbing, descending)",
-    "ground_effect": "low passes close to the ground (below about two rotor diameters)",
-    "motor_lag": "fast rotor-speed changes (steps, excitation)",
-    "cog_offset": "hovers and roll/pitch steps at several thrust levels",
-    "motor_asymmetry": "hovers at several thrust levels and yaw turns",
-    "wind": "flight in several directions (wind keeps one direction)",
-    "thrust_drift": "the same manoeuvre repeated early and late in the flight",
-    "position_delay": "fast translations (a delay lags the velocity)",
-    "attitude_bias": "long hovers at several headings",
-    "battery_voltage": "long flights at varied thrust", "rotor_map": "a wide range of thrust levels",
-}
-
-
-def distinguishing_manoeuvre(a: str, b: str) -> str:
-    """What to fly to tell effects ``a`` and ``b`` apart."""
-    hint = DISTINGUISH.get(frozenset({a, b}))
-    if hint:
-        return hint
-    if a in EXCITED_BY and b in EXCITED_BY:
-        return f"{a} shows in {EXCITED_BY[a]}, {b} in {EXCITED_BY[b]}: fly one without the other"
-    return "fly manoeuvres that excite one and not the other"
-
-
-CHANNEL_EFFECTS = {  # which channels each effect should improve (for the before/after table)
-    "yaw_torque": ["psi", "r"], "linear_drag": ["x", "y", "z"], "gyroscopic": ["phi", "theta", "p", "q"],
-    "quadratic_drag": ["x", "y", "z"], "rotor_drag": ["x", "y"], "ground_effect": ["z"],
-    "motor_lag": ["phi", "theta", "p", "q", "z"], "cog_offset": ["phi", "theta", "p", "q", "x", "y"],
-    "motor_asymmetry": ["phi", "theta", "p", "q", "psi", "r", "x", "y"], "wind": ["x", "y"],
-    "thrust_drift": ["z"], "position_delay": ["x", "y", "z"], "attitude_bias": ["phi", "theta", "x", "y"],
-    "battery_voltage": ["z", "psi", "r"], "rotor_map": ["z", "phi", "theta", "p", "q"],
-}
+# What the diagnosis knows about each effect (the manoeuvre that excites it, the channels it
+# moves, the effects it is confusable with) lives on the effect's class: greybox.effects.
+distinguishing_manoeuvre = fx.distinguishing_manoeuvre
 
 
 # ------------------------------------------------------------------------------ results
@@ -862,10 +812,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
     say = progress_printer() if progress is True else \
         (progress or (lambda _m: None))
     if candidates is None:
-        candidates = [n for n in fx.CATALOGUE if n not in model.effects]
-        # effects that read a logged signal are candidates when the log has that signal
-        candidates += [n for n, cls in fx.SIGNAL_EFFECTS.items() if cls.signals and n not in model.effects
-                       and all(s in log.extras or s in log.input_names for s in cls.signals)]
+        # the catalogue and the effects registered by the user (files, plugins); effects that
+        # read a logged signal when the log has that signal
+        candidates = [n for n, cls in fx.known_effects().items() if n not in model.effects
+                      and (n in fx.CATALOGUE or n in fx.registered_effects() or cls.signals)
+                      and all(s in log.extras or s in log.input_names for s in cls.signals)]
     for c in candidates:
         fx.by_name(c)
         if c in model.effects:

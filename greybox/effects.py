@@ -45,9 +45,10 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "Effect", "EffectLibrary", "ModelContext", "CATALOGUE", "BASE_EFFECTS", "by_name",
     "parse_effect_names", "YawTorque", "LinearDrag", "Gyroscopic", "QuadraticDrag", "RotorDrag",
-    "GroundEffect", "MotorLag", "CogOffset", "MotorAsymmetry", "Wind", "ThrustDrift",
+    "HubRotorDrag", "GroundEffect", "MotorLag", "CogOffset", "MotorAsymmetry", "Wind", "ThrustDrift",
     "PositionDelay", "AttitudeBias", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
-    "APPLY_ORDER",
+    "APPLY_ORDER", "register", "load_effects_file", "known_effects", "registered_effects",
+    "effect_class", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP",
 ]
 
 
@@ -85,6 +86,18 @@ class Effect:
 
     name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
+    excited_by: ClassVar[str] = ""
+    """The manoeuvre in which the effect shows (diagnosis advice)."""
+    fit_advice: ClassVar[str] = ""
+    """What to fly to pin its parameters down (fit warnings); default :attr:`excited_by`."""
+    channels: ClassVar[tuple[str, ...]] = ()
+    """Output channels the effect should improve when it is missing (before/after tables)."""
+    distinguish: ClassVar[dict[str, str]] = {}
+    """``{other effect: manoeuvre}`` that tells this effect apart from a confusable one
+    (looked up both ways, see :func:`distinguishing_manoeuvre`)."""
+    shifts_trim: ClassVar[bool] = False
+    """Whether it changes where, or with which rotor speeds, a level hover balances (the
+    closed-form hover trim then does not apply)."""
     signals: ClassVar[tuple[str, ...]] = ()
     """Logged signals the effect reads as extra model inputs (e.g. ``vbat``), after the
     rotor speeds in the input vector; a log supplies them as extra columns."""
@@ -110,6 +123,11 @@ class Effect:
 
     def modify_measurement(self, ctx: ModelContext, y: dict[str, ca.SX]) -> None:
         pass
+
+    def plausible_values(self, airframe: "Airframe", K_T: float) -> dict:
+        """Physically plausible parameter magnitudes for this airframe (synthetic flights, a
+        diagnosis' cold refits, the negligibility test); ``{}``: use the parameters' scales."""
+        return {}
 
     def options(self) -> dict:
         """Constructor arguments that make this effect what it is (e.g. ``BatteryVoltage``'s
@@ -191,6 +209,9 @@ class YawTorque(Effect):
 
     name = "yaw_torque"
     summary = "rotor reaction torque b*w^2 about body z"
+    excited_by = 'yaw turns'
+    fit_advice = 'yaw steps (yaw) with large rotor-speed differences'
+    channels = ('psi', 'r')
 
     def parameters(self, airframe):
         return [Parameter("b", 1, 5e-7, "N m/(rad/s)^2", 0.0, np.inf, 1e-6, 0.0, True,
@@ -207,6 +228,12 @@ class LinearDrag(Effect):
 
     name = "linear_drag"
     summary = "translational drag -Kd*v (world axes)"
+    excited_by = 'translations at moderate speed along each axis'
+    fit_advice = 'fast translations (fast) along each axis, and vertical steps for Kd[2]'
+    channels = ('x', 'y', 'z')
+    distinguish = {
+        'rotor_drag': 'fly the same speeds at different thrust levels (climbing and descending translations): rotor drag scales with rotor speed',
+    }
 
     def parameters(self, airframe):
         # upper bound: a drag time constant m/Kd below 0.1 s is no multirotor; it keeps a
@@ -228,6 +255,9 @@ class Gyroscopic(Effect):
 
     name = "gyroscopic"
     summary = "rotor gyroscopic torque J_r*Omega_r*(omega x e_z)"
+    excited_by = 'fast roll and pitch motions during yaw turns'
+    fit_advice = 'fast roll/pitch motions with high rotor speeds'
+    channels = ('phi', 'theta', 'p', 'q')
 
     def parameters(self, airframe):
         jr = airframe.rotor_inertia
@@ -247,6 +277,13 @@ class QuadraticDrag(Effect):
 
     name = "quadratic_drag"
     summary = "parasitic drag -Kq*|v|*v"
+    excited_by = 'translations at several speeds, up to the fastest you can fly'
+    fit_advice = 'translations at several different speeds (fast)'
+    channels = ('x', 'y', 'z')
+    distinguish = {
+        'rotor_drag': 'fly several speeds at a constant thrust, and the same speed at another thrust',
+        'wind': 'fly the same speed upwind and downwind',
+    }
 
     def parameters(self, airframe):
         return [Parameter("Kq", 3, 0.0, "N s^2/m^2", 0.0, 10.0 * airframe.mass, 0.01, 0.0, True,
@@ -265,6 +302,12 @@ class RotorDrag(Effect):
 
     name = "rotor_drag"
     summary = "rotor drag -k_rd*sum(w)*v_body (horizontal, body frame)"
+    excited_by = 'translations at one speed with different thrust (climbing, descending)'
+    fit_advice = 'horizontal flight at different thrust levels (fast, step_z while moving)'
+    channels = ('x', 'y')
+    distinguish = {
+        'wind': 'fly in several directions: wind has a fixed direction',
+    }
 
     def parameters(self, airframe):
         return [Parameter("k_rd", 1, 0.0, "N s/m/(rad/s)", 0.0, np.inf, 1e-5, 0.0, True,
@@ -276,6 +319,54 @@ class RotorDrag(Effect):
         ctx.force_world += ctx.R @ fb
 
 
+class HubRotorDrag(Effect):
+    """Rotor drag at each hub, on the hub's own air velocity: rotor ``i`` at ``r_i`` (body,
+    from the centre of gravity) sees ``v_i = R^T v_air + omega x r_i`` and feels
+    ``F_i = -w_i * [k_rdh v_ix, k_rdh v_iy, k_rdv v_iz]`` (body frame), with the torque
+    ``r_i x F_i``. Summed over rotors the force is ``rotor_drag``'s (to first order), but
+    the ``omega x r_i`` term also damps the body rates — roll and pitch through the vertical
+    part (a rolling vehicle's descending rotors push up), yaw through the horizontal part — so
+    a model without it pushes ``b`` down to absorb the yaw damping. ``k_rdv`` (a thrust that
+    falls with the rotor's axial inflow) is fitted too.
+    """
+
+    name = "hub_rotor_drag"
+    summary = "rotor drag at each hub on R^T v + omega x r_i (also damps body rates)"
+    excited_by = "translations at different thrust levels and fast roll, pitch and yaw rates"
+    fit_advice = "fast translations at several thrust levels, and fast yaw turns and roll/pitch steps"
+    channels = ("x", "y", "z", "p", "q", "r", "phi", "theta", "psi")
+    distinguish = {
+        "rotor_drag": "fast yaw turns and roll/pitch steps: the hub form damps the body rates, the "
+                      "centre-of-gravity form does not",
+        "linear_drag": "fly the same speeds at different thrust levels: rotor drag scales with rotor speed",
+    }
+
+    def parameters(self, airframe):
+        return [Parameter("k_rdh", 1, 0.0, "N s/m/(rad/s)", 0.0, np.inf, 1e-5, 0.0, True,
+                          "in-plane drag per unit rotor speed and hub air velocity", self.name),
+                Parameter("k_rdv", 1, 0.0, "N s/m/(rad/s)", 0.0, np.inf, 1e-5, 0.0, True,
+                          "axial (thrust-axis) drag per unit rotor speed and hub air velocity", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        m, n = airframe.mass, airframe.n_rotors
+        w_hover = float(np.sqrt(m * airframe.gravity / (n * K_T)))
+        k = 0.35 * m / (n * w_hover)
+        return {"k_rdh": k, "k_rdv": 0.5 * k}
+
+    def add_forces(self, ctx):
+        vb = ctx.R.T @ ctx.v_air
+        k = ca.vertcat(ctx.params["k_rdh"], ctx.params["k_rdh"], ctx.params["k_rdv"])
+        force = ca.SX.zeros(3)
+        torque = ca.SX.zeros(3)
+        for i in range(ctx.airframe.n_rotors):
+            r = ctx.rotor_pos[i, :].T
+            f = -ctx.w[i] * k * (vb + ca.cross(ctx.omega, r))
+            force += f
+            torque += ca.cross(r, f)
+        ctx.force_world += ctx.R @ force
+        ctx.torque_body += torque
+
+
 class GroundEffect(Effect):
     """Thrust increase near the ground (Cheeseman–Bennett):
     ``T_IGE / T = 1 / (1 - k_ge / h**2)`` with ``h = ground_z - z`` the height above the
@@ -285,6 +376,10 @@ class GroundEffect(Effect):
 
     name = "ground_effect"
     summary = "thrust increase close to the ground, 1/(1 - k_ge/h^2)"
+    excited_by = 'low passes close to the ground (below about two rotor diameters)'
+    fit_advice = 'a slow pass close to the ground (ground)'
+    channels = ('z',)
+    shifts_trim = True
 
     def parameters(self, airframe):
         return [Parameter("k_ge", 1, 0.0, "m^2", 0.0, 1.0, 1e-3, 0.0, True,
@@ -304,6 +399,12 @@ class MotorLag(Effect):
 
     name = "motor_lag"
     summary = "first-order motor lag, time constant tau_m"
+    excited_by = 'fast rotor-speed changes (steps, excitation)'
+    fit_advice = 'rapid rotor-speed changes (steps, excitation)'
+    channels = ('phi', 'theta', 'p', 'q', 'z')
+    distinguish = {
+        'position_delay': 'fast rotor-speed steps with attitude recorded: motor lag delays attitude too, a vision delay only position',
+    }
 
     def parameters(self, airframe):
         # The lower bound keeps the fixed-step integrators stable (see integrate.MAX_STEP).
@@ -331,6 +432,14 @@ class CogOffset(Effect):
 
     name = "cog_offset"
     summary = "centre of gravity offset from the rotor centre"
+    excited_by = 'hovers and roll/pitch steps at several thrust levels'
+    fit_advice = 'hover and attitude steps'
+    channels = ('phi', 'theta', 'p', 'q', 'x', 'y')
+    distinguish = {
+        'motor_asymmetry': 'hover at several thrust levels and yaw angles',
+        'attitude_bias': 'fly roll and pitch steps: a bias shifts readings, an offset needs torque',
+    }
+    shifts_trim = True
 
     def parameters(self, airframe):
         return [Parameter("r_cog", 2, 0.0, "m", -0.5, 0.5, 0.01, 0.0, True,
@@ -351,6 +460,10 @@ class MotorAsymmetry(Effect):
 
     name = "motor_asymmetry"
     summary = "per-rotor thrust factors 1+d_i (sum d_i = 0)"
+    excited_by = 'hovers at several thrust levels and yaw turns'
+    fit_advice = 'roll and pitch steps with varied thrust'
+    channels = ('phi', 'theta', 'p', 'q', 'psi', 'r', 'x', 'y')
+    shifts_trim = True
 
     def parameters(self, airframe):
         return [Parameter("K_T_dev", airframe.n_rotors - 1, 0.0, "1", -0.9, 0.9, 0.05, 0.0, True,
@@ -370,6 +483,10 @@ class Wind(Effect):
 
     name = "wind"
     summary = "constant horizontal wind; drag acts on v - wind"
+    excited_by = 'flight in several directions (wind keeps one direction)'
+    fit_advice = 'horizontal flight in several directions'
+    channels = ('x', 'y')
+    shifts_trim = True
 
     def parameters(self, airframe):
         return [Parameter("wind", 2, 0.0, "m/s", -30.0, 30.0, 1.0, 0.0, True,
@@ -387,6 +504,14 @@ class ThrustDrift(Effect):
 
     name = "thrust_drift"
     summary = "thrust coefficient drifting linearly in time"
+    excited_by = 'the same manoeuvre repeated early and late in the flight'
+    fit_advice = 'a longer flight, repeating the same manoeuvres early and late'
+    channels = ('z',)
+    distinguish = {
+        'ground_effect': 'repeat the same climb early and late in the flight, away from the ground',
+        'battery_voltage': 'vary the thrust level: the voltage sags with the current drawn, time does not',
+    }
+    shifts_trim = True
 
     def parameters(self, airframe):
         return [Parameter("K_T_drift", 1, 0.0, "1/s", -0.05, 0.05, 1e-3, 0.0, True,
@@ -405,6 +530,9 @@ class PositionDelay(Effect):
 
     name = "position_delay"
     summary = "latency of the position measurement"
+    excited_by = 'fast translations (a delay lags the velocity)'
+    fit_advice = 'fast translations (fast)'
+    channels = ('x', 'y', 'z')
 
     def parameters(self, airframe):
         return [Parameter("tau_pos", 1, 0.0, "s", 0.0, 0.3, 0.02, 0.0, True,
@@ -423,6 +551,9 @@ class AttitudeBias(Effect):
 
     name = "attitude_bias"
     summary = "constant roll/pitch measurement offsets"
+    excited_by = 'long hovers at several headings'
+    fit_advice = 'hover and slow translations'
+    channels = ('phi', 'theta', 'x', 'y')
 
     def parameters(self, airframe):
         return [Parameter("att_bias", 2, 0.0, "rad", -0.3, 0.3, 0.01, 0.0, True,
@@ -444,6 +575,8 @@ class RotorMap(Effect):
 
     name = "rotor_map"
     summary = "offset of the logged rotor speeds (command-to-speed map)"
+    excited_by = 'a wide range of thrust levels'
+    channels = ('z', 'phi', 'theta', 'p', 'q')
 
     def parameters(self, airframe):
         return [Parameter("w_offset", 1, 0.0, "rad/s", -2000.0, 2000.0, 100.0, 0.0, True,
@@ -466,6 +599,8 @@ class BatteryVoltage(Effect):
 
     name = "battery_voltage"
     summary = "rotor speed at a given command scaling with battery voltage"
+    excited_by = 'long flights at varied thrust'
+    channels = ('z', 'psi', 'r')
     signals = ("vbat",)
 
     def __init__(self, v_ref: float = 4.0):
@@ -483,7 +618,7 @@ class BatteryVoltage(Effect):
 
 CATALOGUE: dict[str, type[Effect]] = {
     cls.name: cls
-    for cls in (YawTorque, LinearDrag, Gyroscopic, QuadraticDrag, RotorDrag, GroundEffect,
+    for cls in (YawTorque, LinearDrag, Gyroscopic, QuadraticDrag, RotorDrag, HubRotorDrag, GroundEffect,
                 MotorLag, CogOffset, MotorAsymmetry, Wind, ThrustDrift, PositionDelay,
                 AttitudeBias)
 }
@@ -501,13 +636,147 @@ BASE_EFFECTS: tuple[str, ...] = ("yaw_torque", "linear_drag", "gyroscopic")
 """The seed paper's model: rigid body + thrust + these."""
 
 
-def by_name(name: str) -> Effect:
-    """A new effect object from its catalogue name."""
-    cls = CATALOGUE.get(name) or SIGNAL_EFFECTS.get(name)
+_REGISTERED: dict[str, type[Effect]] = {}     # user effects: register(), files, entry points
+_REGISTERED_FROM: dict[str, str] = {}
+_FROM_FILE: dict[str, bool] = {}
+_ENTRY_POINTS_LOADED = False
+ENTRY_POINT_GROUP = "greybox.effects"
+"""Installed packages offer effects through this entry-point group (``name = module:Class``)."""
+
+
+def register(cls: type[Effect], source: str = "register()", from_file: bool = False) -> type[Effect]:
+    """Make an :class:`Effect` subclass usable everywhere a catalogue effect is: in
+    ``QuadrotorModel(..., [name])``, ``--effects``/``--without``/``--candidates``, as a default
+    diagnosis candidate, in an airframe's ``[parameters]`` and ``--set``. Returns ``cls``, so
+    it works as a class decorator.
+
+    Example::
+
+        @greybox.effects.register
+        class RateDamping(greybox.effects.Effect):
+            name = "rate_damping"
+            summary = "body-rate damping -k*omega"
+            channels = ("p", "q", "r")
+            def parameters(self, airframe):
+                return [Parameter("k_w", 3, 0.0, "N m s", 0.0, 1.0, 1e-4, 0.0, True,
+                                  "rate damping per axis", self.name)]
+            def add_forces(self, ctx):
+                ctx.torque_body -= ctx.params["k_w"] * ctx.omega
+    """
+    if not (isinstance(cls, type) and issubclass(cls, Effect)):
+        raise GreyboxInputError(f"{source}: {cls!r} is not an Effect subclass")
+    name = getattr(cls, "name", "")
+    if not isinstance(name, str) or not name.isidentifier() or name != name.lower():
+        raise GreyboxInputError(f"{source}: effect class {cls.__name__} needs a unique lowercase name that is "
+                                f"an identifier, got {name!r}")
+    builtin = CATALOGUE.get(name) or SIGNAL_EFFECTS.get(name)
+    if builtin is not None and builtin is not cls:
+        raise GreyboxInputError(f"{source}: effect name {name!r} is already taken by greybox's "
+                                f"{builtin.__qualname__}")
+    known = _REGISTERED.get(name)
+    # an effects file loaded again (edited, or another copy) replaces its earlier version;
+    # two different classes registered in code under one name are a clash
+    if known is not None and not _same_class(known, cls) and not (_FROM_FILE.get(name) and from_file):
+        raise GreyboxInputError(f"{source}: effect name {name!r} is already taken by "
+                                f"{known.__module__}.{known.__qualname__} ({_REGISTERED_FROM[name]})")
+    try:
+        cls()
+    except Exception as e:   # noqa: BLE001 - any failure to build is the user's to fix
+        raise GreyboxInputError(f"{source}: effect {name!r} cannot be created without arguments ({e})") from None
+    _REGISTERED[name] = cls
+    _REGISTERED_FROM[name] = source
+    _FROM_FILE[name] = from_file
+    return cls
+
+
+def _same_class(a: type, b: type) -> bool:
+    # the same class loaded twice (a file given twice, a module reloaded) is not a clash
+    return a is b or (a.__qualname__ == b.__qualname__ and a.__module__ == b.__module__)
+
+
+def load_effects_file(path) -> list[str]:
+    """Run a Python file and register every :class:`Effect` subclass with a ``name`` defined
+    in it (``--effects-file``). Returns their names. Errors name the file (and line)."""
+    import importlib.util
+    import traceback
+    from pathlib import Path
+    path = Path(path)
+    if not path.is_file():
+        raise GreyboxInputError(f"{path}: effects file not found")
+    mod_name = f"greybox_user_effects_{abs(hash(str(path.resolve())))}"
+    spec = importlib.util.spec_from_file_location(mod_name, path)
+    module = importlib.util.module_from_spec(spec)
+    import sys
+    sys.modules[mod_name] = module      # dataclasses and pickling look classes up by module
+    try:
+        spec.loader.exec_module(module)
+    except GreyboxInputError:
+        raise
+    except Exception as e:   # noqa: BLE001 - the user's file: one line saying where it failed
+        frames = [f for f in traceback.extract_tb(e.__traceback__) if Path(f.filename) == path]
+        where = f", line {frames[-1].lineno}" if frames else (f", line {e.lineno}" if getattr(e, "lineno", None) else "")
+        raise GreyboxInputError(f"{path}{where}: {type(e).__name__}: {e}") from None
+    names = []
+    for obj in vars(module).values():
+        if isinstance(obj, type) and issubclass(obj, Effect) and obj.__module__ == mod_name and obj.name:
+            register(obj, source=str(path), from_file=True)
+            names.append(obj.name)
+    if not names:
+        raise GreyboxInputError(f"{path}: defines no Effect subclass with a name")
+    return names
+
+
+def _load_entry_points() -> None:
+    global _ENTRY_POINTS_LOADED
+    if _ENTRY_POINTS_LOADED:
+        return
+    _ENTRY_POINTS_LOADED = True
+    from importlib.metadata import entry_points
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            register(ep.load(), source=f"entry point {ep.name} ({ep.value})")
+        except Exception as e:   # noqa: BLE001 - a broken plugin must not break greybox
+            import warnings
+            warnings.warn(f"effect plugin {ep.name} ({ep.value}) not loaded: {e}", stacklevel=2)
+
+
+def known_effects() -> dict[str, type[Effect]]:
+    """Every effect by name: the catalogue, the signal effects, then registered ones."""
+    _load_entry_points()
+    return {**CATALOGUE, **SIGNAL_EFFECTS, **_REGISTERED}
+
+
+def registered_effects() -> dict[str, str]:
+    """``{name: where it came from}`` of the effects registered beyond greybox's own."""
+    _load_entry_points()
+    return dict(_REGISTERED_FROM)
+
+
+def effect_class(name: str) -> type[Effect]:
+    """The class of a known effect (see :func:`known_effects`)."""
+    cls = known_effects().get(name)
     if cls is None:
-        raise GreyboxInputError(f"unknown effect {name!r}; known effects: "
-                                f"{', '.join(list(CATALOGUE) + list(SIGNAL_EFFECTS))}")
-    return cls()
+        raise GreyboxInputError(f"unknown effect {name!r}; known effects: {', '.join(known_effects())} "
+                                "(effects of your own: --effects-file FILE.py or greybox.effects.register)")
+    return cls
+
+
+def by_name(name: str) -> Effect:
+    """A new effect object from its name (catalogue or registered)."""
+    return effect_class(name)()
+
+
+def distinguishing_manoeuvre(a: str, b: str) -> str:
+    """What to fly to tell effects ``a`` and ``b`` apart (from the effects' own
+    ``distinguish`` and ``excited_by``)."""
+    known = known_effects()
+    ca_, cb = known.get(a), known.get(b)
+    hint = (ca_.distinguish.get(b) if ca_ else None) or (cb.distinguish.get(a) if cb else None)
+    if hint:
+        return hint
+    if ca_ and cb and ca_.excited_by and cb.excited_by:
+        return f"{a} shows in {ca_.excited_by}, {b} in {cb.excited_by}: fly one without the other"
+    return "fly manoeuvres that excite one and not the other"
 
 
 def parse_effect_names(text: str | None) -> list[str]:
@@ -538,7 +807,10 @@ def example_values(name: str, airframe: "Airframe", K_T: float) -> dict[str, flo
         "position_delay": {"tau_pos": 0.04},
         "attitude_bias": {"att_bias": [0.02, -0.015]},
     }
-    return values.get(name, {})
+    if name in values:
+        return values[name]
+    cls = known_effects().get(name)
+    return cls().plausible_values(airframe, K_T) if cls is not None else {}
 
 
 __all__.append("example_values")

@@ -21,8 +21,6 @@ from .model import QuadrotorModel
 
 __all__ = ["hover_trim", "linearize", "LinearModel"]
 
-# effects that change where (or with which rotor speeds) a level hover balances
-_SHIFTING = {"cog_offset", "motor_asymmetry", "ground_effect", "thrust_drift", "wind"}
 
 
 @dataclass
@@ -158,7 +156,7 @@ def _closed_form_ok(model: QuadrotorModel) -> bool:
     symmetric = (np.allclose(P[:, :2].sum(axis=0), 0) and abs(af.spins.sum()) < 1e-12
                  and np.allclose(af.inertia, np.diag(np.diag(af.inertia))))
     return (symmetric and model.inputs == "rotor_speeds"
-            and not (_SHIFTING & set(model.effect_names)))
+            and not any(e.shifts_trim for e in model.effects))
 
 
 def hover_trim(model: QuadrotorModel, p: np.ndarray | None = None, position=(0.0, 0.0, None),

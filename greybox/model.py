@@ -154,8 +154,7 @@ class QuadrotorModel:
         from .data import FlightLog
         where = log.source or "log"
         cmd = self.command_names
-        known_signals = {s for e in list(fx.CATALOGUE.values()) + list(fx.SIGNAL_EFFECTS.values())
-                         for s in e.signals}
+        known_signals = {s for e in fx.known_effects().values() for s in e.signals}
         if list(log.input_names[:len(cmd)]) != cmd or \
                 any(n not in known_signals for n in log.input_names[len(cmd):]):
             raise GreyboxInputError(f"{where}: inputs {','.join(log.input_names)} do not match the "
@@ -202,7 +201,7 @@ class QuadrotorModel:
     # ------------------------------------------------------------------ parameter values
     def _check_airframe_parameters(self) -> None:
         known = {THRUST.name: THRUST}
-        for cls in list(fx.CATALOGUE.values()) + list(fx.SIGNAL_EFFECTS.values()):
+        for cls in fx.known_effects().values():
             for p in cls().parameters(self.airframe):
                 known[p.name] = p
         for name, value in self.airframe.parameters.items():

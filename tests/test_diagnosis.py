@@ -144,14 +144,15 @@ def test_height_sentence_says_what_the_error_does_near_the_ground():
 
 
 def test_every_catalogue_effect_has_a_manoeuvre_that_excites_it():
-    """A confusion warning always says what to fly: a named pair, or each effect's manoeuvre."""
+    """A confusion warning always says what to fly: a named pair, or each effect's manoeuvre.
+    What the diagnosis knows about an effect lives on its class."""
     from greybox import effects
-    from greybox.diagnosis import DISTINGUISH, EXCITED_BY, distinguishing_manoeuvre
-    names = list(effects.CATALOGUE) + ["yaw_torque", "linear_drag", "gyroscopic"]
-    assert set(names) <= set(EXCITED_BY)
-    pair = next(iter(DISTINGUISH))
-    a, b = sorted(pair)
-    assert distinguishing_manoeuvre(a, b) == distinguishing_manoeuvre(b, a) == DISTINGUISH[pair]
+    from greybox.diagnosis import distinguishing_manoeuvre
+    for name, cls in effects.known_effects().items():
+        assert cls.excited_by, name
+        assert cls.channels and set(cls.channels) <= {"x", "y", "z", "phi", "theta", "psi", "p", "q", "r"}, name
+    a, (b, hint) = "cog_offset", next(iter(effects.CogOffset.distinguish.items()))
+    assert distinguishing_manoeuvre(a, b) == distinguishing_manoeuvre(b, a) == hint
     hint = distinguishing_manoeuvre("ground_effect", "motor_asymmetry")
     assert "low passes close to the ground" in hint and "yaw turns" in hint
 

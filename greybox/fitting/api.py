@@ -27,24 +27,22 @@ from .certificate import (GAP_TOLERANCE, NOISE_RATIO_ADEQUATE, NOISE_RATIO_COLOU
                           WHITENESS_ADEQUATE, Certificate)
 from .gauss_newton import FitSession, GaussNewton, Solver
 
-__all__ = ["fit", "FitResult", "progress_printer", "MANOEUVRE_ADVICE", "MAX_RESTARTS", "TRUST_REGION"]
+__all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS",
+           "TRUST_REGION"]
 
-MANOEUVRE_ADVICE = {
-    "K_T": "vertical steps (step_z) and climbs at varied thrust",
-    "b": "yaw steps (yaw) with large rotor-speed differences",
-    "Kd": "fast translations (fast) along each axis, and vertical steps for Kd[2]",
-    "J_r": "fast roll/pitch motions with high rotor speeds",
-    "Kq": "translations at several different speeds (fast)",
-    "k_rd": "horizontal flight at different thrust levels (fast, step_z while moving)",
-    "k_ge": "a slow pass close to the ground (ground)",
-    "tau_m": "rapid rotor-speed changes (steps, excitation)",
-    "r_cog": "hover and attitude steps",
-    "K_T_dev": "roll and pitch steps with varied thrust",
-    "wind": "horizontal flight in several directions",
-    "K_T_drift": "a longer flight, repeating the same manoeuvres early and late",
-    "tau_pos": "fast translations (fast)",
-    "att_bias": "hover and slow translations",
-}
+THRUST_ADVICE = "vertical steps (step_z) and climbs at varied thrust"
+"""What pins ``K_T`` down (the other parameters' advice lives on their effects)."""
+
+
+def manoeuvre_advice(model: QuadrotorModel, component: str) -> str:
+    """What to fly to pin a parameter down: its effect's ``fit_advice`` (or ``excited_by``)."""
+    base = component.split("[")[0]
+    if base == "K_T":
+        return THRUST_ADVICE
+    for e in model.effects:
+        if base in {p.name for p in e.parameters(model.airframe)}:
+            return e.fit_advice or e.excited_by or "more varied manoeuvres"
+    return "more varied manoeuvres"
 
 
 
@@ -353,7 +351,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     corr = np.clip(np.nan_to_num(corr), -1.0, 1.0)
     p_out = p.copy()
     p_out[free_idx] = th * scale
-    warnings += _identifiability_warnings(free_names, p_out[free_idx], std, corr, P)
+    warnings += _identifiability_warnings(model, free_names, p_out[free_idx], std, corr, P)
     if not converged:
         warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
         import warnings as _w
@@ -405,13 +403,13 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
                                 (dict(process_noise) if process_noise else None)))
 
 
-def _identifiability_warnings(names: list[str], values: np.ndarray, std: np.ndarray, corr: np.ndarray,
+def _identifiability_warnings(model: QuadrotorModel, names: list[str], values: np.ndarray, std: np.ndarray,
+                              corr: np.ndarray,
                               P: np.ndarray) -> list[str]:
     out = []
 
     def advice(n: str) -> str:
-        base = n.split("[")[0]
-        return MANOEUVRE_ADVICE.get(base, "more varied manoeuvres")
+        return manoeuvre_advice(model, n)
 
     n = len(names)
     for i in range(n):

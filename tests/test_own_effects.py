@@ -1,0 +1,163 @@
+"""Effects of your own are first-class (issue 14 item 1): registered by decorator, file or
+entry point, used like catalogue effects by every command; what the code knows about an
+effect lives on its class; the compile cache is keyed by what was compiled."""
+from __future__ import annotations
+
+import json
+import textwrap
+
+import numpy as np
+import pytest
+
+import greybox
+from greybox import effects as fx
+from greybox.cli import main
+from greybox.errors import GreyboxInputError
+from greybox.model import QuadrotorModel
+from greybox.parameters import Parameter
+from greybox.shooting import ShootingProblem
+
+from conftest import AIRFRAMES
+
+PAPER = str(AIRFRAMES / "paper.toml")
+
+RATE_DAMPING = textwrap.dedent('''
+    """A body-rate damping torque -k * omega, written against greybox's public Effect API."""
+    from greybox.effects import Effect
+    from greybox.parameters import Parameter
+
+
+    class RateDamping(Effect):
+        name = "rate_damping"
+        summary = "body-rate damping torque -k_w * omega (per axis)"
+        excited_by = "fast roll, pitch and yaw rates"
+        channels = ("phi", "theta", "psi", "p", "q", "r")
+
+        def parameters(self, airframe):
+            return [Parameter(name="k_w", size=3, default=0.0, unit="N m s", lower=0.0, upper=1.0,
+                              scale=1e-3, null=0.0, free=True, description="rate damping per body axis",
+                              effect=self.name)]
+
+        def plausible_values(self, airframe, K_T):
+            return {"k_w": [0.02, 0.02, 0.01]}
+
+        def add_forces(self, ctx):
+            ctx.torque_body -= ctx.params["k_w"] * ctx.omega
+''')
+
+
+@pytest.fixture
+def effect_file(tmp_path):
+    path = tmp_path / "rate_damping.py"
+    path.write_text(RATE_DAMPING)
+    return path
+
+
+def test_register_decorator_and_clear_errors():
+    @fx.register
+    class SpinDown(fx.Effect):
+        name = "test_spin_down"
+        summary = "yaw damping -k*r"
+
+        def parameters(self, airframe):
+            return [Parameter("k_r", 1, 0.0, "N m s", 0.0, 1.0, 1e-3, 0.0, True, "yaw damping", self.name)]
+
+        def add_forces(self, ctx):
+            ctx.torque_body[2] -= ctx.params["k_r"] * ctx.omega[2]
+
+    assert fx.known_effects()["test_spin_down"] is SpinDown
+    model = QuadrotorModel(greybox.load_airframe(PAPER), ["yaw_torque", "test_spin_down"])
+    assert "k_r" in model.param_names
+    # a hand-checkable consequence: spinning at r = 2 rad/s with k_r = 0.01 decelerates at k_r r / J_z
+    p = model.parameter_vector({"k_r": 0.01, "b": 0.0})
+    x = np.zeros(model.nx)
+    x[11] = 2.0
+    rdot = float(np.asarray(model.rhs(x, np.zeros(4), p, 0)).ravel()[11])
+    assert rdot == pytest.approx(-0.01 * 2.0 / model.airframe.inertia[2, 2])
+
+    class Clash(fx.Effect):
+        name = "ground_effect"
+    with pytest.raises(GreyboxInputError, match="already taken"):
+        fx.register(Clash)
+
+    class Shouting(fx.Effect):
+        name = "Wind2"
+    with pytest.raises(GreyboxInputError, match="lowercase"):
+        fx.register(Shouting)
+    with pytest.raises(GreyboxInputError, match="effects-file"):
+        fx.by_name("no_such_effect")
+
+
+def test_effects_file_everywhere_on_the_command_line(effect_file, tmp_path, capsys):
+    # listed, with its parameters
+    assert main(["effects", "--effects-file", str(effect_file), "--json", str(tmp_path / "e.json")]) == 0
+    listed = {e["name"]: e for e in json.loads((tmp_path / "e.json").read_text())["effects"]}
+    assert listed["rate_damping"]["origin"] == str(effect_file)
+    assert listed["rate_damping"]["parameters"][0]["name"] == "k_w"
+    assert {"hub_rotor_drag", "ground_effect", "yaw_torque"} <= set(listed)
+    # in an airframe's [parameters], with --effects and --set
+    af = tmp_path / "af.toml"
+    af.write_text(open(PAPER).read().replace("[parameters]\n", "[parameters]\nk_w = [0.01, 0.01, 0.005]\n"))
+    assert main(["linearize", "--airframe", str(af), "--effects-file", str(effect_file), "--effects",
+                 "rate_damping", "--set", "k_w=0.02,0.02,0.01", "--json", str(tmp_path / "lin.json")]) == 0
+    lin = json.loads((tmp_path / "lin.json").read_text())
+    assert lin["effects"][-1] == "rate_damping" and lin["parameters"]["k_w[2]"] == 0.01
+    A = np.array(lin["A"])
+    r = lin["states"].index("r")
+    assert A[r, r] == pytest.approx(-0.01 / 0.034, rel=0.05) or A[r, r] < 0   # damping on r
+    # a broken file: one line naming the file and the line
+    bad = tmp_path / "bad.py"
+    bad.write_text("from greybox.effects import Effect\n\nclass X(Effect):\n    name = 'x_eff'\n    oops(\n")
+    capsys.readouterr()
+    assert main(["effects", "--effects-file", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(bad) in err[0] and "line 5" in err[0]
+
+
+def test_own_effect_is_ranked_first_on_a_flight_that_has_it(effect_file, tmp_path, capsys):
+    """A flight with body-rate damping (the user's own effect, k_w as the file's plausible
+    values): the diagnosis names it first, ahead of catalogue effects that also touch rates."""
+    log = tmp_path / "damped.csv"
+    assert main(["synth", "--airframe", PAPER, "--effects-file", str(effect_file), "--effects", "rate_damping",
+                 "--duration", "24", "--rate", "200", "--vision-rate", "50", "--seed", "4",
+                 "--manoeuvres", "hover,yaw,step_x,fast,step_y,yaw", "--out", str(log)]) == 0
+    capsys.readouterr()
+    assert main(["diagnose", str(log), "--airframe", PAPER, "--effects-file", str(effect_file), "--quiet",
+                 "--candidates", "rate_damping,hub_rotor_drag,motor_lag,cog_offset", "--no-iterate",
+                 "--json", str(tmp_path / "d.json")]) == 0
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["ranking"][0]["effect"] == "rate_damping" and d["ranking"][0]["significant"]
+    assert d["verdict"] == "rate_damping"
+
+
+def test_hub_rotor_drag_damps_rates_by_hand():
+    af = greybox.load_airframe(AIRFRAMES / "x_quad.toml")
+    m = QuadrotorModel(af) + fx.HubRotorDrag()
+    p = m.parameter_vector({"k_rdh": 1e-4, "k_rdv": 2e-4, "b": 0.0, "Kd": 0.0, "J_r": 0.0})
+    w = np.full(4, 300.0)
+    x = np.zeros(m.nx)
+    x[11] = 2.0                                        # yaw rate: in-plane hub velocities r * arm
+    rdot = float(np.asarray(m.rhs(x, w, p, 0)).ravel()[11])
+    assert rdot == pytest.approx(-1e-4 * 4 * 300 * af.arm_length ** 2 * 2.0 / af.inertia[2, 2], rel=1e-9)
+    x = np.zeros(m.nx)
+    x[9] = 3.0                                         # roll rate: axial hub velocities p * y_i
+    pdot = float(np.asarray(m.rhs(x, w, p, 0)).ravel()[9])
+    y = af.rotor_positions[:, 1]
+    assert pdot == pytest.approx(-2e-4 * 300 * 3.0 * float((y ** 2).sum()) / af.inertia[0, 0], rel=1e-9)
+    x = np.zeros(m.nx)
+    x[6] = 1.0                                         # 1 m/s forward, level: the summed rotor_drag force
+    ax = float(np.asarray(m.rhs(x, w, p, 0)).ravel()[6])
+    assert ax == pytest.approx(-1e-4 * 4 * 300 / af.mass, rel=1e-9)
+
+
+def test_compile_key_follows_effect_options_and_user_source(effect_file):
+    af = greybox.load_airframe(PAPER)
+    keys = [ShootingProblem.step_functions(QuadrotorModel(af) + fx.BatteryVoltage(v_ref=v), [0], 1)[2]
+            for v in (4.0, 3.7)]
+    assert keys[0] != keys[1]
+    fx.load_effects_file(effect_file)
+    k1 = ShootingProblem.step_functions(QuadrotorModel(af, ["rate_damping"]), [0], 1)[2]
+    effect_file.write_text(RATE_DAMPING.replace("-= ctx.params", "-= 2 * ctx.params"))
+    fx.load_effects_file(effect_file)
+    k2 = ShootingProblem.step_functions(QuadrotorModel(af, ["rate_damping"]), [0], 1)[2]
+    assert k1 != k2
