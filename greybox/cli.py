@@ -299,10 +299,10 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
 
 
 def _load_fit_inputs(args: argparse.Namespace):
-    """Model, starting parameters (``--set``) and the log, each checked before any work."""
+    """Model, starting parameters (``--set``) and the logs, each checked before any work."""
     model, brought = model_from_args(args)
     p0 = _parameters(model, brought, args.set)
-    return model, p0, _load_model_log(model, args.log, p0)
+    return model, p0, [_load_model_log(model, path, p0) for path in args.log]
 
 
 def _load_model_log(model: QuadrotorModel, path: str, p0: np.ndarray):
@@ -417,34 +417,57 @@ def cmd_render(args: argparse.Namespace) -> int:
 def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting import fit
     from .validation import compare_plot, predict, residual_plot
-    model, p0, log = _load_fit_inputs(args)
-    est, val = log.split(0.8)
+    model, p0, logs = _load_fit_inputs(args)
+    parts = [log.split(0.8) for log in logs]
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # said below, once, as the error
-        res = fit(model, est, free=_names(args.free), fixed=_names(args.fixed), p0=p0,
+        # several flights: shared parameters, each flight its own states
+        res = fit(model, [est for est, _ in parts], free=_names(args.free), fixed=_names(args.fixed), p0=p0,
                   interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
                   process_noise=args.process_noise)
     if not res.converged:
         raise GreyboxError(f"fit did not converge: {res.status}")
-    pred = predict(model, res.p, val, horizon=args.horizon)
+    preds = [predict(model, res.p, val, horizon=args.horizon) for _, val in parts]
     print(res.summary())
-    print(f"validation ({args.horizon:g} s-ahead, last 20 %): nrmse {pred.total:.4f}  " +
-          "  ".join(f"{c}={v:.3f}" for c, v in pred.nrmse.items()))
+    for log, pred in zip(logs, preds):
+        where = f" of {log.source}" if len(logs) > 1 else ""
+        print(f"validation ({args.horizon:g} s-ahead, last 20 %{where}): nrmse {pred.total:.4f}  " +
+              "  ".join(f"{c}={v:.3f}" for c, v in pred.nrmse.items()))
+    validation = _combined_validation(preds, [log.source for log in logs])
+    if len(logs) > 1:
+        print(f"validation, mean over {len(logs)} flights: nrmse {validation['nrmse']:.4f}")
     if args.plots:
         out = Path(args.plots)
-        compare_plot(pred, out / "compare.png")
-        residual_plot(pred, out / "residuals.png")
-        print(f"plots: {out / 'compare.png'}, {out / 'residuals.png'}")
+        for k, pred in enumerate(preds):
+            suffix = f"_{k + 1}" if len(preds) > 1 else ""
+            compare_plot(pred, out / f"compare{suffix}.png")
+            residual_plot(pred, out / f"residuals{suffix}.png")
+        print(f"plots: {out}")
     if args.json:
-        write_json(args.json, fit_result_json(model, res, {**pred.as_dict()}))
+        write_json(args.json, fit_result_json(model, res, validation))
     if args.save:
         print(f"model: {res.save(args.save)}")
     return 0
 
 
+def _combined_validation(preds, sources) -> dict:
+    """The fit JSON's ``validation``: one flight's prediction as is; several flights' nrmse
+    averaged (total and per channel), each flight's under ``flights``."""
+    if len(preds) == 1:
+        return preds[0].as_dict()
+    channels = {c: float(np.mean([p.nrmse[c] for p in preds if c in p.nrmse])) for c in preds[0].nrmse}
+    return {"nrmse": float(np.mean([p.total for p in preds])), "channels": channels,
+            "horizon": preds[0].horizon, "windows": int(sum(len(p.windows) for p in preds)),
+            "flights": [{"log": s, **p.as_dict()} for s, p in zip(sources, preds)]}
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
-    model, p0, log = _load_fit_inputs(args)
+    model, p0, logs = _load_fit_inputs(args)
+    if len(logs) > 1:
+        raise GreyboxInputError("diagnose takes one estimation log (LOG) for now; give another flight "
+                                "with --validation LOG2 to validate on it")
+    log = logs[0]
     validation = _load_model_log(model, args.validation, p0) if args.validation else None
     diag = diagnose(model, log, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=p0, progress=not args.quiet,
@@ -556,7 +579,8 @@ def _parser() -> argparse.ArgumentParser:
     f = sub.add_parser("fit", help="fit the model's parameters to a flight log",
                        description="Fit the free parameters by multiple-shooting least squares on the "
                                    "first 80 %% of the log and validate on the last 20 %%.")
-    f.add_argument("log", help="flight log CSV")
+    f.add_argument("log", nargs="+", help="flight log CSV; several flights share the parameters, each has "
+                                          "its own states (each is fitted on its first 80 %%, validated on the rest)")
     _model_args(f, "starting value (repeatable)")
     f.add_argument("--free", help="comma list of parameters to fit (default: all that are free by default)")
     f.add_argument("--fixed", help="comma list of parameters to hold at their starting values")
@@ -575,7 +599,7 @@ def _parser() -> argparse.ArgumentParser:
     g = sub.add_parser("diagnose", help="find where the model fails and which effect is missing",
                        description="Fit the model, show where it fails, try the catalogue's candidate effects "
                                    "and rank them; add the significant ones until nothing is missing.")
-    g.add_argument("log", help="flight log CSV")
+    g.add_argument("log", nargs="+", metavar="log", help="flight log CSV")
     _model_args(g, "starting value (repeatable)")
     g.add_argument("--candidates", help="comma list of candidate effects (default: every effect not in the model)")
     g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")

@@ -162,3 +162,22 @@ def test_a_solver_is_injected(paper_model, flight, fitted):
     res = fit(paper_model, est, p0=OFF, max_iter=40, solver=s)
     assert s.calls >= 1
     np.testing.assert_allclose(res.p, fitted.p, rtol=1e-9)
+
+
+def test_cli_fit_takes_several_flights(paper_model, tmp_path):
+    """Two flights, shared parameters, own states: the joint fit recovers K_T and b and
+    reports each flight's validation and their mean."""
+    paths = []
+    for seed in (11, 12):
+        model, p = model_with_hidden_effects(paper_model, [])
+        log = synthesize(model, p, 8.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=seed).log
+        paths.append(tmp_path / f"f{seed}.csv")
+        save_log(log, paths[-1])
+    assert main(["fit", *map(str, paths), "--airframe", str(AIRFRAMES / "paper.toml"), "--quiet",
+                 "--set", "K_T=2.8e-5", "--json", str(tmp_path / "r.json")]) == 0
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert r["parameters"]["K_T"]["value"] == pytest.approx(2.395e-5, rel=0.005)
+    assert r["parameters"]["b"]["value"] == pytest.approx(6.8429e-7, rel=0.03)
+    flights = r["validation"]["flights"]
+    assert [f["log"] for f in flights] == [str(p) for p in paths]
+    assert r["validation"]["nrmse"] == pytest.approx(np.mean([f["nrmse"] for f in flights]))
