@@ -19,7 +19,7 @@ from . import __version__
 from . import effects as fx
 from .airframe import load_airframe
 from .data import FlightLog, atomic_write, check_rotor_speed_units, check_sample_times, read_csv_table, save_log
-from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, forget_signals, raise_interrupted, raise_terminated, signal_received
+from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, forget_signals, interrupt_status, raise_interrupted, raise_terminated
 from .integrate import simulate
 from .model import QuadrotorModel
 
@@ -739,19 +739,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except GreyboxError as e:
         print(f"greybox: failed: {e}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("greybox: interrupted", file=sys.stderr)
-        return 130
-    except Terminated:
-        print("greybox: terminated", file=sys.stderr)
-        return 143
-    except Exception:
-        # an interrupt that a C extension turned into another exception (CasADi: SystemError)
-        sig = signal_received()
-        if sig is None:
+    except (KeyboardInterrupt, Terminated, Exception) as e:
+        status = interrupt_status(e)
+        if status is None:
             raise
-        print("greybox: interrupted" if sig == signal.SIGINT else "greybox: terminated", file=sys.stderr)
-        return 130 if sig == signal.SIGINT else 143
+        return status
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -10,7 +10,7 @@ import signal
 import sys
 from typing import Sequence
 
-from .errors import Terminated, raise_interrupted, raise_terminated, signal_received
+from .errors import interrupt_status, raise_interrupted, raise_terminated
 
 __all__ = ["run"]
 
@@ -41,16 +41,8 @@ def _run(argv: Sequence[str] | None) -> int:
     try:
         from .cli import main
         return main(argv)
-    except KeyboardInterrupt:
-        print("greybox: interrupted", file=sys.stderr)
-        return 130
-    except Terminated:
-        print("greybox: terminated", file=sys.stderr)
-        return 143
-    except BaseException:
-        # an interrupt that a C extension turned into another exception
-        sig = signal_received()
-        if sig is None:
+    except BaseException as e:   # an interrupt while the CLI was being imported
+        status = interrupt_status(e)
+        if status is None:
             raise
-        print("greybox: interrupted" if sig == signal.SIGINT else "greybox: terminated", file=sys.stderr)
-        return 130 if sig == signal.SIGINT else 143
+        return status

@@ -115,3 +115,21 @@ def forget_signals() -> None:
 def signal_received() -> int | None:
     """The last SIGINT/SIGTERM received through the handlers above, or None."""
     return _SIGNALS_RECEIVED[-1] if _SIGNALS_RECEIVED else None
+
+
+def interrupt_status(exc: BaseException) -> int | None:
+    """The CLI's exit status for an interrupt — 130 (Ctrl-C, SIGINT) or 143 (SIGTERM) — after
+    printing its one line, or None when ``exc`` is not one. Also an exception a C extension
+    made out of an interrupt (CasADi raises ``SystemError`` from a callback it ran into)."""
+    import signal
+    import sys
+    if isinstance(exc, KeyboardInterrupt):
+        sig = signal.SIGINT
+    elif isinstance(exc, Terminated):
+        sig = signal.SIGTERM
+    else:
+        sig = signal_received()
+        if sig is None:
+            return None
+    print("greybox: interrupted" if sig == signal.SIGINT else "greybox: terminated", file=sys.stderr)
+    return 130 if sig == signal.SIGINT else 143
