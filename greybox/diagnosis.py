@@ -56,7 +56,8 @@ from .residuals import fitted_trajectory, long_run_factor, output_residuals, whi
 from .validation import Prediction, predict
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
-           "MIN_VALIDATION_GAIN", "distinguishing_manoeuvre"]
+           "MIN_VALIDATION_GAIN", "distinguishing_manoeuvre",
+           "CommandImbalance", "command_imbalance"]
 
 ALPHA = 0.01
 """Family-wise significance level of the likelihood-ratio tests (Bonferroni over candidates)."""
@@ -185,6 +186,7 @@ class Diagnosis:
     validation_source: str = ""        # what the validation nrmse was computed on, in words
     unexplained: dict[str, float] = field(default_factory=dict)   # channel -> residual / sensor noise
     inconsistent: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
+    command_imbalance: "CommandImbalance | None" = None   # rotors driven unequally in steady flight
     # parameter -> (first half, std, second half, std) where the halves disagree
 
     @property
@@ -215,6 +217,7 @@ class Diagnosis:
                "effects": self.model.effect_names,
                "certificate": self.baseline.certificate.as_dict() if self.baseline.certificate else None,
                "unexplained": {ch: _num(v) for ch, v in self.unexplained.items()},
+               "command_imbalance": self.command_imbalance.as_dict() if self.command_imbalance else None,
                "inconsistent_parameters": {n: {"first_half": a, "first_half_std": sa, "second_half": b,
                                                "second_half_std": sb}
                                            for n, (a, sa, b, sb) in self.inconsistent.items()}}
@@ -234,6 +237,8 @@ class Diagnosis:
                  ", ".join(f"{c} {v:.3f}" for c, v in b.nrmse.items()) + ")"]
         lines.append("2. where it fails:")
         lines += [f"   - {f.text}" for f in self.findings] or ["   - no regime stands out"]
+        if self.command_imbalance is not None and self.command_imbalance.notable:
+            lines.append(f"   - {self.command_imbalance.text()}")
         lines.append("3. candidates (best first):")
         for c in self.ranking:
             after = f"{c.nrmse_after:.3f}" if c.nrmse_after is not None else "  -  "
@@ -327,6 +332,69 @@ def _envelope(e: np.ndarray, t: np.ndarray, window: float = 0.2) -> np.ndarray:
     n = cn[hi] - cn[lo]
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.sqrt((cs[hi] - cs[lo]) / n)
+
+
+IMBALANCE_NOTABLE = 0.03
+"""A rotor's steady-flight share of the squared commands this far from the mean (3 %) is
+worth telling: more than hover trim tolerances, less than a damaged propeller."""
+
+
+@dataclass
+class CommandImbalance:
+    """How unequally the logged rotor speeds share the work in steady flight (level, not
+    rotating, not accelerating): evidence a propeller engineer reads before any fit.
+
+    ``share[name]`` is rotor ``name``'s mean ``w^2`` over the mean of all rotors', minus 1;
+    ``spin[+1 / -1]`` the same for the two spin directions. A model with equal rotors needs a
+    steady torque to explain an imbalance: a weaker rotor (``motor_asymmetry``, thrust and
+    torque), a centre of gravity off the middle (``cog_offset``, roll and pitch only), or,
+    between spin directions, a yaw-torque difference that drives ``b`` towards zero."""
+
+    share: dict[str, float]
+    spin: dict[int, float]
+    seconds: float                      # steady flight the averages are taken over
+
+    @property
+    def notable(self) -> bool:
+        return max(abs(v) for v in self.share.values()) > IMBALANCE_NOTABLE
+
+    def text(self) -> str:
+        rotors = ", ".join(f"{n} {100 * v:+.1f} %" for n, v in self.share.items())
+        pairs = " vs ".join(f"spin {k:+d} rotors {100 * v:+.1f} %" for k, v in sorted(self.spin.items()))
+        return (f"in {self.seconds:.1f} s of steady flight the rotors are driven unequally ({rotors} of the mean "
+                f"squared speed; {pairs}): equal rotors would need a steady torque here — a weaker rotor "
+                "(motor_asymmetry, thrust and torque), a centre of gravity off the middle (cog_offset), or, between "
+                "spin directions, a yaw-torque difference that pulls b towards zero")
+
+    def as_dict(self) -> dict:
+        return {"share": dict(self.share), "spin": {str(k): v for k, v in self.spin.items()},
+                "seconds": self.seconds, "notable": self.notable}
+
+
+def command_imbalance(model: QuadrotorModel, log: FlightLog, max_rate: float = 0.3, max_tilt: float = 0.15,
+                      max_angular_acc: float = 3.0) -> CommandImbalance | None:
+    """Per-rotor share of the squared rotor speeds in steady flight (body rates below
+    ``max_rate`` rad/s, roll and pitch below ``max_tilt`` rad, angular acceleration below
+    ``max_angular_acc`` rad/s²; from the smoothed measurements, no model). None when the log
+    has less than a second of it, or its inputs are not rotor speeds."""
+    n_rot = model.airframe.n_rotors
+    if model.inputs != "rotor_speeds" or len(log) < 10:
+        return None
+    X = initial_node_states(model, log, np.arange(len(log)))
+    rates = X[:, 9:12]
+    acc = np.gradient(rates, log.t, axis=0)
+    steady = ((np.abs(rates).max(axis=1) < max_rate) & (np.abs(X[:, 3:5]).max(axis=1) < max_tilt)
+              & (np.abs(acc).max(axis=1) < max_angular_acc))
+    dt = np.append(np.diff(log.t), 0.0)
+    seconds = float(dt[steady].sum())
+    if seconds < 1.0:
+        return None
+    w2 = log.inputs[steady, :n_rot] ** 2
+    mean = w2.mean(axis=0)
+    share = {name: float(m / mean.mean() - 1.0) for name, m in zip(model.command_names[:n_rot], mean)}
+    spins = model.airframe.spins
+    spin = {int(s): float(mean[spins == s].mean() / mean.mean() - 1.0) for s in np.unique(spins)}
+    return CommandImbalance(share, spin, seconds)
 
 
 def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog, pred: Prediction | None = None,
@@ -918,7 +986,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est,
                      validation_source=_validation_source(validation, split), unexplained=unexplained,
-                     inconsistent=inconsistent)
+                     inconsistent=inconsistent, command_imbalance=command_imbalance(model, est))
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
@@ -989,6 +1057,8 @@ def _write_report(d: Diagnosis, out: Path) -> Path:
                             f"<td>{100 * (f.nrmse.get(ch, 0) / b.nrmse[ch] - 1) if b.nrmse[ch] else 0:+.0f} %</td></tr>"
                             for ch in b.nrmse)
     img = lambda k: f'<img src="data:image/png;base64,{images[k]}"/>' if k in images else ""
+    imbalance = (f"<li>{esc(d.command_imbalance.text())}</li>"
+                 if d.command_imbalance is not None and d.command_imbalance.notable else "")
     param_rows = "".join(
         f"<tr><td>{esc(n)}</td><td>{v['value']:.6g}</td>"
         f"<td>{'fixed' if v['std'] is None else format(v['std'], '.3g')}</td></tr>"
@@ -1000,7 +1070,7 @@ td,th{{border:1px solid #ccc;padding:3px 8px}}img{{max-width:100%}}</style></hea
 <p>Model: {esc(', '.join(d.model.effect_names))}. Verdict: <b>{esc(d.verdict or 'null: nothing significant is missing')}</b>.</p>
 <h2>1. Compare</h2><p>Validation nrmse {b.total:.3f} on the {esc(d.validation_source)} ({esc(', '.join(f'{c} {v:.3f}' for c, v in b.nrmse.items()))}).</p>
 {img('compare_baseline')}
-<h2>2. Where it fails</h2><ul>{''.join(f'<li>{esc(f.text)}</li>' for f in d.findings) or '<li>no regime stands out</li>'}</ul>
+<h2>2. Where it fails</h2><ul>{''.join(f'<li>{esc(f.text)}</li>' for f in d.findings) or '<li>no regime stands out</li>'}{imbalance}</ul>
 {img('regimes')}<p>Residual autocorrelation (grey: 99 % band of white noise):</p>{img('whiteness')}
 <h2>3. Which effect is missing</h2><table><tr><th>effect</th><th>significant</th><th>score</th><th>LR</th>
 <th>p</th><th>nrmse before</th><th>nrmse after</th><th>why</th></tr>{rows}</table>{img('ranking')}

@@ -1,0 +1,27 @@
+"""Steady-flight command imbalance (issue 15's evidence): a weak rotor is driven harder."""
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel, load_airframe
+from greybox.diagnosis import command_imbalance
+from greybox.synth import SensorSpec, model_with_hidden_effects, synthesize
+
+from conftest import AIRFRAMES
+
+
+@pytest.fixture(scope="module")
+def base():
+    return QuadrotorModel(load_airframe(AIRFRAMES / "x_quad.toml"))
+
+
+def test_a_weak_rotor_is_driven_harder_and_equal_rotors_are_not(base):
+    m, p = model_with_hidden_effects(base, ["motor_asymmetry"], {"K_T_dev": [-0.1, 0.05, 0.05]})
+    weak = command_imbalance(base, synthesize(m, p, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log)
+    # rotor 1 gives 10 % less thrust per w^2: the controller asks it for about 1/0.9 - 1 = 11 % more
+    assert weak.notable and weak.share["w1"] == pytest.approx(1 / 0.9 - 1, abs=0.03)
+    assert sum(weak.share.values()) == pytest.approx(0.0, abs=1e-9)
+    assert weak.seconds > 3 and "motor_asymmetry" in weak.text()
+    m0, p0 = model_with_hidden_effects(base, [])
+    equal = command_imbalance(base, synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log)
+    assert not equal.notable and max(abs(v) for v in equal.share.values()) < 0.01
+    assert set(equal.as_dict()) == {"share", "spin", "seconds", "notable"}
