@@ -56,7 +56,7 @@ from .errors import GreyboxInputError
 from .fitting import fit
 from .model import OUTPUTS, QuadrotorModel
 from .n4sid import n4sid
-from .plotting import _new, save
+from .plotting import new_figure, save
 from .synth import SensorSpec, model_with_hidden_effects, synthesize
 from .validation import predict
 
@@ -120,7 +120,7 @@ def fig1(out: str | Path | None = None, duration: float = 20.0, yaw_rate: float 
         pos_err = np.linalg.norm(cl.states[:, :3] - ref[:, :3], axis=1)
         res[k] = {"psi_end_rad": float(psi[-1]), "yaw_rate_end_rad_s": float(r[-1]),
                   "max_position_error_m": float(pos_err.max())}
-    fig = _new((11, 3.8))
+    fig = new_figure((11, 3.8))
     axes = fig.subplots(1, 2)
     for k, cl in runs.items():
         axes[0].plot(t, np.degrees(cl.output("psi", names)), label=k)
@@ -155,7 +155,7 @@ def fig2(out: str | Path | None = None, max_evals: int = 300) -> PaperResult:
     for k, cl in loops.items():
         res[k] = {"metrics": _metrics(t, {ax: cl.output(ax, names) for ax in "xyz"}),
                   "saturated_fraction": cl.saturated}
-    fig = _new((9, 9))
+    fig = new_figure((9, 9))
     axes = fig.subplots(4, 1, sharex=True)
     for k, cl in loops.items():
         for i, ax in enumerate("xyz"):
@@ -216,7 +216,7 @@ def fig3(out: str | Path | None = None, duration: float = 30.0, n_flights: int =
                      "cross_flight_nrmse": {c: float(np.mean([d[c] for d in cross])) for c in chans},
                      "own_flight_nrmse": {c: float(np.mean([d[c] for d in own])) for c in chans}}
         res[kind]["cross_flight_nrmse_mean"] = float(np.mean(list(res[kind]["cross_flight_nrmse"].values())))
-    fig = _new((12, 4))
+    fig = new_figure((12, 4))
     axes = fig.subplots(1, 2)
     chans = list(res["rotor speeds"]["cross_flight_nrmse"])
     for k, kind in enumerate(kinds):
@@ -287,7 +287,7 @@ def fig56(out: str | Path | None = None, duration: float = 50.0, rate: float = 1
     figures = {}
     for fig_no, chans, unit in ((5, ["x", "y", "z"], "m"), (6, ["phi", "theta", "psi"], "deg")):
         what = "position" if unit == "m" else "attitude"
-        fig = _new((9, 8))
+        fig = new_figure((9, 8))
         axes = fig.subplots(3, 1, sharex=True)
         for i, c in enumerate(chans):
             for (k_, s), style in zip(series.items(), ("k-", "C0--", "C1:")):

@@ -42,7 +42,7 @@ if TYPE_CHECKING:   # pragma: no cover
     from .validation import Prediction
 
 __all__ = ["compare", "residuals", "whiteness", "regimes", "ranking", "n4sid_order", "report_figures",
-           "save"]
+           "save", "new_figure"]
 
 DPI = 100
 WHITENESS_LAGS = 30
@@ -75,8 +75,9 @@ class _Figure(Figure):
         return buf.getvalue()
 
 
-def _new(figsize: tuple[float, float]) -> Figure:
-    # a bare Figure: no backend chosen, not in pyplot's figure list
+def new_figure(figsize: tuple[float, float]) -> Figure:
+    """A new figure that shows inline in a notebook, chooses no backend and is not in
+    pyplot's figure list (for figure functions of one's own, as :mod:`greybox.paper`'s)."""
     return _Figure(figsize=figsize, layout="constrained")
 
 
@@ -139,7 +140,7 @@ def _grid(ax, axes, fig, n: int, ncols: int, figsize, **subplots_kw):
             raise GreyboxInputError(f"plot: got {len(lst)} axes for {n * ncols} panels")
         return _root(lst[0]), np.array(lst, dtype=object).reshape(n, ncols), False
     made = fig is None
-    fig = _new(figsize) if made else fig
+    fig = new_figure(figsize) if made else fig
     arr = fig.subplots(n, ncols, squeeze=False, **subplots_kw)
     return fig, arr, made
 
