@@ -350,6 +350,55 @@ def cmd_import_nanobench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_import_px4(args: argparse.Namespace) -> int:
+    """PX4 ULog -> flight log (greybox.io.px4); --airframe-out needs --mass (not in the log)."""
+    from .io.base import PX4_PWM_MAP, parse_pwm_map
+    from .io.px4 import import_px4, px4_airframe_toml
+    pwm_map = parse_pwm_map(args.pwm_map) if args.pwm_map else PX4_PWM_MAP
+    if args.airframe_out and args.mass is None:
+        raise GreyboxInputError("--airframe-out needs --mass: a PX4 log does not hold the vehicle's mass")
+    imp = import_px4(args.file, pwm_map=pwm_map, held=args.held, keep_ground=args.keep_ground,
+                     takeoff_height=args.takeoff_height)
+    toml = None
+    if args.airframe_out:
+        if imp.n_rotors != 4:
+            raise GreyboxInputError(f"{args.file}: --airframe-out writes a quadrotor X; this vehicle has "
+                                    f"{imp.n_rotors} motors: write its [[rotor]] tables yourself")
+        ground_z = -(imp.rest_height - 0.10) if np.isfinite(imp.rest_height) else 0.0
+        toml = px4_airframe_toml(args.mass, imp.hover_rotor_speed, args.arm_length, ground_z,
+                                 imp.pwm_map or pwm_map)
+    for note in imp.notes:
+        print(f"note: {note}", file=sys.stderr)
+    save_log(imp.log, args.out, digits=15)
+    if toml is not None:
+        atomic_write(args.airframe_out, toml)
+    print(f"wrote {args.out}: {len(imp.log)} samples, {imp.log.duration:.2f} s"
+          + (f"; airframe {args.airframe_out}" if toml else ""))
+    return 0
+
+
+def cmd_import_crazyflie_usd(args: argparse.Namespace) -> int:
+    """Crazyflie uSD binary log -> flight log (greybox.io.crazyflie_usd)."""
+    from .io.base import parse_pwm_map
+    from .io.crazyflie_usd import import_crazyflie_usd
+    from .io.nanobench import crazyflie_airframe_toml
+    pwm_map = parse_pwm_map(args.pwm_map)
+    imp = import_crazyflie_usd(args.file, pwm_map=pwm_map, held=args.held, keep_ground=args.keep_ground,
+                               strict=not args.ignore_crc)
+    toml = None
+    if args.airframe_out:
+        ground_z = -(imp.rest_height - 0.025) if np.isfinite(imp.rest_height) else 0.0
+        toml = crazyflie_airframe_toml(args.mass, imp.hover_rotor_speed, ground_z=ground_z, command="crazyflie-usd")
+    for note in imp.notes:
+        print(f"note: {note}", file=sys.stderr)
+    save_log(imp.log, args.out, digits=15)
+    if toml is not None:
+        atomic_write(args.airframe_out, toml)
+    print(f"wrote {args.out}: {len(imp.log)} samples, {imp.log.duration:.2f} s"
+          + (f"; airframe {args.airframe_out}" if toml else ""))
+    return 0
+
+
 def _rig(path: str):
     from .vision import load_rig
     return load_rig(path)
@@ -464,12 +513,8 @@ def _combined_validation(preds, sources) -> dict:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, p0, logs = _load_fit_inputs(args)
-    if len(logs) > 1:
-        raise GreyboxInputError("diagnose takes one estimation log (LOG) for now; give another flight "
-                                "with --validation LOG2 to validate on it")
-    log = logs[0]
-    validation = _load_model_log(model, args.validation, p0) if args.validation else None
-    diag = diagnose(model, log, candidates=_names(args.candidates), iterate=not args.no_iterate,
+    validation = [_load_model_log(model, v, p0) for v in args.validation] if args.validation else None
+    diag = diagnose(model, logs, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=p0, progress=not args.quiet,
                     process_noise=args.process_noise, validation=validation)
     print(diag.summary())
@@ -599,15 +644,16 @@ def _parser() -> argparse.ArgumentParser:
     g = sub.add_parser("diagnose", help="find where the model fails and which effect is missing",
                        description="Fit the model, show where it fails, try the catalogue's candidate effects "
                                    "and rank them; add the significant ones until nothing is missing.")
-    g.add_argument("log", nargs="+", metavar="log", help="flight log CSV")
+    g.add_argument("log", nargs="+", help="flight log CSV; several flights share the parameters, each has "
+                                          "its own states")
     _model_args(g, "starting value (repeatable)")
     g.add_argument("--candidates", help="comma list of candidate effects (default: every effect not in the model)")
     g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
     g.add_argument("--process-noise", choices=["auto"],
                    help="'auto': treat shooting gaps as process noise (real logs; see README)")
-    g.add_argument("--validation", metavar="LOG2",
-                   help="a separate flight to validate on (then all of LOG is estimation data; "
-                        "default: the last 20 %% of LOG)")
+    g.add_argument("--validation", metavar="LOGV", nargs="+",
+                   help="separate flight(s) to validate on (then all of each LOG is estimation data; "
+                        "default: the last 20 %% of each LOG)")
     g.add_argument("--report", help="folder for the HTML report and its plots")
     g.add_argument("--quiet", action="store_true", help="no progress lines")
     g.add_argument("--json", help="write the result here")
@@ -640,6 +686,41 @@ def _parser() -> argparse.ArgumentParser:
                     help="held motor samples: interpolate between fresh ones (default) or keep as logged")
     nb.add_argument("--keep-ground", action="store_true", help="keep samples on the ground (flagged on_ground)")
     nb.set_defaults(func=cmd_import_nanobench)
+    px = isub.add_parser("px4", help="PX4 ULog flight log (needs pyulog: pip install 'greybox[px4]')",
+                         description="Convert a PX4 ULog: attitude, local position (NED), gyro and accelerometer "
+                                     "(ax, ay, az), motor PWM -> rotor speed through w = a*PWM + c (or ESC RPM "
+                                     "when logged), battery voltage as vbat; trimmed to the flight.")
+    px.add_argument("file", help="PX4 log (.ulg)")
+    px.add_argument("--out", required=True, help="flight log CSV to write")
+    px.add_argument("--airframe-out", help="also write a quadrotor X airframe TOML here (needs --mass)")
+    px.add_argument("--mass", type=_positive, help="vehicle mass, kg (not in the log; needed for --airframe-out)")
+    px.add_argument("--arm-length", type=_positive, default=0.25,
+                    help="centre-to-motor distance for the airframe, m (default 0.25, an assumption)")
+    px.add_argument("--pwm-map", help="a,c of w[rad/s] = a*PWM[us] + c (default 1,-1000: an assumed map, "
+                                      "1000 us stopped, 2000 us 1000 rad/s)")
+    px.add_argument("--held", choices=["interpolate", "hold"], default="interpolate",
+                    help="motor samples between log rows: interpolate (default) or hold")
+    px.add_argument("--keep-ground", action="store_true",
+                    help="keep samples on the ground (flagged on_ground); also imports a log that never flies")
+    px.add_argument("--takeoff-height", type=_positive, default=0.2,
+                    help="m above the resting height that counts as airborne (default 0.2)")
+    px.set_defaults(func=cmd_import_px4)
+    cu = isub.add_parser("crazyflie-usd", help="Crazyflie uSD-card binary log (event-based, version 1/2)",
+                         description="Convert a Crazyflie uSD log: gyro (deg/s, FLU) -> p,q,r (rad/s, FRD), "
+                                     "accelerometer (g) -> ax, ay, az (m/s^2, FRD), motor PWM -> rotor speed; "
+                                     "trimmed from motor start to motor stop (or the first impact).")
+    cu.add_argument("file", help="uSD log file (e.g. log00)")
+    cu.add_argument("--out", required=True, help="flight log CSV to write")
+    cu.add_argument("--airframe-out", help="also write a Crazyflie 2.1 airframe TOML here")
+    cu.add_argument("--mass", type=_positive, default=0.030, help="vehicle mass for the airframe, kg (default 0.030)")
+    cu.add_argument("--pwm-map", default="0.04076521,380.8359",
+                    help="a,c of w[rad/s] = a*PWM + c (default: Förster 2015 Crazyflie map)")
+    cu.add_argument("--held", choices=["interpolate", "hold"], default="interpolate",
+                    help="held motor samples: interpolate between fresh ones (default) or keep as logged")
+    cu.add_argument("--keep-ground", action="store_true", help="keep samples on the ground (flagged on_ground)")
+    cu.add_argument("--ignore-crc", action="store_true",
+                    help="read a truncated or corrupt file (CRC mismatch): keep its whole records")
+    cu.set_defaults(func=cmd_import_crazyflie_usd)
 
     v = sub.add_parser("vision", help="body position and yaw from camera frames of a ground ArUco marker",
                        description="Detect the rig's ArUco markers in a folder of images or a video (through the "

@@ -53,7 +53,7 @@ from .shooting import ShootingProblem, free_indices, initial_node_states
 from .integrate import n_substeps, rk4_step
 from .model import OUTPUTS, QuadrotorModel, rotation_matrices
 from .residuals import fitted_trajectory, long_run_factor, output_residuals, whiteness_fraction
-from .validation import Prediction, predict
+from .validation import Prediction, predict_flights
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
            "MIN_VALIDATION_GAIN", "distinguishing_manoeuvre",
@@ -371,33 +371,37 @@ class CommandImbalance:
                 "seconds": self.seconds, "notable": self.notable}
 
 
-def command_imbalance(model: QuadrotorModel, log: FlightLog, max_rate: float = 0.3, max_tilt: float = 0.15,
-                      max_angular_acc: float = 3.0) -> CommandImbalance | None:
+def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], max_rate: float = 0.3,
+                      max_tilt: float = 0.15, max_angular_acc: float = 3.0) -> CommandImbalance | None:
     """Per-rotor share of the squared rotor speeds in steady flight (body rates below
     ``max_rate`` rad/s, roll and pitch below ``max_tilt`` rad, angular acceleration below
-    ``max_angular_acc`` rad/s²; from the smoothed measurements, no model). None when the log
-    has less than a second of it, or its inputs are not rotor speeds."""
+    ``max_angular_acc`` rad/s²; from the smoothed measurements, no model), over one flight or
+    several. None when there is less than a second of it, or the inputs are not rotor speeds."""
     n_rot = model.airframe.n_rotors
-    if model.inputs != "rotor_speeds" or len(log) < 10:
+    if model.inputs != "rotor_speeds":
         return None
-    X = initial_node_states(model, log, np.arange(len(log)))
-    rates = X[:, 9:12]
-    acc = np.gradient(rates, log.t, axis=0)
-    steady = ((np.abs(rates).max(axis=1) < max_rate) & (np.abs(X[:, 3:5]).max(axis=1) < max_tilt)
-              & (np.abs(acc).max(axis=1) < max_angular_acc))
-    dt = np.append(np.diff(log.t), 0.0)
-    seconds = float(dt[steady].sum())
+    rows, seconds = [], 0.0
+    for lg in ([log] if isinstance(log, FlightLog) else list(log)):
+        if len(lg) < 10:
+            continue
+        X = initial_node_states(model, lg, np.arange(len(lg)))
+        rates = X[:, 9:12]
+        acc = np.gradient(rates, lg.t, axis=0)
+        steady = ((np.abs(rates).max(axis=1) < max_rate) & (np.abs(X[:, 3:5]).max(axis=1) < max_tilt)
+                  & (np.abs(acc).max(axis=1) < max_angular_acc))
+        seconds += float(np.append(np.diff(lg.t), 0.0)[steady].sum())
+        rows.append(lg.inputs[steady, :n_rot] ** 2)
     if seconds < 1.0:
         return None
-    w2 = log.inputs[steady, :n_rot] ** 2
-    mean = w2.mean(axis=0)
+    mean = np.vstack(rows).mean(axis=0)
     share = {name: float(m / mean.mean() - 1.0) for name, m in zip(model.command_names[:n_rot], mean)}
     spins = model.airframe.spins
     spin = {int(s): float(mean[spins == s].mean() / mean.mean() - 1.0) for s in np.unique(spins)}
     return CommandImbalance(share, spin, seconds)
 
 
-def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog, pred: Prediction | None = None,
+def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog | Sequence[FlightLog],
+                      pred: Prediction | None = None,
                       min_r: float = 0.4
                       ) -> tuple[list[Finding], dict[str, float], dict[str, tuple[str, float]], np.ndarray,
                                  dict[str, np.ndarray]]:
@@ -410,9 +414,13 @@ def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog, pre
     correlation with the error envelope reaches ``min_r`` (an effect-size threshold). Regime
     variables come from the measurements (smoothed), not from the model under test.
     """
-    _, Y = fitted_trajectory(model, res, log)
-    E = output_residuals(log, Y)
-    regimes = _regime_variables(model, initial_node_states(model, log, np.arange(len(log))), log)
+    logs = [log] if isinstance(log, FlightLog) else list(log)
+    Es = [output_residuals(lg, fitted_trajectory(model, res, lg, i)[1]) for i, lg in enumerate(logs)]
+    regs = [_regime_variables(model, initial_node_states(model, lg, np.arange(len(lg))), lg) for lg in logs]
+    E = np.vstack(Es)
+    regimes = {k: np.concatenate([r[k] for r in regs]) for k in regs[0]}
+    log = logs[0]
+    inputs = np.vstack([lg.inputs for lg in logs])
     whiteness: dict[str, float] = {}
     input_corr: dict[str, tuple[str, float]] = {}
     for c, ch in enumerate(OUTPUTS):
@@ -425,17 +433,21 @@ def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog, pre
         whiteness[ch] = whiteness_fraction(e)
         best = ("", 0.0)
         for i, name in enumerate(log.input_names):
-            u = log.inputs[k, i] - log.inputs[k, i].mean()
+            u = inputs[k, i] - inputs[k, i].mean()
             r = float(u @ ek) / math.sqrt(max(float(u @ u) * var, 1e-300))
             if abs(r) > abs(best[1]):
                 best = (name, r)
         input_corr[ch] = best
-    sets = [(E, log, regimes)]
+    sets = list(zip(Es, logs, regs))
     if pred is not None:
-        vlog = pred.log
-        vreg = _regime_variables(model, initial_node_states(model, vlog, np.arange(len(vlog))), vlog)
-        vreg["time into the flight"] = vlog.t - log.t[0]
-        sets.append((pred.errors, vlog, vreg))
+        # per validation flight; the time into the flight counts from its estimation flight's
+        # start when the validation part is that flight's end
+        for j, part in enumerate(pred.parts or [pred]):
+            vlog = part.log
+            vreg = _regime_variables(model, initial_node_states(model, vlog, np.arange(len(vlog))), vlog)
+            t_start = logs[j].t[0] if j < len(logs) and logs[j].t[0] <= vlog.t[0] else vlog.t[0]
+            vreg["time into the flight"] = vlog.t - t_start
+            sets.append((part.errors, vlog, vreg))
     best: dict[tuple[str, str], Finding] = {}
     for err, lg, reg in sets:
         for f in _regime_findings(err, lg, reg, min_r):
@@ -512,10 +524,9 @@ def _extended(model: QuadrotorModel, res: FitResult, name: str) -> tuple[Quadrot
     return ext, p, list(res.free_names) + new
 
 
-def _extend_nodes(ext: QuadrotorModel, res: FitResult, log: FlightLog, p: np.ndarray) -> list[np.ndarray]:
-    log = ext.prepare_log(log)
+def _extend_nodes(ext: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], p: np.ndarray) -> list[np.ndarray]:
     out = []
-    for nodes, idx in zip(res.node_states, res.node_index):
+    for nodes, idx, log in zip(res.node_states, res.node_index, [ext.prepare_log(lg) for lg in logs]):
         full = np.zeros((nodes.shape[0], ext.nx))
         for r, k in enumerate(idx):
             full[r] = ext.initial_state(nodes[r, :12], log.inputs[k], p)
@@ -561,17 +572,17 @@ def _propagate_new_states(ext: QuadrotorModel, new: list[int], full: np.ndarray,
     return np.vstack([full[0, new], np.asarray(seq).T])
 
 
-def _screen(model: QuadrotorModel, res: FitResult, log: FlightLog, name: str, sigma: np.ndarray,
+def _screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], name: str, sigma: np.ndarray,
             compile: str) -> tuple[float, int]:
     """Score statistic and degrees of freedom of candidate ``name`` at the baseline optimum."""
     ext, p, free = _extended(model, res, name)
     free_idx = free_indices(ext, free, None)
-    log = ext.prepare_log(log)
-    ses = FitSession(ext, [log], free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
-                   lambda _m: None)
+    logs = [ext.prepare_log(lg) for lg in logs]
+    ses = FitSession(ext, logs, free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
+                     lambda _m: None)
     if res.process_noise is not None:
         ses.q = np.array(list(_process_noise(ext, res).values()))
-    X = np.vstack(_extend_nodes(ext, res, log, p))
+    X = np.vstack(_extend_nodes(ext, res, logs, p))
     th = p[free_idx] / ses.scale
     d = ses.predicted_decrease(X, th)
     return 2.0 * max(d, 0.0), len(free) - len(res.free_names)
@@ -589,7 +600,8 @@ def _process_noise(ext: QuadrotorModel, res: FitResult) -> dict[str, float] | No
     return {s: res.process_noise.get(s, 1e-4 * w_ref) for s in ext.state_names}
 
 
-def _refit(model: QuadrotorModel, res: FitResult, est: FlightLog, val: FlightLog | None, name: str,
+def _refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: Sequence[FlightLog] | None,
+           name: str,
            sigma: dict, compile: str, cold: bool = False, max_iter: int | None = None,
            start: FitResult | None = None) -> tuple[QuadrotorModel, FitResult, Prediction | None]:
     """Fit the model extended by ``name`` with the baseline's weights: warm-started at the
@@ -616,7 +628,7 @@ def _refit(model: QuadrotorModel, res: FitResult, est: FlightLog, val: FlightLog
         fr = fit(ext, est, free=free, p0=p, noise=sigma, reweight=False, compile=compile,
                  max_iter=max_iter or cap, initial_states=init, interval=res.interval,
                  process_noise=_process_noise(ext, res))
-    return ext, fr, (predict(ext, fr.p, val, compile=compile) if val is not None else None)
+    return ext, fr, (predict_flights(ext, fr.p, val, compile=compile) if val is not None else None)
 
 
 def _prediction_change(before: Prediction, after: Prediction) -> dict[str, float]:
@@ -732,11 +744,12 @@ right model has converged by then; a wrong one is still crawling, and its likeli
 at any point reached is a valid (lower) bound."""
 
 
-def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: FlightLog, val: FlightLog,
+def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Sequence[FlightLog],
+                val: Sequence[FlightLog],
                 candidates: Sequence[str], compile: str, say: Callable[[str], None], n_refit: int
                 ) -> list[CandidateResult]:
     sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
-    n_sub = n_substeps(float(np.diff(est.t).max()))
+    n_sub = n_substeps(max(float(np.diff(lg.t).max()) for lg in est))
     t0 = time.perf_counter()
     _precompile(model, res, candidates, n_sub, compile, "screen")
     say(f"  built candidate models ({time.perf_counter() - t0:.1f} s)")
@@ -804,8 +817,7 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
         t0 = time.perf_counter()
         ext, fr, pr = _refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=bool(at_bound),
                              start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if at_bound else None)
-        _, Y = fitted_trajectory(ext, fr, est)
-        E = output_residuals(est, Y)
+        E = _estimation_residuals(ext, fr, est)
         cand.lr, cand.p_value = _lr_test(res, fr, E, cand.df, _null_on_bound(ext, cand.effect), n_tests)
         cand.fit, cand.prediction = fr, pr
         cand.nrmse_after, cand.channels_after = pr.total, dict(pr.nrmse)
@@ -850,12 +862,12 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Fl
     return refitted + rest
 
 
-def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str] | None = None,
+def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, candidates: Sequence[str] | None = None,
              iterate: bool = True, max_rounds: int = 3, split: float = 0.8, p0=None,
              n_refit: int = N_REFIT, compile: str = "auto",
              progress: bool | Callable[[str], None] = False,
              process_noise: str | dict[str, float] | None = None,
-             validation: FlightLog | None = None) -> Diagnosis:
+             validation: FlightLog | Sequence[FlightLog] | None = None) -> Diagnosis:
     """Compare ``model`` with ``log``, find where it fails and which catalogue effect is
     missing; with ``iterate`` add significant effects until none is left (see module doc).
 
@@ -864,8 +876,13 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
         p0: starting values of the baseline fit.
         process_noise: passed to the baseline :func:`~greybox.fitting.fit` (e.g. ``"auto"`` for
             real logs); candidates are then fitted with the baseline's process noise.
-        validation: a separate flight to validate on; then all of ``log`` is estimation
-            data and ``split`` is not used.
+        validation: a separate flight (or several) to validate on; then all of ``log`` is
+            estimation data and ``split`` is not used.
+
+    ``log`` may be several flights of one vehicle: they share the parameters, each has its
+    own states (the baseline, the screening, every refit); each is split into estimation and
+    validation parts unless ``validation`` is given; validation nrmse is pooled over flights
+    (:func:`greybox.validation.pool_predictions`).
 
     Example::
 
@@ -889,14 +906,20 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
         fx.by_name(c)
         if c in model.effects:
             raise GreyboxInputError(f"candidate {c!r} is already in the model")
+    logs = [log] if isinstance(log, FlightLog) else list(log)
+    if not logs:
+        raise GreyboxInputError("diagnose: no flight logs")
     if validation is None:
-        est, val = log.split(split)
+        est, val = map(list, zip(*[lg.split(split) for lg in logs]))
     else:
-        if list(validation.input_names) != list(log.input_names):
-            raise GreyboxInputError(f"{validation.source or 'validation log'}: inputs {','.join(validation.input_names)} "
-                                    f"differ from the estimation log's {','.join(log.input_names)}")
-        est, val = log, validation
-    say(f"diagnose: fitting the model ({', '.join(model.effect_names)}) to {len(est)} samples")
+        val = [validation] if isinstance(validation, FlightLog) else list(validation)
+        for v in val + logs[1:]:
+            if list(v.input_names) != list(logs[0].input_names):
+                raise GreyboxInputError(f"{v.source or 'log'}: inputs {','.join(v.input_names)} differ from the "
+                                        f"first estimation log's {','.join(logs[0].input_names)}")
+        est = logs
+    say(f"diagnose: fitting the model ({', '.join(model.effect_names)}) to {sum(len(e) for e in est)} samples"
+        + (f" of {len(est)} flights" if len(est) > 1 else ""))
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # judged below, in words
         res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise)
@@ -906,7 +929,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
             res = fit(model, est, p0=res.p, compile=compile, max_iter=200, process_noise=process_noise,
                       noise=res.sigma, reweight=False, initial_states=res.node_states,
                       interval=res.interval)
-    pred = predict(model, res.p, val, compile=compile)
+    pred = predict_flights(model, res.p, val, compile=compile)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split)})")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred)
     rounds: list[Round] = []
@@ -955,7 +978,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
                 warnings.append(f"{verdict}'s refit did not reach a certified optimum ({more.status}): no further "
                                 "candidate was tested against it")
                 break
-            win.fit, win.prediction = more, predict(more.model, more.p, val, compile=compile)
+            win.fit, win.prediction = more, predict_flights(more.model, more.p, val, compile=compile)
         cur_model, cur_res, cur_pred = win.fit.model, win.fit, win.prediction
         remaining = [c for c in remaining if c != verdict]
     # confusable candidates: significant alone in round 1, explained away by the winner
@@ -984,15 +1007,21 @@ def diagnose(model: QuadrotorModel, log: FlightLog, *, candidates: Sequence[str]
         unexplained = {ch: cert.residual_over_noise[ch] for ch in cert.off_channels()
                        if cert.residual_over_noise[ch] > UNEXPLAINED_RATIO}
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
-                     warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est,
-                     validation_source=_validation_source(validation, split), unexplained=unexplained,
+                     warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est[0],
+                     validation_source=_validation_source(validation, split, len(est)), unexplained=unexplained,
                      inconsistent=inconsistent, command_imbalance=command_imbalance(model, est))
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
 
 
-def _half_consistency(model: QuadrotorModel, res: FitResult, est: FlightLog, E: np.ndarray, compile: str,
+def _estimation_residuals(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog]) -> np.ndarray:
+    """Output residuals of a fit on its estimation flights, stacked flight after flight."""
+    return np.vstack([output_residuals(lg, fitted_trajectory(model, res, lg, i)[1]) for i, lg in enumerate(logs)])
+
+
+def _half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], E: np.ndarray,
+                      compile: str,
                       say: Callable[[str], None]) -> dict[str, tuple[float, float, float, float]]:
     """Fit each half of the estimation data (warm-started at the baseline, its weights) and
     return the parameters whose two estimates differ by more than :data:`CONSISTENCY_Z`
@@ -1002,13 +1031,17 @@ def _half_consistency(model: QuadrotorModel, res: FitResult, est: FlightLog, E: 
     The standard deviations assume white residuals; coloured ones (``E``, the baseline's)
     carry less information, so they are widened by the square root of the median long-run
     variance factor of the channels."""
-    first, second = est.split(0.5)
+    if len(est) == 1:
+        halves = [[h] for h in est[0].split(0.5)]
+    else:   # several flights: the first half of the flights against the second
+        k = len(est) // 2
+        halves = [list(est[:k]), list(est[k:])]
     out: dict[str, tuple[float, float, float, float]] = {}
     try:
         with _warnings.catch_warnings():
             _warnings.simplefilter("ignore", ConvergenceWarning)
             fits = [fit(model, half, p0=res.p, free=res.free_names, noise=res.sigma, reweight=False,
-                        compile=compile, max_iter=100, interval=res.interval) for half in (first, second)]
+                        compile=compile, max_iter=100, interval=res.interval) for half in halves]
     except GreyboxError as e:   # a half too short or too poor to fit: no verdict on consistency
         say(f"diagnose: halves not compared ({e})")
         return out
@@ -1029,10 +1062,12 @@ def _half_consistency(model: QuadrotorModel, res: FitResult, est: FlightLog, E: 
     return out
 
 
-def _validation_source(validation: FlightLog | None, split: float) -> str:
+def _validation_source(validation, split: float, n_flights: int = 1) -> str:
     if validation is None:
-        return f"last {100 * (1 - split):.0f} % of the log"
-    return f"validation flight {Path(validation.source).name}" if validation.source else "validation flight"
+        return f"last {100 * (1 - split):.0f} % of the log" + (f"s ({n_flights} flights)" if n_flights > 1 else "")
+    vals = [validation] if isinstance(validation, FlightLog) else list(validation)
+    names = [Path(v.source).name if v.source else "unnamed" for v in vals]
+    return ("validation flight " if len(vals) == 1 else "validation flights ") + ", ".join(names)
 
 
 # ------------------------------------------------------------------------------ report

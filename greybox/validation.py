@@ -28,7 +28,7 @@ from .shooting import ShootingProblem, estimate_noise, initial_node_states
 from .integrate import n_substeps, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 
-__all__ = ["Prediction", "predict", "nrmse", "compare_plot", "residual_plot", "estimate_states",
+__all__ = ["Prediction", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
            "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW"]
 
 DEFAULT_HORIZON = 1.0
@@ -55,6 +55,7 @@ class Prediction:
     total: float                     # mean over channels
     horizon: float
     errors: np.ndarray = field(repr=False, default=None)   # (n, 9) measured - predicted (psi wrapped)
+    parts: list["Prediction"] | None = field(repr=False, default=None)   # per flight, when pooled
 
     @property
     def fit_percent(self) -> dict[str, float]:
@@ -204,6 +205,45 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
         raise GreyboxInputError(f"{log.source or 'log'}: no measured channel to validate against")
     total = float(np.mean(list(scores.values())))
     return Prediction(log, pred, wins, channels, scores, total, horizon, err)
+
+
+def pool_predictions(preds: Sequence[Prediction]) -> Prediction:
+    """Several flights' predictions as one: arrays stacked flight after flight, and each
+    channel's nrmse pooled — the RMS of all errors over the RMS spread of all measurements
+    about their common mean (yaw unwrapped per flight). ``log`` is the first flight's;
+    ``parts`` the flights' own predictions. One prediction is returned as it is."""
+    preds = list(preds)
+    if len(preds) == 1:
+        return preds[0]
+    meas = [p.predicted + p.errors for p in preds]
+    scores, channels = {}, []
+    for c, name in enumerate(OUTPUTS):
+        errs, refs = [], []
+        for p, m in zip(preds, meas):
+            k = np.isfinite(p.errors[:, c])
+            if k.sum() >= 3:
+                errs.append(p.errors[k, c])
+                refs.append(np.unwrap(m[k, c]) if c == PSI else m[k, c])
+        if not errs:
+            continue
+        e, r = np.concatenate(errs), np.concatenate(refs)
+        spread = float(np.sqrt(np.mean((r - r.mean()) ** 2)))
+        scores[name] = float(np.sqrt(np.mean(e ** 2))) / spread if spread > 0 else float("inf")
+        channels.append(name)
+    offset, windows = 0, []
+    for p in preds:
+        windows += [(a + offset, b + offset) for a, b in p.windows]
+        offset += p.predicted.shape[0]
+    return Prediction(preds[0].log, np.vstack([p.predicted for p in preds]), windows, channels, scores,
+                      float(np.mean(list(scores.values()))), preds[0].horizon,
+                      np.vstack([p.errors for p in preds]), preds)
+
+
+def predict_flights(model: QuadrotorModel, p: np.ndarray, logs: "FlightLog | Sequence[FlightLog]",
+                    horizon: float = DEFAULT_HORIZON, **kw) -> Prediction:
+    """:func:`predict` on each flight, pooled (:func:`pool_predictions`)."""
+    logs = [logs] if isinstance(logs, FlightLog) else list(logs)
+    return pool_predictions([predict(model, p, log, horizon, **kw) for log in logs])
 
 
 def nrmse(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,
