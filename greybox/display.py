@@ -8,13 +8,11 @@ from __future__ import annotations
 
 import html
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:   # pragma: no cover
-    from .data import FlightLog
-    from .diagnosis import Diagnosis
+# type names in annotations are strings: importing them here would tie this module
+# to the ones it draws for (an import cycle for the tools, if not for Python)
 
 __all__ = ["flightlog_text", "flightlog_html", "diagnosis_text", "diagnosis_html"]
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 import io
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -34,12 +34,8 @@ from .data import atomic_write
 from .errors import GreyboxInputError
 from .model import OUTPUTS
 
-if TYPE_CHECKING:   # pragma: no cover
-    from matplotlib.axes import Axes
-
-    from .diagnosis import Diagnosis
-    from .n4sid import StateSpaceModel
-    from .validation import Prediction
+# type names in annotations are strings: importing them here would tie this module
+# to the ones it draws for (an import cycle for the tools, if not for Python)
 
 __all__ = ["compare", "residuals", "whiteness", "regimes", "ranking", "n4sid_order", "report_figures",
            "save", "new_figure"]
