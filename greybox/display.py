@@ -14,7 +14,7 @@ import numpy as np
 # type names in annotations are strings: importing them here would tie this module
 # to the ones it draws for (an import cycle for the tools, if not for Python)
 
-__all__ = ["flightlog_text", "flightlog_html", "diagnosis_text", "diagnosis_html"]
+__all__ = ["flightlog_text", "flightlog_html", "diagnosis_text", "diagnosis_html", "fitted_model_html"]
 
 _STYLE = ("<style>.greybox-repr table{border-collapse:collapse;font-size:90%}"
           ".greybox-repr td,.greybox-repr th{border:1px solid #ccc;padding:1px 6px;text-align:right}"
@@ -171,3 +171,29 @@ def diagnosis_html(d: "Diagnosis") -> str:
         warn = (f"<details><summary>{len(d.warnings)} warning{'s' if len(d.warnings) != 1 else ''}</summary><ul>"
                 + "".join(f"<li>{esc(w)}</li>" for w in d.warnings) + "</ul></details>")
     return f'<div class="greybox-repr">{_STYLE}<div>{head}</div><table>{nr}</table>{rank}{warn}</div>'
+
+
+# ------------------------------------------------------------------------------ FittedModel
+def fitted_model_html(fm: "FittedModel") -> str:
+    """Structure, then every parameter with its standard deviation (free ones) or 'fixed',
+    and where it came from."""
+    esc = html.escape
+    m = fm.model
+    head = (f"<b>{esc(type(fm).__name__)}</b> <code>{esc(m.airframe.name)}</code>: "
+            f"{esc(', '.join(m.effect_names))}; inputs {esc(m.inputs)}")
+    std = dict(zip(fm.free_names, fm.std))
+    rows = []
+    for name, v in zip(m.param_names, fm.p):
+        s = std.get(name)
+        rel = f"{100 * abs(s / v):.2g} %" if s is not None and math.isfinite(s) and v != 0 else ""
+        rows.append(f"<tr><td>{esc(name)}</td><td>{v:.6g}</td>"
+                    f"<td>{'fixed' if s is None else _f(s, '.3g', 'n/a')}</td><td>{rel}</td></tr>")
+    table = ("<table><tr><th>parameter</th><th>value</th><th>std</th><th>rel</th></tr>" + "".join(rows)
+             + "</table>")
+    prov = fm.provenance or {}
+    src = ""
+    if prov:
+        src = (f"<div>from {esc(', '.join(map(str, prov.get('logs', []))) or '?')}"
+               f"{'; ' + esc(str(prov.get('status'))) if prov.get('status') else ''}"
+               f"{'; greybox ' + esc(str(prov.get('greybox_version'))) if prov.get('greybox_version') else ''}</div>")
+    return f'<div class="greybox-repr">{_STYLE}<div>{head}</div>{table}{src}</div>'

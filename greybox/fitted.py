@@ -102,6 +102,10 @@ class FittedModel:
         return (f"{type(self).__name__}({self.model.airframe.name}: {', '.join(self.model.effect_names)}; "
                 f"{shown}{more})")
 
+    def _repr_html_(self) -> str:
+        from .display import fitted_model_html
+        return fitted_model_html(self)
+
     # ------------------------------------------------------------------ what it does
     def predict(self, log, horizon: float = 1.0, **options):
         """k-step-ahead prediction on ``log`` (:func:`greybox.validation.predict`): a

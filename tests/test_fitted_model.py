@@ -60,6 +60,9 @@ def test_fit_result_is_a_fitted_model_that_saves_and_reloads_bit_for_bit(fitted,
     assert u_t[0] == pytest.approx(np.sqrt(m * g / (4 * kt)), rel=1e-9)
     lin = back.linearize()
     assert lin.A.shape == (12, 12) and lin.B.shape == (12, 4)
+    html = back._repr_html_()        # what a notebook cell shows
+    assert "<table>" in html and "K_T" in html and "Kd[2]" in html and "J_r" in html and "fixed" in html
+    assert repr(back).startswith("FittedModel(paper: yaw_torque, linear_drag, gyroscopic; K_T=")
 
 
 def test_effect_options_are_saved(tmp_path, paper_model):
