@@ -1,0 +1,458 @@
+"""What every importer needs, written once: frames, units, time bases, held samples, ground
+contact, and assembling a :class:`~greybox.data.FlightLog` on one time base.
+
+greybox's conventions (README, "Conventions"): world NED, body FRD, ZYX Euler angles, SI
+units. Other tools log otherwise:
+
+* **Frames.** A z-up world (x, y, z up) and an FLU body (x forward, y left, z up) become NED
+  and FRD by a rotation of pi about x, the same for both: vectors ``(x, -y, -z)``
+  (:func:`flu_to_frd`, :func:`zup_to_ned`), ZYX Euler angles ``(phi, -theta, -psi)``
+  (:func:`euler_zup_to_ned`). The world's x stays x (north is wherever the source's x
+  points). Quaternions are turned into ZYX Euler angles by :func:`euler_from_quaternion`
+  (scalar last as in ROS / Vicon, or scalar first as in PX4).
+* **Units.** :func:`deg_to_rad`, :func:`g_to_ms2` (standard gravity :data:`G0`),
+  :func:`rpm_to_rad_s`, and motor commands to rotor speed through the affine map
+  ``w = a*PWM + c`` (:class:`PwmMap`): a command at or below the map's ``off`` value is a
+  stopped motor (0 rad/s), and the map never gives a negative speed. The slope ``a`` is
+  absorbed by ``K_T`` and ``b`` in a fit (they multiply ``w^2``), the offset ``c`` can be
+  fitted with the ``rotor_map`` effect. :data:`CRAZYFLIE_PWM_MAP` (Förster 2015) and
+  :data:`PX4_PWM_MAP` are the defaults of the importers.
+* **Time.** :func:`time_base` turns raw stamps (µs, ms, s) into seconds, from 0 at the first
+  sample or as given, and refuses stamps that do not increase, naming the sample.
+* **Held samples.** A command logged at a lower rate than the log's rows is repeated
+  ("held") on the rows in between. :func:`fresh_rows` finds the fresh rows,
+  :func:`commands_on_grid` puts a command stream on the log's rows, interpolated between
+  fresh samples (``"interpolate"``) or held (``"hold"``); a stopped motor is never
+  interpolated into a running one.
+* **Ground contact.** The model has no ground reaction force: a flight log should start at
+  take-off and end at touchdown. :func:`flight_from_height` finds the flight from a height
+  (the longest run above the resting height with the motors running);
+  :func:`flight_from_imu` does without a height (from motor start to motor stop, cut
+  before the first impact seen by the accelerometer).
+* **One time base.** :func:`grid_with` builds the rows (one sensor's stamps plus the
+  stamps of other sensors that fall where it has no sample), :func:`snap` puts each
+  sensor's samples on their nearest row and leaves NaN where a sensor has no sample, and
+  :func:`assemble_log` makes the :class:`~greybox.data.FlightLog`.
+
+Every importer returns an :class:`ImportResult`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from ..data import OPTIONAL_OUTPUTS, REQUIRED_OUTPUTS, FlightLog
+from ..errors import GreyboxInputError
+
+__all__ = ["G0", "CRAZYFLIE_PWM_MAP", "PX4_PWM_MAP", "PwmMap", "ImportResult", "FlightSpan",
+           "flu_to_frd", "zup_to_ned", "euler_zup_to_ned", "euler_from_quaternion", "wrap_angle",
+           "deg_to_rad", "g_to_ms2", "rpm_to_rad_s", "pwm_to_rotor_speed", "parse_pwm_map",
+           "time_base", "fresh_rows", "interpolate_fresh", "interpolate_samples", "commands_on_grid", "flight_from_height",
+           "flight_from_imu", "longest_run", "grid_with", "snap", "assemble_log"]
+
+G0 = 9.80665
+"""Standard gravity, m/s^2: one g of an accelerometer that logs in g."""
+
+CRAZYFLIE_PWM_MAP = (0.04076521, 380.8359)
+"""Published Crazyflie 2.0 PWM-to-rotor-speed map ``w [rad/s] = a*PWM + c`` (PWM 0..65535;
+J. Förster, "System Identification of the Crazyflie 2.0 Nano Quadrocopter", ETH Zurich, 2015)."""
+
+PX4_PWM_MAP = (1.0, -1000.0)
+"""Default map of PX4 PWM outputs (µs) to rotor speed: ``w [rad/s] = PWM - 1000``, i.e.
+stopped at 1000 µs and 1000 rad/s (about 9500 RPM) at 2000 µs, a 450-500 mm class
+quadrotor (a 900-1000 KV motor on 3S with 10" propellers). An assumption, not a
+measurement: replace it with a bench measurement (tachometer, or ESC RPM telemetry),
+``--pwm-map a,c``. Its slope only rescales ``K_T`` and ``b``; its offset can be fitted with
+the ``rotor_map`` effect."""
+
+
+# ---------------------------------------------------------------------------- frames
+
+def _rot_pi_x(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, dtype=float)
+    return v * np.array([1.0, -1.0, -1.0])
+
+
+def flu_to_frd(v: np.ndarray) -> np.ndarray:
+    """Body vectors (n, 3) or (3,) from FLU (x forward, y left, z up) to FRD: ``(x, -y, -z)``.
+
+    Rates, specific force and any other body-frame vector convert the same way."""
+    return _rot_pi_x(v)
+
+
+def zup_to_ned(v: np.ndarray) -> np.ndarray:
+    """World vectors (n, 3) or (3,) from a z-up frame (x, y, z up) to NED: ``(x, -y, -z)``."""
+    return _rot_pi_x(v)
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Angles wrapped into [-pi, pi)."""
+    return (np.asarray(a, dtype=float) + np.pi) % (2 * np.pi) - np.pi
+
+
+def euler_zup_to_ned(eul: np.ndarray) -> np.ndarray:
+    """ZYX Euler angles (n, 3) of an FLU body in a z-up world as those of the FRD body in NED:
+    ``(phi, -theta, -psi)`` (yaw wrapped into [-pi, pi))."""
+    eul = np.asarray(eul, dtype=float)
+    out = eul * np.array([1.0, -1.0, -1.0])
+    out[..., 2] = wrap_angle(out[..., 2])
+    return out
+
+
+def euler_from_quaternion(q: np.ndarray, scalar_first: bool = False) -> np.ndarray:
+    """ZYX Euler angles (roll, pitch, yaw), (n, 3), of unit quaternions (n, 4) that rotate
+    body vectors into the world: ``(x, y, z, w)`` (``scalar_first=False``, ROS / Vicon) or
+    ``(w, x, y, z)`` (``scalar_first=True``, PX4). Not normalised here."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if scalar_first:
+        w, x, y, z = q.T
+    else:
+        x, y, z, w = q.T
+    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x ** 2 + y ** 2))
+    pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y ** 2 + z ** 2))
+    return np.column_stack([roll, pitch, yaw])
+
+
+# ----------------------------------------------------------------------------- units
+
+def deg_to_rad(v):
+    """Degrees (or deg/s) to radians (rad/s)."""
+    return np.radians(np.asarray(v, dtype=float))
+
+
+def g_to_ms2(v):
+    """Accelerometer readings in g to m/s^2 (standard gravity :data:`G0`)."""
+    return np.asarray(v, dtype=float) * G0
+
+
+def rpm_to_rad_s(v):
+    """Revolutions per minute to rad/s (``* pi/30``)."""
+    return np.asarray(v, dtype=float) * (math.pi / 30.0)
+
+
+@dataclass(frozen=True)
+class PwmMap:
+    """Affine motor-command-to-rotor-speed map ``w [rad/s] = a*PWM + c``.
+
+    A command at or below ``off`` is a stopped motor (0 rad/s); the map never returns a
+    negative speed. ``a`` must be positive. Fittable: ``a`` is absorbed by ``K_T`` and ``b``
+    (they multiply ``w^2``), ``c`` by the ``rotor_map`` effect.
+    """
+
+    a: float
+    c: float
+    off: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.a) and np.isfinite(self.c) and self.a > 0):
+            raise GreyboxInputError(f"PWM map slope must be positive and finite, got a={self.a!r}, c={self.c!r}")
+
+    def __call__(self, pwm) -> np.ndarray:
+        pwm = np.asarray(pwm, dtype=float)
+        return np.where(pwm > self.off, np.maximum(self.a * pwm + self.c, 0.0), 0.0)
+
+    @property
+    def pair(self) -> tuple[float, float]:
+        return (self.a, self.c)
+
+
+def pwm_to_rotor_speed(pwm: np.ndarray, pwm_map: tuple[float, float] = CRAZYFLIE_PWM_MAP,
+                       off: float = 0.0) -> np.ndarray:
+    """Rotor speed (rad/s) of motor commands through ``w = a*PWM + c``; a motor at or below
+    ``off`` (default PWM 0) is stopped, and no speed is negative."""
+    a, c = pwm_map
+    return PwmMap(float(a), float(c), off)(pwm)
+
+
+def parse_pwm_map(text: str, option: str = "--pwm-map") -> tuple[float, float]:
+    """``"a,c"`` as two finite numbers with ``a > 0`` (one clear error otherwise)."""
+    try:
+        vals = tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        raise GreyboxInputError(f"{option}: expected two numbers a,c, got {text!r}") from None
+    if len(vals) != 2:
+        raise GreyboxInputError(f"{option}: expected two numbers a,c, got {text!r}")
+    if not (all(np.isfinite(vals)) and vals[0] > 0):
+        raise GreyboxInputError(f"{option}: a must be positive and both finite, got {text!r}")
+    return vals
+
+
+# ------------------------------------------------------------------------------ time
+
+def time_base(stamps, where: str, scale: float = 1.0, origin: str | float = "first",
+              label: Callable[[int], str] | None = None, what: str = "sample") -> np.ndarray:
+    """Seconds from raw time stamps: ``stamps * scale`` (``scale`` 1e-6 for µs, 1e-3 for
+    ms), minus the first stamp (``origin="first"``), kept as given (``"given"``) or minus a
+    number. Stamps must be finite and strictly increasing: otherwise one
+    :class:`GreyboxInputError` naming ``where`` and the sample (``label(k)``, default
+    ``"sample k+1"``)."""
+    label = label or (lambda k: f"{what} {k + 1}")
+    t = np.asarray(stamps, dtype=float) * scale
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise GreyboxInputError(f"{where}: {label(int(bad[0]))}: time stamp is not a finite number")
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        k = int(back[0])
+        raise GreyboxInputError(f"{where}: {label(k + 1)}: time {stamps[k + 1]!r} is not after the previous "
+                                f"{what}'s {stamps[k]!r} (t must be strictly increasing)")
+    if isinstance(origin, str):
+        if origin == "first":
+            return t - t[0] if t.size else t
+        if origin == "given":
+            return t
+        raise GreyboxInputError(f"time origin must be 'first', 'given' or a number, got {origin!r}")
+    return t - float(origin)
+
+
+# --------------------------------------------------------------------- held samples
+
+def fresh_rows(block: np.ndarray) -> np.ndarray:
+    """Rows of ``block`` (n, k) that are not an exact repeat of the previous row: the fresh
+    samples of a signal logged at a lower rate than its rows (held in between)."""
+    block = np.asarray(block)
+    if block.ndim == 1:
+        block = block[:, None]
+    same = np.all(block[1:] == block[:-1], axis=1)
+    return np.r_[True, ~same]
+
+
+def interpolate_fresh(t: np.ndarray, values: np.ndarray, fresh: np.ndarray) -> np.ndarray:
+    """``values`` (n,) linearly interpolated between its fresh rows (held at the ends)."""
+    k = np.flatnonzero(fresh)
+    return np.interp(t, t[k], values[k])
+
+
+def interpolate_samples(t: np.ndarray, y: np.ndarray, max_gap: float = 1.0) -> np.ndarray:
+    """A slow sensor's samples ``y`` (NaN on rows without one) interpolated onto every row
+    between samples at most ``max_gap`` seconds apart (NaN elsewhere and outside): e.g. a
+    10 Hz height on 250 Hz rows, to tell on every row whether the vehicle is airborne."""
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    k = np.flatnonzero(np.isfinite(y))
+    out = np.full(t.size, np.nan)
+    if k.size < 2:
+        out[k] = y[k]
+        return out
+    pos = np.clip(np.searchsorted(t[k], t), 1, k.size - 1)
+    ok = (t >= t[k[0]]) & (t <= t[k[-1]]) & (t[k[pos]] - t[k[pos - 1]] <= max_gap)
+    out[ok] = np.interp(t[ok], t[k], y[k])
+    return out
+
+
+def commands_on_grid(t_grid: np.ndarray, t_cmd: np.ndarray, cmd: np.ndarray, held: str = "interpolate",
+                     off: float = 0.0) -> np.ndarray:
+    """Motor commands (m, k) logged at times ``t_cmd`` (their fresh samples) on the rows
+    ``t_grid``: ``"interpolate"`` linearly between samples, ``"hold"`` the last sample at or
+    before the row (zero-order hold; the first sample before it). Where the held command is
+    at or below ``off`` (a stopped motor) the row keeps it: a motor is never interpolated
+    into or out of a stop. Returns (n, k)."""
+    if held not in ("interpolate", "hold"):
+        raise GreyboxInputError(f"held must be 'interpolate' or 'hold', got {held!r}")
+    t_grid = np.asarray(t_grid, dtype=float)
+    t_cmd = np.asarray(t_cmd, dtype=float)
+    cmd = np.asarray(cmd, dtype=float).reshape(t_cmd.size, -1)
+    idx = np.clip(np.searchsorted(t_cmd, t_grid, side="right") - 1, 0, t_cmd.size - 1)
+    zoh = cmd[idx]
+    if held == "hold":
+        return zoh
+    out = np.column_stack([np.interp(t_grid, t_cmd, cmd[:, i]) for i in range(cmd.shape[1])])
+    stopped = zoh <= off
+    out[stopped] = zoh[stopped]
+    return out
+
+
+# -------------------------------------------------------------------- ground contact
+
+@dataclass
+class FlightSpan:
+    """The airborne part of a log: rows ``k0..k1`` (inclusive), what was found on the way."""
+
+    k0: int
+    k1: int
+    on_ground: np.ndarray          # (n,) bool: row flagged as on the ground
+    rest_height: float = math.nan  # resting height (source frame, z up), m; NaN if unknown
+    note: str = ""
+
+
+def longest_run(mask: np.ndarray) -> tuple[int, int] | None:
+    """First and last index of the longest run of True in ``mask`` (None if there is none)."""
+    k = np.flatnonzero(mask)
+    if k.size == 0:
+        return None
+    breaks = np.flatnonzero(np.diff(k) > 1)
+    starts, ends = np.r_[k[0], k[breaks + 1]], np.r_[k[breaks], k[-1]]
+    j = int(np.argmax(ends - starts))
+    return int(starts[j]), int(ends[j])
+
+
+def flight_from_height(t: np.ndarray, height: np.ndarray, running: np.ndarray, where: str,
+                       takeoff_height: float = 0.01, min_samples: int = 20,
+                       hint: str = "") -> FlightSpan:
+    """The flight from a height (z up, NaN where not measured) and whether the motors run.
+
+    The resting height is the median height before the motors start (at least 5 samples;
+    else the lowest height). The vehicle is airborne where its height is more than
+    ``takeoff_height`` above rest and the motors run; the flight is the longest airborne
+    run (a hop at take-off is not the flight).
+
+    Raises:
+        GreyboxInputError: the vehicle never leaves the ground (``hint`` is appended).
+    """
+    height = np.asarray(height, dtype=float)
+    running = np.asarray(running, dtype=bool)
+    on = np.flatnonzero(running)
+    before = np.arange(on[0] if on.size else height.size)
+    before = before[np.isfinite(height[before])]
+    if before.size >= 5:
+        rest = float(np.median(height[before]))
+    elif np.isfinite(height).any():
+        rest = float(np.nanmin(height))
+    else:
+        raise GreyboxInputError(f"{where}: no height measurement: cannot tell when the vehicle flies{hint}")
+    airborne = np.isfinite(height) & (height - rest > takeoff_height) & running
+    if airborne.sum() < min_samples:
+        raise GreyboxInputError(f"{where}: the vehicle never leaves the ground (never {takeoff_height:g} m above "
+                                f"its resting height {rest:.3f} m): nothing to identify{hint}")
+    k0, k1 = longest_run(airborne)
+    on_ground = ~airborne
+    mid_contact = int(on_ground[k0:k1 + 1].sum())
+    note = (f"take-off at {t[k0]:.2f} s, touchdown at {t[k1]:.2f} s (resting height {rest:.3f} m)"
+            + (f"; {mid_contact} samples in between touch the ground" if mid_contact else ""))
+    return FlightSpan(k0, k1, on_ground, rest, note)
+
+
+def flight_from_imu(t: np.ndarray, specific_force: np.ndarray, running: np.ndarray, where: str,
+                    impact_g: float = 3.0, margin: float = 0.01, min_samples: int = 20) -> FlightSpan:
+    """The flight of a log without a height: from the first to the last sample with the
+    motors running, ended ``margin`` seconds before the first impact (specific force above
+    ``impact_g`` g, far beyond what flight produces; a crash or a hard landing).
+
+    Without a height the lift-off is not seen: the first moments after the motors start
+    (and the last before they stop) may be on the ground; the note says so.
+
+    Raises:
+        GreyboxInputError: the motors never run.
+    """
+    running = np.asarray(running, dtype=bool)
+    on = np.flatnonzero(running)
+    if on.size < min_samples:
+        raise GreyboxInputError(f"{where}: the motors never run (all commands zero): nothing to identify")
+    k0, k1 = int(on[0]), int(on[-1])
+    note = ""
+    f = np.linalg.norm(np.asarray(specific_force, dtype=float), axis=1) / G0
+    hit = np.flatnonzero(np.nan_to_num(f[k0:k1 + 1]) > impact_g)
+    if hit.size:
+        k_hit = k0 + int(hit[0])
+        k_end = int(np.searchsorted(t, t[k_hit] - margin, side="right") - 1)
+        if k_end - k0 + 1 < min_samples:
+            raise GreyboxInputError(f"{where}: an impact ({f[k_hit]:.1f} g at {t[k_hit]:.2f} s) right after the "
+                                    "motors start: nothing to identify")
+        note = (f"impact at {t[k_hit]:.3f} s (specific force {np.nanmax(f[k_hit:k1 + 1]):.1f} g, above "
+                f"{impact_g:g} g): the flight ends {margin * 1000:.0f} ms before it")
+        k1 = k_end
+    on_ground = np.ones(len(t), dtype=bool)
+    on_ground[k0:k1 + 1] = False
+    note = (f"motors run from {t[k0]:.2f} s to {t[on[-1]]:.2f} s; flight taken as {t[k0]:.2f}-{t[k1]:.2f} s "
+            "(no height in the log: the moments on the ground after the motors start are not "
+            "seen and stay in)" + (f"; {note}" if note else ""))
+    return FlightSpan(k0, k1, on_ground, math.nan, note)
+
+
+# ------------------------------------------------------------------ one time base
+
+def grid_with(base: np.ndarray, *others: np.ndarray, tol: float | None = None) -> np.ndarray:
+    """Rows of a multi-rate log: the ``base`` stamps (the fastest sensor's, say) plus each
+    stamp of ``others`` farther than ``tol`` (default half the base's median step) from every
+    base stamp (samples that fall in a gap of the base sensor). Sorted, unique."""
+    base = np.asarray(base, dtype=float)
+    if tol is None:
+        tol = 0.5 * float(np.median(np.diff(base))) if base.size > 1 else 0.0
+    extra = []
+    for o in others:
+        o = np.asarray(o, dtype=float)
+        if o.size == 0:
+            continue
+        pos = np.clip(np.searchsorted(base, o), 1, max(base.size - 1, 1))
+        d = np.minimum(np.abs(o - base[pos - 1]), np.abs(base[np.minimum(pos, base.size - 1)] - o))
+        extra.append(o[d > tol])
+    return np.unique(np.concatenate([base] + extra)) if extra else np.unique(base)
+
+
+def snap(t_grid: np.ndarray, t_s: np.ndarray, values: np.ndarray, tol: float | None = None) -> np.ndarray:
+    """Samples ``values`` (m,) or (m, k) taken at ``t_s`` placed on their nearest row of
+    ``t_grid`` (within ``tol``, default half the grid's median step); NaN on every other
+    row. Where two samples fall on one row, the nearer one wins."""
+    t_grid = np.asarray(t_grid, dtype=float)
+    t_s = np.asarray(t_s, dtype=float)
+    values = np.asarray(values, dtype=float)
+    vec = values.ndim == 1
+    values = values.reshape(t_s.size, -1)
+    if tol is None:
+        tol = 0.5 * float(np.median(np.diff(t_grid))) if t_grid.size > 1 else np.inf
+    out = np.full((t_grid.size, values.shape[1]), np.nan)
+    if t_s.size and t_grid.size:
+        pos = np.clip(np.searchsorted(t_grid, t_s), 0, t_grid.size - 1)
+        left = np.clip(pos - 1, 0, t_grid.size - 1)
+        pick = np.where(np.abs(t_grid[left] - t_s) < np.abs(t_grid[pos] - t_s), left, pos)
+        d = np.abs(t_grid[pick] - t_s)
+        ok = d <= tol * (1 + 1e-9)
+        # nearer samples last, so that they win on a shared row
+        order = np.argsort(-d[ok], kind="stable")
+        rows, vals = pick[ok][order], values[ok][order]
+        out[rows] = vals
+    return out[:, 0] if vec else out
+
+
+def assemble_log(t: np.ndarray, rotor_speeds: np.ndarray, outputs: Mapping[str, np.ndarray],
+                 extras: Mapping[str, np.ndarray] | None = None, notes: list[str] | None = None,
+                 source: str | None = None, input_names: list[str] | None = None) -> FlightLog:
+    """A flight log on one time base ``t`` (s): inputs ``w1..wN`` (rad/s, never missing) and
+    the outputs given by name (each (n,), NaN where that sensor has no sample). The required
+    outputs ``x, y, z, phi, theta, psi`` are always columns (all NaN when the source has
+    none); ``p, q, r`` are columns when given."""
+    t = np.asarray(t, dtype=float)
+    W = np.asarray(rotor_speeds, dtype=float).reshape(t.size, -1)
+    unknown = set(outputs) - set(REQUIRED_OUTPUTS) - set(OPTIONAL_OUTPUTS)
+    if unknown:
+        raise ValueError(f"not output channels: {sorted(unknown)} (use extras)")
+    names = REQUIRED_OUTPUTS + [n for n in OPTIONAL_OUTPUTS if n in outputs]
+    nan = np.full(t.size, np.nan)
+    Y = np.column_stack([np.asarray(outputs.get(n, nan), dtype=float).reshape(t.size) for n in names])
+    return FlightLog(t, W, input_names or [f"w{i + 1}" for i in range(W.shape[1])], Y, names,
+                     dict(extras or {}), list(notes or []), source)
+
+
+# ------------------------------------------------------------------------ result
+
+@dataclass
+class ImportResult:
+    """What an importer returns: the flight log and what was found on the way.
+
+    Attributes:
+        log: the flight log (README, "Flight log (CSV)"), times from 0 at its first row.
+        takeoff_time, touchdown_time: s from the start of the source file (NaN if the
+            vehicle never flew, e.g. a bench log imported with ``keep_ground``).
+        rest_height: resting height of the tracked origin in the source's z-up frame, m
+            (NaN when the source has no height).
+        hover_rotor_speed: rms rotor speed in flight, rad/s (NaN if never flown): the
+            starting guess of ``K_T = m g / (N w^2)``.
+        notes: what the importer found and did, in words (also in ``log.notes``).
+        format: ``"nanobench"``, ``"px4"``, ``"crazyflie-usd"``.
+        pwm_map: the ``(a, c)`` used for motor commands (None when rotor speeds were logged).
+        n_rotors: number of motors read.
+    """
+
+    log: FlightLog
+    takeoff_time: float
+    touchdown_time: float
+    rest_height: float
+    hover_rotor_speed: float
+    notes: list[str] = field(default_factory=list)
+    format: str = ""
+    pwm_map: tuple[float, float] | None = None
+    n_rotors: int = 4
