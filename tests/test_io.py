@@ -189,7 +189,13 @@ def test_px4_topics_flight_frames_trimming_and_motors():
     from greybox.airframe import airframe_from_dict
     af = airframe_from_dict(tomllib.loads(text), "px4.toml")
     np.testing.assert_allclose(np.sign(np.array(af.rotor_positions)[:, :2]), [[1, 1], [-1, -1], [1, -1], [-1, 1]])
-    assert [r.spin for r in af.rotors] == [-1, -1, 1, 1] and af.mass == 1.5
+    # PX4 quad X: 1, 2 counter-clockwise seen from above (reaction torque about +z FRD, PX4 mixer
+    # yaw +1): spin +1 in greybox's convention (h = -J_r spin w e_z); the same as layout "x"
+    assert [r.spin for r in af.rotors] == [1, 1, -1, -1] and af.mass == 1.5
+    from greybox.airframe import rotors_for_layout
+    ref = rotors_for_layout("x", 0.25)
+    np.testing.assert_allclose(af.rotor_positions, [r.position for r in ref], atol=1e-6)
+    assert [r.spin for r in af.rotors] == [r.spin for r in ref]
     assert af.parameters["K_T"] == pytest.approx(1.5 * 9.81 / (4 * (5000 * np.pi / 30) ** 2), rel=1e-4)
 
 
@@ -307,7 +313,7 @@ def test_cli_px4_sample_with_airframe(tmp_path, capsys):
     log = load_log(out)
     assert log.input_names == ["w1", "w2", "w3", "w4"] and {"ax", "ay", "az"} <= set(log.extras)
     a = load_airframe(af)
-    assert a.mass == 1.4 and [r.spin for r in a.rotors] == [-1, -1, 1, 1]
+    assert a.mass == 1.4 and [r.spin for r in a.rotors] == [1, 1, -1, -1]
     assert a.parameters["K_T"] == pytest.approx(1.4 * 9.81 / (4 * (0.9 * 1500 - 850) ** 2), rel=1e-4)
 
 

@@ -428,7 +428,9 @@ def px4_airframe_toml(mass: float, hover_rotor_speed: float | None = None, arm_l
     return f"""# PX4 quadrotor X, written by `greybox import px4`.
 # Rotors in PX4's motor order (actuator outputs 1..4 = log columns w1..w4), body FRD:
 # 1 front-right, 2 back-left, 3 front-left, 4 back-right; 1 and 2 turn counter-clockwise
-# seen from above (spin -1), 3 and 4 clockwise (spin +1) (PX4 "Generic Quadcopter X").
+# seen from above, so their reaction torque on the body is about +z (FRD): spin +1 (PX4's
+# mixer: yaw +1); 3 and 4 clockwise: spin -1 (PX4 "Generic Quadcopter X"; the same as
+# greybox's layout "x").
 # The log holds neither mass nor geometry:
 #   mass {mass!r} kg: given (--mass); K_T, b and Kd scale with it.
 #   ASSUMED arm {arm_length!r} m (--arm-length): measure centre to motor axis.
@@ -445,19 +447,19 @@ ground_z = {ground_z!r}    # NED z of the floor plane (ground effect height = gr
 
 [[rotor]]   # 1 front-right, CCW
 position = [{a:.6f}, {a:.6f}, 0.0]
-spin = -1
+spin = 1
 
 [[rotor]]   # 2 back-left, CCW
 position = [{-a:.6f}, {-a:.6f}, 0.0]
-spin = -1
+spin = 1
 
 [[rotor]]   # 3 front-left, CW
 position = [{a:.6f}, {-a:.6f}, 0.0]
-spin = 1
+spin = -1
 
 [[rotor]]   # 4 back-right, CW
 position = [{-a:.6f}, {a:.6f}, 0.0]
-spin = 1
+spin = -1
 
 [parameters]
 K_T = {kt:.6g}             # {src}
