@@ -232,7 +232,9 @@ def crazyflie_airframe_toml(mass: float = 0.030, hover_rotor_speed: float | None
     return f"""# Crazyflie 2.1 (Bitcraze), written by `greybox import {command}`.
 # Rotors in firmware order M1..M4 (= log columns w1..w4), positions in body FRD:
 # mixer QUAD_FORMATION_X, M1 front-right, M2 back-right, M3 back-left, M4 front-left;
-# M1 and M3 turn clockwise seen from above (reaction torque about body +z, FRD: spin +1).
+# M1 and M3 turn counter-clockwise seen from above, so their reaction torque on the body is
+# about +z (FRD): spin +1; M2 and M4 clockwise: spin -1 (Bitcraze's Crazyflie 2.x motor
+# layout; greybox: yaw torque spin_i*b*w_i^2 about body z).
 # Arm: 46 mm from the centre to each motor (92 mm motor-to-motor diagonal, Bitcraze
 # datasheet). Inertia: J. Förster, "System Identification of the Crazyflie 2.0 Nano
 # Quadrocopter", ETH Zurich 2015. Mass: 27 g bare (Bitcraze datasheet) plus markers and
