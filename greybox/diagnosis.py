@@ -57,7 +57,7 @@ from .validation import Prediction, predict_flights
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
            "MIN_VALIDATION_GAIN", "distinguishing_manoeuvre",
-           "CommandImbalance", "command_imbalance"]
+           "CommandImbalance", "command_imbalance", "default_candidates"]
 
 ALPHA = 0.01
 """Family-wise significance level of the likelihood-ratio tests (Bonferroni over candidates)."""
@@ -862,6 +862,15 @@ def _rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Se
     return refitted + rest
 
 
+def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list[str]:
+    """The effects :func:`diagnose` tries by default: the catalogue and the effects
+    registered by the user (files, plugins) that are not in the model, and the effects that
+    read a logged signal when every flight has that signal."""
+    return [n for n, cls in fx.known_effects().items() if n not in model.effects
+            and (n in fx.CATALOGUE or n in fx.registered_effects() or cls.signals)
+            and all(all(s in lg.extras or s in lg.input_names for lg in logs) for s in cls.signals)]
+
+
 def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, candidates: Sequence[str] | None = None,
              iterate: bool = True, max_rounds: int = 3, split: float = 0.8, p0=None,
              n_refit: int = N_REFIT, compile: str = "auto",
@@ -896,19 +905,15 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     t_start = time.perf_counter()
     say = progress_printer() if progress is True else \
         (progress or (lambda _m: None))
+    logs = [log] if isinstance(log, FlightLog) else list(log)
+    if not logs:
+        raise GreyboxInputError("diagnose: no flight logs")
     if candidates is None:
-        # the catalogue and the effects registered by the user (files, plugins); effects that
-        # read a logged signal when the log has that signal
-        candidates = [n for n, cls in fx.known_effects().items() if n not in model.effects
-                      and (n in fx.CATALOGUE or n in fx.registered_effects() or cls.signals)
-                      and all(s in log.extras or s in log.input_names for s in cls.signals)]
+        candidates = default_candidates(model, logs)
     for c in candidates:
         fx.by_name(c)
         if c in model.effects:
             raise GreyboxInputError(f"candidate {c!r} is already in the model")
-    logs = [log] if isinstance(log, FlightLog) else list(log)
-    if not logs:
-        raise GreyboxInputError("diagnose: no flight logs")
     if validation is None:
         est, val = map(list, zip(*[lg.split(split) for lg in logs]))
     else:

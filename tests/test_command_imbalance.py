@@ -25,3 +25,19 @@ def test_a_weak_rotor_is_driven_harder_and_equal_rotors_are_not(base):
     equal = command_imbalance(base, synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log)
     assert not equal.notable and max(abs(v) for v in equal.share.values()) < 0.01
     assert set(equal.as_dict()) == {"share", "spin", "seconds", "notable"}
+
+
+def test_default_candidates_over_several_flights(base):
+    """Signal effects are candidates when every flight has the signal (and several flights
+    are a list, not one log)."""
+    from greybox.diagnosis import default_candidates
+    m0, p0 = model_with_hidden_effects(base, [])
+    a = synthesize(m0, p0, 3.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=1).log
+    b = synthesize(m0, p0, 3.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=2).log
+    names = default_candidates(base, [a, b])
+    assert "ground_effect" in names and "hub_rotor_drag" in names and "yaw_torque" not in names
+    assert "battery_voltage" not in names
+    a.extras["vbat"] = np.full(len(a), 4.0)
+    assert "battery_voltage" not in default_candidates(base, [a, b])
+    b.extras["vbat"] = np.full(len(b), 4.0)
+    assert "battery_voltage" in default_candidates(base, [a, b])
