@@ -465,7 +465,8 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting import fit
-    from .validation import compare_plot, predict, residual_plot
+    from . import plotting
+    from .validation import compare_plot, pool_predictions, predict, residual_plot
     model, p0, logs = _load_fit_inputs(args)
     parts = [log.split(0.8) for log in logs]
     with _warnings.catch_warnings():
@@ -492,8 +493,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
             compare_plot(pred, out / f"compare{suffix}.png")
             residual_plot(pred, out / f"residuals{suffix}.png")
         print(f"plots: {out}")
+    he = pool_predictions(preds).horizon_errors()
+    if args.plots:
+        plotting.horizons(he, path=out / "horizons.png")
     if args.json:
-        write_json(args.json, fit_result_json(model, res, validation))
+        write_json(args.json, {**fit_result_json(model, res, validation), "horizons": he.as_dict()})
     if args.save:
         print(f"model: {res.save(args.save)}")
     return 0

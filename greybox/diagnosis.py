@@ -209,7 +209,8 @@ class Diagnosis:
     def as_json(self) -> dict:
         """The diagnose JSON (README, "Command line"), plus findings, warnings and the added effects."""
         out = {"baseline": {"nrmse": self.baseline_prediction.total,
-                            "channels": dict(self.baseline_prediction.nrmse)},
+                            "channels": dict(self.baseline_prediction.nrmse),
+                            "horizons": self.baseline_prediction.horizon_errors().as_dict()},
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
                "findings": [f.text for f in self.findings],
@@ -224,7 +225,8 @@ class Diagnosis:
         if self.final_model is not None and self.final_prediction is not None:
             out["added"] = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
             out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
-                            "channels": dict(self.final_prediction.nrmse)}
+                            "channels": dict(self.final_prediction.nrmse),
+                            "horizons": self.final_prediction.horizon_errors().as_dict()}
         out["model"] = {"effects": self.fitted_model.model.effect_names, "parameters": self.parameter_table(),
                         "certified": bool(self.fitted_model.converged)}
         out["time_s"] = self.timings.get("total")

@@ -38,7 +38,7 @@ from .model import OUTPUTS
 # to the ones it draws for (an import cycle for the tools, if not for Python)
 
 __all__ = ["compare", "residuals", "whiteness", "regimes", "ranking", "n4sid_order", "report_figures",
-           "save", "new_figure"]
+           "save", "new_figure", "horizons"]
 
 DPI = 100
 WHITENESS_LAGS = 30
@@ -216,6 +216,37 @@ def residuals(pred: "Prediction", ax: "Axes | None" = None, path: str | Path | N
         ax.set_title(f"{ch}: prediction residuals (measured - predicted)", fontsize=9)
     elif made:
         fig_.suptitle("prediction residuals (measured - predicted)", fontsize=10)
+    return _done(fig_, path, dpi)
+
+
+def horizons(he: "HorizonErrors | Prediction", ax: "Axes | None" = None, path: str | Path | None = None, *,
+             channels: str | Sequence[str] | None = None, axes=None, fig: Figure | None = None,
+             dpi: float = DPI) -> Figure:
+    """RMS prediction error against horizon per channel, the model (solid) beside the naive
+    constant-velocity / constant-rate predictor (dashed), log-log. ``he``: a
+    :class:`~greybox.validation.HorizonErrors` or a prediction (its ``horizon_errors()``).
+    ``ax=``: one channel (default the one where the model gains least on the naive one)."""
+    if hasattr(he, "horizon_errors"):
+        he = he.horizon_errors()
+    ratio = {}
+    for ch in he.model:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.asarray(he.model[ch], float) / np.asarray(he.naive[ch], float)
+        r = r[np.isfinite(r)]
+        ratio[ch] = float(r.mean()) if r.size else -math.inf
+    chans = _pick_channels(list(he.model), channels, ratio, single=ax is not None)
+    ncols = min(3, len(chans)) if ax is None else 1
+    nrows = int(math.ceil(len(chans) / ncols))
+    fig_, axs, _ = _grid(ax, axes, fig, nrows, ncols, (4 * ncols, 2.6 * nrows + 0.6))
+    flat = list(axs.ravel())
+    for a, ch in zip(flat, chans):
+        a.loglog(he.horizons, he.model[ch], "o-", color="C0", label="model")
+        a.loglog(he.horizons, he.naive[ch], "s--", color="C3", label="naive")
+        a.set_title(ch, fontsize=9)
+        a.set_xlabel("horizon (s)")
+    for a in flat[len(chans):]:
+        a.set_axis_off()
+    flat[0].legend(fontsize=8)
     return _done(fig_, path, dpi)
 
 

@@ -15,6 +15,8 @@ MATLAB's ``100 * (1 - nrmse)``.
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -28,7 +30,7 @@ from .shooting import ShootingProblem, estimate_noise, initial_node_states
 from .integrate import n_substeps, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 
-__all__ = ["Prediction", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
+__all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
            "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW"]
 
 DEFAULT_HORIZON = 1.0
@@ -56,6 +58,12 @@ class Prediction:
     horizon: float
     errors: np.ndarray = field(repr=False, default=None)   # (n, 9) measured - predicted (psi wrapped)
     parts: list["Prediction"] | None = field(repr=False, default=None)   # per flight, when pooled
+    start_states: np.ndarray | None = field(repr=False, default=None)    # (windows, nx) estimated at each start
+
+    def horizon_errors(self, horizons: Sequence[float] | None = None) -> "HorizonErrors":
+        """RMS prediction error against horizon, beside the naive predictor's (see
+        :class:`HorizonErrors`)."""
+        return HorizonErrors.from_prediction(self, horizons)
 
     @property
     def fit_percent(self) -> dict[str, float]:
@@ -204,7 +212,86 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
     if not scores:
         raise GreyboxInputError(f"{log.source or 'log'}: no measured channel to validate against")
     total = float(np.mean(list(scores.values())))
-    return Prediction(log, pred, wins, channels, scores, total, horizon, err)
+    return Prediction(log, pred, wins, channels, scores, total, horizon, err, start_states=x0)
+
+
+DEFAULT_HORIZONS = (0.05, 0.1, 0.25, 0.5, 1.0)
+"""s, after one sample: the horizons at which :class:`HorizonErrors` reports."""
+
+
+@dataclass
+class HorizonErrors:
+    """Prediction error against horizon, per channel, for the model and for the naive
+    predictor that system-identification benchmarks of small quadrotors use beside it:
+    constant velocity and constant body rates from the same estimated start state
+    (positions ``p0 + v0 h``; angles ``e0 + W(e0) omega0 h``; rates ``omega0``).
+
+    ``model[ch][i]`` and ``naive[ch][i]`` are RMS errors in the channel's units (m, rad,
+    rad/s) at ``horizons[i]`` seconds ahead, over every window of the prediction."""
+
+    horizons: list[float]
+    model: dict[str, list[float]]
+    naive: dict[str, list[float]]
+
+    def as_dict(self) -> dict:
+        clean = lambda d: {ch: [v if math.isfinite(v) else None for v in vals] for ch, vals in d.items()}  # noqa: E731
+        return {"horizons": list(self.horizons), "model": clean(self.model), "naive": clean(self.naive)}
+
+    def beats_naive(self, channel: str, horizon: float) -> bool:
+        """Whether the model's error is below the naive predictor's at ``horizon``."""
+        i = int(np.argmin(np.abs(np.asarray(self.horizons) - horizon)))
+        return bool(self.model[channel][i] < self.naive[channel][i])
+
+    @classmethod
+    def from_prediction(cls, pred: "Prediction", horizons: Sequence[float] | None = None) -> "HorizonErrors":
+        parts = pred.parts or [pred]
+        dt = float(np.median(np.diff(parts[0].log.t)))
+        hs = sorted({round(dt, 9), *[h for h in (horizons or DEFAULT_HORIZONS) if h <= pred.horizon + 1e-9]})
+        sq_m = {ch: np.zeros(len(hs)) for ch in pred.channels}
+        sq_n = {ch: np.zeros(len(hs)) for ch in pred.channels}
+        cnt = {ch: np.zeros(len(hs)) for ch in pred.channels}
+        for part in parts:
+            if part.start_states is None:
+                raise GreyboxInputError("horizon errors need a prediction made by greybox.predict")
+            t = part.log.t
+            meas = part.predicted + part.errors
+            for w, (a, b) in enumerate(part.windows):
+                x0 = part.start_states[w]
+                eul0, om0 = x0[3:6], x0[9:12]
+                ph, th = eul0[0], eul0[1]
+                W = np.array([[1, np.sin(ph) * np.tan(th), np.cos(ph) * np.tan(th)],
+                              [0, np.cos(ph), -np.sin(ph)],
+                              [0, np.sin(ph) / np.cos(th), np.cos(ph) / np.cos(th)]])
+                naive_rate = {"x": x0[6], "y": x0[7], "z": x0[8]}
+                eul_rate = W @ om0
+                for ch in pred.channels:
+                    c = OUTPUTS.index(ch)
+                    # this channel's measured samples in the window (multi-rate logs)
+                    ks = a + np.flatnonzero(np.isfinite(part.errors[a:b, c]))
+                    if ks.size == 0:
+                        continue
+                    for i, h in enumerate(hs):
+                        # the measured sample nearest h ahead, if near enough
+                        k = int(ks[np.argmin(np.abs(t[ks] - t[a] - h))])
+                        tau = t[k] - t[a]
+                        if abs(tau - h) > 0.2 * h + 0.5 * dt:
+                            continue
+                        naive = {"x": x0[0] + naive_rate["x"] * tau, "y": x0[1] + naive_rate["y"] * tau,
+                                 "z": x0[2] + naive_rate["z"] * tau, "phi": eul0[0] + eul_rate[0] * tau,
+                                 "theta": eul0[1] + eul_rate[1] * tau, "psi": eul0[2] + eul_rate[2] * tau,
+                                 "p": om0[0], "q": om0[1], "r": om0[2]}
+                        em, y = part.errors[k, c], meas[k, c]
+                        if not np.isfinite(y):
+                            continue
+                        en = y - naive[ch]
+                        if c == PSI:
+                            en = math.atan2(math.sin(en), math.cos(en))
+                        sq_m[ch][i] += em * em
+                        sq_n[ch][i] += en * en
+                        cnt[ch][i] += 1
+        rms = lambda sq, n: [float(math.sqrt(s / c)) if c else float("nan") for s, c in zip(sq, n)]  # noqa: E731
+        return cls([float(h) for h in hs], {ch: rms(sq_m[ch], cnt[ch]) for ch in pred.channels},
+                   {ch: rms(sq_n[ch], cnt[ch]) for ch in pred.channels})
 
 
 def pool_predictions(preds: Sequence[Prediction]) -> Prediction:
