@@ -580,6 +580,19 @@ def _model_args(ap: argparse.ArgumentParser, set_help: str) -> None:
     ap.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
 
 
+def _import_args(ap: argparse.ArgumentParser, file_help: str) -> None:
+    """The options the Crazyflie importers share (NanoBench, uSD)."""
+    ap.add_argument("file", help=file_help)
+    ap.add_argument("--out", required=True, help="flight log CSV to write")
+    ap.add_argument("--airframe-out", help="also write a Crazyflie 2.1 airframe TOML here")
+    ap.add_argument("--mass", type=_positive, default=0.030, help="vehicle mass for the airframe, kg (default 0.030)")
+    ap.add_argument("--pwm-map", default="0.04076521,380.8359",
+                    help="a,c of w[rad/s] = a*PWM + c (default: Förster 2015 Crazyflie map)")
+    ap.add_argument("--held", choices=["interpolate", "hold"], default="interpolate",
+                    help="held motor samples: interpolate between fresh ones (default) or keep as logged")
+    ap.add_argument("--keep-ground", action="store_true", help="keep samples on the ground (flagged on_ground)")
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = _Parser(prog="greybox", description="Grey-box system identification of quadrotors.")
     ap.add_argument("--version", action="version", version=f"greybox {__version__}")
@@ -680,15 +693,7 @@ def _parser() -> argparse.ArgumentParser:
                          description="Convert a NanoBench CSV: z-up world -> NED, FLU -> FRD, attitude from the "
                                      "quaternion, PWM -> rotor speed, held samples, ground contact trimmed, "
                                      "battery voltage as column vbat.")
-    nb.add_argument("file", help="NanoBench CSV")
-    nb.add_argument("--out", required=True, help="flight log CSV to write")
-    nb.add_argument("--airframe-out", help="also write a Crazyflie 2.1 airframe TOML here")
-    nb.add_argument("--mass", type=_positive, default=0.030, help="vehicle mass for the airframe, kg (default 0.030)")
-    nb.add_argument("--pwm-map", default="0.04076521,380.8359",
-                    help="a,c of w[rad/s] = a*PWM + c (default: Förster 2015 Crazyflie map)")
-    nb.add_argument("--held", choices=["interpolate", "hold"], default="interpolate",
-                    help="held motor samples: interpolate between fresh ones (default) or keep as logged")
-    nb.add_argument("--keep-ground", action="store_true", help="keep samples on the ground (flagged on_ground)")
+    _import_args(nb, "NanoBench CSV")
     nb.set_defaults(func=cmd_import_nanobench)
     px = isub.add_parser("px4", help="PX4 ULog flight log (needs pyulog: pip install 'greybox[px4]')",
                          description="Convert a PX4 ULog: attitude, local position (NED), gyro and accelerometer "
@@ -713,15 +718,7 @@ def _parser() -> argparse.ArgumentParser:
                          description="Convert a Crazyflie uSD log: gyro (deg/s, FLU) -> p,q,r (rad/s, FRD), "
                                      "accelerometer (g) -> ax, ay, az (m/s^2, FRD), motor PWM -> rotor speed; "
                                      "trimmed from motor start to motor stop (or the first impact).")
-    cu.add_argument("file", help="uSD log file (e.g. log00)")
-    cu.add_argument("--out", required=True, help="flight log CSV to write")
-    cu.add_argument("--airframe-out", help="also write a Crazyflie 2.1 airframe TOML here")
-    cu.add_argument("--mass", type=_positive, default=0.030, help="vehicle mass for the airframe, kg (default 0.030)")
-    cu.add_argument("--pwm-map", default="0.04076521,380.8359",
-                    help="a,c of w[rad/s] = a*PWM + c (default: Förster 2015 Crazyflie map)")
-    cu.add_argument("--held", choices=["interpolate", "hold"], default="interpolate",
-                    help="held motor samples: interpolate between fresh ones (default) or keep as logged")
-    cu.add_argument("--keep-ground", action="store_true", help="keep samples on the ground (flagged on_ground)")
+    _import_args(cu, "uSD log file (e.g. log00)")
     cu.add_argument("--ignore-crc", action="store_true",
                     help="read a truncated or corrupt file (CRC mismatch): keep its whole records")
     cu.set_defaults(func=cmd_import_crazyflie_usd)
