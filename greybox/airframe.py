@@ -7,6 +7,8 @@ the file and the key.
 """
 from __future__ import annotations
 
+import json
+
 import math
 import tomllib
 import warnings as _warnings
@@ -118,9 +120,10 @@ class Airframe:
 
     def to_toml(self) -> str:
         """The airframe as TOML text in the format :func:`load_airframe` reads (explicit rotors if custom)."""
-        lines = ["[airframe]", f'name = "{self.name}"', f"mass = {self.mass!r}"]
+        # a JSON string is a valid TOML basic string: quotes and backslashes survive
+        lines = ["[airframe]", f"name = {json.dumps(self.name)}", f"mass = {self.mass!r}"]
         J = self.inertia
-        if np.allclose(J, np.diag(np.diag(J))):
+        if np.array_equal(J, np.diag(np.diag(J))):   # exact: small products of inertia are kept
             lines.append(f"inertia = [{', '.join(repr(float(v)) for v in np.diag(J))}]")
         else:
             rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in J)

@@ -19,7 +19,7 @@ from . import __version__
 from . import effects as fx
 from .airframe import load_airframe
 from .data import FlightLog, atomic_write, check_rotor_speed_units, check_sample_times, read_csv_table, save_log
-from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, forget_signals, interrupt_status, raise_interrupted, raise_terminated
+from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, forget_signals, interrupt_status, raise_interrupted, raise_terminated, signal_received
 from .integrate import simulate
 from .model import QuadrotorModel
 
@@ -466,7 +466,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting import fit
     from . import plotting
-    from .validation import compare_plot, pool_predictions, predict, residual_plot
+    from .validation import pool_predictions, predict
     model, p0, logs = _load_fit_inputs(args)
     parts = [log.split(0.8) for log in logs]
     with _warnings.catch_warnings():
@@ -486,21 +486,54 @@ def cmd_fit(args: argparse.Namespace) -> int:
     validation = _combined_validation(preds, [log.source for log in logs])
     if len(logs) > 1:
         print(f"validation, mean over {len(logs)} flights: nrmse {validation['nrmse']:.4f}")
+    he = pool_predictions(preds).horizon_errors()
+    # everything is computed before the first file is written, and the files go together
+    # (an interrupt while they are written removes the ones already there)
+    outputs: list[tuple[Path, str | bytes]] = []
     if args.plots:
         out = Path(args.plots)
         for k, pred in enumerate(preds):
             suffix = f"_{k + 1}" if len(preds) > 1 else ""
-            compare_plot(pred, out / f"compare{suffix}.png")
-            residual_plot(pred, out / f"residuals{suffix}.png")
-        print(f"plots: {out}")
-    he = pool_predictions(preds).horizon_errors()
-    if args.plots:
-        plotting.horizons(he, path=out / "horizons.png")
+            outputs.append((out / f"compare{suffix}.png", plotting.to_bytes(plotting.compare(pred))))
+            outputs.append((out / f"residuals{suffix}.png", plotting.to_bytes(plotting.residuals(pred))))
+        outputs.append((out / "horizons.png", plotting.to_bytes(plotting.horizons(he))))
     if args.json:
-        write_json(args.json, {**fit_result_json(model, res, validation), "horizons": he.as_dict()})
+        outputs.append((Path(args.json), _json_text({**fit_result_json(model, res, validation),
+                                                     "horizons": he.as_dict()})))
     if args.save:
-        print(f"model: {res.save(args.save)}")
+        outputs.append((Path(args.save), _json_text(res.to_dict())))
+    write_outputs(outputs)
+    if args.plots:
+        print(f"plots: {args.plots}")
+    if args.save:
+        print(f"model: {args.save}")
     return 0
+
+
+def _json_text(obj: object) -> str:
+    return json.dumps(obj, indent=2, allow_nan=False) + "\n"
+
+
+def write_outputs(outputs: Sequence[tuple[Path, str | bytes]]) -> None:
+    """Write a command's files together, each atomically: if the run is interrupted (or a
+    write fails) before the last is in place, the ones already written are removed, so an
+    interrupted command leaves no output."""
+    written: list[Path] = []
+    try:
+        for path, data in outputs:
+            if signal_received() is not None:
+                raise KeyboardInterrupt
+            atomic_write(path, data)
+            written.append(path)
+        if signal_received() is not None:
+            raise KeyboardInterrupt
+    except BaseException:
+        for path in written:
+            try:
+                path.unlink()
+            except OSError:
+                pass
+        raise
 
 
 def _combined_validation(preds, sources) -> dict:
@@ -522,12 +555,16 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                     p0=p0, progress=not args.quiet,
                     process_noise=args.process_noise, validation=validation)
     print(diag.summary())
+    outputs: list[tuple[Path, str | bytes]] = []
+    if args.json:
+        outputs.append((Path(args.json), _json_text(diag.as_json())))
+    if args.save:
+        outputs.append((Path(args.save), _json_text(diag.fitted_model.to_dict())))
     if args.report:
         print(f"report: {diag.report(args.report)}")
-    if args.json:
-        write_json(args.json, diag.as_json())
+    write_outputs(outputs)
     if args.save:
-        print(f"model: {diag.fitted_model.save(args.save)}")
+        print(f"model: {args.save}")
     return 0
 
 
@@ -814,7 +851,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         with _warnings.catch_warnings():
             # a warning reaches a CLI user as one line, not as Python's file:line form
             _warnings.showwarning = _show_warning
-            return int(args.func(args) or 0)
+            status = int(args.func(args) or 0)
+        if signal_received() is not None:
+            # an interrupt some callback swallowed ("Exception ignored in ..."): still one
+            raise KeyboardInterrupt
+        return status
     except GreyboxInputError as e:
         print(f"greybox: error: {e}", file=sys.stderr)
         return 2

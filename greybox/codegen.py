@@ -245,17 +245,18 @@ def _load_checked(f: ca.Function, lib: Path, private: bool = False) -> ca.Functi
         if g.sparsity_out(i) != f.sparsity_out(i):
             return None
     rng = np.random.default_rng(0)
-    args = [rng.uniform(0.5, 1.5, f.sparsity_in(i).nnz()) for i in range(f.n_in())]
-    args = [ca.DM(f.sparsity_in(i), a) for i, a in enumerate(args)]
-    try:
-        want = f.call(args)
-        got = g.call(args)
-    except RuntimeError:
-        return None
-    for a, b in zip(want, got):
-        a, b = np.asarray(a.nonzeros()), np.asarray(b.nonzeros())
-        if not np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
+    # three test points: positive O(1), either sign, near zero (branches such as |v| < v0)
+    for lo, hi in ((0.5, 1.5), (-1.5, 1.5), (-0.01, 0.01)):
+        args = [ca.DM(f.sparsity_in(i), rng.uniform(lo, hi, f.sparsity_in(i).nnz())) for i in range(f.n_in())]
+        try:
+            want = f.call(args)
+            got = g.call(args)
+        except RuntimeError:
             return None
+        for a, b in zip(want, got):
+            a, b = np.asarray(a.nonzeros()), np.asarray(b.nonzeros())
+            if not np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
+                return None
     return g
 
 

@@ -403,7 +403,7 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
 
 
 def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog | Sequence[FlightLog],
-                      pred: Prediction | None = None,
+                      pred: Prediction | None = None, validation_is_tail: bool = True,
                       min_r: float = 0.4
                       ) -> tuple[list[Finding], dict[str, float], dict[str, tuple[str, float]], np.ndarray,
                                  dict[str, np.ndarray]]:
@@ -447,7 +447,7 @@ def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog | Se
         for j, part in enumerate(pred.parts or [pred]):
             vlog = part.log
             vreg = _regime_variables(model, initial_node_states(model, vlog, np.arange(len(vlog))), vlog)
-            t_start = logs[j].t[0] if j < len(logs) and logs[j].t[0] <= vlog.t[0] else vlog.t[0]
+            t_start = logs[j].t[0] if validation_is_tail and j < len(logs) else vlog.t[0]
             vreg["time into the flight"] = vlog.t - t_start
             sets.append((part.errors, vlog, vreg))
     best: dict[tuple[str, str], Finding] = {}
@@ -938,7 +938,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                       interval=res.interval)
     pred = predict_flights(model, res.p, val, compile=compile)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split)})")
-    findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred)
+    findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
+                                                            validation_is_tail=validation is None)
     rounds: list[Round] = []
     warnings: list[str] = list(res.warnings)
     if res.certificate is not None:

@@ -680,13 +680,35 @@ def register(cls: type[Effect], source: str = "register()", from_file: bool = Fa
         raise GreyboxInputError(f"{source}: effect name {name!r} is already taken by "
                                 f"{known.__module__}.{known.__qualname__} ({_REGISTERED_FROM[name]})")
     try:
-        cls()
+        obj = cls()
     except Exception as e:   # noqa: BLE001 - any failure to build is the user's to fix
         raise GreyboxInputError(f"{source}: effect {name!r} cannot be created without arguments ({e})") from None
+    _check_hooks(obj, source)
     _REGISTERED[name] = cls
     _REGISTERED_FROM[name] = source
     _FROM_FILE[name] = from_file
     return cls
+
+
+def _check_hooks(effect: Effect, source: str) -> None:
+    """Call the hooks that need no model on a generic airframe, so that an effect that
+    cannot describe itself fails here with its file and line, not deep in a fit."""
+    import traceback
+    from .airframe import airframe_from_dict
+    af = airframe_from_dict({"airframe": {"name": "check", "mass": 1.0, "inertia": [0.01, 0.01, 0.02],
+                                          "arm_length": 0.2, "layout": "x"}}, source="effect check")
+    try:
+        params = effect.parameters(af)
+        states = effect.state_names(af)
+        for p in params:
+            if not isinstance(p, Parameter):
+                raise TypeError(f"parameters() must return Parameter objects, got {type(p).__name__}")
+        if not all(isinstance(n, str) for n in states):
+            raise TypeError("state_names() must return strings")
+    except Exception as e:   # noqa: BLE001 - the user's code: one line saying where
+        tb = traceback.extract_tb(e.__traceback__)
+        where = f", line {tb[-1].lineno}" if tb else ""
+        raise GreyboxInputError(f"{source}{where}: effect {effect.name!r}: {type(e).__name__}: {e}") from None
 
 
 def _same_class(a: type, b: type) -> bool:
@@ -712,7 +734,7 @@ def load_effects_file(path) -> list[str]:
         spec.loader.exec_module(module)
     except GreyboxInputError:
         raise
-    except Exception as e:   # noqa: BLE001 - the user's file: one line saying where it failed
+    except (Exception, SystemExit) as e:   # noqa: BLE001 - the user's file: one line saying where it failed
         frames = [f for f in traceback.extract_tb(e.__traceback__) if Path(f.filename) == path]
         where = f", line {frames[-1].lineno}" if frames else (f", line {e.lineno}" if getattr(e, "lineno", None) else "")
         raise GreyboxInputError(f"{path}{where}: {type(e).__name__}: {e}") from None

@@ -108,10 +108,11 @@ class FittedModel:
 
     # ------------------------------------------------------------------ what it does
     def predict(self, log, horizon: float = 1.0, **options):
-        """k-step-ahead prediction on ``log`` (:func:`greybox.validation.predict`): a
+        """k-step-ahead prediction on ``log`` (:func:`greybox.validation.predict`), or on
+        several flights pooled (:func:`greybox.validation.predict_flights`): a
         :class:`~greybox.validation.Prediction` with ``.nrmse`` per channel and ``.total``."""
-        from .validation import predict
-        return predict(self.model, self.p, log, horizon=horizon, **options)
+        from .validation import predict_flights
+        return predict_flights(self.model, self.p, log, horizon=horizon, **options)
 
     def simulate(self, t, inputs, x0=None, method: str = "rk4"):
         """Open-loop simulation from inputs held between samples

@@ -38,7 +38,7 @@ from .model import OUTPUTS
 # to the ones it draws for (an import cycle for the tools, if not for Python)
 
 __all__ = ["compare", "residuals", "whiteness", "regimes", "ranking", "n4sid_order", "report_figures",
-           "save", "new_figure", "horizons"]
+           "save", "new_figure", "horizons", "to_bytes"]
 
 DPI = 100
 WHITENESS_LAGS = 30
@@ -46,6 +46,13 @@ WHITENESS_LAGS = 30
 
 
 # ------------------------------------------------------------------------------ plumbing
+def to_bytes(fig: Figure, fmt: str = "png", dpi: float = DPI) -> bytes:
+    """The figure rendered (PNG by default), to be written later with other outputs."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format=fmt, dpi=dpi)
+    return buf.getvalue()
+
+
 def save(fig: Figure, path: str | Path, dpi: float = DPI) -> Path:
     """Write ``fig`` to ``path`` (format from the suffix, PNG without one) through a temporary
     file in the same folder and a rename. Creates the folder. Returns ``path``."""
@@ -141,6 +148,19 @@ def _grid(ax, axes, fig, n: int, ncols: int, figsize, **subplots_kw):
     return fig, arr, made
 
 
+def _time_axis(pred) -> np.ndarray:
+    """Sample times of a prediction; for one pooled over flights, each flight's times
+    continue after the previous flight's end (a gap of one second between them)."""
+    if not getattr(pred, "parts", None):
+        return pred.log.t
+    out, end = [], 0.0
+    for part in pred.parts:
+        t = part.log.t - part.log.t[0] + (end + 1.0 if out else part.log.t[0])
+        out.append(t)
+        end = float(t[-1])
+    return np.concatenate(out)
+
+
 def _message(ax, text: str) -> None:
     ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, fontsize=9, color="0.3")
     ax.set_axis_off()
@@ -171,17 +191,17 @@ def compare(pred: "Prediction | Sequence[Prediction]", ax: "Axes | None" = None,
     first = preds[0]
     chans = _pick_channels(first.channels, channels, first.nrmse, single=ax is not None)
     fig_, axs, made = _grid(ax, axes, fig, len(chans), 1, (10, 1.7 * len(chans) + 0.8), sharex=True)
-    log = first.log
+    t = _time_axis(first)
     for a, ch in zip(axs[:, 0], chans):
         c = OUTPUTS.index(ch)
-        y = log.output(ch)
+        y = first.predicted[:, c] + first.errors[:, c]   # the measurements (all flights, when pooled)
         k = np.isfinite(y)
-        a.plot(log.t[k], y[k], ".", ms=1.5, color="0.4", label="measured")
+        a.plot(t[k], y[k], ".", ms=1.5, color="0.4", label="measured")
         for pr, lab in zip(preds, labels):
-            a.plot(pr.log.t, pr.predicted[:, c], lw=1.0,
+            a.plot(_time_axis(pr), pr.predicted[:, c], lw=1.0,
                    label=f"{lab} (fit {pr.fit_percent.get(ch, float('nan')):.1f} %)")
         for w0, _ in first.windows:
-            a.axvline(log.t[w0], color="0.85", lw=0.5, zorder=0)
+            a.axvline(t[w0], color="0.85", lw=0.5, zorder=0)
         a.set_ylabel(ch)
         a.legend(fontsize=7, loc="upper right")
     axs[-1, 0].set_xlabel("t (s)")
@@ -206,7 +226,7 @@ def residuals(pred: "Prediction", ax: "Axes | None" = None, path: str | Path | N
     for row, ch in zip(axs, chans):
         e = pred.errors[:, OUTPUTS.index(ch)]
         k = np.isfinite(e)
-        row[0].plot(pred.log.t[k], e[k], lw=0.6)
+        row[0].plot(_time_axis(pred)[k], e[k], lw=0.6)
         row[0].axhline(0, color="k", lw=0.5)
         row[0].set_ylabel(f"{ch} error")
         if ncols == 2:

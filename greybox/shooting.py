@@ -41,13 +41,17 @@ DEFAULT_INTERVAL_S = 0.05
 def effect_source(effect) -> str:
     """What defines an effect's equations beyond its options, for compile-cache keys: nothing
     for greybox's own (their source is hashed with the package), the class's source code for
-    an effect defined elsewhere (editing it must not reload old compiled code)."""
+    an effect defined elsewhere: its whole source file (editing it — the class or a constant
+    beside it — must not reload old compiled code)."""
     import inspect
     cls = type(effect)
     if cls.__module__.startswith("greybox."):
         return ""
     try:
-        return inspect.getsource(cls)
+        # the whole file: a module-level constant the class reads is part of its equations
+        path = inspect.getsourcefile(cls)
+        with open(path, "rb") as fh:
+            return f"{cls.__qualname__}:" + fh.read().hex()
     except (OSError, TypeError):
         # no source to read (defined interactively): never share a cached library
         return f"{cls.__module__}.{cls.__qualname__}@{id(cls)}"

@@ -205,3 +205,43 @@ def test_cli_diagnose_takes_several_flights(tmp_path):
     assert d["ranking"][0]["nrmse_after"] < d["baseline"]["nrmse"]
     # (the warm-started refit crawls here: k_ge 6e-4 of 1.8e-3 after 200 iterations, where a
     # fit of the same model from the airframe's guesses takes 5: issue 13)
+
+
+def test_review_findings_stay_fixed(fitted, flight, tmp_path, capsys):
+    """Found by review: quotes in an airframe name, tiny products of inertia, a DataFrame
+    passed to fit, several flights to FittedModel.predict, a broken effect hook."""
+    import dataclasses
+    af = dataclasses.replace(fitted.model.airframe, name='The "paper" quad \\ C:\\temp',
+                             inertia=fitted.model.airframe.inertia + np.array([[0, 5e-9, 0], [5e-9, 0, 0], [0, 0, 0]]))
+    fm = FittedModel(QuadrotorModel(af, list(fitted.model.effects)), fitted.p)
+    back = greybox.load(fm.save(tmp_path / "q.json"))
+    assert back.model.airframe.name == af.name
+    assert np.array_equal(back.model.airframe.inertia, af.inertia)
+    pd = pytest.importorskip("pandas")
+    with pytest.raises(GreyboxInputError, match="from_dataframe"):
+        fit(fitted.model, flight.to_dataframe())
+    _, val = flight.split()
+    a, b = val.split(0.5)
+    both = fitted.predict([a, b])
+    assert len(both.parts) == 2 and both.predicted.shape[0] == len(a) + len(b)
+    bad = tmp_path / "bad.py"
+    bad.write_text("from greybox.effects import Effect\n\nclass Bad(Effect):\n    name = 'bad_hook'\n"
+                   "    def parameters(self, airframe):\n        return 1 / 0\n")
+    capsys.readouterr()
+    assert main(["effects", "--effects-file", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "line 6" in err[0] and "ZeroDivisionError" in err[0]
+    assert pd is not None
+
+
+def test_diagnose_several_flights_with_a_report(paper_model, tmp_path):
+    """A pooled prediction is drawn flight after flight (it crashed the report)."""
+    paths = []
+    for seed in (31, 32):
+        model, p = model_with_hidden_effects(paper_model, [])
+        paths.append(tmp_path / f"r{seed}.csv")
+        save_log(synthesize(model, p, 6.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=seed).log, paths[-1])
+    assert main(["diagnose", *map(str, paths), "--airframe", str(AIRFRAMES / "paper.toml"), "--quiet",
+                 "--candidates", "ground_effect", "--no-iterate", "--report", str(tmp_path / "rep"),
+                 "--json", str(tmp_path / "d.json")]) == 0
+    assert (tmp_path / "rep" / "report.html").exists() and (tmp_path / "d.json").exists()

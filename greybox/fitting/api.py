@@ -179,9 +179,11 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     """
     t_start = time.perf_counter()
     say = progress_printer() if progress is True else (progress or (lambda _m: None))
-    logs = [logs] if isinstance(logs, FlightLog) else list(logs)
-    if not logs:
-        raise GreyboxInputError("no flight logs to fit")
+    given = logs
+    logs = [logs] if isinstance(logs, FlightLog) else list(logs) if isinstance(logs, (list, tuple)) else None
+    if not logs or not all(isinstance(lg, FlightLog) for lg in logs):
+        raise GreyboxInputError(f"fit takes a FlightLog or a list of them, got {type(given).__name__} "
+                                "(a pandas DataFrame: FlightLog.from_dataframe(df))")
     if interval is None:
         # with process noise every sample is a node: the model is only trusted one step ahead
         interval = 1 if process_noise is not None else default_interval(logs)
