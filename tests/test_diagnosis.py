@@ -67,7 +67,8 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert rc == 0
     r = json.loads((tmp_path / "d.json").read_text())
     assert set(r) >= {"baseline", "ranking", "verdict"}
-    assert set(r["baseline"]) == {"nrmse", "channels"} and "psi" in r["baseline"]["channels"]
+    assert set(r["baseline"]) == {"nrmse", "channels", "horizons"} and "psi" in r["baseline"]["channels"]
+    assert set(r["baseline"]["horizons"]) == {"horizons", "model", "naive"}
     assert r["verdict"] == "yaw_torque"
     first = r["ranking"][0]
     assert first["effect"] == "yaw_torque" and first["significant"] is True
