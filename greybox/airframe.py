@@ -18,6 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .data import read_text_file
 from .errors import AirframeWarning, GreyboxInputError
 
 __all__ = ["Rotor", "Airframe", "load_airframe", "airframe_from_dict", "rotors_for_layout", "INERTIA_TOLERANCE"]
@@ -287,12 +288,7 @@ def load_airframe(path: str | Path) -> Airframe:
         model = QuadrotorModel(af)
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise GreyboxInputError(f"{path}: airframe file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise GreyboxInputError(f"{path}: cannot read airframe file: {e}") from None
+    text = read_text_file(path, "airframe")
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

@@ -325,29 +325,29 @@ def _names(text: str | None) -> list[str] | None:
     return [s.strip() for s in text.split(",") if s.strip()] if text else None
 
 
-def cmd_import_nanobench(args: argparse.Namespace) -> int:
-    from .importers import crazyflie_airframe_toml, import_nanobench
-    try:
-        pwm_map = tuple(float(v) for v in args.pwm_map.split(","))
-    except ValueError:
-        raise GreyboxInputError(f"--pwm-map: expected two numbers a,c, got {args.pwm_map!r}") from None
-    if len(pwm_map) != 2:
-        raise GreyboxInputError(f"--pwm-map: expected two numbers a,c, got {args.pwm_map!r}")
-    if not args.mass > 0:
-        raise GreyboxInputError(f"--mass must be positive, got {args.mass}")
-    imp = import_nanobench(args.file, pwm_map=pwm_map, held=args.held, keep_ground=args.keep_ground)
+def _finish_import(args: argparse.Namespace, imp, toml: str | None) -> int:
+    """What every importer does with its result: notes on stderr, the log and (if asked)
+    the airframe written, one summary line."""
     for note in imp.notes:
         print(f"note: {note}", file=sys.stderr)
-    toml = None
-    if args.airframe_out:
-        # floor plane: rotors assumed 2.5 cm above the floor when resting (tracked origin at rest height)
-        toml = crazyflie_airframe_toml(args.mass, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))
     save_log(imp.log, args.out, digits=15)
     if toml is not None:
         atomic_write(args.airframe_out, toml)
     print(f"wrote {args.out}: {len(imp.log)} samples, {imp.log.duration:.2f} s"
           + (f"; airframe {args.airframe_out}" if toml else ""))
     return 0
+
+
+def cmd_import_nanobench(args: argparse.Namespace) -> int:
+    from .io.base import parse_pwm_map
+    from .importers import crazyflie_airframe_toml, import_nanobench
+    imp = import_nanobench(args.file, pwm_map=parse_pwm_map(args.pwm_map), held=args.held,
+                           keep_ground=args.keep_ground)
+    toml = None
+    if args.airframe_out:
+        # floor plane: rotors assumed 2.5 cm above the floor when resting (tracked origin at rest height)
+        toml = crazyflie_airframe_toml(args.mass, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))
+    return _finish_import(args, imp, toml)
 
 
 def cmd_import_px4(args: argparse.Namespace) -> int:
@@ -367,14 +367,7 @@ def cmd_import_px4(args: argparse.Namespace) -> int:
         ground_z = -(imp.rest_height - 0.10) if np.isfinite(imp.rest_height) else 0.0
         toml = px4_airframe_toml(args.mass, imp.hover_rotor_speed, args.arm_length, ground_z,
                                  imp.pwm_map or pwm_map)
-    for note in imp.notes:
-        print(f"note: {note}", file=sys.stderr)
-    save_log(imp.log, args.out, digits=15)
-    if toml is not None:
-        atomic_write(args.airframe_out, toml)
-    print(f"wrote {args.out}: {len(imp.log)} samples, {imp.log.duration:.2f} s"
-          + (f"; airframe {args.airframe_out}" if toml else ""))
-    return 0
+    return _finish_import(args, imp, toml)
 
 
 def cmd_import_crazyflie_usd(args: argparse.Namespace) -> int:
@@ -382,21 +375,13 @@ def cmd_import_crazyflie_usd(args: argparse.Namespace) -> int:
     from .io.base import parse_pwm_map
     from .io.crazyflie_usd import import_crazyflie_usd
     from .io.nanobench import crazyflie_airframe_toml
-    pwm_map = parse_pwm_map(args.pwm_map)
-    imp = import_crazyflie_usd(args.file, pwm_map=pwm_map, held=args.held, keep_ground=args.keep_ground,
-                               strict=not args.ignore_crc)
+    imp = import_crazyflie_usd(args.file, pwm_map=parse_pwm_map(args.pwm_map), held=args.held,
+                               keep_ground=args.keep_ground, strict=not args.ignore_crc)
     toml = None
     if args.airframe_out:
         ground_z = -(imp.rest_height - 0.025) if np.isfinite(imp.rest_height) else 0.0
         toml = crazyflie_airframe_toml(args.mass, imp.hover_rotor_speed, ground_z=ground_z, command="crazyflie-usd")
-    for note in imp.notes:
-        print(f"note: {note}", file=sys.stderr)
-    save_log(imp.log, args.out, digits=15)
-    if toml is not None:
-        atomic_write(args.airframe_out, toml)
-    print(f"wrote {args.out}: {len(imp.log)} samples, {imp.log.duration:.2f} s"
-          + (f"; airframe {args.airframe_out}" if toml else ""))
-    return 0
+    return _finish_import(args, imp, toml)
 
 
 def _rig(path: str):

@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import GreyboxInputError
 
-__all__ = ["FlightLog", "load_log", "save_log", "read_csv_table", "atomic_write", "log_from_table",
+__all__ = ["FlightLog", "load_log", "save_log", "read_csv_table", "read_text_file", "atomic_write", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units"]
 
@@ -330,6 +330,19 @@ def atomic_write(path: str | Path, text: str | bytes) -> None:
         raise
 
 
+def read_text_file(path: str | Path, what: str = "", encoding: str = "utf-8") -> str:
+    """The text of a file the user named, or one error naming it: ``{path}: {what} file not
+    found`` / ``cannot read {what} file: ...`` (``what`` e.g. ``"airframe"``, or empty)."""
+    path = Path(path)
+    kind = f"{what} file" if what else "file"
+    try:
+        return path.read_text(encoding=encoding)
+    except FileNotFoundError:
+        raise GreyboxInputError(f"{path}: {kind} not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise GreyboxInputError(f"{path}: cannot read{' ' + kind if what else ''}: {e}") from None
+
+
 def read_csv_table(path: str | Path, line_numbers: bool = False):
     """Header and float matrix of a numeric CSV file; empty cells and ``nan`` become NaN.
 
@@ -338,12 +351,7 @@ def read_csv_table(path: str | Path, line_numbers: bool = False):
     number and the column of the first bad cell.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise GreyboxInputError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise GreyboxInputError(f"{path}: cannot read: {e}") from None
+    text = read_text_file(path, encoding="utf-8-sig")
     rows, lines = _csv_rows(path, text)
     while rows and not any(c.strip() for c in rows[-1]):
         rows.pop()

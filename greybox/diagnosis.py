@@ -417,7 +417,7 @@ def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog | Se
     variables come from the measurements (smoothed), not from the model under test.
     """
     logs = [log] if isinstance(log, FlightLog) else list(log)
-    Es = [output_residuals(lg, fitted_trajectory(model, res, lg, i)[1]) for i, lg in enumerate(logs)]
+    Es = _flight_residuals(model, res, logs)
     regs = [_regime_variables(model, initial_node_states(model, lg, np.arange(len(lg))), lg) for lg in logs]
     E = np.vstack(Es)
     regimes = {k: np.concatenate([r[k] for r in regs]) for k in regs[0]}
@@ -1023,9 +1023,14 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     return diag
 
 
+def _flight_residuals(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog]) -> list[np.ndarray]:
+    """Output residuals of a fit on each of its estimation flights."""
+    return [output_residuals(lg, fitted_trajectory(model, res, lg, i)[1]) for i, lg in enumerate(logs)]
+
+
 def _estimation_residuals(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog]) -> np.ndarray:
     """Output residuals of a fit on its estimation flights, stacked flight after flight."""
-    return np.vstack([output_residuals(lg, fitted_trajectory(model, res, lg, i)[1]) for i, lg in enumerate(logs)])
+    return np.vstack(_flight_residuals(model, res, logs))
 
 
 def _half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], E: np.ndarray,

@@ -40,6 +40,7 @@ import numpy as np
 
 from . import effects as fx
 from .airframe import airframe_from_dict
+from .data import read_text_file
 from .errors import GreyboxInputError
 
 __all__ = ["FittedModel", "load", "FORMAT", "FORMAT_VERSION"]
@@ -201,12 +202,7 @@ def load(path: str | Path) -> FittedModel:
         fm.predict(log).total
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise GreyboxInputError(f"{path}: model file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise GreyboxInputError(f"{path}: cannot read model file: {e}") from None
+    text = read_text_file(path, "model")
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as e:

@@ -13,7 +13,7 @@ import casadi as ca
 import numpy as np
 
 __all__ = ["rotation_matrix", "rotation_matrices", "rotation", "euler_from_rotation",
-           "euler_rate_matrix", "body_rates_from_euler_rates"]
+           "euler_rate_matrix", "euler_rates_from_body_rates", "body_rates_from_euler_rates"]
 
 
 def rotation_matrix(phi, theta, psi):
@@ -57,6 +57,11 @@ def euler_rate_matrix(phi, theta):
         ca.horzcat(0, cph, -sph),
         ca.horzcat(0, sph / cth, cph / cth),
     )
+
+
+def euler_rates_from_body_rates(phi: float, theta: float, omega: np.ndarray) -> np.ndarray:
+    """``W(phi, theta) @ omega`` in numpy: Euler angle rates from body rates (one attitude)."""
+    return np.asarray(ca.DM(euler_rate_matrix(phi, theta))) @ np.asarray(omega, dtype=float)
 
 
 def body_rates_from_euler_rates(phi: np.ndarray, theta: np.ndarray, euler_dot: np.ndarray) -> np.ndarray:

@@ -29,6 +29,7 @@ from .errors import GreyboxInputError
 from .shooting import ShootingProblem, estimate_noise, initial_node_states
 from .integrate import n_substeps, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
+from .rotations import euler_rates_from_body_rates
 
 __all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
            "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW"]
@@ -258,12 +259,8 @@ class HorizonErrors:
             for w, (a, b) in enumerate(part.windows):
                 x0 = part.start_states[w]
                 eul0, om0 = x0[3:6], x0[9:12]
-                ph, th = eul0[0], eul0[1]
-                W = np.array([[1, np.sin(ph) * np.tan(th), np.cos(ph) * np.tan(th)],
-                              [0, np.cos(ph), -np.sin(ph)],
-                              [0, np.sin(ph) / np.cos(th), np.cos(ph) / np.cos(th)]])
                 naive_rate = {"x": x0[6], "y": x0[7], "z": x0[8]}
-                eul_rate = W @ om0
+                eul_rate = euler_rates_from_body_rates(eul0[0], eul0[1], om0)
                 for ch in pred.channels:
                     c = OUTPUTS.index(ch)
                     # this channel's measured samples in the window (multi-rate logs)

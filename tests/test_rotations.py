@@ -5,7 +5,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from greybox.rotations import (body_rates_from_euler_rates, euler_from_rotation, euler_rate_matrix, rotation,
+from greybox.rotations import (body_rates_from_euler_rates, euler_from_rotation, euler_rate_matrix,
+                               euler_rates_from_body_rates, rotation,
                                rotation_matrices, rotation_matrix)
 
 angles = st.tuples(st.floats(-3.0, 3.0), st.floats(-1.5, 1.5), st.floats(-3.1, 3.1))
@@ -35,4 +36,6 @@ def test_body_rates_invert_the_euler_rate_matrix(a, pqr):
     euler_dot = W @ np.array(pqr)
     back = body_rates_from_euler_rates(np.array([phi]), np.array([theta]), euler_dot[None, :])[0]
     np.testing.assert_allclose(back, pqr, atol=1e-8 * (1 + np.abs(euler_dot).max()))
+    np.testing.assert_allclose(euler_rates_from_body_rates(phi, theta, np.array(pqr)), euler_dot, rtol=1e-12,
+                               atol=1e-12)
     assert rotation_matrices(np.zeros(2), np.zeros(2), np.zeros(2)).shape == (2, 3, 3)

@@ -47,7 +47,7 @@ import numpy as np
 from ..data import OPTIONAL_OUTPUTS, REQUIRED_OUTPUTS, FlightLog
 from ..errors import GreyboxInputError
 
-__all__ = ["G0", "CRAZYFLIE_PWM_MAP", "PX4_PWM_MAP", "PwmMap", "ImportResult", "FlightSpan",
+__all__ = ["trimmed_log", "G0", "CRAZYFLIE_PWM_MAP", "PX4_PWM_MAP", "PwmMap", "ImportResult", "FlightSpan",
            "flu_to_frd", "zup_to_ned", "euler_zup_to_ned", "euler_from_quaternion", "wrap_angle",
            "deg_to_rad", "g_to_ms2", "rpm_to_rad_s", "pwm_to_rotor_speed", "parse_pwm_map",
            "time_base", "fresh_rows", "interpolate_fresh", "interpolate_samples", "commands_on_grid", "flight_from_height",
@@ -406,6 +406,23 @@ def snap(t_grid: np.ndarray, t_s: np.ndarray, values: np.ndarray, tol: float | N
         rows, vals = pick[ok][order], values[ok][order]
         out[rows] = vals
     return out[:, 0] if vec else out
+
+
+def trimmed_log(t_all: np.ndarray, rotor_speeds: np.ndarray, outputs: Mapping[str, np.ndarray],
+                extras: Mapping[str, np.ndarray], notes: list[str], source: str | None, k0: int, k1: int,
+                keep_ground: bool, trim_note: str) -> FlightLog:
+    """:func:`assemble_log` of rows ``k0..k1`` (the flight), or of every row with
+    ``keep_ground``, times from 0; a note says which (``trim_note`` is formatted with
+    ``before`` and ``after``, the rows dropped on either side)."""
+    sl = slice(None) if keep_ground else slice(k0, k1 + 1)
+    if keep_ground:
+        notes.append("kept the samples on the ground (flagged by on_ground): the model has no ground reaction "
+                     "force, so do not fit them")
+    else:
+        notes.append(trim_note.format(before=k0, after=t_all.size - 1 - k1))
+    t_kept = t_all[sl]
+    return assemble_log(t_kept - t_kept[0], rotor_speeds[sl], {k: v[sl] for k, v in outputs.items()},
+                        {k: v[sl] for k, v in extras.items()}, notes, source)
 
 
 def assemble_log(t: np.ndarray, rotor_speeds: np.ndarray, outputs: Mapping[str, np.ndarray],

@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import GreyboxInputError
-from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, assemble_log, commands_on_grid,
+from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, trimmed_log, commands_on_grid,
                    euler_from_quaternion, euler_zup_to_ned, flight_from_height, flight_from_imu, flu_to_frd,
                    fresh_rows, interpolate_samples, snap, time_base, zup_to_ned)
 
@@ -383,14 +383,7 @@ def import_crazyflie_usd(path: str | Path, pwm_map: tuple[float, float] = CRAZYF
         k0, k1 = 0, t_all.size - 1
         hover_w, t_take, t_down, rest = math.nan, math.nan, math.nan, math.nan
         extras["on_ground"] = np.ones(t_all.size)
-    sl = slice(None) if keep_ground else slice(k0, k1 + 1)
-    if keep_ground:
-        notes.append("kept the samples on the ground (flagged by on_ground): the model has no ground reaction "
-                     "force, so do not fit them")
-    else:
-        notes.append(f"trimmed {k0} samples before the flight and {t_all.size - 1 - k1} after it")
-    t_kept = t_all[sl]
-    log = assemble_log(t_kept - t_kept[0], w[sl], {k: v[sl] for k, v in outputs.items()},
-                       {k: v[sl] for k, v in extras.items()}, notes, where)
+    log = trimmed_log(t_all, w, outputs, extras, notes, where, k0, k1, keep_ground,
+                      "trimmed {before} samples before the flight and {after} after it")
     return ImportResult(log, t_take, t_down, rest, hover_w, notes, format="crazyflie-usd", pwm_map=rotor.pair,
                         n_rotors=4)

@@ -39,7 +39,7 @@ import numpy as np
 
 from ..data import read_csv_table
 from ..errors import GreyboxInputError
-from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, assemble_log, commands_on_grid,
+from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, trimmed_log, commands_on_grid,
                    euler_from_quaternion, euler_zup_to_ned, flight_from_height, flu_to_frd, fresh_rows,
                    interpolate_fresh, time_base, wrap_angle, zup_to_ned)
 
@@ -203,15 +203,8 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
     extras["on_ground"] = span.on_ground.astype(float)
     notes.append(span.note)
     hover_w = float(np.sqrt(np.mean(w[k0:k1 + 1] ** 2)))
-    sl = slice(None) if keep_ground else slice(k0, k1 + 1)
-    if keep_ground:
-        notes.append("kept the samples on the ground (flagged by on_ground): the model has no ground "
-                     "reaction force, so do not fit them")
-    else:
-        notes.append(f"trimmed {k0} samples before take-off and {t_all.size - 1 - k1} after touchdown")
-    t_kept = t_all[sl]
-    log = assemble_log(t_kept - t_kept[0], w[sl], {k: v[sl] for k, v in outputs.items()},
-                       {k: v[sl] for k, v in extras.items()}, notes, str(path))
+    log = trimmed_log(t_all, w, outputs, extras, notes, str(path), k0, k1, keep_ground,
+                      "trimmed {before} samples before take-off and {after} after touchdown")
     return ImportResult(log, float(t_all[k0]), float(t_all[k1]), span.rest_height, hover_w, notes,
                         format="nanobench", pwm_map=rotor.pair, n_rotors=4)
 

@@ -44,7 +44,7 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import GreyboxInputError
-from .base import (PX4_PWM_MAP, FlightSpan, ImportResult, PwmMap, assemble_log, commands_on_grid, euler_from_quaternion,
+from .base import (PX4_PWM_MAP, FlightSpan, ImportResult, PwmMap, trimmed_log, commands_on_grid, euler_from_quaternion,
                    flight_from_height, grid_with, interpolate_samples, longest_run, rpm_to_rad_s, snap, time_base)
 
 __all__ = ["import_px4", "import_px4_topics", "read_px4_topics", "px4_airframe_toml", "PX4_TOPICS",
@@ -388,15 +388,8 @@ def import_px4_topics(topics: Topics, params: Mapping[str, float], where: str,
         fin = np.isfinite(height)
         rest = float(np.median(height[fin])) if fin.any() else math.nan
         hover_w, t_take, t_down = math.nan, math.nan, math.nan
-    sl = slice(None) if keep_ground else slice(k0, k1 + 1)
-    if keep_ground:
-        notes.append("kept the samples on the ground (flagged by on_ground): the model has no ground reaction "
-                     "force, so do not fit them")
-    else:
-        notes.append(f"trimmed {k0} rows before take-off and {t_all.size - 1 - k1} after touchdown")
-    t_kept = t_all[sl]
-    log = assemble_log(t_kept - t_kept[0], w[sl], {k: v[sl] for k, v in outputs.items()},
-                       {k: v[sl] for k, v in extras.items()}, notes, where)
+    log = trimmed_log(t_all, w, outputs, extras, notes, where, k0, k1, keep_ground,
+                      "trimmed {before} rows before take-off and {after} after touchdown")
     return ImportResult(log, t_take, t_down, rest, hover_w, notes, format="px4", pwm_map=used_map, n_rotors=n_rot)
 
 
