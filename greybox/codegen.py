@@ -40,8 +40,12 @@ def source_fingerprint() -> str:
     """Hash of the source that defines compiled functions: changing it invalidates cached libraries."""
     h = hashlib.sha1(ca.__version__.encode())
     # the modules that define what gets compiled (not the CLI, reports, ...)
-    for name in ("airframe", "codegen", "effects", "shooting", "integrate", "model", "parameters", "rotations"):
-        h.update((Path(__file__).parent / f"{name}.py").read_bytes())
+    here = Path(__file__).parent
+    for name in ("airframe", "codegen", "shooting", "integrate", "model", "parameters", "rotations"):
+        h.update((here / f"{name}.py").read_bytes())
+    # the effects package, every module of it (sorted: the same key on every machine)
+    for path in sorted((here / "effects").glob("*.py")):
+        h.update(path.name.encode() + path.read_bytes())
     return h.hexdigest()
 
 

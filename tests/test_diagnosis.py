@@ -117,30 +117,30 @@ def test_diagnose_cli_bad_validation_file(tmp_path, normal_flight, paper_airfram
 
 def test_prediction_change_measures_what_validation_can_see(paper, normal_flight):
     """A change of the predictions as large as the error is 1; none is 0 (psi wrapped)."""
-    from greybox.diagnosis import _prediction_change
+    from greybox.diagnosis.screening import prediction_change
     from greybox.validation import predict
     val = normal_flight.log.split(0.8)[1]
     before = predict(paper, paper.default_parameters(), val)
-    same = _prediction_change(before, before)
+    same = prediction_change(before, before)
     assert set(same) == set(before.nrmse) and max(same.values()) == 0.0
     shifted = predict(paper, paper.default_parameters(), val)
     shifted.predicted = before.predicted + np.nan_to_num(before.errors)   # the measurements themselves
     shifted.predicted[:, 5] += 2 * np.pi                                   # a yaw turn is no change
-    moved = _prediction_change(before, shifted)
+    moved = prediction_change(before, shifted)
     assert all(v == pytest.approx(1.0, rel=1e-9) for v in moved.values())
 
 
 def test_height_sentence_says_what_the_error_does_near_the_ground():
-    from greybox.diagnosis import _sentence
+    from greybox.diagnosis.analysis import regime_sentence
     h = np.linspace(0.1, 2.0, 2000)
     near = np.where(h < 0.3, 3.0, 1.0)                   # concentrated below 0.3 m
-    s = _sentence("z", "height above ground", -0.6, near, h)
+    s = regime_sentence("z", "height above ground", -0.6, near, h)
     assert s.startswith("z error is largest close to the ground")
     import re
     assert 2.5 < float(re.search(r"([0-9.]+)x the RMS", s).group(1)) <= 3.0
     # larger at low heights overall, but the lowest decile is quiet (e.g. on the ground)
     hump = np.where(h < 0.3, 0.5, 2.0 - 0.5 * h)
-    s = _sentence("x", "height above ground", -0.6, hump, h)
+    s = regime_sentence("x", "height above ground", -0.6, hump, h)
     assert "but not close to the ground" in s and "largest" not in s
 
 
@@ -180,7 +180,7 @@ def test_a_physically_negligible_effect_is_judged_against_the_airframe_size(pape
     from types import SimpleNamespace
     from greybox import effects
     from greybox.airframe import airframe_from_dict
-    from greybox.diagnosis import _negligible
+    from greybox.diagnosis.screening import physically_negligible
     small = QuadrotorModel(airframe_from_dict({"airframe": {"mass": 0.03, "inertia": [1.4e-5, 1.4e-5, 2.2e-5],
                                                             "arm_length": 0.046, "layout": "x"},
                                                "parameters": {"K_T": 2.3e-8, "b": 1.4e-10}}))
@@ -190,22 +190,22 @@ def test_a_physically_negligible_effect_is_judged_against_the_airframe_size(pape
         p = m.parameter_vector({"r_cog": r_cog})
         return SimpleNamespace(model=m, value=lambda n: float(p[m.param_names.index(n)]))
 
-    assert _negligible(fitted(paper, [5e-5, 0.0]), "cog_offset").startswith("r_cog[0] = 5e-05 m")
-    assert _negligible(fitted(small, [5e-5, 0.0]), "cog_offset") == ""
-    assert _negligible(fitted(small, [1e-9, -1e-9]), "cog_offset") != ""
-    assert _negligible(fitted(paper, [0.01, 0.0]), "cog_offset") == ""
+    assert physically_negligible(fitted(paper, [5e-5, 0.0]), "cog_offset").startswith("r_cog[0] = 5e-05 m")
+    assert physically_negligible(fitted(small, [5e-5, 0.0]), "cog_offset") == ""
+    assert physically_negligible(fitted(small, [1e-9, -1e-9]), "cog_offset") != ""
+    assert physically_negligible(fitted(paper, [0.01, 0.0]), "cog_offset") == ""
 
 
 def test_explained_fraction_is_the_share_of_the_residual_above_the_noise_removed():
     """(rms/noise)^2 - 1 summed over channels: x at 3x the noise and y at the noise leave an
     excess of 8; bringing x to 2x leaves 3, i.e. 62.5 % explained; to the noise, 100 %."""
     from types import SimpleNamespace
-    from greybox.diagnosis import _explained_fraction
+    from greybox.diagnosis.screening import explained_fraction
 
     def res(ratios):
         return SimpleNamespace(certificate=SimpleNamespace(residual_over_noise=ratios))
 
     base = res({"x": 3.0, "y": 1.0})
-    assert _explained_fraction(base, res({"x": 2.0, "y": 1.0})) == pytest.approx(0.625)
-    assert _explained_fraction(base, res({"x": 1.0, "y": 0.9})) == pytest.approx(1.0)
-    assert _explained_fraction(res({"x": 1.0}), res({"x": 1.0})) is None     # nothing to explain
+    assert explained_fraction(base, res({"x": 2.0, "y": 1.0})) == pytest.approx(0.625)
+    assert explained_fraction(base, res({"x": 1.0, "y": 0.9})) == pytest.approx(1.0)
+    assert explained_fraction(res({"x": 1.0}), res({"x": 1.0})) is None     # nothing to explain

@@ -1,0 +1,52 @@
+"""Find the missing physics: compare, see where the model fails, rank the missing effects.
+
+The workflow (:func:`diagnose`):
+
+1. **Compare.** Fit the model on the estimation part (first 80 %), predict the validation
+   part (k-step ahead, :mod:`greybox.validation`): ``nrmse`` per channel and in total. With
+   a separate validation flight (``validation=``) the whole log is the estimation data and
+   that flight is predicted instead: a validation nrmse can only confirm an effect that the
+   validation data exercise, and the last 20 % of one flight may not (drag needs speed).
+2. **Where it fails.** Residuals of the fitted trajectory on the estimation part: whiteness
+   (autocorrelation against the 99 % band of white noise, as MATLAB's ``resid``),
+   cross-correlation with the inputs, and the *regimes* where the error concentrates — the
+   rank correlation (Spearman) of each channel's error envelope with speed (world and body
+   frame), vertical speed, height above the ground, thrust level, yaw rate, rotor-speed
+   spread, acceleration and time — said in words with the correlation.
+3. **Which effect is missing.** Every catalogue effect not in the model is a candidate.
+   *Screening*: from the baseline optimum, one Gauss–Newton step of the model extended by
+   the candidate (its parameters starting at their null values) predicts the cost decrease,
+   i.e. the score (Lagrange-multiplier) statistic — one evaluation per candidate, no fit.
+   The best few are then *refitted* (warm-started, same weights): the likelihood-ratio
+   statistic ``2 (C0 - C1)``, divided per channel by the long-run variance factor of the
+   refitted residuals (Bartlett-weighted autocorrelation, so coloured noise does not
+   masquerade as information), is compared with chi-square(df) (halved where the null
+   value is on a bound), Bonferroni-corrected over the candidates. A candidate is
+   *significant* when that test passes at 1 % **and** the validation ``nrmse`` falls by at
+   least 2 % (out-of-sample confirmation). The verdict is the best significant candidate,
+   or ``None``.
+4. **Add it and watch the error fall.** With ``iterate=True`` the verdict is added, the
+   model refitted and the remaining candidates screened again, until nothing significant
+   is missing. Candidates that were significant alone but explain nothing once the winner
+   is in are reported as confusable, with the manoeuvre that would tell them apart.
+"""
+from __future__ import annotations
+
+# The package's modules, along the workflow's steps: ``analysis`` (where the model fails:
+# residuals, regimes, command imbalance), ``screening`` (a candidate's score statistic and
+# refit, and the statistics a refit is judged by), ``ranking`` (one round over the
+# candidates), ``consistency`` (the baseline on the two halves of the data), ``results``
+# (Diagnosis, its JSON and summary), ``report`` (the HTML report) and ``workflow``
+# (:func:`diagnose`).
+# the constants are public names of greybox.diagnosis as well
+from .analysis import IMBALANCE_NOTABLE, CommandImbalance, Finding, command_imbalance, residual_analysis
+from .consistency import CONSISTENCY_Z
+from .ranking import (ALPHA, COLD_CONTINUE, COLD_SCREEN_ITER, MAX_VALIDATION_LOSS, MIN_VALIDATION_GAIN, N_REFIT,
+                      default_candidates)
+from .results import CandidateResult, Diagnosis, Round
+from .screening import NEGLIGIBLE_FRACTION
+from .workflow import UNEXPLAINED_RATIO, diagnose, distinguishing_manoeuvre
+
+__all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
+           "MIN_VALIDATION_GAIN", "distinguishing_manoeuvre",
+           "CommandImbalance", "command_imbalance", "default_candidates"]

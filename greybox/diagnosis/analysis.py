@@ -1,0 +1,252 @@
+"""Where the fitted model fails (step 2 of :func:`~greybox.diagnosis.diagnose`): whiteness
+and input correlation of the estimation residuals, the flight regimes where the error
+concentrates (said in words), and how unequally the rotors share the work in steady flight."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+from scipy import stats
+
+from ..data import FlightLog
+from ..fitting import FitResult
+from ..model import OUTPUTS, QuadrotorModel, rotation_matrices
+from ..residuals import fitted_trajectory, output_residuals, whiteness_fraction
+from ..shooting import initial_node_states
+from ..validation import Prediction
+
+__all__ = ["Finding", "CommandImbalance", "command_imbalance", "residual_analysis", "regime_sentence",
+           "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE"]
+
+
+@dataclass
+class Finding:
+    """A sentence about where the model fails, with its evidence."""
+
+    channel: str
+    variable: str
+    r: float
+    text: str
+    values: np.ndarray | None = field(default=None, repr=False)   # regime variable (subsampled)
+    errors: np.ndarray | None = field(default=None, repr=False)   # error envelope at those samples
+
+
+def _regime_variables(model: QuadrotorModel, X: np.ndarray, log: FlightLog) -> dict[str, np.ndarray]:
+    """Flight-condition variables at every sample, from states ``X`` (e.g. smoothed measurements)."""
+    af = model.airframe
+    ph, th, ps = X[:, 3], X[:, 4], X[:, 5]
+    v = X[:, 6:9]
+    # body-frame velocity: R^T v
+    vb = np.einsum("kji,kj->ki", rotation_matrices(ph, th, ps), v)
+    dt = np.gradient(log.t)
+    acc = np.gradient(v, axis=0) / dt[:, None]
+    n_cmd = len(model.command_names)
+    w = log.inputs[:, :n_cmd] if model.inputs == "rotor_speeds" else np.abs(log.inputs[:, :n_cmd])
+    return {
+        "horizontal speed": np.hypot(v[:, 0], v[:, 1]),
+        "body-frame horizontal speed": np.hypot(vb[:, 0], vb[:, 1]),
+        "vertical speed": np.abs(v[:, 2]),
+        "height above ground": af.ground_z - X[:, 2],
+        "thrust level": (w ** 2).sum(axis=1),
+        "yaw rate": np.abs(X[:, 11]),
+        "rotor speed spread": w.std(axis=1),
+        "acceleration": np.linalg.norm(acc, axis=1),
+        "time into the flight": log.t - log.t[0],
+    }
+
+
+def _envelope(e: np.ndarray, t: np.ndarray, window: float = 0.2) -> np.ndarray:
+    """RMS of the error over a sliding window (NaN-aware), sampled where e is measured."""
+    k = np.isfinite(e)
+    cs = np.concatenate([[0.0], np.cumsum(np.where(k, e * e, 0.0))])
+    cn = np.concatenate([[0.0], np.cumsum(k)])
+    lo = np.searchsorted(t, t - window / 2)
+    hi = np.searchsorted(t, t + window / 2, side="right")
+    n = cn[hi] - cn[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt((cs[hi] - cs[lo]) / n)
+
+
+IMBALANCE_NOTABLE = 0.03
+"""A rotor's steady-flight share of the squared commands this far from the mean (3 %) is
+worth telling: more than hover trim tolerances, less than a damaged propeller."""
+
+
+@dataclass
+class CommandImbalance:
+    """How unequally the logged rotor speeds share the work in steady flight (level, not
+    rotating, not accelerating): evidence a propeller engineer reads before any fit.
+
+    ``share[name]`` is rotor ``name``'s mean ``w^2`` over the mean of all rotors', minus 1;
+    ``spin[+1 / -1]`` the same for the two spin directions. A model with equal rotors needs a
+    steady torque to explain an imbalance: a weaker rotor (``motor_asymmetry``, thrust and
+    torque), a centre of gravity off the middle (``cog_offset``, roll and pitch only), or,
+    between spin directions, a yaw-torque difference that drives ``b`` towards zero."""
+
+    share: dict[str, float]
+    spin: dict[int, float]
+    seconds: float                      # steady flight the averages are taken over
+
+    @property
+    def notable(self) -> bool:
+        return max(abs(v) for v in self.share.values()) > IMBALANCE_NOTABLE
+
+    def text(self) -> str:
+        rotors = ", ".join(f"{n} {100 * v:+.1f} %" for n, v in self.share.items())
+        pairs = " vs ".join(f"spin {k:+d} rotors {100 * v:+.1f} %" for k, v in sorted(self.spin.items()))
+        return (f"in {self.seconds:.1f} s of steady flight the rotors are driven unequally ({rotors} of the mean "
+                f"squared speed; {pairs}): equal rotors would need a steady torque here — a weaker rotor "
+                "(motor_asymmetry, thrust and torque), a centre of gravity off the middle (cog_offset), or, between "
+                "spin directions, a yaw-torque difference that pulls b towards zero")
+
+    def as_dict(self) -> dict:
+        return {"share": dict(self.share), "spin": {str(k): v for k, v in self.spin.items()},
+                "seconds": self.seconds, "notable": self.notable}
+
+
+def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], max_rate: float = 0.3,
+                      max_tilt: float = 0.15, max_angular_acc: float = 3.0) -> CommandImbalance | None:
+    """Per-rotor share of the squared rotor speeds in steady flight (body rates below
+    ``max_rate`` rad/s, roll and pitch below ``max_tilt`` rad, angular acceleration below
+    ``max_angular_acc`` rad/s²; from the smoothed measurements, no model), over one flight or
+    several. None when there is less than a second of it, or the inputs are not rotor speeds."""
+    n_rot = model.airframe.n_rotors
+    if model.inputs != "rotor_speeds":
+        return None
+    rows, seconds = [], 0.0
+    for lg in ([log] if isinstance(log, FlightLog) else list(log)):
+        if len(lg) < 10:
+            continue
+        X = initial_node_states(model, lg, np.arange(len(lg)))
+        rates = X[:, 9:12]
+        acc = np.gradient(rates, lg.t, axis=0)
+        steady = ((np.abs(rates).max(axis=1) < max_rate) & (np.abs(X[:, 3:5]).max(axis=1) < max_tilt)
+                  & (np.abs(acc).max(axis=1) < max_angular_acc))
+        seconds += float(np.append(np.diff(lg.t), 0.0)[steady].sum())
+        rows.append(lg.inputs[steady, :n_rot] ** 2)
+    if seconds < 1.0:
+        return None
+    mean = np.vstack(rows).mean(axis=0)
+    share = {name: float(m / mean.mean() - 1.0) for name, m in zip(model.command_names[:n_rot], mean)}
+    spins = model.airframe.spins
+    spin = {int(s): float(mean[spins == s].mean() / mean.mean() - 1.0) for s in np.unique(spins)}
+    return CommandImbalance(share, spin, seconds)
+
+
+def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog | Sequence[FlightLog],
+                      pred: Prediction | None = None, validation_is_tail: bool = True,
+                      min_r: float = 0.4
+                      ) -> tuple[list[Finding], dict[str, float], dict[str, tuple[str, float]], np.ndarray,
+                                 dict[str, np.ndarray]]:
+    """Where the fitted model fails: on ``log`` (the estimation log it was fitted to) and, if
+    given, on the k-step-ahead prediction errors of the validation part.
+
+    Returns (findings, whiteness, input correlation, estimation residuals, regime variables):
+    ``whiteness[ch]`` is the fraction of the first 30 autocorrelation lags (measured samples)
+    outside the 99 % band of white noise; findings are sentences for regimes whose rank
+    correlation with the error envelope reaches ``min_r`` (an effect-size threshold). Regime
+    variables come from the measurements (smoothed), not from the model under test.
+    """
+    logs = [log] if isinstance(log, FlightLog) else list(log)
+    Es = flight_residuals(model, res, logs)
+    regs = [_regime_variables(model, initial_node_states(model, lg, np.arange(len(lg))), lg) for lg in logs]
+    E = np.vstack(Es)
+    regimes = {k: np.concatenate([r[k] for r in regs]) for k in regs[0]}
+    log = logs[0]
+    inputs = np.vstack([lg.inputs for lg in logs])
+    whiteness: dict[str, float] = {}
+    input_corr: dict[str, tuple[str, float]] = {}
+    for c, ch in enumerate(OUTPUTS):
+        e = E[:, c]
+        k = np.isfinite(e)
+        if k.sum() < 50:
+            continue
+        ek = e[k] - e[k].mean()
+        var = float(ek @ ek)
+        whiteness[ch] = whiteness_fraction(e)
+        best = ("", 0.0)
+        for i, name in enumerate(log.input_names):
+            u = inputs[k, i] - inputs[k, i].mean()
+            r = float(u @ ek) / math.sqrt(max(float(u @ u) * var, 1e-300))
+            if abs(r) > abs(best[1]):
+                best = (name, r)
+        input_corr[ch] = best
+    sets = list(zip(Es, logs, regs))
+    if pred is not None:
+        # per validation flight; the time into the flight counts from its estimation flight's
+        # start when the validation part is that flight's end
+        for j, part in enumerate(pred.parts or [pred]):
+            vlog = part.log
+            vreg = _regime_variables(model, initial_node_states(model, vlog, np.arange(len(vlog))), vlog)
+            t_start = logs[j].t[0] if validation_is_tail and j < len(logs) else vlog.t[0]
+            vreg["time into the flight"] = vlog.t - t_start
+            sets.append((part.errors, vlog, vreg))
+    best: dict[tuple[str, str], Finding] = {}
+    for err, lg, reg in sets:
+        for f in _regime_findings(err, lg, reg, min_r):
+            key = (f.channel, f.variable)
+            if key not in best or abs(f.r) > abs(best[key].r):
+                best[key] = f
+    per_channel: dict[str, list[Finding]] = {}
+    for f in best.values():
+        per_channel.setdefault(f.channel, []).append(f)
+    findings = [f for fs in per_channel.values() for f in sorted(fs, key=lambda f: -abs(f.r))[:2]]
+    findings.sort(key=lambda f: -abs(f.r))
+    return findings, whiteness, input_corr, E, regimes
+
+
+def _regime_findings(E: np.ndarray, log: FlightLog, regimes: dict[str, np.ndarray], min_r: float) -> list[Finding]:
+    out = []
+    t = log.t
+    for c, ch in enumerate(OUTPUTS):
+        e = E[:, c]
+        k = np.isfinite(e)
+        if k.sum() < 50:
+            continue
+        env = _envelope(e, t)
+        sel = np.flatnonzero(k)[:: max(1, k.sum() // 4000)]
+        for name, v in regimes.items():
+            ok = np.isfinite(env[sel]) & np.isfinite(v[sel])
+            if ok.sum() < 30 or np.ptp(v[sel][ok]) == 0:
+                continue
+            if name == "time into the flight":
+                rs = float(stats.spearmanr(e[sel][ok], v[sel][ok])[0])  # a signed drift
+                if np.isfinite(rs) and abs(rs) >= min_r:
+                    out.append(Finding(ch, name, rs, f"{ch} error drifts steadily over the flight "
+                                                     f"(r = {rs:+.2f} with time)", v[sel][ok], e[sel][ok]))
+                continue
+            r = float(stats.spearmanr(env[sel][ok], v[sel][ok])[0])
+            if np.isfinite(r) and abs(r) >= min_r:
+                out.append(Finding(ch, name, r, regime_sentence(ch, name, r, env[sel][ok], v[sel][ok]),
+                                   v[sel][ok], env[sel][ok]))
+    return out
+
+
+def regime_sentence(ch: str, name: str, r: float, env: np.ndarray, v: np.ndarray) -> str:
+    """A finding in words: channel ``ch``'s error envelope ``env`` against regime variable
+    ``name`` (values ``v``) with rank correlation ``r``; near the ground, whether the error
+    really concentrates in the lowest tenth of the heights."""
+    if name == "height above ground" and r < 0:
+        low = v <= np.quantile(v, 0.1)
+        ratio = float(np.sqrt(np.mean(env[low] ** 2) / max(np.mean(env[~low] ** 2), 1e-300)))
+        if ratio >= 1.2:
+            return (f"{ch} error is largest close to the ground: below {np.quantile(v, 0.1):.2f} m it is "
+                    f"{ratio:.1f}x the RMS elsewhere (r = {r:+.2f} with height)")
+        # a rank correlation over the whole flight, not a near-ground concentration: say both
+        return (f"{ch} error grows as {name} falls (r = {r:+.2f}), but not close to the ground: below "
+                f"{np.quantile(v, 0.1):.2f} m it is {ratio:.1f}x the RMS elsewhere")
+    if r > 0:
+        return f"{ch} error grows with {name} (r = {r:+.2f})"
+    return f"{ch} error grows as {name} falls (r = {r:+.2f})"
+
+
+def flight_residuals(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog]) -> list[np.ndarray]:
+    """Output residuals of a fit on each of its estimation flights."""
+    return [output_residuals(lg, fitted_trajectory(model, res, lg, i)[1]) for i, lg in enumerate(logs)]
+
+
+def estimation_residuals(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog]) -> np.ndarray:
+    """Output residuals of a fit on its estimation flights, stacked flight after flight."""
+    return np.vstack(flight_residuals(model, res, logs))

@@ -1,0 +1,65 @@
+"""Consistency of the baseline's parameters: fitted on each half of the estimation data, a
+constant of the vehicle agrees with itself; a parameter absorbing a missing effect follows
+what each half happens to exercise."""
+from __future__ import annotations
+
+import math
+import warnings as _warnings
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..data import FlightLog
+from ..errors import ConvergenceWarning, GreyboxError
+from ..fitting import FitResult, fit
+from ..model import OUTPUTS, QuadrotorModel
+from ..residuals import long_run_factor
+
+__all__ = ["CONSISTENCY_Z", "half_consistency"]
+
+
+CONSISTENCY_Z = 3.0
+"""A parameter whose estimates on the two halves of the estimation data differ by more than
+this many standard deviations (of the difference) is flagged as absorbing something else."""
+
+
+def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], E: np.ndarray,
+                     compile: str,
+                     say: Callable[[str], None]) -> dict[str, tuple[float, float, float, float]]:
+    """Fit each half of the estimation data (warm-started at the baseline, its weights) and
+    return the parameters whose two estimates differ by more than :data:`CONSISTENCY_Z`
+    standard deviations: a constant of the vehicle is the same in both halves; a parameter
+    absorbing a missing effect follows what each half happens to exercise.
+
+    The standard deviations assume white residuals; coloured ones (``E``, the baseline's)
+    carry less information, so they are widened by the square root of the median long-run
+    variance factor of the channels."""
+    if len(est) == 1:
+        halves = [[h] for h in est[0].split(0.5)]
+    else:   # several flights: the first half of the flights against the second
+        k = len(est) // 2
+        halves = [list(est[:k]), list(est[k:])]
+    out: dict[str, tuple[float, float, float, float]] = {}
+    try:
+        with _warnings.catch_warnings():
+            _warnings.simplefilter("ignore", ConvergenceWarning)
+            fits = [fit(model, half, p0=res.p, free=res.free_names, noise=res.sigma, reweight=False,
+                        compile=compile, max_iter=100, interval=res.interval) for half in halves]
+    except GreyboxError as e:   # a half too short or too poor to fit: no verdict on consistency
+        say(f"diagnose: halves not compared ({e})")
+        return out
+    if not all(f.converged for f in fits):
+        return out
+    a, b = fits
+    widen = math.sqrt(float(np.median([long_run_factor(E[:, c]) for c, ch in enumerate(OUTPUTS)
+                                       if ch in res.sigma])))
+    for i, n in enumerate(res.free_names):
+        sa, sb = widen * float(a.std[i]), widen * float(b.std[i])
+        if not (np.isfinite(sa) and np.isfinite(sb)) or sa + sb <= 0:
+            continue
+        z = abs(a.value(n) - b.value(n)) / math.hypot(sa, sb)
+        if z > CONSISTENCY_Z:
+            out[n] = (a.value(n), sa, b.value(n), sb)
+    say("diagnose: halves of the estimation data " +
+        (f"disagree on {', '.join(out)}" if out else "agree on every parameter"))
+    return out

@@ -1,0 +1,169 @@
+"""One round of the ranking (step 3 of :func:`~greybox.diagnosis.diagnose`): screen every
+candidate, refit the best few (or all of them from cold when the baseline is a compensating
+solution), test and confirm each on the validation data, and order them best first."""
+from __future__ import annotations
+
+import time
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy import stats
+
+from .. import effects as fx
+from ..data import FlightLog
+from ..fitting import FitResult
+from ..integrate import n_substeps
+from ..model import OUTPUTS, QuadrotorModel
+from ..validation import Prediction
+from .analysis import estimation_residuals
+from .results import CandidateResult
+from .screening import (explained_fraction, lr_test, null_on_bound, physically_negligible, precompile_candidates,
+                        prediction_change, refit, screen)
+
+__all__ = ["ALPHA", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE",
+           "rank_round", "default_candidates"]
+
+ALPHA = 0.01
+"""Family-wise significance level of the likelihood-ratio tests (Bonferroni over candidates)."""
+MIN_VALIDATION_GAIN = 0.05
+"""Relative fall of some channel's validation nrmse that confirms a candidate out of sample
+(while the total nrmse may not rise by more than :data:`MAX_VALIDATION_LOSS`)."""
+MAX_VALIDATION_LOSS = 0.01
+N_REFIT = 4
+"""Candidates refitted after screening (the rest keep their screening statistic)."""
+COLD_SCREEN_ITER = 6
+"""Iterations each candidate gets from cold before the best few are continued."""
+COLD_CONTINUE = (3, 20)
+"""How many of the cold-screened candidates are continued, and for how many iterations: the
+right model has converged by then; a wrong one is still crawling, and its likelihood ratio
+at any point reached is a valid (lower) bound."""
+
+
+def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Sequence[FlightLog],
+               val: Sequence[FlightLog],
+               candidates: Sequence[str], compile: str, say: Callable[[str], None], n_refit: int
+               ) -> list[CandidateResult]:
+    """Screen ``candidates`` against the fitted model ``res`` (validation prediction
+    ``pred``), refit the ``n_refit`` best (or all, from cold, when the baseline has a
+    parameter on a bound), test and confirm each; the candidates best first."""
+    sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
+    n_sub = n_substeps(max(float(np.diff(lg.t).max()) for lg in est))
+    t0 = time.perf_counter()
+    precompile_candidates(model, res, candidates, n_sub, compile, "screen")
+    say(f"  built candidate models ({time.perf_counter() - t0:.1f} s)")
+    out: list[CandidateResult] = []
+    for name in candidates:
+        t0 = time.perf_counter()
+        score, df = screen(model, res, est, name, sigma, compile)
+        say(f"  screen {name:<16} score {score:12.1f}  ({time.perf_counter() - t0:.1f} s)")
+        out.append(CandidateResult(name, df, score, nrmse_before=pred.total))
+    out.sort(key=lambda c: -c.score)
+    n_tests = max(len(candidates), 1)
+
+    def score_p(c: CandidateResult) -> float:
+        """Bonferroni-corrected p-value of the screening (score) statistic."""
+        half = 0.5 if null_on_bound(model + fx.by_name(c.effect), c.effect) else 1.0
+        return min(1.0, float(stats.chi2.sf(c.score, c.df)) * half * n_tests)
+
+    # A baseline with parameters on their bounds is compensating for something: the score,
+    # a local statistic at that distorted point, can miss the effect. Then refit them all.
+    lo_hi = [(par.lower, par.upper) for par in model.parameters for _ in range(par.size)]
+    # a parameter pushed onto a bound is a compensating solution, unless the bound is its
+    # null value (no vertical drag is an answer, not a compensation)
+    nulls = {c: par.null for par in model.parameters for c in par.component_names}
+    at_bound = [n for n in res.free_names
+                if any(np.isclose(res.value(n), b, rtol=1e-6, atol=1e-15)
+                       for b in lo_hi[model.param_names.index(n)] if np.isfinite(b) and b != nulls[n])]
+    if at_bound:
+        say(f"  baseline has {', '.join(at_bound)} on a bound: refitting every candidate")
+        to_refit = list(out)
+    else:
+        to_refit = []
+        for c in out[:n_refit]:
+            p = score_p(c)
+            if c.score <= 0:
+                c.reason = "no improvement in the allowed direction"
+            elif p >= ALPHA:
+                # the score statistic is larger than the corrected LR: it cannot become significant
+                c.reason = f"score test not significant (p = {p:.2g}), not refitted"
+            else:
+                to_refit.append(c)
+    # refitting every candidate from cold: ten quick builds beat ten optimised ones (on a
+    # fresh machine the -O1 builds alone took ~55 s of a 2-minute demo)
+    rcompile = "quick" if at_bound and compile == "auto" else compile
+    t0 = time.perf_counter()
+    precompile_candidates(model, res, [c.effect for c in to_refit], n_sub, rcompile, "refit")
+    say(f"  built refit models ({time.perf_counter() - t0:.1f} s)")
+    starts: dict[str, FitResult] = {}
+    if at_bound:
+        # cold refits in two stages: a few iterations for every candidate (the right model
+        # converges fast from cold, wrong ones crawl along the compensating valley), then
+        # the best few by the cost reached are continued to the usual cap
+        t0 = time.perf_counter()
+        for cand in to_refit:
+            starts[cand.effect] = refit(model, res, est, None, cand.effect, res.sigma, rcompile, cold=True,
+                                         max_iter=COLD_SCREEN_ITER)[1]
+        to_refit.sort(key=lambda c: starts[c.effect].cost)
+        n_cont = min(n_refit, COLD_CONTINUE[0])
+        for cand in to_refit[n_cont:]:
+            cand.reason = f"cold screen: cost {starts[cand.effect].cost:.4g} after {COLD_SCREEN_ITER} iterations, " \
+                          f"not among the {n_cont} lowest"
+        to_refit = to_refit[:n_cont]
+        say(f"  cold screen ({time.perf_counter() - t0:.1f} s): continuing "
+            f"{', '.join(c.effect for c in to_refit)}")
+    for cand in to_refit:
+        t0 = time.perf_counter()
+        ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=bool(at_bound),
+                             start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if at_bound else None)
+        E = estimation_residuals(ext, fr, est)
+        cand.lr, cand.p_value = lr_test(res, fr, E, cand.df, null_on_bound(ext, cand.effect), n_tests)
+        cand.fit, cand.prediction = fr, pr
+        cand.nrmse_after, cand.channels_after = pr.total, dict(pr.nrmse)
+        gain = 1 - pr.total / pred.total
+        falls = {ch: 1 - pr.nrmse[ch] / pred.nrmse[ch] for ch in pred.nrmse if pred.nrmse[ch] > 0}
+        best_ch = max(falls, key=falls.get)
+        cand.explained = explained_fraction(res, fr)
+        negligible = physically_negligible(fr, cand.effect)
+        if cand.p_value >= ALPHA:
+            cand.reason = f"not significant (p = {cand.p_value:.2g})"
+        elif negligible:
+            cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but physically negligible: {negligible}"
+        elif falls[best_ch] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS:
+            cand.reason = (f"significant in the fit but not confirmed on validation (best channel {best_ch} "
+                           f"{-100 * falls[best_ch]:+.1f} %, total {-100 * gain:+.1f} %)")
+            moved = prediction_change(pred, pr)
+            if max(moved.values(), default=0.0) < MIN_VALIDATION_GAIN:
+                # the refit moves the validation predictions too little to be judged there:
+                # the validation data lack the regime, which is not evidence against the effect
+                cand.unconfirmable = True
+                cand.reason += (f"; the validation data hardly exercise it (its predictions there move by "
+                                f"< {100 * MIN_VALIDATION_GAIN:.0f} % of the error in every channel)")
+        else:
+            cand.significant = True
+            cand.reason = f"p = {cand.p_value:.2g}; validation {best_ch} {-100 * falls[best_ch]:+.0f} %, " \
+                          f"total {-100 * gain:+.0f} %"
+        say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
+            f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s)")
+    for c in out:
+        if c.lr is None and not c.reason:
+            c.reason = f"screened only: the {n_refit} best by score are refitted"
+    # the at-bound fallback decides by refits: put that in the reasons of the screened-out
+    for c in out:
+        if c.lr is not None and at_bound:
+            c.reason += f" (refitted: baseline {', '.join(at_bound)} on a bound)"
+    refitted = [c for c in out if c.lr is not None]
+    rest = [c for c in out if c.lr is None]
+    # significant first; among them the largest validation improvement (the out-of-sample
+    # evidence), then the likelihood ratio
+    refitted.sort(key=lambda c: (not c.significant, (c.nrmse_after or 0.0) if c.significant else 0.0,
+                                 -(c.lr or 0.0)))
+    return refitted + rest
+
+
+def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list[str]:
+    """The effects :func:`diagnose` tries by default: the catalogue and the effects
+    registered by the user (files, plugins) that are not in the model, and the effects that
+    read a logged signal when every flight has that signal."""
+    return [n for n, cls in fx.known_effects().items() if n not in model.effects
+            and (n in fx.CATALOGUE or n in fx.registered_effects() or cls.signals)
+            and all(all(s in lg.extras or s in lg.input_names for lg in logs) for s in cls.signals)]

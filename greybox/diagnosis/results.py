@@ -1,0 +1,222 @@
+"""What :func:`~greybox.diagnosis.diagnose` returns: a :class:`CandidateResult` per
+candidate, a :class:`Round` per pass of screening and refits, and the :class:`Diagnosis` with
+its JSON (README, "Command line") and its text summary."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..data import FlightLog
+from ..fitting import FitResult
+from ..model import QuadrotorModel
+from ..validation import Prediction
+from .analysis import CommandImbalance, Finding
+
+__all__ = ["CandidateResult", "Round", "Diagnosis"]
+
+
+@dataclass
+class CandidateResult:
+    """One candidate effect: screening statistic, and for the best few a refit."""
+
+    effect: str
+    df: int
+    score: float                        # score (LM) statistic from the screening step
+    lr: float | None = None             # autocorrelation-corrected likelihood-ratio statistic
+    p_value: float | None = None
+    significant: bool = False
+    nrmse_before: float = float("nan")
+    nrmse_after: float | None = None
+    channels_after: dict[str, float] | None = None
+    fit: FitResult | None = None
+    prediction: Prediction | None = None
+    reason: str = ""
+    unconfirmable: bool = False         # significant in the fit, validation data without power
+    explained: float | None = None      # fraction of the baseline's excess residual (above noise) removed
+
+    def as_dict(self) -> dict:
+        out = {"effect": self.effect, "significant": bool(self.significant),
+               "nrmse_before": _num(self.nrmse_before), "nrmse_after": _num(self.nrmse_after),
+               "score": _num(self.score), "lr": _num(self.lr), "p_value": _num(self.p_value),
+               "df": self.df, "reason": self.reason, "explained": _num(self.explained)}
+        if self.channels_after is not None:
+            out["channels_after"] = {k: _num(v) for k, v in self.channels_after.items()}
+        if self.fit is not None:
+            new = [n for n in self.fit.free_names if _effect_of(self.fit.model, n) == self.effect]
+            out["parameters"] = {n: {"value": self.fit.value(n),
+                                     "std": float(self.fit.std[self.fit.free_names.index(n)])} for n in new}
+        return out
+
+
+def _num(v):
+    if v is None:
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _effect_of(model: QuadrotorModel, comp: str) -> str:
+    for par in model.parameters:
+        if comp in par.component_names:
+            return par.effect
+    return ""
+
+
+@dataclass
+class Round:
+    """One pass of screening and refits."""
+
+    model: QuadrotorModel
+    fit: FitResult
+    prediction: Prediction
+    ranking: list[CandidateResult]
+    verdict: str | None
+
+
+@dataclass
+class Diagnosis:
+    """Everything :func:`diagnose` found; ``report(dir)`` writes it as HTML with plots.
+
+    Example::
+
+        d = diagnose(model, log, validation=other_flight)
+        d.verdict, [c.effect for c in d.ranking]     # 'ground_effect', best first
+        print(d.summary()); d.report("report/")      # text; HTML with the plots
+        d.final_model, d.final_prediction.total      # the model with what was added
+    """
+
+    model: QuadrotorModel
+    baseline: FitResult
+    baseline_prediction: Prediction
+    findings: list[Finding]
+    whiteness: dict[str, float]         # fraction of autocorrelation lags outside the 99 % band
+    input_correlation: dict[str, tuple[str, float]]
+    ranking: list[CandidateResult]
+    verdict: str | None
+    warnings: list[str]
+    rounds: list[Round] = field(default_factory=list)
+    final_model: QuadrotorModel | None = None
+    final_fit: FitResult | None = None
+    final_prediction: Prediction | None = None
+    residuals: np.ndarray | None = field(default=None, repr=False)
+    regimes: dict[str, np.ndarray] | None = field(default=None, repr=False)
+    log: FlightLog | None = field(default=None, repr=False)
+    timings: dict[str, float] = field(default_factory=dict)
+    validation_source: str = ""        # what the validation nrmse was computed on, in words
+    unexplained: dict[str, float] = field(default_factory=dict)   # channel -> residual / sensor noise
+    inconsistent: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
+    command_imbalance: "CommandImbalance | None" = None   # rotors driven unequally in steady flight
+    # parameter -> (first half, std, second half, std) where the halves disagree
+
+    @property
+    def baseline_certified(self) -> bool:
+        """Whether the baseline fit is at a certified optimum (else no candidate was tested)."""
+        return bool(self.baseline.converged)
+
+    @property
+    def fitted_model(self) -> FitResult:
+        """The final fitted model (with the effects added; the baseline's when none was): a
+        :class:`~greybox.FittedModel` to predict, linearize or ``save``."""
+        return self.final_fit if self.final_fit is not None else self.baseline
+
+    def parameter_table(self) -> dict[str, dict[str, float | None]]:
+        """The final model's parameters: ``{name: {"value": v, "std": s}}`` (std None when
+        held fixed or not determined)."""
+        return {n: {"value": _num(v["value"]), "std": None if v["std"] is None else _num(v["std"])}
+                for n, v in self.fitted_model.parameters.items()}
+
+    def as_json(self) -> dict:
+        """The diagnose JSON (README, "Command line"), plus findings, warnings and the added effects."""
+        out = {"baseline": {"nrmse": self.baseline_prediction.total,
+                            "channels": dict(self.baseline_prediction.nrmse),
+                            "horizons": self.baseline_prediction.horizon_errors().as_dict()},
+               "ranking": [c.as_dict() for c in self.ranking],
+               "verdict": self.verdict,
+               "findings": [f.text for f in self.findings],
+               "warnings": list(self.warnings),
+               "effects": self.model.effect_names,
+               "certificate": self.baseline.certificate.as_dict() if self.baseline.certificate else None,
+               "unexplained": {ch: _num(v) for ch, v in self.unexplained.items()},
+               "command_imbalance": self.command_imbalance.as_dict() if self.command_imbalance else None,
+               "inconsistent_parameters": {n: {"first_half": a, "first_half_std": sa, "second_half": b,
+                                               "second_half_std": sb}
+                                           for n, (a, sa, b, sb) in self.inconsistent.items()}}
+        if self.final_model is not None and self.final_prediction is not None:
+            out["added"] = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
+            out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
+                            "channels": dict(self.final_prediction.nrmse),
+                            "horizons": self.final_prediction.horizon_errors().as_dict()}
+        out["model"] = {"effects": self.fitted_model.model.effect_names, "parameters": self.parameter_table(),
+                        "certified": bool(self.fitted_model.converged)}
+        out["time_s"] = self.timings.get("total")
+        return out
+
+    def summary(self) -> str:
+        """Readable text of steps 1-4."""
+        b = self.baseline_prediction
+        lines = [f"1. compare: validation nrmse {b.total:.3f} on the {self.validation_source}  (" +
+                 ", ".join(f"{c} {v:.3f}" for c, v in b.nrmse.items()) + ")"]
+        lines.append("2. where it fails:")
+        lines += [f"   - {f.text}" for f in self.findings] or ["   - no regime stands out"]
+        if self.command_imbalance is not None and self.command_imbalance.notable:
+            lines.append(f"   - {self.command_imbalance.text()}")
+        lines.append("3. candidates (best first):")
+        for c in self.ranking:
+            after = f"{c.nrmse_after:.3f}" if c.nrmse_after is not None else "  -  "
+            lr = f"LR {c.lr:10.1f} p={c.p_value:.1e}" if c.lr is not None else f"score {c.score:10.1f}        "
+            lines.append(f"   {'*' if c.significant else ' '} {c.effect:<16} {lr}  nrmse {c.nrmse_before:.3f} -> "
+                         f"{after}  {c.reason}")
+        if not self.baseline_certified:
+            lines.append("   (no candidate tested: the baseline fit is not at a certified optimum, and a test "
+                         "statistic against it would be meaningless)")
+        if self.verdict:
+            top = self.ranking[0] if self.ranking else None
+            share = (f"; it removes {100 * top.explained:.0f} % of the residual above the sensor noise"
+                     if top is not None and top.explained is not None else "")
+            lines.append(f"   verdict: {self.verdict}{share}")
+            if self.unexplained:
+                lines.append(f"   and the model still misses something no candidate explains: {self._far_off()}")
+        elif self.unexplained:
+            lines.append(f"   verdict: null -- the model is missing something no candidate explains: "
+                         f"{self._far_off()} and coloured" + (f"; {self.findings[0].text}" if self.findings else ""))
+        elif not self.baseline_certified:
+            lines.append("   verdict: null (cannot tell: the baseline fit is not certified)")
+        else:
+            lines.append("   verdict: null (nothing significant is missing)")
+        if self.final_prediction is not None and self.final_model is not None:
+            added = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
+            f = self.final_prediction
+            lines.append(f"4. added {', '.join(added) or 'nothing'}: nrmse {b.total:.3f} -> {f.total:.3f}")
+            for ch in b.nrmse:
+                change = 100 * (f.nrmse[ch] / b.nrmse[ch] - 1) if b.nrmse[ch] > 0 else 0.0
+                lines.append(f"   {ch:<6} {b.nrmse[ch]:8.3f} -> {f.nrmse[ch]:8.3f}  ({change:+.0f} %)")
+            for name in self.final_fit.free_names if self.final_fit else []:
+                if _effect_of(self.final_model, name) in added:
+                    s = self.final_fit.std[self.final_fit.free_names.index(name)]
+                    lines.append(f"   {name} = {self.final_fit.value(name):.5g} ± {s:.2g}")
+        fm = self.fitted_model
+        lines.append("   final model: " + ", ".join(
+            f"{n} = {fm.value(n):.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "")
+            for n, s in zip(fm.free_names, fm.std)))
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def _far_off(self) -> str:
+        return "residuals in " + ", ".join(f"{ch} ({v:.3g}x the sensor noise)" for ch, v in self.unexplained.items()) + \
+            " stay far above the noise"
+
+    def report(self, directory: str | Path) -> Path:
+        """Write ``report.html`` (plots embedded) and the plots as PNG files into ``directory``."""
+        from .report import write_report
+        return write_report(self, Path(directory))
+
+    def __repr__(self) -> str:
+        from ..display import diagnosis_text
+        return diagnosis_text(self)
+
+    def _repr_html_(self) -> str:
+        from ..display import diagnosis_html
+        return diagnosis_html(self)

@@ -1,0 +1,271 @@
+"""Screening and refits of candidate effects (step 3 of
+:func:`~greybox.diagnosis.diagnose`): the model extended by a candidate at the baseline
+optimum, the score statistic of one Gauss–Newton step, the warm or cold refit with the
+baseline's weights, and the statistics a refit is judged by — the autocorrelation-corrected
+likelihood ratio, the share of the excess residual it explains, its physical size, and how
+much it moves the validation predictions."""
+from __future__ import annotations
+
+import warnings as _warnings
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+from scipy import stats
+
+from .. import effects as fx
+from ..data import FlightLog
+from ..errors import ConvergenceWarning
+from ..fitting import FitResult, FitSession, fit
+from ..integrate import n_substeps, rk4_step
+from ..model import OUTPUTS, QuadrotorModel
+from ..residuals import long_run_factor
+from ..shooting import ShootingProblem, free_indices
+from ..validation import Prediction, predict_flights
+
+__all__ = ["NEGLIGIBLE_FRACTION", "extended_model", "screen", "refit", "prediction_change", "lr_test",
+           "explained_fraction", "physically_negligible", "null_on_bound", "precompile_candidates"]
+
+
+NEGLIGIBLE_FRACTION = 0.01
+"""An effect whose fitted parameters are all below this fraction of their physically plausible
+magnitude for the airframe (:func:`greybox.effects.example_values`) is negligible: never the
+verdict, whatever its likelihood ratio."""
+
+
+def extended_model(model: QuadrotorModel, res: FitResult, name: str
+                   ) -> tuple[QuadrotorModel, np.ndarray, list[str]]:
+    """The model plus effect ``name``, its parameter vector (baseline values, new parameters at
+    their null value or lower bound) and the free set (baseline's plus the new parameters)."""
+    ext = model + fx.by_name(name)
+    base = res.model.parameter_dict(res.p)
+    p = ext.default_parameters()
+    names = ext.param_names
+    new: list[str] = []
+    for par in ext.parameters:
+        for comp in par.component_names:
+            i = names.index(comp)
+            if comp in base:
+                p[i] = base[comp]
+            else:
+                p[i] = min(max(par.null, par.lower), par.upper)
+                new.append(comp)
+    return ext, p, list(res.free_names) + new
+
+
+def _extend_nodes(ext: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], p: np.ndarray) -> list[np.ndarray]:
+    out = []
+    for nodes, idx, log in zip(res.node_states, res.node_index, [ext.prepare_log(lg) for lg in logs]):
+        full = np.zeros((nodes.shape[0], ext.nx))
+        for r, k in enumerate(idx):
+            full[r] = ext.initial_state(nodes[r, :12], log.inputs[k], p)
+        # keep effect states the smaller model already had (same order: catalogue order)
+        old = [s for s in res.model.state_names]
+        for j, s in enumerate(ext.state_names):
+            if s in old:
+                full[:, j] = nodes[:, old.index(s)]
+        new = [j for j, s in enumerate(ext.state_names) if s not in old]
+        if new and res.process_noise is not None and full.shape[0] > 1:
+            # with process noise every node is a residual: start the candidate's own states
+            # (e.g. effective motor speeds) on their own dynamics along the baseline's nodes,
+            # so that the extension starts at the baseline optimum (zero gaps in them) and
+            # the score statistic is taken where it means something
+            full[:, new] = _propagate_new_states(ext, new, full, log, idx, p)
+        out.append(full)
+    return out
+
+
+def _propagate_new_states(ext: QuadrotorModel, new: list[int], full: np.ndarray, log: FlightLog,
+                          idx: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """The states ``new`` integrated node to node by the extended model, the other states
+    held at ``full`` (one ``mapaccum``, no Python loop over samples)."""
+    k = np.asarray(idx)
+    t = log.t[k]
+    h = np.diff(t)
+    step = rk4_step(ext, n_substeps(float(max(h.max(), 1e-6))))
+    xa = ca.SX.sym("xa", len(new))
+    xo = ca.SX.sym("xo", ext.nx)
+    u = ca.SX.sym("u", ext.nu)
+    pp = ca.SX.sym("p", ext.n_params)
+    ts = ca.SX.sym("t")
+    hs = ca.SX.sym("h")
+    x = ca.SX(xo)
+    for i, j in enumerate(new):
+        x[j] = xa[i]
+    xn = step(x, u, pp, ts, hs)
+    f = ca.Function("propagate_new", [xa, xo, u, pp, ts, hs], [xn[new]])
+    n = len(k) - 1
+    F = f.mapaccum("propagate_acc", n)
+    seq = F(full[0, new], full[:-1].T, log.inputs[k[:-1]].T, np.repeat(p[:, None], n, axis=1), t[None, :-1],
+            h[None, :])
+    return np.vstack([full[0, new], np.asarray(seq).T])
+
+
+def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], name: str, sigma: np.ndarray,
+           compile: str) -> tuple[float, int]:
+    """Score statistic and degrees of freedom of candidate ``name`` at the baseline optimum."""
+    ext, p, free = extended_model(model, res, name)
+    free_idx = free_indices(ext, free, None)
+    logs = [ext.prepare_log(lg) for lg in logs]
+    ses = FitSession(ext, logs, free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
+                     lambda _m: None)
+    if res.process_noise is not None:
+        ses.q = np.array(list(_process_noise(ext, res).values()))
+    X = np.vstack(_extend_nodes(ext, res, logs, p))
+    th = p[free_idx] / ses.scale
+    d = ses.predicted_decrease(X, th)
+    return 2.0 * max(d, 0.0), len(free) - len(res.free_names)
+
+
+def _process_noise(ext: QuadrotorModel, res: FitResult) -> dict[str, float] | None:
+    """The baseline's process noise for the extended model's states (same weights, so costs
+    compare); new effect states (motor speeds) get a tight 1e-4 of their scale: a candidate
+    must explain the data through its physics. With a loose process noise of its own (it
+    was 1 %), a state-adding effect such as motor_lag got four free process-noise channels
+    that absorbed any torque the model lacks, and a likelihood ratio in the thousands."""
+    if res.process_noise is None:
+        return None
+    w_ref = res.model.hover_speed(res.p)
+    return {s: res.process_noise.get(s, 1e-4 * w_ref) for s in ext.state_names}
+
+
+def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: Sequence[FlightLog] | None,
+          name: str,
+          sigma: dict, compile: str, cold: bool = False, max_iter: int | None = None,
+          start: FitResult | None = None) -> tuple[QuadrotorModel, FitResult, Prediction | None]:
+    """Fit the model extended by ``name`` with the baseline's weights: warm-started at the
+    baseline optimum, or ``cold`` — from the airframe's guesses with the candidate's
+    parameters at a plausible magnitude — when the baseline is a compensating solution, or
+    continued from ``start`` (an earlier, capped refit). No validation when ``val`` is None."""
+    ext, p, free = extended_model(model, res, name)
+    if start is not None:
+        p, init = start.p, start.node_states
+    elif cold:
+        p = ext.default_parameters()
+        kt = p[ext.param_names.index("K_T")]
+        p = ext.parameter_vector(fx.example_values(name, ext.airframe, kt), p)
+        init = None
+    else:
+        init = _extend_nodes(ext, res, est, p)
+    # a cold start of a still-wrong model can crawl along a compensating valley: cap it, the
+    # likelihood ratio against the baseline stays valid for any point reached
+    # a soft-continuity refit has a node at every sample: its iterations are dear, and a
+    # likelihood ratio at any point reached is a valid lower bound
+    cap = 50 if cold else (60 if res.process_noise is not None else 200)
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", ConvergenceWarning)   # a capped refit is judged by its LR
+        fr = fit(ext, est, free=free, p0=p, noise=sigma, reweight=False, compile=compile,
+                 max_iter=max_iter or cap, initial_states=init, interval=res.interval,
+                 process_noise=_process_noise(ext, res))
+    return ext, fr, (predict_flights(ext, fr.p, val, compile=compile) if val is not None else None)
+
+
+def prediction_change(before: Prediction, after: Prediction) -> dict[str, float]:
+    """Per channel, how much ``after`` moves the predictions of ``before`` on the same log,
+    relative to the error of ``before``: below the confirmation threshold in every channel,
+    the validation data cannot confirm (or refute) the change out of sample."""
+    out = {}
+    for c, ch in enumerate(OUTPUTS):
+        if ch not in before.nrmse:
+            continue
+        d = after.predicted[:, c] - before.predicted[:, c]
+        if ch == "psi":
+            d = np.arctan2(np.sin(d), np.cos(d))
+        e = before.errors[:, c]
+        k = np.isfinite(d) & np.isfinite(e)
+        err = float(np.sqrt(np.mean(e[k] ** 2))) if k.any() else 0.0
+        out[ch] = float(np.sqrt(np.mean(d[k] ** 2))) / err if err > 0 else 0.0
+    return out
+
+
+def lr_test(base: FitResult, alt: FitResult, alt_resid: np.ndarray, df: int, on_bound: bool,
+            n_tests: int) -> tuple[float, float]:
+    """Likelihood-ratio statistic of ``alt`` against ``base`` (per channel divided by the
+    long-run variance factor of ``alt``'s residuals ``alt_resid``) and its p-value against
+    chi-square(``df``), halved when the null value is on a bound, times ``n_tests``
+    (Bonferroni)."""
+    lr = 0.0
+    for c, ch in enumerate(OUTPUTS):
+        if ch not in base.channel_cost:
+            continue
+        f = long_run_factor(alt_resid[:, c] / base.sigma[ch])
+        lr += (base.channel_cost[ch] - alt.channel_cost[ch]) / f
+    lr += base.process_cost - alt.process_cost   # soft continuity: the gaps are residuals too
+    lr = max(lr, 0.0)
+    p = float(stats.chi2.sf(lr, df)) if df > 0 else 1.0
+    if on_bound:
+        p *= 0.5   # chi-bar-square: half the mass sits on the bound
+    return lr, min(1.0, p * n_tests)
+
+
+def explained_fraction(base: FitResult, alt: FitResult) -> float | None:
+    """Fraction of the baseline's excess residual that ``alt`` removes: per channel the
+    residual variance above the sensor noise, ``(rms/noise)^2 - 1``, summed over channels.
+    1 means the residuals fall to the noise; near 0, the candidate explains a sliver of what
+    the model misses, however significant that sliver is."""
+    if base.certificate is None or alt.certificate is None:
+        return None
+    r0, r1 = base.certificate.residual_over_noise, alt.certificate.residual_over_noise
+    ex0 = sum(max(r0[ch] ** 2 - 1.0, 0.0) for ch in r0)
+    ex1 = sum(max(r1.get(ch, r0[ch]) ** 2 - 1.0, 0.0) for ch in r0)
+    return None if ex0 <= 0 else float(1.0 - ex1 / ex0)
+
+
+def physically_negligible(fr: FitResult, effect: str) -> str:
+    """Words saying that the fitted parameters of ``effect`` are physically negligible (all
+    below :data:`NEGLIGIBLE_FRACTION` of their plausible magnitude for the airframe), or ""."""
+    model = fr.model
+    # the vehicle's size sets the plausible magnitudes: the airframe's K_T when the fit's is
+    # not positive (a compensating refit can push it onto its bound)
+    kt = fr.value("K_T") if "K_T" in model.param_names else 0.0
+    if not kt > 0:
+        kt = float(model.default_parameters()[model.param_names.index("K_T")]) \
+            if "K_T" in model.param_names else 0.0
+    if not kt > 0:
+        return ""
+    plausible = fx.example_values(effect, model.airframe, kt)
+    parts = []
+    for par in model.parameters:
+        if par.effect != effect:
+            continue
+        # no plausible size known: a tenth of the parameter's nominal scale
+        ref = np.abs(np.atleast_1d(np.asarray(plausible.get(par.name, 0.1 * par.scale), dtype=float)))
+        ref = np.resize(np.max(ref), par.size)
+        for comp, r in zip(par.component_names, ref):
+            v = fr.value(comp) - par.null
+            if abs(v) >= NEGLIGIBLE_FRACTION * r:
+                return ""
+            parts.append(f"{comp} = {fr.value(comp):.3g} {par.unit}".rstrip())
+    if not parts:
+        return ""
+    return f"{', '.join(parts)} (below {100 * NEGLIGIBLE_FRACTION:.0f} % of a plausible size for this airframe)"
+
+
+def null_on_bound(ext: QuadrotorModel, name: str) -> bool:
+    """Whether a parameter of effect ``name`` has its null value on its lower bound (a
+    one-sided test: chi-bar-square)."""
+    return any(par.effect == name and par.lower >= min(par.null, par.upper) for par in ext.parameters)
+
+
+def precompile_candidates(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: int,
+                          compile: str, what: str) -> None:
+    """Compile candidates' step functions at once, two compilers in parallel, before they
+    are needed one by one: ``what`` = "screen" (blocks, quick build) or "refit" (blocks and
+    line search, optimised; plus the state estimator of the validation part)."""
+    if compile == "never":
+        return
+    from ..codegen import precompile
+    items, quick = [], []
+    for name in names:
+        ext, _, free = extended_model(model, res, name)
+        blk, val, key = ShootingProblem.step_functions(ext, free_indices(ext, free, None), n_sub)
+        if what == "screen":
+            quick.append((blk, key + "blocks"))
+        else:
+            items += [(blk, key + "blocks"), (val, key + "value")]
+            blk0, _, key0 = ShootingProblem.step_functions(ext, [], n_sub)
+            items.append((blk0, key0 + "blocks"))
+    if quick:
+        precompile(quick, opt="-O0")
+    if items:
+        precompile(items, opt="-O0" if compile == "quick" else "-O1")

@@ -1,0 +1,163 @@
+"""The effect API: :class:`ModelContext` (the symbolic quantities an effect reads and
+changes while the model is built), :class:`Effect` (the base class and its hooks) and
+:class:`EffectLibrary` (effects composed with ``+``). Public and kept compatible (README,
+"Effects of your own")."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar, Iterable, Iterator
+
+import casadi as ca
+import numpy as np
+
+from ..errors import GreyboxInputError
+from ..parameters import Parameter
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..airframe import Airframe
+
+__all__ = ["ModelContext", "Effect", "EffectLibrary"]
+
+
+@dataclass
+class ModelContext:
+    """Symbolic quantities shared by the effects while the model is built.
+
+    Frames: world NED, body FRD, ``R`` maps body vectors to world (README, "Conventions").
+    """
+
+    airframe: "Airframe"
+    t: ca.SX
+    pos: ca.SX                 # world position (3)
+    euler: ca.SX               # phi, theta, psi
+    v: ca.SX                   # world velocity (3)
+    omega: ca.SX               # body rates p, q, r
+    R: ca.SX                   # 3x3 body -> world
+    w: ca.SX                   # rotor speeds acting on the air (N), rad/s
+    params: dict[str, ca.SX]
+    extra_states: dict[str, ca.SX]
+    w_command: ca.SX = None    # rotor speeds as logged (N)
+    thrust_scale: ca.SX = None  # per-rotor multiplier of K_T (N)
+    torque_scale: ca.SX = None  # per-rotor multiplier of b (N)
+    rotor_pos: ca.SX = None    # N x 3 rotor positions relative to the centre of gravity
+    v_air: ca.SX = None        # world velocity relative to the air
+    force_world: ca.SX = None  # forces added by effects (world, N)
+    torque_body: ca.SX = None  # torques added by effects (body, N m)
+    rotor_thrust: ca.SX = None  # per-rotor thrust magnitude along body -z (N), set by the model
+    signals: dict[str, ca.SX] = None  # extra logged inputs by name (see Effect.signals)
+    acc_world: ca.SX = None    # translational acceleration, set before measurement hooks
+
+
+class Effect:
+    """Base class of a physical effect. Subclasses set ``name`` and override hooks."""
+
+    name: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+    excited_by: ClassVar[str] = ""
+    """The manoeuvre in which the effect shows (diagnosis advice)."""
+    fit_advice: ClassVar[str] = ""
+    """What to fly to pin its parameters down (fit warnings); default :attr:`excited_by`."""
+    channels: ClassVar[tuple[str, ...]] = ()
+    """Output channels the effect should improve when it is missing (before/after tables)."""
+    distinguish: ClassVar[dict[str, str]] = {}
+    """``{other effect: manoeuvre}`` that tells this effect apart from a confusable one
+    (looked up both ways, see :func:`distinguishing_manoeuvre`)."""
+    shifts_trim: ClassVar[bool] = False
+    """Whether it changes where, or with which rotor speeds, a level hover balances (the
+    closed-form hover trim then does not apply)."""
+    signals: ClassVar[tuple[str, ...]] = ()
+    """Logged signals the effect reads as extra model inputs (e.g. ``vbat``), after the
+    rotor speeds in the input vector; a log supplies them as extra columns."""
+
+    def parameters(self, airframe: "Airframe") -> list[Parameter]:
+        return []
+
+    def state_names(self, airframe: "Airframe") -> list[str]:
+        return []
+
+    def initial_state(self, airframe: "Airframe", w0: np.ndarray) -> np.ndarray:
+        """Initial value of the extra states given the first logged rotor speeds."""
+        return np.zeros(len(self.state_names(airframe)))
+
+    def modify(self, ctx: ModelContext) -> None:
+        pass
+
+    def add_forces(self, ctx: ModelContext) -> None:
+        pass
+
+    def state_derivative(self, ctx: ModelContext) -> ca.SX:
+        return ca.SX(0, 1)
+
+    def modify_measurement(self, ctx: ModelContext, y: dict[str, ca.SX]) -> None:
+        pass
+
+    def plausible_values(self, airframe: "Airframe", K_T: float) -> dict:
+        """Physically plausible parameter magnitudes for this airframe (synthetic flights, a
+        diagnosis' cold refits, the negligibility test); ``{}``: use the parameters' scales."""
+        return {}
+
+    def options(self) -> dict:
+        """Constructor arguments that make this effect what it is (e.g. ``BatteryVoltage``'s
+        ``v_ref``), as saved with a fitted model: by default every instance attribute."""
+        return {k: v for k, v in vars(self).items() if not k.startswith("_")}
+
+    def with_options(self, options: dict) -> "Effect":
+        """A new effect of this class built from :meth:`options`' output."""
+        try:
+            return type(self)(**options)
+        except TypeError as e:
+            raise GreyboxInputError(f"effect {self.name!r}: bad options {options!r} ({e})") from None
+
+    # composition, PySINDy style
+    def __add__(self, other: "Effect | EffectLibrary") -> "EffectLibrary":
+        return EffectLibrary([self]) + other
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Effect) and other.name == self.name
+
+    def __hash__(self) -> int:
+        return hash(self.name)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}()"
+
+
+class EffectLibrary:
+    """An ordered set of effects, built with ``+``; adding an effect twice is an error."""
+
+    def __init__(self, effects: Iterable[Effect] = ()):
+        self._effects: list[Effect] = []
+        for e in effects:
+            self._append(e)
+
+    def _append(self, e: Effect) -> None:
+        if not isinstance(e, Effect):
+            raise TypeError(f"not an effect: {e!r}")
+        if any(x.name == e.name for x in self._effects):
+            raise GreyboxInputError(f"effect {e.name!r} is already in the model")
+        self._effects.append(e)
+
+    def __add__(self, other: "Effect | EffectLibrary | Iterable[Effect]") -> "EffectLibrary":
+        out = EffectLibrary(self._effects)
+        for e in ([other] if isinstance(other, Effect) else other):
+            out._append(e)
+        return out
+
+    def __iter__(self) -> Iterator[Effect]:
+        return iter(self._effects)
+
+    def __len__(self) -> int:
+        return len(self._effects)
+
+    def __contains__(self, name: object) -> bool:
+        if isinstance(name, Effect):
+            name = name.name
+        return any(e.name == name for e in self._effects)
+
+    @property
+    def names(self) -> list[str]:
+        return [e.name for e in self._effects]
+
+    def __repr__(self) -> str:
+        return " + ".join(repr(e) for e in self._effects) or "EffectLibrary()"
+

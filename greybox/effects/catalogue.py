@@ -1,0 +1,32 @@
+"""greybox's own effects by name: the catalogue (README, "Effects"), the effects tied to
+a logged signal, the order a model applies them in, and the seed paper's base model."""
+from __future__ import annotations
+
+from .asymmetry import CogOffset, MotorAsymmetry
+from .base import Effect
+from .drag import HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag, Wind
+from .ground import GroundEffect
+from .power import BatteryVoltage, RotorMap, ThrustDrift
+from .rotor import Gyroscopic, MotorLag, YawTorque
+from .sensors import AttitudeBias, PositionDelay
+
+__all__ = ["CATALOGUE", "SIGNAL_EFFECTS", "APPLY_ORDER", "BASE_EFFECTS"]
+
+CATALOGUE: dict[str, type[Effect]] = {
+    cls.name: cls
+    for cls in (YawTorque, LinearDrag, Gyroscopic, QuadraticDrag, RotorDrag, HubRotorDrag, GroundEffect,
+                MotorLag, CogOffset, MotorAsymmetry, Wind, ThrustDrift, PositionDelay,
+                AttitudeBias)
+}
+"""The catalogue of effects (README, "Effects"), by name, in the order they are applied."""
+
+SIGNAL_EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (RotorMap, BatteryVoltage)}
+"""Effects beyond the catalogue, tied to what a log records (a command map, the
+battery voltage). Applied before the catalogue's effects, since they change the command.
+``diagnose`` considers ``battery_voltage`` when the log has a ``vbat`` column."""
+
+APPLY_ORDER: tuple[str, ...] = tuple(SIGNAL_EFFECTS) + tuple(CATALOGUE)
+"""Order in which a model applies its effects, whatever order they were composed in."""
+
+BASE_EFFECTS: tuple[str, ...] = ("yaw_torque", "linear_drag", "gyroscopic")
+"""The seed paper's model: rigid body + thrust + these."""

@@ -1,0 +1,166 @@
+"""Drag and the air it acts on: translational drag (linear, in the base model, and
+quadratic), rotor drag (at the centre of gravity and at each hub) and a constant wind that
+makes every drag act on the air-relative velocity."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..parameters import Parameter
+from .base import Effect
+
+__all__ = ["LinearDrag", "QuadraticDrag", "RotorDrag", "HubRotorDrag", "Wind"]
+
+
+def _sumsq_speed(v: ca.SX) -> ca.SX:
+    # sqrt(v.v) has an undefined derivative at v = 0; a tiny floor keeps Jacobians finite.
+    return ca.sqrt(ca.dot(v, v) + 1e-12)
+
+
+class LinearDrag(Effect):
+    """Translational drag ``F = -Kd * v_air`` per world axis (the seed paper's eq. 4)."""
+
+    name = "linear_drag"
+    summary = "translational drag -Kd*v (world axes)"
+    excited_by = 'translations at moderate speed along each axis'
+    fit_advice = 'fast translations (fast) along each axis, and vertical steps for Kd[2]'
+    channels = ('x', 'y', 'z')
+    distinguish = {
+        'rotor_drag': 'fly the same speeds at different thrust levels (climbing and descending translations): rotor drag scales with rotor speed',
+    }
+
+    def parameters(self, airframe):
+        # upper bound: a drag time constant m/Kd below 0.1 s is no multirotor; it keeps a
+        # misspecified model from running away to absurd drag
+        return [Parameter("Kd", 3, 0.1, "N s/m", 0.0, 10.0 * airframe.mass, 0.1, 0.0, True,
+                          "linear drag coefficients along world x, y, z", self.name)]
+
+    def add_forces(self, ctx):
+        ctx.force_world -= ctx.params["Kd"] * ctx.v_air
+
+
+class QuadraticDrag(Effect):
+    """Parasitic (pressure) drag ``F_i = -Kq_i * |v_air| * v_air_i`` along world axes."""
+
+    name = "quadratic_drag"
+    summary = "parasitic drag -Kq*|v|*v"
+    excited_by = 'translations at several speeds, up to the fastest you can fly'
+    fit_advice = 'translations at several different speeds (fast)'
+    channels = ('x', 'y', 'z')
+    distinguish = {
+        'rotor_drag': 'fly several speeds at a constant thrust, and the same speed at another thrust',
+        'wind': 'fly the same speed upwind and downwind',
+    }
+
+    def parameters(self, airframe):
+        return [Parameter("Kq", 3, 0.0, "N s^2/m^2", 0.0, 10.0 * airframe.mass, 0.01, 0.0, True,
+                          "quadratic drag coefficients along world x, y, z", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"Kq": [0.04 * airframe.mass ** (2 / 3)] * 3}
+
+    def add_forces(self, ctx):
+        ctx.force_world -= ctx.params["Kq"] * _sumsq_speed(ctx.v_air) * ctx.v_air
+
+
+class RotorDrag(Effect):
+    """Rotor induced drag / blade flapping: a horizontal body-frame force
+    ``F_b = -k_rd * sum(w_i) * [vb_x, vb_y, 0]`` with ``vb = R^T v_air`` the body-frame air
+    velocity. It grows with rotor speed, which separates it from ``linear_drag`` when the
+    thrust changes.
+    """
+
+    name = "rotor_drag"
+    summary = "rotor drag -k_rd*sum(w)*v_body (horizontal, body frame)"
+    excited_by = 'translations at one speed with different thrust (climbing, descending)'
+    fit_advice = 'horizontal flight at different thrust levels (fast, step_z while moving)'
+    channels = ('x', 'y')
+    distinguish = {
+        'wind': 'fly in several directions: wind has a fixed direction',
+    }
+
+    def parameters(self, airframe):
+        return [Parameter("k_rd", 1, 0.0, "N s/m/(rad/s)", 0.0, np.inf, 1e-5, 0.0, True,
+                          "rotor drag per unit rotor speed and body velocity", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        m, n = airframe.mass, airframe.n_rotors
+        w_hover = float(np.sqrt(m * airframe.gravity / (n * K_T)))
+        return {"k_rd": 0.35 * m / (n * w_hover)}
+
+    def add_forces(self, ctx):
+        vb = ctx.R.T @ ctx.v_air
+        fb = -ctx.params["k_rd"] * ca.sum1(ctx.w) * ca.vertcat(vb[0], vb[1], 0)
+        ctx.force_world += ctx.R @ fb
+
+
+class HubRotorDrag(Effect):
+    """Rotor drag at each hub, on the hub's own air velocity: rotor ``i`` at ``r_i`` (body,
+    from the centre of gravity) sees ``v_i = R^T v_air + omega x r_i`` and feels
+    ``F_i = -w_i * [k_rdh v_ix, k_rdh v_iy, k_rdv v_iz]`` (body frame), with the torque
+    ``r_i x F_i``. Summed over rotors the force is ``rotor_drag``'s (to first order), but
+    the ``omega x r_i`` term also damps the body rates — roll and pitch through the vertical
+    part (a rolling vehicle's descending rotors push up), yaw through the horizontal part — so
+    a model without it pushes ``b`` down to absorb the yaw damping. ``k_rdv`` (a thrust that
+    falls with the rotor's axial inflow) is fitted too.
+    """
+
+    name = "hub_rotor_drag"
+    summary = "rotor drag at each hub on R^T v + omega x r_i (also damps body rates)"
+    excited_by = "translations at different thrust levels and fast roll, pitch and yaw rates"
+    fit_advice = "fast translations at several thrust levels, and fast yaw turns and roll/pitch steps"
+    channels = ("x", "y", "z", "p", "q", "r", "phi", "theta", "psi")
+    distinguish = {
+        "rotor_drag": "fast yaw turns and roll/pitch steps: the hub form damps the body rates, the "
+                      "centre-of-gravity form does not",
+        "linear_drag": "fly the same speeds at different thrust levels: rotor drag scales with rotor speed",
+    }
+
+    def parameters(self, airframe):
+        return [Parameter("k_rdh", 1, 0.0, "N s/m/(rad/s)", 0.0, np.inf, 1e-5, 0.0, True,
+                          "in-plane drag per unit rotor speed and hub air velocity", self.name),
+                Parameter("k_rdv", 1, 0.0, "N s/m/(rad/s)", 0.0, np.inf, 1e-5, 0.0, True,
+                          "axial (thrust-axis) drag per unit rotor speed and hub air velocity", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        m, n = airframe.mass, airframe.n_rotors
+        w_hover = float(np.sqrt(m * airframe.gravity / (n * K_T)))
+        k = 0.35 * m / (n * w_hover)
+        return {"k_rdh": k, "k_rdv": 0.5 * k}
+
+    def add_forces(self, ctx):
+        vb = ctx.R.T @ ctx.v_air
+        k = ca.vertcat(ctx.params["k_rdh"], ctx.params["k_rdh"], ctx.params["k_rdv"])
+        force = ca.SX.zeros(3)
+        torque = ca.SX.zeros(3)
+        for i in range(ctx.airframe.n_rotors):
+            r = ctx.rotor_pos[i, :].T
+            f = -ctx.w[i] * k * (vb + ca.cross(ctx.omega, r))
+            force += f
+            torque += ca.cross(r, f)
+        ctx.force_world += ctx.R @ force
+        ctx.torque_body += torque
+
+
+class Wind(Effect):
+    """Constant horizontal wind ``[w_N, w_E]`` (m/s, world): every drag effect acts on the
+    velocity relative to the air, ``v_air = v - wind``. It needs a drag effect to matter.
+    """
+
+    name = "wind"
+    summary = "constant horizontal wind; drag acts on v - wind"
+    excited_by = 'flight in several directions (wind keeps one direction)'
+    fit_advice = 'horizontal flight in several directions'
+    channels = ('x', 'y')
+    shifts_trim = True
+
+    def parameters(self, airframe):
+        return [Parameter("wind", 2, 0.0, "m/s", -30.0, 30.0, 1.0, 0.0, True,
+                          "wind velocity, world north and east", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"wind": [1.5, -1.0]}
+
+    def modify(self, ctx):
+        wnd = ctx.params["wind"]
+        ctx.v_air = ctx.v_air - ca.vertcat(wnd[0], wnd[1], 0)

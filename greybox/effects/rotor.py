@@ -1,0 +1,95 @@
+"""Effects of the spinning rotors on the body: the reaction torque, the gyroscopic torque
+(both in the base model) and the lag between logged and effective rotor speed."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..parameters import Parameter
+from .base import Effect
+
+__all__ = ["YawTorque", "Gyroscopic", "MotorLag"]
+
+
+class YawTorque(Effect):
+    """Rotor reaction (drag) torque ``spin_i * b * w_i**2`` about body +z.
+
+    Without it a model cannot balance yaw and keeps rotating (the seed paper's Fig. 1).
+    """
+
+    name = "yaw_torque"
+    summary = "rotor reaction torque b*w^2 about body z"
+    excited_by = 'yaw turns'
+    fit_advice = 'yaw steps (yaw) with large rotor-speed differences'
+    channels = ('psi', 'r')
+
+    def parameters(self, airframe):
+        return [Parameter("b", 1, 5e-7, "N m/(rad/s)^2", 0.0, np.inf, 1e-6, 0.0, True,
+                          "rotor reaction torque coefficient", self.name)]
+
+    def add_forces(self, ctx):
+        b = ctx.params["b"]
+        spins = ca.DM(ctx.airframe.spins)
+        ctx.torque_body[2] += b * ca.dot(spins * ctx.torque_scale, ctx.w ** 2)
+
+
+class Gyroscopic(Effect):
+    """Rotor gyroscopic torque ``J_r * Omega_r * (omega x e_z)``, ``Omega_r = sum(spin_i*w_i)``.
+
+    Sign convention (README, "Conventions"): roll ``+J_r*q*Omega_r``, pitch ``-J_r*p*Omega_r``.
+    ``J_r`` defaults to the airframe's ``rotor_inertia`` and is held fixed when fitting
+    unless freed: it is rarely identifiable from flight data.
+    """
+
+    name = "gyroscopic"
+    summary = "rotor gyroscopic torque J_r*Omega_r*(omega x e_z)"
+    excited_by = 'fast roll and pitch motions during yaw turns'
+    fit_advice = 'fast roll/pitch motions with high rotor speeds'
+    channels = ('phi', 'theta', 'p', 'q')
+
+    def parameters(self, airframe):
+        jr = airframe.rotor_inertia
+        return [Parameter("J_r", 1, jr, "kg m^2", 0.0, np.inf, max(jr, 1e-6), 0.0, False,
+                          "moment of inertia of one rotor about its axis", self.name)]
+
+    def add_forces(self, ctx):
+        omega_r = ca.dot(ca.DM(ctx.airframe.spins), ctx.w)
+        p, q = ctx.omega[0], ctx.omega[1]
+        jr = ctx.params["J_r"]
+        ctx.torque_body += jr * omega_r * ca.vertcat(q, -p, 0)
+
+
+class MotorLag(Effect):
+    """First-order lag between logged and effective rotor speed:
+    ``dw_eff/dt = (w_logged - w_eff) / tau_m``. Adds one state per rotor (``w_eff1``...),
+    started at the first logged speeds (steady motors).
+    """
+
+    name = "motor_lag"
+    summary = "first-order motor lag, time constant tau_m"
+    excited_by = 'fast rotor-speed changes (steps, excitation)'
+    fit_advice = 'rapid rotor-speed changes (steps, excitation)'
+    channels = ('phi', 'theta', 'p', 'q', 'z')
+    distinguish = {
+        'position_delay': 'fast rotor-speed steps with attitude recorded: motor lag delays attitude too, a vision delay only position',
+    }
+
+    def parameters(self, airframe):
+        # The lower bound keeps the fixed-step integrators stable (see integrate.MAX_STEP).
+        return [Parameter("tau_m", 1, 0.02, "s", 2e-3, 1.0, 0.02, 0.0, True,
+                          "motor time constant", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"tau_m": 0.03}
+
+    def state_names(self, airframe):
+        return [f"w_eff{i + 1}" for i in range(airframe.n_rotors)]
+
+    def initial_state(self, airframe, w0):
+        return np.asarray(w0, dtype=float).copy()
+
+    def modify(self, ctx):
+        ctx.w = ctx.extra_states[self.name]
+
+    def state_derivative(self, ctx):
+        return (ctx.w_command - ctx.extra_states[self.name]) / ctx.params["tau_m"]

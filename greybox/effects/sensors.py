@@ -1,0 +1,57 @@
+"""What the sensors report: latency of the position measurement, offsets of the measured
+roll and pitch."""
+from __future__ import annotations
+
+from ..parameters import Parameter
+from .base import Effect
+
+__all__ = ["PositionDelay", "AttitudeBias"]
+
+
+class PositionDelay(Effect):
+    """Latency ``tau_pos`` of the position measurement (vision pipeline): the sensor
+    reports ``p(t - tau_pos)``, modelled by its second-order Taylor expansion
+    ``p - tau_pos*v + tau_pos**2/2 * a`` (exact to ``tau^3 * jerk / 6``: sub-millimetre for
+    latencies below 0.1 s in ordinary flight), so no delay states are needed.
+    """
+
+    name = "position_delay"
+    summary = "latency of the position measurement"
+    excited_by = 'fast translations (a delay lags the velocity)'
+    fit_advice = 'fast translations (fast)'
+    channels = ('x', 'y', 'z')
+
+    def parameters(self, airframe):
+        return [Parameter("tau_pos", 1, 0.0, "s", 0.0, 0.3, 0.02, 0.0, True,
+                          "position measurement latency", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"tau_pos": 0.04}
+
+    def modify_measurement(self, ctx, y):
+        tau = ctx.params["tau_pos"]
+        for i, ch in enumerate("xyz"):
+            y[ch] = y[ch] - tau * ctx.v[i] + 0.5 * tau ** 2 * ctx.acc_world[i]
+
+
+class AttitudeBias(Effect):
+    """Constant offsets of the measured roll and pitch (IMU mounting misalignment):
+    ``phi_meas = phi + att_bias[0]``, ``theta_meas = theta + att_bias[1]``.
+    """
+
+    name = "attitude_bias"
+    summary = "constant roll/pitch measurement offsets"
+    excited_by = 'long hovers at several headings'
+    fit_advice = 'hover and slow translations'
+    channels = ('phi', 'theta', 'x', 'y')
+
+    def parameters(self, airframe):
+        return [Parameter("att_bias", 2, 0.0, "rad", -0.3, 0.3, 0.01, 0.0, True,
+                          "roll and pitch measurement offsets", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"att_bias": [0.02, -0.015]}
+
+    def modify_measurement(self, ctx, y):
+        y["phi"] = y["phi"] + ctx.params["att_bias"][0]
+        y["theta"] = y["theta"] + ctx.params["att_bias"][1]
