@@ -18,9 +18,9 @@ from ..validation import Prediction
 from .analysis import estimation_residuals
 from .results import CandidateResult
 from .screening import (explained_fraction, lr_test, null_on_bound, physically_negligible, precompile_candidates,
-                        prediction_change, refit, screen)
+                        prediction_change, profile_log_likelihood, refit, screen)
 
-__all__ = ["ALPHA", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE",
+__all__ = ["ALPHA", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
            "rank_round", "default_candidates"]
 
 ALPHA = 0.01
@@ -37,6 +37,9 @@ COLD_CONTINUE = (3, 20)
 """How many of the cold-screened candidates are continued, and for how many iterations: the
 right model has converged by then; a wrong one is still crawling, and its likelihood ratio
 at any point reached is a valid (lower) bound."""
+FAR_FROM_DATA = 10.0
+"""A baseline whose residual RMS exceeds this many sensor-noise levels in some channel is
+compensating for something: candidates are then also refitted from the airframe's guesses."""
 
 
 def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Sequence[FlightLog],
@@ -103,18 +106,25 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         for cand in to_refit:
             starts[cand.effect] = refit(model, res, est, None, cand.effect, res.sigma, rcompile, cold=True,
                                          max_iter=COLD_SCREEN_ITER)[1]
-        to_refit.sort(key=lambda c: starts[c.effect].cost)
+        # each cold refit re-estimates its own weights: they compare on the likelihood
+        to_refit.sort(key=lambda c: -profile_log_likelihood(starts[c.effect]))
         n_cont = min(n_refit, COLD_CONTINUE[0])
         for cand in to_refit[n_cont:]:
-            cand.reason = f"cold screen: cost {starts[cand.effect].cost:.4g} after {COLD_SCREEN_ITER} iterations, " \
-                          f"not among the {n_cont} lowest"
+            cand.reason = f"cold screen: log-likelihood {profile_log_likelihood(starts[cand.effect]):.6g} after " \
+                          f"{COLD_SCREEN_ITER} iterations, not among the {n_cont} highest"
         to_refit = to_refit[:n_cont]
         say(f"  cold screen ({time.perf_counter() - t0:.1f} s): continuing "
             f"{', '.join(c.effect for c in to_refit)}")
+    # A baseline that misses the data by far (residuals many times the sensor noise) has bent
+    # its parameters to make up for what it lacks; a candidate refitted from there can stay in
+    # that basin. Then each refit is also tried from the airframe's guesses.
+    far = res.certificate is not None and \
+        max(res.certificate.residual_over_noise.values(), default=0.0) > FAR_FROM_DATA
     for cand in to_refit:
         t0 = time.perf_counter()
         ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=bool(at_bound),
-                             start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if at_bound else None)
+                             start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if at_bound else None,
+                             restart=far)
         E = estimation_residuals(ext, fr, est)
         cand.lr, cand.p_value = lr_test(res, fr, E, cand.df, null_on_bound(ext, cand.effect), n_tests)
         cand.fit, cand.prediction = fr, pr
