@@ -48,7 +48,7 @@ def imu_drag(log, out_png: Path, title: str) -> dict[str, float]:
     sm = lambda y: np.convolve(y, kern, mode="same")  # noqa: E731
     out, fig = {}, Figure(figsize=(8, 3.5))
     for i, ax_name in enumerate("xy"):
-        f = sm(log.extras[f"acc_{ax_name}"])
+        f = sm(log.output(f"a{ax_name}"))
         vv = sm(vb[:, i])
         A = np.column_stack([vv, np.ones_like(vv)])
         coef, *_ = np.linalg.lstsq(A, f, rcond=None)
@@ -100,7 +100,7 @@ def run(path: Path, out: Path) -> dict:
         "final_parameters": {n: [final.value(n), float(s)] for n, s in zip(final.free_names, final.std)},
         "hover_thrust_over_weight_base": hover(base),
         "hover_thrust_over_weight_final": hover(final),
-        "imu_specific_force_over_g": float(-est.extras["acc_z"].mean() / 9.81),
+        "imu_specific_force_over_g": float(-est.output("az").mean() / 9.81),
         "imu_drag": drag,
         "nrmse_base": diag.baseline_prediction.nrmse | {"total": diag.baseline_prediction.total},
         "nrmse_final": (diag.final_prediction.nrmse | {"total": diag.final_prediction.total})

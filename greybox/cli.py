@@ -212,6 +212,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
     model, p = model_with_hidden_effects(base, hidden, {**brought, **parse_sets(args.set)})
     sensors = SensorSpec(rate=args.rate, vision_rate=args.vision_rate, pos_noise=args.pos_noise,
                          att_noise=args.att_noise, gyro_noise=args.gyro_noise,
+                         accel_noise=args.accel_noise,
                          input_noise=args.input_noise, dropout=args.dropout)
     man = [m.strip() for m in args.manoeuvres.split(",") if m.strip()]
     res = synthesize(model, p, args.duration, sensors, man, args.seed, args.excitation, args.altitude)
@@ -650,6 +651,8 @@ def _parser() -> argparse.ArgumentParser:
     y.add_argument("--pos-noise", type=_non_negative, default=0.003, help="m (default 0.003)")
     y.add_argument("--att-noise", type=_non_negative, default=0.003, help="rad (default 0.003)")
     y.add_argument("--gyro-noise", type=_non_negative, default=0.005, help="rad/s; 0 leaves p,q,r out (default 0.005)")
+    y.add_argument("--accel-noise", type=_non_negative, default=0.0,
+                   help="m/s^2; > 0 logs the accelerometer ax,ay,az with this noise (default 0: not logged)")
     y.add_argument("--input-noise", type=_non_negative, default=0.0, help="rad/s on logged rotor speeds")
     y.add_argument("--dropout", type=_probability, default=0.05, help="probability of a missing vision frame")
     y.add_argument("--excitation", type=_non_negative, default=0.03, help="relative RMS rotor-speed excitation")

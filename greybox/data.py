@@ -27,7 +27,7 @@ __all__ = ["FlightLog", "load_log", "save_log", "read_csv_table", "read_text_fil
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units"]
 
 REQUIRED_OUTPUTS = ["x", "y", "z", "phi", "theta", "psi"]
-OPTIONAL_OUTPUTS = ["p", "q", "r"]
+OPTIONAL_OUTPUTS = ["p", "q", "r", "ax", "ay", "az"]
 MAX_ROTOR_SPEED = 8000.0
 """rad/s (about 76,000 RPM). Faster "rotor speeds" are taken for RPM or another unit."""
 MIN_FIT_SAMPLES = 50
@@ -43,7 +43,8 @@ GAP_FILL_FACTOR = 3.0
 """Steps longer than this many median steps are filled by :meth:`FlightLog.fill_gaps`."""
 OUTPUT_LIMITS = {"x": (1e5, "m"), "y": (1e5, "m"), "z": (1e5, "m"),
                  "phi": (4 * math.pi, "rad"), "theta": (4 * math.pi, "rad"), "psi": (1e4, "rad"),
-                 "p": (1e3, "rad/s"), "q": (1e3, "rad/s"), "r": (1e3, "rad/s")}
+                 "p": (1e3, "rad/s"), "q": (1e3, "rad/s"), "r": (1e3, "rad/s"),
+                 "ax": (2e3, "m/s^2"), "ay": (2e3, "m/s^2"), "az": (2e3, "m/s^2")}
 """Largest plausible magnitude of each output; a larger value is a corrupt cell or a unit
 mistake (degrees for radians), named with its row rather than left to make a fit diverge."""
 

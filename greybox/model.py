@@ -32,11 +32,16 @@ from .errors import GreyboxInputError
 from .rotations import euler_rate_matrix, rotation_matrices, rotation_matrix  # noqa: F401 (public here too)
 from .parameters import Parameter, flat_names
 
-__all__ = ["QuadrotorModel", "BASE_STATES", "OUTPUTS", "rotation_matrix", "rotation_matrices",
+__all__ = ["QuadrotorModel", "BASE_STATES", "OUTPUTS", "STATE_OUTPUTS", "rotation_matrix", "rotation_matrices",
            "euler_rate_matrix"]
 
 BASE_STATES = ["x", "y", "z", "phi", "theta", "psi", "vx", "vy", "vz", "p", "q", "r"]
-OUTPUTS = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
+OUTPUTS = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r", "ax", "ay", "az"]
+"""Measured channels, in the order of the model's output ``y``: position (world NED), ZYX
+Euler angles, body rates, and the accelerometer's body-frame (FRD) specific force
+``R^T (dv/dt - g e3)`` (about ``(0, 0, -g)`` at hover)."""
+STATE_OUTPUTS = OUTPUTS[:9]
+"""The outputs that are states of the rigid body (the rest are computed from the forces)."""
 
 THRUST = Parameter("K_T", 1, 2e-5, "N/(rad/s)^2", 0.0, np.inf, 1e-5, 0.0, True,
                    "rotor thrust coefficient", "base", lower_exclusive=True)
@@ -350,7 +355,10 @@ class QuadrotorModel:
         xdot = ca.vertcat(*xdot_parts)
 
         ctx.acc_world = acc
-        y = {name: x[BASE_STATES.index(name)] for name in OUTPUTS}
+        y = {name: x[BASE_STATES.index(name)] for name in STATE_OUTPUTS}
+        # what an accelerometer at the CoG measures: every force but gravity, in the body frame
+        specific_force = R.T @ (acc - ca.vertcat(0, 0, g))
+        y.update(ax=specific_force[0], ay=specific_force[1], az=specific_force[2])
         for e in self.effects:
             e.modify_measurement(ctx, y)
         yv = ca.vertcat(*[y[name] for name in OUTPUTS])

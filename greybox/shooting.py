@@ -342,14 +342,14 @@ def noise_levels(logs: Sequence[FlightLog], noise: Mapping[str, float] | None) -
         vals = [v for v in vals if np.isfinite(v)]
         sigma[c] = float(np.median(vals)) if vals else 1.0
     floor = {"x": 1e-4, "y": 1e-4, "z": 1e-4, "phi": 1e-4, "theta": 1e-4, "psi": 1e-4,
-             "p": 1e-3, "q": 1e-3, "r": 1e-3}
+             "p": 1e-3, "q": 1e-3, "r": 1e-3, "ax": 1e-3, "ay": 1e-3, "az": 1e-3}
     return np.maximum(sigma, [floor[n] for n in OUTPUTS])
 
 
 def sensor_noise(logs: Sequence[FlightLog]) -> np.ndarray:
     """Per output channel, the noise standard deviation estimated from the measurements'
     high-frequency content (:func:`estimate_noise`), never from model residuals; floored at
-    the resolution below which no sensor reports (0.1 mm, 0.1 mrad, 1 mrad/s)."""
+    the resolution below which no sensor reports (0.1 mm, 0.1 mrad, 1 mrad/s, 1 mm/s^2)."""
     return noise_levels(logs, None)
 
 

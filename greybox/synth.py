@@ -41,6 +41,7 @@ class SensorSpec:
     pos_noise: float = 0.003        # m
     att_noise: float = 0.003        # rad
     gyro_noise: float = 0.005       # rad/s; <= 0 leaves p, q, r out of the log
+    accel_noise: float = 0.0        # m/s^2; <= 0 leaves the accelerometer (ax, ay, az) out
     input_noise: float = 0.0        # rad/s, on the logged rotor speeds
     dropout: float = 0.05           # probability a vision frame is missing
     burst_dropouts: float = 1.0     # expected vision outages (0.1-0.4 s) per 10 s
@@ -185,7 +186,7 @@ class SynthResult:
     model: QuadrotorModel
     parameters: np.ndarray                 # true flat parameter vector
     states: np.ndarray                     # (n, nx) true states
-    outputs_true: np.ndarray               # (n, 9) noise-free outputs
+    outputs_true: np.ndarray               # (n, 12) noise-free outputs (OUTPUTS order)
     reference: np.ndarray                  # (n, 4) x, y, z, psi reference
     seed: int
     sensors: SensorSpec
@@ -298,9 +299,14 @@ def synthesize(model: QuadrotorModel, parameters: np.ndarray | None = None, dura
         vis &= ~((t >= t0) & (t < t0 + rng.uniform(0.1, 0.4)))
     vis[0] = True
     Ymeas[~vis, 0:3] = np.nan
-    out_names = list(OUTPUTS)
-    if sensors.gyro_noise <= 0:
-        Ymeas, out_names = Ymeas[:, :6], out_names[:6]
+    keep = list(range(6))
+    if sensors.gyro_noise > 0:
+        keep += [6, 7, 8]
+    if sensors.accel_noise > 0:
+        # drawn last, so that flights without an accelerometer stay what they were
+        Ymeas[:, 9:12] += sensors.accel_noise * rng.standard_normal((n, 3))
+        keep += [9, 10, 11]
+    Ymeas, out_names = Ymeas[:, keep], [OUTPUTS[c] for c in keep]
     W_log = W + sensors.input_noise * rng.standard_normal(W.shape) if sensors.input_noise > 0 else W
     log = FlightLog(t, W_log, model.input_names, Ymeas, out_names, source="synthetic")
     info = {"duration": duration, "manoeuvres": list(manoeuvres), "excitation": excitation,

@@ -277,6 +277,9 @@ class HorizonErrors:
                                  "z": x0[2] + naive_rate["z"] * tau, "phi": eul0[0] + eul_rate[0] * tau,
                                  "theta": eul0[1] + eul_rate[1] * tau, "psi": eul0[2] + eul_rate[2] * tau,
                                  "p": om0[0], "q": om0[1], "r": om0[2]}
+                        if ch not in naive:
+                            # the accelerometer is no state: held at its first sample of the window
+                            naive[ch] = meas[ks[0], c]
                         em, y = part.errors[k, c], meas[k, c]
                         if not np.isfinite(y):
                             continue

@@ -605,7 +605,7 @@ class Sensors:
     att_dropout: float = 0.0             # probability an attitude sample is lost
     gyro_dropout: float = 0.0
     pos_gaps: Sequence[tuple[float, float]] = ()   # time windows without position
-    accel: bool = False                  # ax, ay, az as extras
+    accel: bool = False                  # ax, ay, az: the accelerometer as output channels
     accel_noise: float = 0.02
     psi_wrap: bool = True                # psi in (-pi, pi] (else unwrapped)
 
@@ -768,12 +768,12 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
         cols.append(gy)
         names += ["p", "q", "r"]
     W_log = W + (sens.w_noise * rng.standard_normal(W.shape) if sens.w_noise else 0.0)
-    extras: dict[str, np.ndarray] = {}
     if sens.accel:
         A = np.array([dyn.specific_force_body(si) for si in S])
         A += sens.accel_noise * rng.standard_normal(A.shape)
-        extras = {"ax": A[:, 0], "ay": A[:, 1], "az": A[:, 2]}
-    log = FlightLog(t_log, W_log, ["w1", "w2", "w3", "w4"], np.hstack(cols), names, extras,
+        cols.append(A)
+        names += ["ax", "ay", "az"]
+    log = FlightLog(t_log, W_log, ["w1", "w2", "w3", "w4"], np.hstack(cols), names, {},
                     [f"foreign_sim: {veh.name}, seed {seed}, effects {fx.active() or 'none'}"],
                     "foreign_sim")
 

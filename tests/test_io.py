@@ -176,7 +176,7 @@ def test_px4_topics_flight_frames_trimming_and_motors():
     assert log.rate("z") == pytest.approx(10, rel=0.02)
     k = np.isfinite(log.output("phi"))
     np.testing.assert_allclose(log.output("phi")[k], 0.1 * np.sin(log.extras["t_boot"][k] - 1.0), atol=1e-6)
-    assert np.nanmean(log.extras["az"]) == pytest.approx(-G0, rel=0.01)
+    assert np.nanmean(log.output("az")) == pytest.approx(-G0, rel=0.01)
     assert 11.8 <= log.extras["vbat"].min() and log.extras["vbat"].max() <= 12.4
     assert log.extras["armed"].all()
     # ESC RPM, when reported, are the rotor speeds
@@ -245,10 +245,10 @@ def test_px4_sample_rates_motors_frames(px4_sample):
     assert np.isnan(log.output("x")).all() and np.isnan(log.output("y")).all()
     assert 0.05 < np.nanmedian(log.output("z")) < 0.15
     # gravity: at rest the accelerometer (FRD) reads R^T (0, 0, -g) of the logged attitude
-    rest = (log.t > 10) & (log.t < 60) & np.isfinite(log.extras["ax"])
+    rest = (log.t > 10) & (log.t < 60) & np.isfinite(log.output("ax"))
     e = np.nanmedian(np.column_stack([log.output(c) for c in ("phi", "theta", "psi")])[rest], axis=0)
     f_expected = _R(e).T @ np.array([0, 0, -G0])
-    f = np.array([np.nanmedian(log.extras[c][rest]) for c in ("ax", "ay", "az")])
+    f = np.array([np.nanmedian(log.output(c)[rest]) for c in ("ax", "ay", "az")])
     np.testing.assert_allclose(f, f_expected, atol=0.25)
     assert f[2] < -9.0
 
@@ -311,7 +311,7 @@ def test_cli_px4_sample_with_airframe(tmp_path, capsys):
     assert main(["import", "px4", str(ULG), "--out", str(out), "--keep-ground", "--airframe-out", str(af),
                  "--mass", "1.4", "--pwm-map", "0.9,-850"]) == 0
     log = load_log(out)
-    assert log.input_names == ["w1", "w2", "w3", "w4"] and {"ax", "ay", "az"} <= set(log.extras)
+    assert log.input_names == ["w1", "w2", "w3", "w4"] and log.output_names[-3:] == ["ax", "ay", "az"]
     a = load_airframe(af)
     assert a.mass == 1.4 and [r.spin for r in a.rotors] == [1, 1, -1, -1]
     assert a.parameters["K_T"] == pytest.approx(1.4 * 9.81 / (4 * (0.9 * 1500 - 850) ** 2), rel=1e-4)
@@ -356,9 +356,10 @@ def test_usd_reader_and_import_by_hand(tmp_path):
     log = imp.log
     assert len(log) == 2000 and log.t[0] == 0 and log.rate("p") == pytest.approx(1000, rel=1e-6)
     # deg/s FLU -> rad/s FRD; g FLU -> m/s^2 FRD
-    np.testing.assert_allclose(log.outputs[0, 6:], np.radians([10, -20, -30]) * 1.5)      # record 500
-    np.testing.assert_allclose([log.extras[c][0] for c in ("ax", "ay", "az")], [0, 0, -G0])
+    np.testing.assert_allclose(log.outputs[0, 6:9], np.radians([10, -20, -30]) * 1.5)      # record 500
+    np.testing.assert_allclose([log.output(c)[0] for c in ("ax", "ay", "az")], [0, 0, -G0])
     assert np.isnan(log.outputs[:, :6]).all()
+    assert log.output_names[6:] == ["p", "q", "r", "ax", "ay", "az"]
     assert log.extras["pwm1"][0] == 40003 and log.inputs[0, 0] == pytest.approx(0.04076521 * 40003 + 380.8359)
     assert any("50% of rows fresh" in n for n in imp.notes)
     # version 1 (ms stamps, uint32) and several event types: a 100 Hz position event
@@ -428,8 +429,8 @@ def test_usd_log10(usd_log10):
     assert whole.log.rate("p") == pytest.approx(1011, rel=0.01)
     # at rest before the motors start (level, still): specific force ~ -g along body z (FRD)
     rest = whole.log.t < 4.5
-    assert np.mean(whole.log.extras["az"][rest]) == pytest.approx(-9.81, abs=0.05)
-    assert abs(np.mean(whole.log.extras["ax"][rest])) < 0.3 and abs(np.mean(whole.log.extras["ay"][rest])) < 0.3
+    assert np.mean(whole.log.output("az")[rest]) == pytest.approx(-9.81, abs=0.05)
+    assert abs(np.mean(whole.log.output("ax")[rest])) < 0.3 and abs(np.mean(whole.log.output("ay")[rest])) < 0.3
     assert np.max(np.linalg.norm(np.column_stack([whole.log.output(c)[rest] for c in "pqr"]), axis=1)) < 0.05
     # the flight: motors start at 5.11 s, an impact (crash) at 42.69 s ends it
     assert imp.takeoff_time == pytest.approx(5.11, abs=0.01) and imp.touchdown_time == pytest.approx(42.68, abs=0.01)
@@ -443,15 +444,14 @@ def test_usd_log10(usd_log10):
     assert 380 < w.min() and 1000 < np.percentile(w, 1) and w.max() < 3100
     assert 1900 < imp.hover_rotor_speed < 2400
     # specific force in flight: thrust along body -z, about 1 g on average
-    assert np.mean(log.extras["az"]) == pytest.approx(-9.8, rel=0.15)
+    assert np.mean(log.output("az")) == pytest.approx(-9.8, rel=0.15)
 
 
 def test_cli_usd_writes_a_log_load_log_reads(usd_log10, tmp_path):
     out, af = tmp_path / "usd.csv", tmp_path / "cf.toml"
     assert main(["import", "crazyflie-usd", str(USD), "--out", str(out), "--airframe-out", str(af)]) == 0
     log = load_log(out)        # x..psi are columns, all empty
-    assert log.output_names == ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
+    assert log.output_names == ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r", "ax", "ay", "az"]
     assert np.isnan(log.outputs[:, :6]).all() and np.isfinite(log.outputs[:, 6:]).mean() > 0.99
-    assert {"ax", "ay", "az"} <= set(log.extras)
     a = load_airframe(af)
     assert a.mass == pytest.approx(0.030) and [r.spin for r in a.rotors] == [1, -1, 1, -1]

@@ -66,7 +66,15 @@ def test_hover_linearisation_by_hand(plus_airframe):
     np.testing.assert_allclose(lin.B[8], -2 * kt * w / 1.0)                       # thrust on z
     assert lin.B[9, 3] == pytest.approx(2 * l * kt * w / 0.0082)                 # rotor 4 rolls right
     assert lin.B[10, 0] == pytest.approx(2 * l * kt * w / 0.0082)                # rotor 1 pitches up
-    assert lin.C.shape == (9, 12) and lin.C[6, 9] == 1
+    assert lin.C.shape == (12, 12) and lin.C[6, 9] == 1
+    # the accelerometer (rows 9-11: ax, ay, az, body specific force): a tilt at hover does
+    # not change it (thrust and gravity turn together, only thrust is measured), a velocity
+    # does through the drag, a rotor speed through its thrust
+    assert lin.output_names[9:] == ["ax", "ay", "az"]
+    assert np.abs(lin.C[9:, 3:6]).max() < 1e-12
+    assert lin.C[9, 6] == pytest.approx(-0.1) and lin.C[11, 8] == pytest.approx(lin.A[8, 8])
+    np.testing.assert_allclose(lin.D[11], -2 * kt * w / 1.0)
+    assert np.abs(lin.D[:9]).max() == 0
 
 
 def test_trim_with_cog_offset_and_asymmetry_is_an_equilibrium(plus_airframe):

@@ -49,11 +49,11 @@ def test_import_frames_units_and_trimming(path):
     imp = import_nanobench(path)
     log = imp.log
     assert log.input_names == ["w1", "w2", "w3", "w4"]
-    assert log.output_names == ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
+    assert log.output_names == ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r", "ax", "ay", "az"]
     assert log.t[0] == 0.0 and np.all(np.diff(log.t) > 0)
     # airborne: NED z negative (above the floor), hover specific force along body -z ~ g
     assert np.nanmax(log.output("z")) < 0
-    assert np.mean(log.extras["acc_z"]) == pytest.approx(-9.81, rel=0.03)
+    assert np.mean(log.output("az")) == pytest.approx(-9.81, rel=0.03)
     assert log.extras["on_ground"].sum() <= 10
     assert 3.0 < log.extras["vbat"].min() and log.extras["vbat"].max() < 4.3
     # rotor speeds of a hovering Crazyflie: a couple of thousand rad/s
@@ -164,7 +164,7 @@ def test_real_fit_hover_thrust_carries_the_weight():
     res = fit(model, est, process_noise="auto", max_iter=40)
     kt = res.value("K_T")
     w2 = est.inputs ** 2
-    acc_z = est.extras["acc_z"]
+    acc_z = est.output("az")
     # weight against fitted thrust at the mean hover condition (specific force ~ -g)
     thrust = kt * w2.sum(axis=1).mean()
     assert thrust == pytest.approx(af.mass * 9.81, rel=0.05)

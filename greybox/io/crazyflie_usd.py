@@ -33,7 +33,7 @@ format, versions 1 and 2) as a flight log (README, "Flight log (CSV)").
   command, ended before the first impact (specific force above 3 g: a crash or a hard
   landing); ``keep_ground=True`` keeps everything (``on_ground`` flags it). With a logged
   height the flight is found from it instead (as for NanoBench).
-* Extra columns: ``ax, ay, az`` (m/s^2, FRD), ``pwm1..4``, ``motor_fresh``, ``on_ground``,
+* Accelerometer ``ax, ay, az`` (m/s^2, FRD; output channels). Extra columns: ``pwm1..4``, ``motor_fresh``, ``on_ground``,
   ``t_boot`` (s since the Crazyflie booted), ``vbat`` when ``pm.vbat`` is logged.
 """
 from __future__ import annotations
@@ -311,7 +311,7 @@ def import_crazyflie_usd(path: str | Path, pwm_map: tuple[float, float] = CRAZYF
             acc = flu_to_frd(acc_raw * G0)
         else:
             raise GreyboxInputError(f"{path}: accelerometer median |acc| = {mag:.3g}: neither g nor m/s^2")
-        extras["ax"], extras["ay"], extras["az"] = acc[:, 0], acc[:, 1], acc[:, 2]
+        outputs["ax"], outputs["ay"], outputs["az"] = acc[:, 0], acc[:, 1], acc[:, 2]
     else:
         notes.append("no acc.x/y/z: no specific force (ax, ay, az), and no impact detection")
 

@@ -28,8 +28,9 @@ Built on the shared parts in :mod:`greybox.io.base`:
   force); ``keep_ground=True`` keeps everything. An ``on_ground`` column (1/0) flags contact.
 * **Battery voltage** ``pwr_pm_vbat`` (held at about 10 Hz) is interpolated between fresh
   samples and kept as the ``vbat`` column, the signal the ``battery_voltage`` effect reads.
-* The IMU specific force becomes ``acc_x, acc_y, acc_z`` (m/s^2, FRD): an independent
-  check of drag (see ``experiments/real_crazyflie.py``).
+* The IMU specific force becomes the accelerometer channels ``ax, ay, az`` (m/s^2, FRD),
+  fitted like any output (it measures thrust and drag directly; see
+  ``experiments/real_crazyflie.py``).
 """
 from __future__ import annotations
 
@@ -191,7 +192,7 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
         notes.append(f"no {_VBAT!r} column: no battery voltage (the battery_voltage effect needs it)")
     if all(h in col for h in _ACC):
         acc = flu_to_frd(np.column_stack([column(n, required=False) for n in _ACC]) * G0)
-        extras["acc_x"], extras["acc_y"], extras["acc_z"] = acc[:, 0], acc[:, 1], acc[:, 2]
+        outputs["ax"], outputs["ay"], outputs["az"] = acc[:, 0], acc[:, 1], acc[:, 2]
     for i in range(4):
         extras[f"pwm{i + 1}"] = pwm[:, i]
     extras["motor_fresh"] = motor_fresh.astype(float)

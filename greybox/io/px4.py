@@ -5,7 +5,7 @@ already (world NED, body FRD) and in SI units. What is read (instance 0 of each 
 shared parts are in :mod:`greybox.io.base`):
 
 * ``sensor_combined`` (or ``vehicle_imu`` when it is absent): gyro -> ``p, q, r``;
-  accelerometer -> extra columns ``ax, ay, az`` (m/s^2, body FRD, specific force). The gyro's
+  accelerometer -> output columns ``ax, ay, az`` (m/s^2, body FRD, specific force). The gyro's
   time stamps are the log's rows (about 250 Hz on most vehicles).
 * ``vehicle_attitude``: the quaternion ``q`` (w, x, y, z; body FRD to NED) ->
   ``phi, theta, psi``.
@@ -226,7 +226,9 @@ def import_px4_topics(topics: Topics, params: Mapping[str, float], where: str,
         outputs[n] = E[:, j]
     for j, n in enumerate(("p", "q", "r")):
         outputs[n] = G[:, j]
-    extras: dict[str, np.ndarray] = {"ax": A[:, 0], "ay": A[:, 1], "az": A[:, 2]}
+    for j, n in enumerate(("ax", "ay", "az")):
+        outputs[n] = A[:, j]
+    extras: dict[str, np.ndarray] = {}
 
     def rate(ts: np.ndarray) -> float:
         return (ts.size - 1) / (ts[-1] - ts[0]) if ts.size > 1 and ts[-1] > ts[0] else 0.0
