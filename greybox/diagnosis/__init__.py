@@ -29,24 +29,32 @@ The workflow (:func:`diagnose`):
    model refitted and the remaining candidates screened again, until nothing significant
    is missing. Candidates that were significant alone but explain nothing once the winner
    is in are reported as confusable, with the manoeuvre that would tell them apart.
+5. **Beyond the catalogue.** The baseline's residual generalised forces (body-frame
+   force per unit mass ``fx, fy, fz`` and angular acceleration ``mx, my, mz``) on the
+   estimation data, explained by a sparse combination of named features (body air velocity,
+   rates, rotor speeds, height, time, logged signals and their products) with an
+   autocorrelation-consistent significance test; a combination becomes an effect
+   (``discovered_mz``...) refitted by the ordinary fitter and judged on the validation data
+   like a candidate (:mod:`greybox.diagnosis.discovery`). Not run when the baseline fit is not
+   certified: then it "cannot tell".
 """
 from __future__ import annotations
 
 # The package's modules, along the workflow's steps: ``analysis`` (where the model fails:
 # residuals, regimes, command imbalance), ``screening`` (a candidate's score statistic and
 # refit, and the statistics a refit is judged by), ``ranking`` (one round over the
-# candidates), ``consistency`` (the baseline on the two halves of the data), ``results``
-# (Diagnosis, its JSON and summary), ``report`` (the HTML report) and ``workflow``
-# (:func:`diagnose`).
+# candidates), ``consistency`` (the baseline on the two halves of the data), ``discovery``
+# (residual forces beyond the catalogue, step 5), ``results`` (Diagnosis, its JSON and
+# summary), ``report`` (the HTML report) and ``workflow`` (:func:`diagnose`).
 # the constants are public names of greybox.diagnosis as well
 from .analysis import IMBALANCE_NOTABLE, CommandImbalance, Finding, command_imbalance, residual_analysis
 from .consistency import CONSISTENCY_Z
 from .ranking import (ALPHA, COLD_CONTINUE, COLD_SCREEN_ITER, MAX_VALIDATION_LOSS, MIN_VALIDATION_GAIN, N_REFIT,
                       default_candidates)
-from .results import CandidateResult, Diagnosis, Round
+from .results import CandidateResult, Diagnosis, Discovered, DiscoveredTerm, Round
 from .screening import NEGLIGIBLE_FRACTION
 from .workflow import UNEXPLAINED_RATIO, diagnose, distinguishing_manoeuvre
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
            "MIN_VALIDATION_GAIN", "distinguishing_manoeuvre",
-           "CommandImbalance", "command_imbalance", "default_candidates"]
+           "CommandImbalance", "command_imbalance", "default_candidates", "Discovered", "DiscoveredTerm"]

@@ -42,6 +42,14 @@ def write_report(d: "Diagnosis", out: Path) -> Path:  # noqa: F821 - Diagnosis: 
         f"<tr><td>{esc(n)}</td><td>{v['value']:.6g}</td>"
         f"<td>{'fixed' if v['std'] is None else format(v['std'], '.3g')}</td></tr>"
         for n, v in d.parameter_table().items() if v["value"] is not None)
+    disc_rows = "".join(
+        f"<tr><td>{'yes' if x.significant else 'no'}</td><td>{esc(x.text())}</td><td>{x.nrmse_before:.3f}</td>"
+        f"<td>{'' if x.nrmse_after is None else f'{x.nrmse_after:.3f}'}</td><td>{esc(x.reason)}</td></tr>"
+        for x in d.discovered)
+    discovery = (f"<h2>5. Beyond the catalogue</h2><p>Residual generalised forces of the model as given, explained by "
+                 f"named features: {esc(d.discovery.get('text', ''))}</p>"
+                 + (f"<table><tr><th>significant</th><th>combination</th><th>nrmse before</th><th>nrmse after</th>"
+                    f"<th>why</th></tr>{disc_rows}</table>" if disc_rows else "")) if d.discovery else ""
     text = f"""<!doctype html><html><head><meta charset="utf-8"><title>greybox diagnosis</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 8px}}img{{max-width:100%}}</style></head><body>
@@ -55,6 +63,7 @@ td,th{{border:1px solid #ccc;padding:3px 8px}}img{{max-width:100%}}</style></hea
 <th>p</th><th>nrmse before</th><th>nrmse after</th><th>why</th></tr>{rows}</table>{img('ranking')}
 <h2>4. Added, and the error falls</h2>
 <table><tr><th>channel</th><th>before</th><th>after</th><th>change</th></tr>{chan_rows}</table>{img('compare_after')}
+{discovery}
 <h2>Fitted parameters of the final model</h2><table><tr><th>parameter</th><th>value</th><th>std</th></tr>{param_rows}</table>
 <h2>Warnings</h2><ul>{''.join(f'<li>{esc(w)}</li>' for w in d.warnings) or '<li>none</li>'}</ul>
 </body></html>"""

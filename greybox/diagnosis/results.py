@@ -10,12 +10,13 @@ from pathlib import Path
 import numpy as np
 
 from ..data import FlightLog
+from ..effects.discovered import CHANNEL_UNITS, DiscoveredEffect, discovered_effect_class, effect_file_text
 from ..fitting import FitResult
 from ..model import QuadrotorModel
 from ..validation import Prediction
 from .analysis import CommandImbalance, Finding
 
-__all__ = ["CandidateResult", "Round", "Diagnosis"]
+__all__ = ["CandidateResult", "Round", "Diagnosis", "Discovered", "DiscoveredTerm"]
 
 
 @dataclass
@@ -58,11 +59,101 @@ def _num(v):
     return v if math.isfinite(v) else None
 
 
+def _clean(obj):
+    """A JSON-ready copy: floats finite or None, containers recursively."""
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return _num(obj)
+    return obj
+
+
 def _effect_of(model: QuadrotorModel, comp: str) -> str:
     for par in model.parameters:
         if comp in par.component_names:
             return par.effect
     return ""
+
+
+@dataclass
+class DiscoveredTerm:
+    """One term of a discovered combination: ``coefficient * feature`` (``std`` its standard
+    deviation), in the channel's units per the feature's."""
+
+    feature: str
+    coefficient: float
+    std: float
+
+    @property
+    def scale(self) -> float:
+        """Typical magnitude of the coefficient for the fitter (which works with value /
+        scale): its size, or its uncertainty's when that is larger."""
+        s = max(abs(self.coefficient), 3 * self.std if np.isfinite(self.std) else 0.0)
+        return s if s > 0 else 1.0
+
+    def as_dict(self) -> dict:
+        return {"feature": self.feature, "coefficient": _num(self.coefficient), "std": _num(self.std)}
+
+
+@dataclass
+class Discovered:
+    """A residual generalised force in one channel explained by a sparse combination of
+    features (:mod:`greybox.diagnosis.discovery`): ``terms`` as the weak-form regression
+    estimated them (standard deviations autocorrelation-consistent), ``fitted`` as the
+    ordinary fitter refitted them with the rest of the model (when it was refitted).
+    Discoveries are ordered significant first, then by ``share``: the combination's RMS over
+    the flight against the RMS generalised acceleration measured in its group (forces or
+    moments), the size of the missing physics next to the vehicle's own motion."""
+
+    channel: str
+    terms: list[DiscoveredTerm]
+    p_value: float                      # Bonferroni-corrected HAC Wald p of its weakest term
+    contribution: float                 # RMS of the combination over the windows, channel units
+    nrmse_before: float
+    share: float = 0.0                  # contribution / RMS generalised acceleration measured in its group
+    significant: bool = False
+    nrmse_after: float | None = None
+    channels_after: dict[str, float] | None = None
+    fitted: list[DiscoveredTerm] | None = None
+    lr: float | None = None
+    lr_p_value: float | None = None
+    reason: str = ""
+    effect: type[DiscoveredEffect] | None = field(default=None, repr=False)
+    fit: FitResult | None = field(default=None, repr=False)
+    prediction: Prediction | None = field(default=None, repr=False)
+
+    @property
+    def unit(self) -> str:
+        return CHANNEL_UNITS[self.channel]
+
+    def text(self) -> str:
+        """``mz = -0.412 ± 0.004 * r`` (channel units)."""
+        return f"{self.channel} = " + " + ".join(f"({t.coefficient:.4g} ± {t.std:.2g})*{t.feature}"
+                                                  for t in self.terms) + f" {self.unit}"
+
+    def as_dict(self) -> dict:
+        """The diagnose JSON's entry (README, "Discovering effects outside the catalogue")."""
+        out = {"channel": self.channel, "terms": [t.as_dict() for t in self.terms],
+               "significant": bool(self.significant), "nrmse_before": _num(self.nrmse_before),
+               "nrmse_after": _num(self.nrmse_after),
+               "fitted": None if self.fitted is None else [t.as_dict() for t in self.fitted],
+               "p_value": _num(self.p_value),
+               "contribution": _num(self.contribution), "share": _num(self.share), "unit": self.unit, "lr": _num(self.lr),
+               "lr_p_value": _num(self.lr_p_value), "reason": self.reason,
+               "effect": self.effect.name if self.effect is not None else None}
+        if self.channels_after is not None:
+            out["channels_after"] = {k: _num(v) for k, v in self.channels_after.items()}
+        return out
+
+    def effect_file(self, note: str = "") -> str:
+        """Python source of an effects file (``--effects-file``) defining this discovery, with
+        its coefficients (the refit's when there was one) as starting values."""
+        terms = self.fitted or self.terms
+        cls = discovered_effect_class(self.channel, [t.feature for t in terms], [t.coefficient for t in terms],
+                                      [t.scale for t in terms])
+        return effect_file_text(cls, note)
 
 
 @dataclass
@@ -110,6 +201,8 @@ class Diagnosis:
     inconsistent: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
     command_imbalance: "CommandImbalance | None" = None   # rotors driven unequally in steady flight
     # parameter -> (first half, std, second half, std) where the halves disagree
+    discovered: list[Discovered] = field(default_factory=list)   # beyond the catalogue, best first
+    discovery: dict = field(default_factory=dict)   # status, text (or why it cannot tell), together
 
     @property
     def baseline_certified(self) -> bool:
@@ -151,6 +244,8 @@ class Diagnosis:
                             "horizons": self.final_prediction.horizon_errors().as_dict()}
         out["model"] = {"effects": self.fitted_model.model.effect_names, "parameters": self.parameter_table(),
                         "certified": bool(self.fitted_model.converged)}
+        out["discovered"] = [d.as_dict() for d in self.discovered]
+        out["discovery"] = _clean(self.discovery)
         out["time_s"] = self.timings.get("total")
         return out
 
@@ -201,8 +296,25 @@ class Diagnosis:
         lines.append("   final model: " + ", ".join(
             f"{n} = {fm.value(n):.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "")
             for n, s in zip(fm.free_names, fm.std)))
+        lines += self._discovery_lines()
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
+
+    @property
+    def best_discovery(self) -> Discovered | None:
+        """The best significant discovery (what ``--write-effect`` writes), or None."""
+        return next((d for d in self.discovered if d.significant), None)
+
+    def _discovery_lines(self) -> list[str]:
+        if not self.discovery:
+            return []
+        lines = ["5. beyond the catalogue (residual forces of the model as given, explained by named features): "
+                 + self.discovery.get("text", "")]
+        for d in self.discovered:
+            after = f"{d.nrmse_after:.3f}" if d.nrmse_after is not None else "  -  "
+            lines.append(f"   {'*' if d.significant else ' '} {d.text()}  nrmse {d.nrmse_before:.3f} -> {after}  "
+                         f"{d.reason}")
+        return lines
 
     def _far_off(self) -> str:
         return "residuals in " + ", ".join(f"{ch} ({v:.3g}x the sensor noise)" for ch, v in self.unexplained.items()) + \

@@ -17,6 +17,7 @@ from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import fit, progress_printer
 from ..model import QuadrotorModel
 from ..validation import predict_flights
+from . import discovery
 from .analysis import command_imbalance, residual_analysis
 from .consistency import half_consistency
 from .ranking import N_REFIT, default_candidates, rank_round
@@ -40,7 +41,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
              n_refit: int = N_REFIT, compile: str = "auto",
              progress: bool | Callable[[str], None] = False,
              process_noise: str | dict[str, float] | None = None,
-             validation: FlightLog | Sequence[FlightLog] | None = None) -> Diagnosis:
+             validation: FlightLog | Sequence[FlightLog] | None = None, discover: bool = True) -> Diagnosis:
     """Compare ``model`` with ``log``, find where it fails and which catalogue effect is
     missing; with ``iterate`` add significant effects until none is left (see module doc).
 
@@ -51,6 +52,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             real logs); candidates are then fitted with the baseline's process noise.
         validation: a separate flight (or several) to validate on; then all of ``log`` is
             estimation data and ``split`` is not used.
+        discover: after the ranking, look for the residual forces the fitted model (the
+            baseline) leaves and explain them by named features
+            (:mod:`greybox.diagnosis.discovery`).
 
     ``log`` may be several flights of one vehicle: they share the parameters, each has its
     own states (the baseline, the screening, every refit); each is split into estimation and
@@ -179,7 +183,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est[0],
                      validation_source=_validation_source(validation, split, len(est)), unexplained=unexplained,
-                     inconsistent=inconsistent, command_imbalance=command_imbalance(model, est))
+                     inconsistent=inconsistent, command_imbalance=command_imbalance(model, est),
+                     discovered=discovered, discovery=discovery_note)
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
@@ -191,3 +196,16 @@ def _validation_source(validation, split: float, n_flights: int = 1) -> str:
     vals = [validation] if isinstance(validation, FlightLog) else list(validation)
     names = [Path(v.source).name if v.source else "unnamed" for v in vals]
     return ("validation flight " if len(vals) == 1 else "validation flights ") + ", ".join(names)
+    discovered, discovery_note = [], {"status": "not run", "text": "not run (discover=False)", "together": None}
+    if discover:
+        # on the model as given, like the candidates (the same nrmse before): a catalogue
+        # effect added in its place may be a compensating stand-in, and the residual forces
+        # of a model bent around it are not those of the physics that is missing
+        discovered, discovery_note = discovery.discover(model, res, pred, est, val, compile, say)
+        best = next((x for x in discovered if x.significant), None)
+        if best is not None and verdict is not None and rounds and rounds[0].ranking[0].nrmse_after is not None \
+                and best.nrmse_after < rounds[0].ranking[0].nrmse_after:
+            warnings.append(f"a combination outside the catalogue explains the validation data better than the "
+                            f"verdict {verdict} (nrmse {best.nrmse_after:.3f} against "
+                            f"{rounds[0].ranking[0].nrmse_after:.3f}): {best.text()}; the missing physics may not "
+                            f"be {verdict} (see 'beyond the catalogue')")

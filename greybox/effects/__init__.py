@@ -32,15 +32,18 @@ from __future__ import annotations
 
 # The package's modules: ``base`` (the effect API), one module per family of effects
 # (``rotor``, ``drag``, ``ground``, ``asymmetry``, ``power``, ``sensors``), ``catalogue``
-# (greybox's own by name) and ``registry`` (every known effect by name, the user's too).
+# (greybox's own by name), ``registry`` (every known effect by name, the user's too) and
+# ``discovered`` (the generalised forces the diagnosis' discovery finds, as effects).
 from .asymmetry import CogOffset, MotorAsymmetry
 from .base import Effect, EffectLibrary, ModelContext
 from .catalogue import APPLY_ORDER, BASE_EFFECTS, CATALOGUE, SIGNAL_EFFECTS
+from .discovered import DiscoveredEffect
 from .drag import HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag, Wind
 from .ground import GroundEffect
 from .power import BatteryVoltage, RotorMap, ThrustDrift
 from .registry import (ENTRY_POINT_GROUP, by_name, distinguishing_manoeuvre, effect_class, example_values,
-                       known_effects, load_effects_file, parse_effect_names, register, registered_effects)
+                       known_effects, load_effects_file, parse_effect_names, register, registered_effects,
+                       unregister)
 from .rotor import Gyroscopic, MotorLag, YawTorque
 from .sensors import AttitudeBias, PositionDelay
 
@@ -50,5 +53,6 @@ __all__ = [
     "HubRotorDrag", "GroundEffect", "MotorLag", "CogOffset", "MotorAsymmetry", "Wind", "ThrustDrift",
     "PositionDelay", "AttitudeBias", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
     "APPLY_ORDER", "register", "load_effects_file", "known_effects", "registered_effects",
-    "effect_class", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP", "example_values",
+    "effect_class", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP", "example_values", "DiscoveredEffect",
+    "unregister",
 ]

@@ -15,8 +15,8 @@ from .catalogue import CATALOGUE, SIGNAL_EFFECTS
 if TYPE_CHECKING:  # pragma: no cover
     from ..airframe import Airframe
 
-__all__ = ["register", "load_effects_file", "known_effects", "registered_effects", "effect_class", "by_name",
-           "distinguishing_manoeuvre", "parse_effect_names", "example_values", "ENTRY_POINT_GROUP"]
+__all__ = ["register", "unregister", "load_effects_file", "known_effects", "registered_effects", "effect_class",
+           "by_name", "distinguishing_manoeuvre", "parse_effect_names", "example_values", "ENTRY_POINT_GROUP"]
 
 
 _REGISTERED: dict[str, type[Effect]] = {}     # user effects: register(), files, entry points
@@ -155,6 +155,17 @@ def registered_effects() -> dict[str, str]:
     """``{name: where it came from}`` of the effects registered beyond greybox's own."""
     _load_entry_points()
     return dict(_REGISTERED_FROM)
+
+
+def unregister(name: str) -> None:
+    """Forget a registered effect (one of the user's: greybox's own cannot be removed), e.g.
+    after a run that loaded an effects file, so that it is no longer a default candidate."""
+    if name in CATALOGUE or name in SIGNAL_EFFECTS:
+        raise GreyboxInputError(f"{name!r} is one of greybox's own effects and cannot be unregistered")
+    if name not in _REGISTERED:
+        raise GreyboxInputError(f"no registered effect {name!r}")
+    for table in (_REGISTERED, _REGISTERED_FROM, _FROM_FILE):
+        table.pop(name, None)
 
 
 def effect_class(name: str) -> type[Effect]:
