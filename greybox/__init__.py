@@ -36,6 +36,7 @@ _EXPORTS = {
     "linearize": (".linearize", "linearize"),
     "dlqr": (".control", "dlqr"), "dlqry": (".control", "dlqry"), "reference_gain": (".control", "reference_gain"),
     "StateSpaceModel": (".n4sid", "StateSpaceModel"), "n4sid": (".n4sid", "n4sid"),
+    "batch": (".batch", "batch"), "BatchResult": (".batch", "BatchResult"),
 }
 
 __all__ = list(_EXPORTS) + ["__version__"]

@@ -313,10 +313,16 @@ def _load_model_log(model: QuadrotorModel, path: str, p0: np.ndarray):
     log = load_log(path, inputs="rotor_speeds")
     for note in log.notes:
         print(f"note: {note}", file=sys.stderr)
+    return model_log(model, log, p0, path)
+
+
+def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str) -> FlightLog:
+    """``log`` checked against ``model``'s rotors (and their plausible speeds with parameters
+    ``p0``) and ready to fit; errors name ``where`` (also used by ``greybox batch``)."""
     if log.input_names != model.command_names:
-        raise GreyboxInputError(f"{path}: has rotor speeds {','.join(log.input_names)} but the airframe "
+        raise GreyboxInputError(f"{where}: has rotor speeds {','.join(log.input_names)} but the airframe "
                                 f"has {model.airframe.n_rotors} rotors")
-    model.check_rotor_speeds(log.inputs[:, :model.airframe.n_rotors], p0, path)
+    model.check_rotor_speeds(log.inputs[:, :model.airframe.n_rotors], p0, where)
     log = model.prepare_log(log)
     log.check_fittable()
     return log
@@ -469,14 +475,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
         where = f" of {log.source}" if len(logs) > 1 else ""
         print(f"validation ({args.horizon:g} s-ahead, last 20 %{where}): nrmse {pred.total:.4f}  " +
               "  ".join(f"{c}={v:.3f}" for c, v in pred.nrmse.items()))
-    validation = _combined_validation(preds, [log.source for log in logs])
+    result = fit_json(model, res, preds, [log.source for log in logs])
     if len(logs) > 1:
-        print(f"validation, mean over {len(logs)} flights: nrmse {validation['nrmse']:.4f}")
-    he = pool_predictions(preds).horizon_errors()
+        print(f"validation, mean over {len(logs)} flights: nrmse {result['validation']['nrmse']:.4f}")
     # everything is computed before the first file is written, and the files go together
     # (an interrupt while they are written removes the ones already there)
     outputs: list[tuple[Path, str | bytes]] = []
     if args.plots:
+        he = pool_predictions(preds).horizon_errors()
         out = Path(args.plots)
         for k, pred in enumerate(preds):
             suffix = f"_{k + 1}" if len(preds) > 1 else ""
@@ -484,8 +490,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             outputs.append((out / f"residuals{suffix}.png", plotting.to_bytes(plotting.residuals(pred))))
         outputs.append((out / "horizons.png", plotting.to_bytes(plotting.horizons(he))))
     if args.json:
-        outputs.append((Path(args.json), _json_text({**fit_result_json(model, res, validation),
-                                                     "horizons": he.as_dict()})))
+        outputs.append((Path(args.json), _json_text(result)))
     if args.save:
         outputs.append((Path(args.save), _json_text(res.to_dict())))
     write_outputs(outputs)
@@ -522,6 +527,15 @@ def write_outputs(outputs: Sequence[tuple[Path, str | bytes]]) -> None:
         raise
 
 
+def fit_json(model: QuadrotorModel, res, preds, sources) -> dict:
+    """The whole ``greybox fit --json`` document of a fit validated by ``preds`` (one
+    prediction per flight, named by ``sources``): parameters, validation, horizons and the
+    extra keys (also written by ``greybox batch``)."""
+    from .validation import pool_predictions
+    return {**fit_result_json(model, res, _combined_validation(preds, sources)),
+            "horizons": pool_predictions(preds).horizon_errors().as_dict()}
+
+
 def _combined_validation(preds, sources) -> dict:
     """The fit JSON's ``validation``: one flight's prediction as is; several flights' nrmse
     averaged (total and per channel), each flight's under ``flights``."""
@@ -553,6 +567,58 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if args.save:
         print(f"model: {args.save}")
     return 0
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    """Import, fit and diagnose every flight on Dask distributed (contract section 9)."""
+    from .batch import batch
+    if args.workers is not None and args.scheduler:
+        raise GreyboxInputError("--workers and --scheduler exclude each other: the scheduler's workers do the work")
+    res = batch(args.inputs, args.batch_out, airframe=args.airframe, model=args.model,
+                import_format=args.import_format, pwm_map=args.pwm_map, held=args.held, effects=args.effects,
+                without=args.without, sets=args.set, effects_files=args.effects_file or (),
+                candidates=_names(args.candidates), iterate=not args.no_iterate, discover=not args.no_discover,
+                process_noise=args.process_noise,
+                workers=args.workers or 2, scheduler=args.scheduler, joint=args.joint, progress=not args.quiet)
+    print(res.summary())
+    if args.json:
+        write_json(args.json, {"out": str(res.out), "counts": res.counts, "flights": res.records,
+                               "fleet": res.fleet})
+    return 0
+
+
+def _batch_parser(sub) -> None:
+    from .batch import FORMATS
+    b = sub.add_parser("batch", help="fit and diagnose many flights on Dask distributed",
+                       description="Import (if needed), fit and diagnose every flight on Dask distributed: a local "
+                                   "cluster of --workers processes or a running scheduler. Per flight DIR/<flight>/ "
+                                   "(fit.json, diagnose.json, model.json, report/); DIR/summary.csv and "
+                                   "summary.json, one record per flight. A rerun skips flights whose inputs and "
+                                   "options are unchanged. Needs pip install 'greybox[batch]'.")
+    b.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="flight log files, folders (their *.csv; *.ulg for px4) or glob patterns")
+    _model_args(b, "starting value (repeatable)")
+    b.add_argument("--out", dest="batch_out", required=True, metavar="DIR", help="folder for the results")
+    b.add_argument("--workers", type=_positive_int, help="local worker processes, one thread each (default 2)")
+    b.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a running Dask scheduler (e.g. tcp://127.0.0.1:8786) instead of a local cluster")
+    b.add_argument("--import", dest="import_format", choices=[f for f in FORMATS if f != "csv"],
+                   help="read the inputs through an importer (default: greybox flight logs)")
+    b.add_argument("--pwm-map", help="a,c of w[rad/s] = a*PWM + c for imported logs (default: the importer's)")
+    b.add_argument("--held", choices=["interpolate", "hold"], default="interpolate",
+                   help="held motor samples of imported logs: interpolate (default) or hold")
+    b.add_argument("--candidates", help="comma list of candidate effects (default: every effect not in the model)")
+    b.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
+    b.add_argument("--no-discover", action="store_true",
+                   help="skip the discovery of residual forces beyond the catalogue")
+    b.add_argument("--process-noise", choices=["auto"],
+                   help="'auto': treat shooting gaps as process noise (real logs; see README)")
+    b.add_argument("--joint", action="store_true",
+                   help="also fit the shared parameters on all good flights at once and name the flights more "
+                        "than 3 std from the fleet")
+    b.add_argument("--quiet", action="store_true", help="no progress lines")
+    b.add_argument("--json", help="write the records (and the fleet comparison) here")
+    b.set_defaults(func=cmd_batch, import_format="csv")
 
 
 def cmd_linearize(args: argparse.Namespace) -> int:
@@ -711,6 +777,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--json", help="write the result here")
     g.add_argument("--save", metavar="MODEL.json", help="save the final fitted model (with the effects added)")
     g.set_defaults(func=cmd_diagnose)
+
+    _batch_parser(sub)
 
     z = sub.add_parser("linearize", help="hover trim and continuous-time Jacobians",
                        description="Hover trim of the composed model and its continuous-time Jacobians "

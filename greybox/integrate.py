@@ -20,12 +20,29 @@ import numpy as np
 from .errors import GreyboxInputError, SolverError
 from .model import QuadrotorModel
 
-__all__ = ["MAX_STEP", "rk4_step", "rk4_step_with_output", "n_substeps", "simulate", "Simulation"]
+__all__ = ["MAX_STEP", "rk4_step", "rk4_step_with_output", "n_substeps", "simulate", "Simulation", "threads",
+           "parallel_map"]
 
 MAX_STEP = 2.5e-3
 """Largest RK4 step (s). Logs sampled more slowly are integrated with sub-steps; with the
 ``motor_lag`` lower bound ``tau_m >= 2 ms`` this keeps ``h/tau <= 1.25``, well inside RK4's
 stability region."""
+
+
+def threads() -> int:
+    """Threads a mapped CasADi function runs on: ``$GREYBOX_THREADS`` (default 2). Batch
+    workers (``greybox batch``) set it to 1: one process per core is the parallelism there."""
+    import os
+    try:
+        return max(1, int(os.environ.get("GREYBOX_THREADS", "2")))
+    except ValueError:
+        return 2
+
+
+def parallel_map(f: ca.Function, n: int) -> ca.Function:
+    """``f`` mapped over ``n`` columns, on :func:`threads` threads (serially for one)."""
+    k = threads()
+    return f.map(n, "serial") if k == 1 else f.map(n, "thread", k)
 
 
 def n_substeps(h_max: float, max_step: float = MAX_STEP) -> int:

@@ -25,7 +25,7 @@ from scipy.signal import savgol_filter
 from .codegen import compiled
 from .data import FlightLog
 from .errors import GreyboxInputError
-from .integrate import rk4_step
+from .integrate import parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import body_rates_from_euler_rates
 
@@ -246,13 +246,13 @@ class MappedPair:
 
     def __init__(self, prob: ShootingProblem, M: int):
         self.prob, self.M = prob, M
-        self.blocks = prob.blocks.map(M, "thread", 2)
+        self.blocks = parallel_map(prob.blocks, M)
         self._value = None
 
     @property
     def value(self) -> ca.Function:
         if self._value is None:
-            self._value = self.prob.value.map(self.M, "thread", 2)
+            self._value = parallel_map(self.prob.value, self.M)
         return self._value
 
 

@@ -27,7 +27,7 @@ import numpy as np
 from .data import FlightLog
 from .errors import GreyboxInputError
 from .shooting import ShootingProblem, estimate_noise, initial_node_states
-from .integrate import n_substeps, rk4_step_with_output
+from .integrate import n_substeps, parallel_map, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import euler_rates_from_body_rates
 
@@ -154,7 +154,7 @@ def _prediction_function(model: QuadrotorModel, n_steps: int, n_sub: int, n_wind
     T = ca.MX.sym("T", 1, n_steps)
     Hs = ca.MX.sym("h", 1, n_steps)
     _, Y, _ = acc(X0, U, ca.repmat(P, 1, n_steps), T, Hs)
-    return ca.Function("predict", [X0, U, P, T, Hs], [Y]).map(n_windows, "thread", 2)
+    return parallel_map(ca.Function("predict", [X0, U, P, T, Hs], [Y]), n_windows)
 
 
 def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,
