@@ -119,16 +119,22 @@ def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], nam
 
 def _process_noise(ext: QuadrotorModel, res: FitResult) -> dict[str, float] | None:
     """The baseline's process noise for the extended model's states (same weights, so costs
-    compare); new effect states (motor speeds) get a tight 1e-4 of their scale: a candidate
-    must explain the data through its physics. With a loose process noise of its own (it
-    was 1 %), a state-adding effect such as motor_lag got four free process-noise channels
-    that absorbed any torque the model lacks, and a likelihood ratio in the thousands."""
+    compare); new effect states (motor speeds) get so tight a process noise that their
+    random walk over the whole flight stays below 1e-4 of their scale: a candidate must
+    explain the data through its physics. With a loose process noise of its own (it was
+    1 %), a state-adding effect such as motor_lag got four free process-noise channels that
+    absorbed any torque the model lacks, and a likelihood ratio in the thousands; with 1e-4
+    per step, 20,000 steps at 1 kHz still let a motor speed drift by 1.4 % and stand in for
+    a weak rotor (LR 1076)."""
     if res.process_noise is None:
         return None
     w_ref = res.model.hover_speed(res.p)
-    return {s: res.process_noise.get(s, 1e-4 * w_ref) for s in ext.state_names}
+    steps = max(max(len(idx) for idx in res.node_index) - 1, 1)
+    return {s: res.process_noise.get(s, 1e-4 * w_ref / np.sqrt(steps)) for s in ext.state_names}
 
 
+SOFT_REFIT_ITER = 15
+"""Iteration budget of a candidate's refit with soft continuity (process noise)."""
 COLD_REFIT_ITER = 40
 """Iteration budget of a candidate's second refit from the airframe's guesses (the right
 model gets there in a handful of iterations; a wrong one crawls, and is judged where it is)."""
@@ -162,9 +168,10 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
         init = _extend_nodes(ext, res, est, p)
     # a cold start of a still-wrong model can crawl along a compensating valley: cap it, the
     # likelihood ratio against the baseline stays valid for any point reached
-    # a soft-continuity refit has a node at every sample: its iterations are dear, and a
-    # likelihood ratio at any point reached is a valid lower bound
-    cap = 50 if cold else (60 if soft else 200)
+    # a soft-continuity refit has a node at every sample: its iterations are dear (13 s each
+    # for motor_lag on a 20 s, 1 kHz flight), a right candidate gets there in a handful, and
+    # a likelihood ratio at any point reached is a valid lower bound
+    cap = 50 if cold else (SOFT_REFIT_ITER if soft else 200)
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # a capped refit is judged by its LR
         fr = fit(ext, est, free=free, p0=p, noise=None if reweight else sigma, reweight=reweight,
