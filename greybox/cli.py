@@ -559,6 +559,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     outputs: list[tuple[Path, str | bytes]] = []
     if args.json:
         outputs.append((Path(args.json), _json_text(diag.as_json())))
+    if args.write_effect:
+        best = diag.best_discovery
+        if best is None:
+            print(f"--write-effect: nothing significant was discovered; {args.write_effect} not written")
+        else:
+            outputs.append((Path(args.write_effect), best.effect_file(
+                f"Found on {', '.join(str(x) for x in args.log)}: {best.text()}; {best.reason}.")))
     if args.save:
         outputs.append((Path(args.save), _json_text(diag.fitted_model.to_dict())))
     if args.report:
@@ -566,6 +573,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     write_outputs(outputs)
     if args.save:
         print(f"model: {args.save}")
+    if args.write_effect and diag.best_discovery is not None:
+        print(f"effect: {args.write_effect} (use it with --effects-file {args.write_effect})")
     return 0
 
 
@@ -625,13 +634,6 @@ def cmd_linearize(args: argparse.Namespace) -> int:
     from .linearize import hover_trim, linearize
     model, brought = model_from_args(args)
     p = _parameters(model, brought, args.set)
-    if args.write_effect:
-        best = diag.best_discovery
-        if best is None:
-            print(f"--write-effect: nothing significant was discovered; {args.write_effect} not written")
-        else:
-            outputs.append((Path(args.write_effect), best.effect_file(
-                f"Found on {', '.join(str(x) for x in args.log)}: {best.text()}; {best.reason}.")))
     at = [0.0, 0.0, None] if args.at is None else _floats(args.at, 3, "--at")
     x_t, u_t = hover_trim(model, p, position=at, psi=args.psi)
     lin = linearize(model, p, x_t, u_t)
@@ -639,8 +641,6 @@ def cmd_linearize(args: argparse.Namespace) -> int:
            "u_trim": u_t.tolist(), "A": lin.A.tolist(), "B": lin.B.tolist(),
            "outputs": lin.output_names, "C": lin.C.tolist(), "D": lin.D.tolist(),
            "effects": model.effect_names, "parameters": model.parameter_dict(p)}
-    if args.write_effect and diag.best_discovery is not None:
-        print(f"effect: {args.write_effect} (use it with --effects-file {args.write_effect})")
     print("hover trim: " + ", ".join(f"{n}={v:.6g}" for n, v in zip(lin.input_names, u_t)), file=sys.stderr)
     write_json(args.json, out)
     return 0
@@ -776,6 +776,11 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--quiet", action="store_true", help="no progress lines")
     g.add_argument("--json", help="write the result here")
     g.add_argument("--save", metavar="MODEL.json", help="save the final fitted model (with the effects added)")
+    g.add_argument("--no-discover", action="store_true",
+                   help="skip the discovery of residual forces beyond the catalogue")
+    g.add_argument("--write-effect", metavar="FILE.py",
+                   help="write the best significant discovered combination as an effects file "
+                        "(for --effects-file)")
     g.set_defaults(func=cmd_diagnose)
 
     _batch_parser(sub)
@@ -841,11 +846,6 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--imu", help="CSV with t,phi,theta (a flight log or an attitude-only log, same clock): its "
                                  "tilt refines each pose (IMU-aided: millimetres instead of centimetres "
                                  "laterally); frames outside its time span are vision-only, with a warning")
-    g.add_argument("--no-discover", action="store_true",
-                   help="skip the discovery of residual forces beyond the catalogue")
-    g.add_argument("--write-effect", metavar="FILE.py",
-                   help="write the best significant discovered combination as an effects file "
-                        "(for --effects-file)")
     v.add_argument("--tilt-sigma", type=_positive, default=0.01, help="IMU roll/pitch accuracy, rad (default 0.01)")
     v.add_argument("--corner-sigma", type=_positive, default=0.2, help="corner accuracy, px (default 0.2)")
     v.add_argument("--quiet", action="store_true", help="no progress lines")

@@ -195,6 +195,19 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         cert = cur_res.certificate
         unexplained = {ch: cert.residual_over_noise[ch] for ch in cert.off_channels()
                        if cert.residual_over_noise[ch] > UNEXPLAINED_RATIO}
+    discovered, discovery_note = [], {"status": "not run", "text": "not run (discover=False)", "together": None}
+    if discover:
+        # on the model as given, like the candidates (the same nrmse before): a catalogue
+        # effect added in its place may be a compensating stand-in, and the residual forces
+        # of a model bent around it are not those of the physics that is missing
+        discovered, discovery_note = discovery.discover(model, res, pred, est, val, compile, say)
+        best = next((x for x in discovered if x.significant), None)
+        if best is not None and verdict is not None and rounds and rounds[0].ranking[0].nrmse_after is not None \
+                and best.nrmse_after < rounds[0].ranking[0].nrmse_after:
+            warnings.append(f"a combination outside the catalogue explains the validation data better than the "
+                            f"verdict {verdict} (nrmse {best.nrmse_after:.3f} against "
+                            f"{rounds[0].ranking[0].nrmse_after:.3f}): {best.text()}; the missing physics may not "
+                            f"be {verdict} (see 'beyond the catalogue')")
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est[0],
                      validation_source=_validation_source(validation, split, len(est)), unexplained=unexplained,
@@ -211,16 +224,3 @@ def _validation_source(validation, split: float, n_flights: int = 1) -> str:
     vals = [validation] if isinstance(validation, FlightLog) else list(validation)
     names = [Path(v.source).name if v.source else "unnamed" for v in vals]
     return ("validation flight " if len(vals) == 1 else "validation flights ") + ", ".join(names)
-    discovered, discovery_note = [], {"status": "not run", "text": "not run (discover=False)", "together": None}
-    if discover:
-        # on the model as given, like the candidates (the same nrmse before): a catalogue
-        # effect added in its place may be a compensating stand-in, and the residual forces
-        # of a model bent around it are not those of the physics that is missing
-        discovered, discovery_note = discovery.discover(model, res, pred, est, val, compile, say)
-        best = next((x for x in discovered if x.significant), None)
-        if best is not None and verdict is not None and rounds and rounds[0].ranking[0].nrmse_after is not None \
-                and best.nrmse_after < rounds[0].ranking[0].nrmse_after:
-            warnings.append(f"a combination outside the catalogue explains the validation data better than the "
-                            f"verdict {verdict} (nrmse {best.nrmse_after:.3f} against "
-                            f"{rounds[0].ranking[0].nrmse_after:.3f}): {best.text()}; the missing physics may not "
-                            f"be {verdict} (see 'beyond the catalogue')")
