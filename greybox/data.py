@@ -609,10 +609,12 @@ def save_log(log: FlightLog, path: str | Path, extras: bool = True, digits: int 
 def log_from_arrays(t: Iterable[float], inputs: np.ndarray, outputs: np.ndarray,
                     input_names: list[str] | None = None,
                     output_names: list[str] | None = None) -> FlightLog:
-    """Convenience constructor used by simulations and tests."""
+    """Convenience constructor used by simulations and tests. Without ``output_names`` the
+    columns of ``outputs`` are the first ones of ``x..psi, p, q, r, ax, ay, az`` (6, 9 or 12)."""
     inputs = np.asarray(inputs, dtype=float)
+    outputs = np.asarray(outputs, dtype=float)
     input_names = input_names or [f"w{i + 1}" for i in range(inputs.shape[1])]
-    output_names = output_names or REQUIRED_OUTPUTS + OPTIONAL_OUTPUTS
+    output_names = output_names or (REQUIRED_OUTPUTS + OPTIONAL_OUTPUTS)[:outputs.shape[1]]
     return FlightLog(np.asarray(t, dtype=float), inputs, input_names, outputs, output_names)
 
 
