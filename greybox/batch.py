@@ -203,7 +203,7 @@ def _normalise_sets(sets) -> tuple[tuple[str, tuple[float, ...]], ...]:
                 raise GreyboxInputError(f"set {name}: {v!r} is not a finite number")
             items.append((str(name), tuple(vals)))
         return tuple(items)
-    from .cli import parse_sets
+    from .commands import parse_sets
     return tuple((n, tuple(v)) for n, v in parse_sets(list(sets)).items())
 
 
@@ -242,7 +242,7 @@ def _model(opts: Options):
     import argparse
 
     from . import effects as fx
-    from .cli import model_from_args
+    from .commands import model_from_args
     for path in opts.effects_files:
         tag = (path, _sha_file(path))
         if tag not in _LOADED_EFFECT_FILES:
@@ -333,7 +333,7 @@ def run_flight(flight: Flight, opts: Options) -> dict:
 def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list[str]) -> dict:
     import tempfile
 
-    from .cli import fit_json, model_log
+    from .commands import fit_json, model_log
     from .diagnosis import diagnose
     model, p0 = _model(opts)
     log, read_notes = _read_flight(flight.path, flight.sha, opts)
@@ -372,7 +372,7 @@ def run_fleet(flights: Sequence[Flight], opts: Options) -> dict:
     its own initial states, validated on each flight's last 20 % (``greybox fit LOG1 LOG2 ...``)."""
     t0 = time.perf_counter()
     _one_thread()
-    from .cli import fit_json, model_log
+    from .commands import fit_json, model_log
     from .fitting import fit
     from .validation import predict
     model, p0 = _model(opts)
@@ -786,7 +786,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
         batch(["flights/"], "results", airframe="cf.toml", import_format="nanobench",
               process_noise="auto", joint=True).fleet["comparison"]["outliers"]   # rerun: only the fleet
     """
-    from .cli import check_output_path
+    from .commands import check_output_path
     _require_dask()
     if (airframe is None) == (model is None):
         raise GreyboxInputError("batch: give either an airframe or a saved model (--airframe or --model)")

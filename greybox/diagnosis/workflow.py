@@ -17,7 +17,7 @@ from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import fit, progress_printer
 from ..model import QuadrotorModel
 from ..validation import predict_flights
-from . import discovery
+from .discovery import discover as discover_beyond_catalogue
 from .analysis import command_imbalance, residual_analysis
 from .consistency import half_consistency
 from .ranking import N_REFIT, default_candidates, rank_round
@@ -200,7 +200,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # on the model as given, like the candidates (the same nrmse before): a catalogue
         # effect added in its place may be a compensating stand-in, and the residual forces
         # of a model bent around it are not those of the physics that is missing
-        discovered, discovery_note = discovery.discover(model, res, pred, est, val, compile, say)
+        discovered, discovery_note = discover_beyond_catalogue(model, res, pred, est, val, compile, say)
         best = next((x for x in discovered if x.significant), None)
         if best is not None and verdict is not None and rounds and rounds[0].ranking[0].nrmse_after is not None \
                 and best.nrmse_after < rounds[0].ranking[0].nrmse_after:

@@ -1,0 +1,155 @@
+"""What the command line and ``greybox batch`` share: models built from command options, logs
+checked against a model, output paths probed before any work, and the fit JSON document
+(README, "Command line"). Kept apart from :mod:`greybox.cli` so that the library's batch
+runner does not import the command line."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from . import effects as fx
+from .airframe import load_airframe
+from .data import FlightLog, atomic_write
+from .errors import GreyboxInputError
+from .model import QuadrotorModel
+
+__all__ = ["check_output_path", "write_json", "parse_sets", "build_model", "edit_model", "model_from_args",
+           "fit_result_json", "model_log", "fit_json"]
+
+
+def check_output_path(path: str | Path, option: str, kind: str = "file") -> None:
+    """Raise a :class:`GreyboxInputError` naming ``option`` unless ``path`` can be written as a
+    ``kind`` (``"file"`` or ``"folder"``): a file must not be a folder, a folder not a file,
+    and the nearest existing folder above it must accept a new file (tried, not guessed)."""
+    import os
+    import tempfile
+    p = Path(path)
+    if kind == "file" and p.is_dir():
+        raise GreyboxInputError(f"{option} {path}: is a folder; give a file name")
+    if kind == "folder" and p.exists() and not p.is_dir():
+        raise GreyboxInputError(f"{option} {path}: exists and is not a folder")
+    if kind == "file" and str(path).endswith(("/", os.sep)):
+        raise GreyboxInputError(f"{option} {path}: names a folder; give a file name")
+    here = p if kind == "folder" else p.parent
+    here = Path(os.path.abspath(here))
+    while not here.exists():
+        here = here.parent
+    if not here.is_dir():
+        raise GreyboxInputError(f"{option} {path}: {here} is a file, not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".greybox-probe-", dir=here)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise GreyboxInputError(f"{option} {path}: cannot write in {here} ({e.strerror or e})") from None
+
+
+def write_json(path: str | Path, obj: object) -> None:
+    """Write ``obj`` as JSON atomically (NaN is not valid JSON: it is refused, not written)."""
+    atomic_write(path, json.dumps(obj, indent=2, allow_nan=False) + "\n")
+
+
+def parse_sets(items: Sequence[str] | None) -> dict[str, list[float]]:
+    """``["K_T=2.4e-5", "Kd=0.2,0.2,0.3"]`` -> ``{"K_T": [2.4e-5], "Kd": [0.2, 0.2, 0.3]}``."""
+    out: dict[str, list[float]] = {}
+    for item in items or []:
+        if "=" not in item:
+            raise GreyboxInputError(f"--set {item!r}: expected NAME=VALUE")
+        name, _, text = item.partition("=")
+        try:
+            vals = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise GreyboxInputError(f"--set {item!r}: {text!r} is not a number or a comma list") from None
+        if not all(np.isfinite(vals)):
+            raise GreyboxInputError(f"--set {item!r}: {text!r} is not a finite number")
+        out[name.strip()] = vals
+    return out
+
+
+def build_model(airframe_path: str, effects: str | None = None, without: str | None = None,
+                inputs: str = "rotor_speeds") -> QuadrotorModel:
+    """The base model of an airframe file, plus ``effects``, minus ``without`` (comma lists)."""
+    af = load_airframe(airframe_path)
+    return edit_model(QuadrotorModel(af, inputs=inputs), effects, without)
+
+
+def edit_model(model: QuadrotorModel, effects: str | None, without: str | None) -> QuadrotorModel:
+    """``model`` plus the effects named in ``effects``, minus those in ``without`` (comma lists)."""
+    for name in fx.parse_effect_names(effects):
+        if name not in model.effects:
+            model = model + fx.by_name(name)
+    drop = fx.parse_effect_names(without)
+    if drop:
+        model = model.without(*drop)
+    return model
+
+
+def model_from_args(args: argparse.Namespace, effects: str | None = "from args") -> tuple[QuadrotorModel, dict]:
+    """The model an ``--airframe A.toml`` or ``--model M.json`` option names, with
+    ``--effects``/``--without`` applied, and the parameter values it brings (a saved model's
+    fitted values; none for an airframe, whose ``[parameters]`` are the model's defaults)."""
+    effects = getattr(args, "effects", None) if effects == "from args" else effects
+    if getattr(args, "model", None):
+        from .fitted import load
+        fm = load(args.model)
+        values = fm.parameters_
+        model = edit_model(fm.model, effects, args.without)
+        return model, {k: v for k, v in values.items() if k in model.param_names}
+    return build_model(args.airframe, effects, args.without), {}
+
+
+def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict:
+    """The fit JSON (README, "Command line"), with extra detail (status, correlations, warnings)."""
+    params = {}
+    for name, v in res.parameters.items():
+        std = v["std"]
+        # fixed: std 0; free but not determined (non-positive variance): null, never NaN in JSON
+        entry = {"value": v["value"], "std": 0.0 if std is None else (std if np.isfinite(std) else None)}
+        if std is None:
+            entry["fixed"] = True
+        params[name] = entry
+    out = {"parameters": params, "effects": model.effect_names}
+    if validation is not None:
+        out["validation"] = validation
+    out.update({"converged": res.converged, "status": res.status, "iterations": res.iterations,
+                "free": res.free_names, "correlation": res.correlation.tolist(),
+                "noise": res.sigma, "residual_rms": res.residual_rms, "warnings": res.warnings,
+                "certificate": res.certificate.as_dict() if res.certificate is not None else None,
+                "time_s": res.timings.get("total")})
+    return out
+
+
+def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str) -> FlightLog:
+    """``log`` checked against ``model``'s rotors (and their plausible speeds with parameters
+    ``p0``) and ready to fit; errors name ``where`` (also used by ``greybox batch``)."""
+    if log.input_names != model.command_names:
+        raise GreyboxInputError(f"{where}: has rotor speeds {','.join(log.input_names)} but the airframe "
+                                f"has {model.airframe.n_rotors} rotors")
+    model.check_rotor_speeds(log.inputs[:, :model.airframe.n_rotors], p0, where)
+    log = model.prepare_log(log)
+    log.check_fittable()
+    return log
+
+
+def fit_json(model: QuadrotorModel, res, preds, sources) -> dict:
+    """The whole ``greybox fit --json`` document of a fit validated by ``preds`` (one
+    prediction per flight, named by ``sources``): parameters, validation, horizons and the
+    extra keys (also written by ``greybox batch``)."""
+    from .validation import pool_predictions
+    return {**fit_result_json(model, res, _combined_validation(preds, sources)),
+            "horizons": pool_predictions(preds).horizon_errors().as_dict()}
+
+
+def _combined_validation(preds, sources) -> dict:
+    """The fit JSON's ``validation``: one flight's prediction as is; several flights' nrmse
+    averaged (total and per channel), each flight's under ``flights``."""
+    if len(preds) == 1:
+        return preds[0].as_dict()
+    channels = {c: float(np.mean([p.nrmse[c] for p in preds if c in p.nrmse])) for c in preds[0].nrmse}
+    return {"nrmse": float(np.mean([p.total for p in preds])), "channels": channels,
+            "horizon": preds[0].horizon, "windows": int(sum(len(p.windows) for p in preds)),
+            "flights": [{"log": s, **p.as_dict()} for s, p in zip(sources, preds)]}
