@@ -9,8 +9,9 @@ Each run is ``greybox batch FILES --import nanobench --airframe cf.toml --proces
 start to its end (cluster start and shutdown included). The airframe comes from
 ``greybox import nanobench FIRST --airframe-out cf.toml``. By default the diagnosis ranks the
 candidates real Crazyflie flights call for (``motor_asymmetry,cog_offset,thrust_drift,
-battery_voltage``) once (``--no-iterate``): about a minute a flight; ``--full`` runs every
-candidate with iteration (several minutes a flight). A warm-up batch of one flight fills the
+battery_voltage``) once (``--no-iterate``), without the discovery beyond the catalogue
+(``--no-discover``): one to two minutes a flight; ``--full`` runs every candidate with
+iteration and discovery (several minutes a flight). A warm-up batch of one flight fills the
 compile cache first, so that no timed run pays for compiling. Then: 1 worker, 2 workers, a
 rerun (everything skipped), and (unless ``--no-cluster``) ``dask scheduler`` + ``dask worker
 --nworkers 2 --nthreads 1`` started apart with ``--scheduler``. Prints the times and ratios
@@ -35,7 +36,7 @@ DATA = ROOT.parent / "shared" / "realdata" / "nanobench"
 ORDER = ["B3_figure8_medium_rep1", "B2_circle_fast_rep1", "B3_figure8_fast_rep1", "B9_trefoil_slow_rep1",
          "B6_linear_ramp_rep2", "B2_circle_slow_rep2", "B5_helix_fast_rep1", "B7_oval_fast_rep1",
          "B8_star_medium_rep1", "B10_lissajous_slow_rep1"]
-QUICK = ["--candidates", "motor_asymmetry,cog_offset,thrust_drift,battery_voltage", "--no-iterate"]
+QUICK = ["--candidates", "motor_asymmetry,cog_offset,thrust_drift,battery_voltage", "--no-iterate", "--no-discover"]
 
 
 def env() -> dict:
