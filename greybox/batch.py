@@ -151,22 +151,24 @@ def expand_inputs(inputs: Sequence[str | Path], fmt: str = "csv", out: str | Pat
         raise GreyboxInputError("batch: no inputs given (log files, folders or glob patterns)")
     out_dir = Path(os.path.abspath(out)) if out is not None else None
     what = _PATTERNS[fmt] or "files without a suffix (Crazyflie uSD logs)"
+
+    def outside_out_dir(found: list[Path]) -> list[Path]:
+        # a folder or glob that covers the output folder must not pick up the batch's own files
+        return found if out_dir is None else [f for f in found if out_dir not in Path(os.path.abspath(f)).parents]
+
     files: list[Path] = []
     for item in inputs:
         p = Path(item)
         if p.is_dir():
-            found = _folder_files(p, fmt)
-            if out_dir is not None:
-                found = [f for f in found if out_dir not in Path(os.path.abspath(f)).parents]
+            found = outside_out_dir(_folder_files(p, fmt))
             if not found:
                 raise GreyboxInputError(f"{item}: no flight files ({what}) in this folder")
             files += found
         elif p.is_file():
             files.append(p)
         elif glob.has_magic(str(item)):
-            found = sorted((Path(f) for f in glob.glob(str(item)) if Path(f).is_file()), key=_natural)
-            if out_dir is not None:
-                found = [f for f in found if out_dir not in Path(os.path.abspath(f)).parents]
+            found = outside_out_dir(sorted((Path(f) for f in glob.glob(str(item)) if Path(f).is_file()),
+                                           key=_natural))
             if not found:
                 raise GreyboxInputError(f"{item}: matches no file")
             files += found

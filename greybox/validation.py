@@ -225,10 +225,11 @@ class HorizonErrors:
     """Prediction error against horizon, per channel, for the model and for the naive
     predictor that system-identification benchmarks of small quadrotors use beside it:
     constant velocity and constant body rates from the same estimated start state
-    (positions ``p0 + v0 h``; angles ``e0 + W(e0) omega0 h``; rates ``omega0``).
+    (positions ``p0 + v0 h``; angles ``e0 + W(e0) omega0 h``; rates ``omega0``; the
+    accelerometer, which is no state, held at its first measured sample of the window).
 
     ``model[ch][i]`` and ``naive[ch][i]`` are RMS errors in the channel's units (m, rad,
-    rad/s) at ``horizons[i]`` seconds ahead, over every window of the prediction."""
+    rad/s, m/s^2) at ``horizons[i]`` seconds ahead, over every window of the prediction."""
 
     horizons: list[float]
     model: dict[str, list[float]]

@@ -177,11 +177,10 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
         fr = fit(ext, est, free=free, p0=p, noise=None if reweight else sigma, reweight=reweight,
                  compile=compile, max_iter=max_iter or cap, initial_states=init, interval=res.interval,
                  process_noise=_process_noise(ext, res))
-        if restart and not soft and not cold and start is None:
-            again = fit(ext, est, free=free, p0=_guesses(ext, name), reweight=True, compile=compile,
-                        max_iter=COLD_REFIT_ITER, interval=res.interval)
-            if profile_log_likelihood(again) > profile_log_likelihood(fr):
-                fr = again
+    if restart and not soft and not cold and start is None:
+        again = refit(model, res, est, None, name, sigma, compile, cold=True, max_iter=COLD_REFIT_ITER)[1]
+        if profile_log_likelihood(again) > profile_log_likelihood(fr):
+            fr = again
     return ext, fr, (predict_flights(ext, fr.p, val, compile=compile) if val is not None else None)
 
 
