@@ -44,7 +44,7 @@ import traceback
 import warnings as _warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -61,6 +61,15 @@ SUMMARY_COLUMNS = ("flight", "status", "reason", "verdict", "nrmse_before", "nrm
 (effects the diagnosis added), ``input`` and, with ``joint``, ``fleet`` (the flight's
 parameters more than 3 std from the fleet's, in words)."""
 OUTLIER_STD = 3.0
+FLEET_MIN_DEVIATION = 0.02
+"""A flight's parameter is named against the fleet only when it is also this far from the
+fleet's value (relative; the same 2 % physical floor as discovery's): a rotor at 90 % is a
+weak rotor, a K_T at 99.8 % is the same vehicle however small its std."""
+FLEET_MIN_FLIGHTS = 4
+"""Flights it takes to estimate the flight-to-flight scatter (``tau``, robustly); with fewer,
+no flight is named: three identical foreign-simulator vehicles in three winds differed in
+vertical drag by 5-13 of their fits' std (even widened for coloured residuals), a bias of
+the model on each flight's manoeuvres that no single fit's std can show."""
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
               "GREYBOX_THREADS": "1"}
 """Set in every worker: one process per core is the parallelism, not threads inside it."""
@@ -91,6 +100,9 @@ class Options:
     import_format: str = "csv"
     pwm_map: str | None = None
     held: str = "interpolate"
+    # the joint fit's per-flight parameters (fit's ``per_flight``): in the fleet's key, not
+    # in a flight's (a flight's own results do not depend on it)
+    per_flight: str | tuple[str, ...] | None = "auto"
 
     def fingerprint(self) -> dict:
         """The options as they decide a flight's results: file contents, not paths."""
@@ -348,6 +360,12 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
     files["fit.json"] = _json_bytes(fit_json(model, base, [diag.baseline_prediction], [flight.path]))
     files["diagnose.json"] = _json_bytes(diag.as_json())
     files["model.json"] = _json_bytes(diag.fitted_model.to_dict())
+    # what the fleet comparison reads: the final model's parameters, their std widened by the
+    # colour of its residuals (a flight's fit std assume white residuals)
+    from .residuals import std_widening
+    est = model_log(diag.fitted_model.model, log, diag.fitted_model.p, flight.path).split(0.8)[0]
+    files["compare.json"] = _json_bytes({**comparable_fit(diag.fitted_model.to_dict()),
+                                         "std_factor": std_widening(diag.fitted_model, [est])})
     with tempfile.TemporaryDirectory(prefix="greybox-report-") as tmp:
         diag.report(tmp)
         for p in sorted(Path(tmp).rglob("*")):
@@ -369,15 +387,23 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
     return out
 
 
-def run_fleet(flights: Sequence[Flight], opts: Options) -> dict:
+def run_fleet(flights: Sequence[Flight], opts: Options, nuisance: Sequence[str] = ()) -> dict:
     """The joint fit on a worker: shared parameters on every flight's first 80 %, each flight
-    its own initial states, validated on each flight's last 20 % (``greybox fit LOG1 LOG2 ...``)."""
+    its own initial states and its own values of the per-flight parameters (``opts.per_flight``;
+    ``nuisance``: per-flight effects added to the model for the joint fit, e.g. a wind the
+    flights' own diagnoses found), validated on each flight's last 20 % (``greybox fit LOG1
+    LOG2 ... --per-flight auto``)."""
     t0 = time.perf_counter()
     _one_thread()
+    from . import effects as fx
     from .commands import fit_json, model_log
     from .fitting import fit
     from .validation import predict
     model, p0 = _model(opts)
+    if nuisance:
+        start = dict(zip(model.param_names, p0))
+        model = model + [fx.by_name(e) for e in nuisance]
+        p0 = model.parameter_vector(start)
     logs = []
     for f in flights:
         log, _ = _read_flight(f.path, f.sha, opts)
@@ -385,9 +411,13 @@ def run_fleet(flights: Sequence[Flight], opts: Options) -> dict:
     parts = [lg.split(0.8) for lg in logs]
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)
-        res = fit(model, [est for est, _ in parts], p0=p0, max_iter=200, process_noise=opts.process_noise)
-    preds = [predict(model, res.p, val) for _, val in parts]
-    return {"fit": fit_json(model, res, preds, [f.path for f in flights]), "model": res.to_dict(),
+        res = fit(model, [est for est, _ in parts], p0=p0, max_iter=200, process_noise=opts.process_noise,
+                  per_flight=list(opts.per_flight) if isinstance(opts.per_flight, tuple) else opts.per_flight)
+    preds = [predict(model, res.flight_p(i), val) for i, (_, val) in enumerate(parts)]
+    from .residuals import std_widening
+    fitj = fit_json(model, res, preds, [f.path for f in flights])
+    fitj["std_factor"] = std_widening(res, [est for est, _ in parts])
+    return {"fit": fitj, "model": res.to_dict(),
             "converged": bool(res.converged), "status": res.status, "wall_s": round(time.perf_counter() - t0, 3)}
 
 
@@ -397,7 +427,24 @@ def _covariance(fitj: dict) -> tuple[list[str], np.ndarray]:
     std = np.array([_num(fitj["parameters"][n]["std"]) if _num(fitj["parameters"][n]["std"]) is not None
                     else np.nan for n in free])
     R = np.array(fitj.get("correlation") or np.eye(len(free)), dtype=float).reshape(len(free), len(free))
+    std = std * float(fitj.get("std_factor") or 1.0)
     return free, R * np.outer(std, std)
+
+
+def comparable_fit(saved: dict) -> dict:
+    """A saved fitted model (``model.json``, :meth:`greybox.FittedModel.to_dict`) in the shape
+    of the fit JSON that :func:`fleet_comparison` reads (``parameters``, ``free``,
+    ``correlation``)."""
+    free = list(saved["free"])
+    std = saved["std"]
+    cov = np.array([[np.nan if v is None else float(v) for v in row] for row in saved["covariance"]],
+                   dtype=float).reshape(len(free), len(free))
+    s = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = np.nan_to_num(cov / np.outer(s, s))
+    params = {n: {"value": float(v), "std": std.get(n, 0.0) if n in free else 0.0}
+              for n, v in saved["parameters"].items()}
+    return {"free": free, "parameters": params, "correlation": np.clip(corr, -1, 1).tolist()}
 
 
 def _rotor_coefficients(fitj: dict, n_rotors: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -442,19 +489,25 @@ def _fmt(v: float) -> str:
 
 
 def fleet_comparison(flight_fits: Mapping[str, dict], fleet_fit: dict | None, n_rotors: int = 4,
-                     threshold: float = OUTLIER_STD) -> dict:
+                     threshold: float = OUTLIER_STD, exclude: Iterable[str] = (),
+                     min_deviation: float = FLEET_MIN_DEVIATION) -> dict:
     """Each flight's parameters against the fleet's: ``{"parameters": {flight: {quantity:
     {value, std, fleet, fleet_std, z}}}, "scatter": {quantity: tau}, "outliers": {flight:
     [sentence, ...]}}``, the outliers largest first.
 
     The fleet's value is the joint fit's (``fleet_fit``, a fit JSON) or, without one, the
     median of the flights' own values (a robust screen: one odd flight does not move it).
-    ``z = (value - fleet) / sqrt(std^2 + fleet_std^2 + tau^2)``, ``tau`` being the
+    ``z = (value - fleet) / sqrt(std^2 + fleet_std^2 + tau^2)`` (each std times its fit's
+    ``std_factor`` when it has one: :func:`greybox.residuals.std_widening`), ``tau`` being the
     flight-to-flight scatter beyond the fits' own std (robust, from the median absolute
     deviation; 0 with fewer than 4 flights): battery state, wind and the like make real
     flights differ by more than one fit's std says. Beyond ``threshold`` a flight is named in
-    words. With ``motor_asymmetry`` in the model the rotors are compared by their thrust
-    coefficients ``K_T (1 + d_i)`` (``d_N = -sum d``; std by the delta method)."""
+    words if it is also physically different: at least ``min_deviation`` (3 %) away from a
+    fleet value that is itself clearly non-zero (a 0.2 % difference in ``K_T`` can be 100 std
+    on a long flight and still be the same vehicle). With ``motor_asymmetry`` in the model the rotors are compared by their thrust
+    coefficients ``K_T (1 + d_i)`` (``d_N = -sum d``; std by the delta method). Parameters that
+    belong to a flight rather than to the vehicle (``exclude``, and what the joint fit fitted
+    per flight: wind, battery sag) are not compared."""
     names = list(flight_fits)
     quantities: dict[str, tuple[np.ndarray, np.ndarray, float | None, float]] = {}
     per = [_rotor_coefficients(flight_fits[n], n_rotors) for n in names]
@@ -470,14 +523,17 @@ def fleet_comparison(flight_fits: Mapping[str, dict], fleet_fit: dict | None, n_
     else:
         free = [n for n in (flight_fits[names[0]].get("free") or [])
                 if all(n in (flight_fits[m].get("free") or []) for m in names)] if names else []
+    skip = set(exclude) | set((fleet_fit or {}).get("per_flight") or {})
     for q in free:
-        if rotor_mode and q.startswith("K_T_dev["):
+        if (rotor_mode and q.startswith("K_T_dev[")) or q in skip:
             continue
         vals = np.array([_num(flight_fits[n]["parameters"].get(q, {}).get("value")) for n in names], dtype=float)
         stds = np.array([_num(flight_fits[n]["parameters"].get(q, {}).get("std")) for n in names], dtype=float)
+        stds = stds * np.array([float(flight_fits[n].get("std_factor") or 1.0) for n in names])
         if fleet_fit is not None:
             fp = fleet_fit["parameters"][q]
-            quantities[q] = (vals, stds, _num(fp["value"]), _num(fp["std"]) or 0.0)
+            quantities[q] = (vals, stds, _num(fp["value"]),
+                             (_num(fp["std"]) or 0.0) * float(fleet_fit.get("std_factor") or 1.0))
         else:
             quantities[q] = (vals, stds, None, 0.0)
     table: dict[str, dict] = {n: {} for n in names}
@@ -499,6 +555,8 @@ def fleet_comparison(flight_fits: Mapping[str, dict], fleet_fit: dict | None, n_
             if z is None or not math.isfinite(z) or abs(z) <= threshold:
                 continue
             ratio = v / fleet if fleet != 0 else None
+            if ratio is not None and abs(fleet) > 3 * fleet_std and abs(ratio - 1) < min_deviation:
+                continue    # significant perhaps, but physically the same vehicle
             if q.startswith("rotor ") and ratio is not None:
                 text = f"flight {n}: {q} at {100 * ratio:.0f} % of the fleet's thrust coefficient ({z:+.1f} std)"
             elif ratio is not None and ratio > 0 and abs(fleet) > 3 * fleet_std:
@@ -508,8 +566,14 @@ def fleet_comparison(flight_fits: Mapping[str, dict], fleet_fit: dict | None, n_
                 text = f"flight {n}: {q} = {_fmt(v)} against the fleet's {_fmt(fleet)} ({z:+.1f} std)"
             found[n].append((abs(z), text))
     outliers = {n: [t for _, t in sorted(found[n], key=lambda x: -x[0])] for n in names}
-    return {"parameters": table, "scatter": scatter, "outliers": outliers, "threshold_std": threshold,
-            "rotor_coefficients": rotor_mode, "reference": "joint fit" if fleet_fit is not None else "median"}
+    out = {"parameters": table, "scatter": scatter, "outliers": outliers, "threshold_std": threshold,
+           "rotor_coefficients": rotor_mode, "reference": "joint fit" if fleet_fit is not None else "median"}
+    if len(names) < FLEET_MIN_FLIGHTS:
+        out["outliers"] = {n: [] for n in names}
+        out["note"] = (f"{len(names)} flights: too few to tell a different vehicle from the scatter between "
+                       f"flights of one (it takes {FLEET_MIN_FLIGHTS}); no flight is named, the z values are "
+                       "against the fits' own std only")
+    return out
 
 
 # ---------------------------------------------------------------------------- results on disk
@@ -756,7 +820,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
           without: str | Sequence[str] | None = None, sets: Mapping[str, Any] | Sequence[str] | None = None,
           effects_files: Sequence[str | Path] = (), candidates: Sequence[str] | None = None, iterate: bool = True,
           discover: bool = True, process_noise: str | None = None, workers: int = 2, scheduler: str | None = None, joint: bool = False,
-          retries: int = 1, progress: bool = True) -> BatchResult:
+          per_flight: str | Sequence[str] | None = "auto", retries: int = 1, progress: bool = True) -> BatchResult:
     """Import (if needed), fit and diagnose every flight in ``inputs`` on Dask distributed;
     results under ``out`` (see the module doc and README, "greybox batch").
 
@@ -772,6 +836,10 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
             (the address of a running Dask scheduler, e.g. ``tcp://127.0.0.1:8786``).
         joint: also fit the shared parameters on all good flights at once and compare each
             flight with the fleet.
+        per_flight: in the joint fit, what each flight gets its own value of (as
+            :func:`greybox.fit`'s ``per_flight``): ``"auto"`` (default) the model's per-flight
+            effects (wind, thrust_drift) and those the flights' own diagnoses added, ``None``
+            everything shared, or effect / parameter names.
         retries: times a flight whose worker died is tried again (default once).
 
     Raises:
@@ -816,12 +884,19 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
                    effects_files=tuple(os.path.abspath(p) for p in effects_files),
                    candidates=tuple(candidates) if candidates is not None else None, iterate=bool(iterate),
                    discover=bool(discover),
-                   process_noise=process_noise, import_format=import_format, pwm_map=pwm_map, held=held)
+                   process_noise=process_noise, import_format=import_format, pwm_map=pwm_map, held=held,
+                   per_flight=per_flight if per_flight is None or isinstance(per_flight, str) else tuple(per_flight))
     if process_noise not in (None, "auto"):
         raise GreyboxInputError(f"process_noise must be None or 'auto', got {process_noise!r}")
     # the model, its parameters and the candidates, checked here before any work is sent out
     from . import effects as fx
     the_model, _ = _model(opts)
+    if per_flight is not None and per_flight != "auto":
+        names = [per_flight] if isinstance(per_flight, str) else list(per_flight)
+        for n in names:
+            if n not in fx.known_effects() and n not in the_model.param_names and \
+                    n not in {par.name for par in the_model.parameters}:
+                raise GreyboxInputError(f"--per-flight: {n!r} is neither an effect nor a parameter of the model")
     for c in opts.candidates or ():
         fx.by_name(c)
         if c in the_model.effects:
@@ -978,19 +1053,42 @@ def _fleet(engine: _Engine | None, scheduler, workers, flights: Sequence[Flight]
         if records[f.name]["status"] not in ("ok", "skipped"):
             continue
         try:
-            fits[f.name] = json.loads((out / f.name / "fit.json").read_text(encoding="utf-8"))
+            # each flight by its final model (a flight flown in wind, fitted without it, has its
+            # drag bent by the wind; its diagnosis added the wind to get it straight), std
+            # widened by its residuals' colour; results of an older greybox: fit.json
+            fits[f.name] = json.loads((out / f.name / "compare.json").read_text(encoding="utf-8"))
             good.append(f)
         except (OSError, ValueError):
-            pass
+            try:
+                fits[f.name] = json.loads((out / f.name / "fit.json").read_text(encoding="utf-8"))
+                good.append(f)
+            except (OSError, ValueError):
+                pass
     if len(good) < 2:
         return {"error": f"no joint fit: it needs at least two good flights, {len(good)} here", "flights": []}
     n_rotors = model.airframe.n_rotors
-    screen = fleet_comparison(fits, None, n_rotors)
+    from . import effects as fx
+    # a flight's wind or battery sag says nothing about the vehicle: not compared
+    flight_bound = {c for par in model.parameters if par.effect in model.effects
+                    and fx.effect_class(par.effect).per_flight for c in par.component_names}
+    nuisance: list[str] = []
+    if opts.per_flight == "auto":
+        # per-flight effects the flights' own diagnoses added (a wind on some days) join the
+        # joint fit, one value per flight
+        for f in good:
+            for e in str(records[f.name].get("added") or "").split(","):
+                if e and e not in model.effects and e not in nuisance and e in fx.known_effects() \
+                        and fx.effect_class(e).per_flight:
+                    nuisance.append(e)
+        for e in nuisance:
+            flight_bound |= {c for par in fx.by_name(e).parameters(model.airframe) for c in par.component_names}
+    screen = fleet_comparison(fits, None, n_rotors, exclude=flight_bound)
     odd = [f.name for f in good if screen["outliers"][f.name]]
     inliers = [f for f in good if f.name not in odd]
     if len(inliers) < max(2, (len(good) + 1) // 2):
         inliers, odd = good, []      # no majority to call typical: all of them
-    key = _sha_bytes(json.dumps({"fleet": sorted(f.key for f in inliers)}).encode())
+    key = _sha_bytes(json.dumps({"fleet": sorted(f.key for f in inliers), "per_flight": opts.per_flight,
+                                 "nuisance": nuisance}).encode())
     try:
         doc = json.loads((out / "fleet.json").read_text(encoding="utf-8"))
         cached = doc if doc.get("key") == key and (out / "fleet_model.json").is_file() else None
@@ -1008,7 +1106,7 @@ def _fleet(engine: _Engine | None, scheduler, workers, flights: Sequence[Flight]
         try:
             say.say(f"fleet: joint fit of the shared parameters on {len(inliers)} flights"
                     + (f" (left out, far from the others: {', '.join(odd)})" if odd else ""))
-            fut = engine.client.submit(run_fleet, inliers, opts, key=f"greybox-fleet-{os.urandom(4).hex()}",
+            fut = engine.client.submit(run_fleet, inliers, opts, nuisance, key=f"greybox-fleet-{os.urandom(4).hex()}",
                                        pure=False)
             try:
                 result = fut.result()
@@ -1020,7 +1118,7 @@ def _fleet(engine: _Engine | None, scheduler, workers, flights: Sequence[Flight]
             if own:
                 engine.__exit__(None, None, None)
         model_doc = result["model"]
-    comparison = fleet_comparison(fits, result["fit"], n_rotors)
+    comparison = fleet_comparison(fits, result["fit"], n_rotors, exclude=flight_bound)
     if not result["converged"]:
         comparison["warning"] = (f"the joint fit is not certified ({result['status']}): its values and std are "
                                  "not those of an optimum; read the comparison with care")

@@ -164,7 +164,7 @@ def cmd_effects(args: argparse.Namespace) -> int:
                   for p in cls().parameters(af)]
         out.append({"name": name, "origin": origin, "summary": cls.summary, "parameters": params,
                     "states": cls().state_names(af), "signals": list(cls.signals), "channels": list(cls.channels),
-                    "excited_by": cls.excited_by, "shifts_trim": cls.shifts_trim})
+                    "excited_by": cls.excited_by, "shifts_trim": cls.shifts_trim, "per_flight": cls.per_flight})
         pstr = "; ".join(f"{p['name']}" + (f"[{p['size']}]" if p["size"] > 1 else "") +
                          f" ({p['unit'] or '-'}, null {p['null']:g})" for p in params) or "no parameters"
         print(f"{name:<18} {origin:<10} {cls.summary}\n{'':<29}{pstr}")
@@ -344,6 +344,13 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _per_flight(text: str | None) -> str | list[str] | None:
+    """``--per-flight``: 'auto' (default), 'none' or a comma list of effects / parameters."""
+    if text is None or text == "auto":
+        return "auto"
+    return None if text == "none" else _names(text)
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting import fit
     from . import plotting
@@ -355,10 +362,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
         # several flights: shared parameters, each flight its own states
         res = fit(model, [est for est, _ in parts], free=_names(args.free), fixed=_names(args.fixed), p0=p0,
                   interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
-                  process_noise=args.process_noise)
+                  process_noise=args.process_noise, per_flight=_per_flight(args.per_flight))
     if not res.converged:
         raise GreyboxError(f"fit did not converge: {res.status}")
-    preds = [predict(model, res.p, val, horizon=args.horizon) for _, val in parts]
+    # each flight validated with its own values of the per-flight parameters (wind, battery sag)
+    preds = [predict(model, res.flight_p(i), val, horizon=args.horizon) for i, (_, val) in enumerate(parts)]
     print(res.summary())
     for log, pred in zip(logs, preds):
         where = f" of {log.source}" if len(logs) > 1 else ""
@@ -423,7 +431,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     diag = diagnose(model, logs, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=p0, progress=not args.quiet,
                     process_noise=args.process_noise, validation=validation,
-                    discover=not args.no_discover or bool(args.write_effect))
+                    discover=not args.no_discover or bool(args.write_effect), per_flight=_per_flight(args.per_flight))
     print(diag.summary())
     outputs: list[tuple[Path, str | bytes]] = []
     if args.json:
@@ -457,7 +465,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
                 without=args.without, sets=args.set, effects_files=args.effects_file or (),
                 candidates=_names(args.candidates), iterate=not args.no_iterate, discover=not args.no_discover,
                 process_noise=args.process_noise,
-                workers=args.workers or 2, scheduler=args.scheduler, joint=args.joint, progress=not args.quiet)
+                workers=args.workers or 2, scheduler=args.scheduler, joint=args.joint,
+                per_flight=_per_flight(args.per_flight), progress=not args.quiet)
     print(res.summary())
     if args.json:
         write_json(args.json, {"out": str(res.out), "counts": res.counts, "flights": res.records,
@@ -494,6 +503,9 @@ def _batch_parser(sub) -> None:
     b.add_argument("--joint", action="store_true",
                    help="also fit the shared parameters on all good flights at once and name the flights more "
                         "than 3 std from the fleet")
+    b.add_argument("--per-flight", metavar="auto|none|NAMES",
+                   help="with --joint, what each flight gets its own value of: 'auto' (default: wind and "
+                        "thrust_drift when the model or a flight's diagnosis has them), 'none' or a comma list")
     b.add_argument("--quiet", action="store_true", help="no progress lines")
     b.add_argument("--json", help="write the records (and the fleet comparison) here")
     b.set_defaults(func=cmd_batch, import_format="csv")
@@ -620,6 +632,10 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--max-iter", type=_positive_int, default=60, help="Gauss-Newton iteration limit (default 60)")
     f.add_argument("--process-noise", choices=["auto"],
                    help="'auto': treat shooting gaps as process noise (real logs; see README)")
+    f.add_argument("--per-flight", metavar="auto|none|NAMES",
+                   help="with several logs, what each flight gets its own value of: 'auto' (default: the "
+                        "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
+                        "comma list of effects / parameters")
     f.add_argument("--horizon", type=_positive, default=1.0, help="validation prediction horizon, s (default 1)")
     f.add_argument("--plots", help="folder for compare/residual plots")
     f.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -638,6 +654,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
     g.add_argument("--process-noise", choices=["auto"],
                    help="'auto': treat shooting gaps as process noise (real logs; see README)")
+    g.add_argument("--per-flight", metavar="auto|none|NAMES",
+                   help="with several logs, what each flight gets its own value of (as for fit; default auto: "
+                        "wind, thrust_drift)")
     g.add_argument("--validation", metavar="LOGV", nargs="+",
                    help="separate flight(s) to validate on (then all of each LOG is estimation data; "
                         "default: the last 20 %% of each LOG)")

@@ -120,6 +120,11 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
                 "noise": res.sigma, "residual_rms": res.residual_rms, "warnings": res.warnings,
                 "certificate": res.certificate.as_dict() if res.certificate is not None else None,
                 "time_s": res.timings.get("total")})
+    if getattr(res, "per_flight_", None):
+        # parameters fitted per flight: "parameters" holds their mean over the flights
+        out["per_flight"] = {n: {"value": v["value"],
+                                 "std": [s if np.isfinite(s) else None for s in v["std"]]}
+                             for n, v in res.per_flight_.items()}
     return out
 
 

@@ -15,7 +15,7 @@ from .integrate import n_substeps, parallel_map, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 
 __all__ = ["fitted_trajectory", "output_residuals", "whiteness_fraction", "long_run_factor",
-           "WHITENESS_LAGS"]
+           "std_widening", "WHITENESS_LAGS"]
 
 WHITENESS_LAGS = 30
 """Autocorrelation lags (in measured samples) examined by :func:`whiteness_fraction`."""
@@ -36,7 +36,9 @@ def fitted_trajectory(model: QuadrotorModel, res: Any, log: FlightLog, flight: i
     F = parallel_map(f.mapaccum("traj", N, [0], [0]), M)
     k = np.minimum(np.arange(M * N), n - 1)
     hk = np.append(np.diff(log.t), 0.0)[k]
-    _, Y, X = F(nodes[:M].T, log.inputs[k].T, res.p, log.t[k][None, :], hk[None, :])
+    # a fit with parameters per flight (wind, battery sag) gives each flight its own vector
+    p = res.flight_p(flight) if hasattr(res, "flight_p") else res.p
+    _, Y, X = F(nodes[:M].T, log.inputs[k].T, p, log.t[k][None, :], hk[None, :])
     Y, X = np.asarray(Y).T, np.asarray(X).T
     out_y = np.full((n, model.ny), np.nan)
     out_x = np.full((n, model.nx), np.nan)
@@ -87,3 +89,14 @@ def long_run_factor(e: np.ndarray, lags: int = 50) -> float:
         rho = float(e[k:] @ e[:-k]) / e.size / v
         acc += (1 - k / (lags + 1)) * rho
     return max(1.0, 1.0 + 2.0 * acc)
+
+
+def std_widening(res: Any, logs: "list[FlightLog]") -> float:
+    """How much wider a fit's parameter std are when its residuals are coloured: the square
+    root of the median long-run variance factor (:func:`long_run_factor`) of its measured
+    channels' residuals on its estimation flights ``logs``, >= 1. The fit's own std assume
+    white residuals; a model that is not exact leaves residuals correlated over dozens of
+    samples, and each sample then carries less information than the std count."""
+    E = np.vstack([output_residuals(lg, fitted_trajectory(res.model, res, lg, i)[1]) for i, lg in enumerate(logs)])
+    facs = [long_run_factor(E[:, c]) for c, ch in enumerate(OUTPUTS) if ch in res.sigma]
+    return math.sqrt(float(np.median(facs))) if facs else 1.0

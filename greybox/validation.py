@@ -327,11 +327,28 @@ def pool_predictions(preds: Sequence[Prediction]) -> Prediction:
                       np.vstack([p.errors for p in preds]), preds)
 
 
-def predict_flights(model: QuadrotorModel, p: np.ndarray, logs: "FlightLog | Sequence[FlightLog]",
-                    horizon: float = DEFAULT_HORIZON, **kw) -> Prediction:
-    """:func:`predict` on each flight, pooled (:func:`pool_predictions`)."""
+def predict_flights(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]",
+                    logs: "FlightLog | Sequence[FlightLog]", horizon: float = DEFAULT_HORIZON, **kw) -> Prediction:
+    """:func:`predict` on each flight, pooled (:func:`pool_predictions`); ``p`` one parameter
+    vector, or one per flight (:func:`validation_vectors`)."""
     logs = [logs] if isinstance(logs, FlightLog) else list(logs)
-    return pool_predictions([predict(model, p, log, horizon, **kw) for log in logs])
+    ps = [p] * len(logs) if isinstance(p, np.ndarray) and p.ndim == 1 else list(p)
+    return pool_predictions([predict(model, pk, log, horizon, **kw) for pk, log in zip(ps, logs)])
+
+
+def validation_vectors(res, est: Sequence[FlightLog], val: Sequence[FlightLog]) -> list[np.ndarray]:
+    """The parameter vector each validation flight is predicted with, after a fit ``res`` on
+    ``est``: a flight fitted with its own values of per-flight parameters (wind, battery sag:
+    ``res.per_flight_``) is validated with them when the validation flight is its tail
+    (:meth:`FlightLog.split`: same log, starting at the estimation part's last sample); any
+    other flight gets their mean, ``res.p`` (its wind was never seen)."""
+    out = []
+    for i, v in enumerate(val):
+        e = est[i] if i < len(est) else None
+        tail = (e is not None and getattr(res, "per_flight_", None) and len(v) and len(e)
+                and v.source == e.source and v.t[0] == e.t[-1])
+        out.append(res.flight_p(i) if tail else res.p)
+    return out
 
 
 def nrmse(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,

@@ -44,7 +44,8 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
         with _warnings.catch_warnings():
             _warnings.simplefilter("ignore", ConvergenceWarning)
             fits = [fit(model, half, p0=res.p, free=res.free_names, noise=res.sigma, reweight=False,
-                        compile=compile, max_iter=100, interval=res.interval) for half in halves]
+                        compile=compile, max_iter=100, interval=res.interval, per_flight=res.per_flight_rule)
+                    for half in halves]
     except GreyboxError as e:   # a half too short or too poor to fit: no verdict on consistency
         say(f"diagnose: halves not compared ({e})")
         return out
@@ -54,6 +55,8 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
     widen = math.sqrt(float(np.median([long_run_factor(E[:, c]) for c, ch in enumerate(OUTPUTS)
                                        if ch in res.sigma])))
     for i, n in enumerate(res.free_names):
+        if n in res.per_flight_:
+            continue    # a wind or battery sag of other flights: no reason to agree
         sa, sb = widen * float(a.std[i]), widen * float(b.std[i])
         if not (np.isfinite(sa) and np.isfinite(sb)) or sa + sb <= 0:
             continue

@@ -16,12 +16,12 @@ from scipy import stats
 from .. import effects as fx
 from ..data import FlightLog
 from ..errors import ConvergenceWarning
-from ..fitting import FitResult, FitSession, fit
+from ..fitting import FitResult, FitSession, fit, per_flight_positions
 from ..integrate import n_substeps, rk4_step
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import long_run_factor
 from ..shooting import ShootingProblem, free_indices
-from ..validation import Prediction, predict_flights
+from ..validation import Prediction, predict_flights, validation_vectors
 
 __all__ = ["NEGLIGIBLE_FRACTION", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
            "explained_fraction", "physically_negligible", "null_on_bound", "precompile_candidates"]
@@ -107,14 +107,30 @@ def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], nam
     ext, p, free = extended_model(model, res, name)
     free_idx = free_indices(ext, free, None)
     logs = [ext.prepare_log(lg) for lg in logs]
+    # parameters fitted per flight in the baseline (and the candidate's, if it belongs to a
+    # flight) keep one copy per flight: the statistic's degrees of freedom count the copies
+    spread = (per_flight_positions(ext, [ext.param_names[i] for i in free_idx], res.per_flight_rule)
+              if len(logs) > 1 else [])
     ses = FitSession(ext, logs, free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
-                     lambda _m: None)
+                     lambda _m: None, per_flight=spread)
     if res.process_noise is not None:
         ses.q = np.array(list(_process_noise(ext, res).values()))
     X = np.vstack(_extend_nodes(ext, res, logs, p))
-    th = p[free_idx] / ses.scale
+    th = ses.theta(flight_vectors(ext, p, res, len(logs)))
     d = ses.predicted_decrease(X, th)
-    return 2.0 * max(d, 0.0), len(free) - len(res.free_names)
+    return 2.0 * max(d, 0.0), ses.nth - (len(res.free_names) + (len(logs) - 1) * len(res.per_flight_))
+
+
+def flight_vectors(ext: QuadrotorModel, p: np.ndarray, res: FitResult, n_flights: int) -> list[np.ndarray]:
+    """``p`` (a vector of ``ext``) once per flight, with each flight's own values of the
+    baseline's per-flight parameters."""
+    out = []
+    for f in range(n_flights):
+        pf = p.copy()
+        for comp, v in res.per_flight_.items():
+            pf[ext.param_names.index(comp)] = v["value"][f]
+        out.append(pf)
+    return out
 
 
 def _process_noise(ext: QuadrotorModel, res: FitResult) -> dict[str, float] | None:
@@ -176,12 +192,13 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
         _warnings.simplefilter("ignore", ConvergenceWarning)   # a capped refit is judged by its LR
         fr = fit(ext, est, free=free, p0=p, noise=None if reweight else sigma, reweight=reweight,
                  compile=compile, max_iter=max_iter or cap, initial_states=init, interval=res.interval,
-                 process_noise=_process_noise(ext, res))
+                 process_noise=_process_noise(ext, res), per_flight=res.per_flight_rule)
     if restart and not soft and not cold and start is None:
         again = refit(model, res, est, None, name, sigma, compile, cold=True, max_iter=COLD_REFIT_ITER)[1]
         if profile_log_likelihood(again) > profile_log_likelihood(fr):
             fr = again
-    return ext, fr, (predict_flights(ext, fr.p, val, compile=compile) if val is not None else None)
+    return ext, fr, (predict_flights(ext, validation_vectors(fr, est, val), val, compile=compile)
+                     if val is not None else None)
 
 
 def _guesses(ext: QuadrotorModel, name: str | fx.Effect) -> np.ndarray:

@@ -16,7 +16,7 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import fit, progress_printer
 from ..model import QuadrotorModel
-from ..validation import predict_flights
+from ..validation import predict_flights, validation_vectors
 from .discovery import discover as discover_beyond_catalogue
 from .analysis import command_imbalance, residual_analysis
 from .consistency import half_consistency
@@ -41,7 +41,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
              n_refit: int = N_REFIT, compile: str = "auto",
              progress: bool | Callable[[str], None] = False,
              process_noise: str | dict[str, float] | None = None,
-             validation: FlightLog | Sequence[FlightLog] | None = None, discover: bool = True) -> Diagnosis:
+             validation: FlightLog | Sequence[FlightLog] | None = None, discover: bool = True,
+             per_flight: str | Sequence[str] | None = "auto") -> Diagnosis:
     """Compare ``model`` with ``log``, find where it fails and which catalogue effect is
     missing; with ``iterate`` add significant effects until none is left (see module doc).
 
@@ -55,6 +56,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         discover: after the ranking, look for the residual forces the fitted model (the
             baseline) leaves and explain them by named features
             (:mod:`greybox.diagnosis.discovery`).
+        per_flight: with several flights, what each gets its own value of (as
+            :func:`~greybox.fitting.fit`'s): ``"auto"`` (default) a wind or battery sag, in the
+            baseline and in a candidate's refit (the statistic's degrees of freedom count
+            the copies); ``None``: everything shared.
 
     ``log`` may be several flights of one vehicle: they share the parameters, each has its
     own states (the baseline, the screening, every refit); each is split into estimation and
@@ -95,13 +100,14 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         + (f" of {len(est)} flights" if len(est) > 1 else ""))
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # judged below, in words
-        res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise)
+        res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise,
+                  per_flight=per_flight)
         if not res.converged:
             # one more go from where it stopped, with the weights it reached
             say(f"diagnose: the baseline fit is not certified ({res.status}); solving on")
             res = fit(model, est, p0=res.p, compile=compile, max_iter=200, process_noise=process_noise,
                       noise=res.sigma, reweight=False, initial_states=res.node_states,
-                      interval=res.interval)
+                      interval=res.interval, per_flight=per_flight)
         formulation_note = ""
         if not res.converged and process_noise is None:
             # A model that misses a large force or torque cannot follow the data open loop
@@ -112,13 +118,13 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             # statistics are taken in that formulation (gaps count as residuals).
             say(f"diagnose: the baseline fit is not certified ({res.status}); fitting it again with "
                 "process noise (soft continuity)")
-            soft = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise="auto")
+            soft = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise="auto", per_flight=per_flight)
             if soft.converged:
                 formulation_note = (f"the output-error fit of the baseline did not reach a certified optimum "
                                     f"({res.status}); the diagnosis uses soft continuity (process noise, as "
                                     f"--process-noise auto), whose fit is certified")
                 res, process_noise = soft, "auto"
-    pred = predict_flights(model, res.p, val, compile=compile)
+    pred = predict_flights(model, validation_vectors(res, est, val), val, compile=compile)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split)})")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
                                                             validation_is_tail=validation is None)
@@ -162,12 +168,14 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                 _warnings.simplefilter("ignore", ConvergenceWarning)
                 more = fit(win.fit.model, est, free=win.fit.free_names, p0=win.fit.p, noise=win.fit.sigma,
                            reweight=False, compile=compile, max_iter=200, initial_states=win.fit.node_states,
-                           interval=win.fit.interval, process_noise=win.fit.process_noise)
+                           interval=win.fit.interval, process_noise=win.fit.process_noise,
+                           per_flight=win.fit.per_flight_rule)
             if not more.converged:
                 warnings.append(f"{verdict}'s refit did not reach a certified optimum ({more.status}): no further "
                                 "candidate was tested against it")
                 break
-            win.fit, win.prediction = more, predict_flights(more.model, more.p, val, compile=compile)
+            win.fit, win.prediction = more, predict_flights(more.model, validation_vectors(more, est, val), val,
+                                                            compile=compile)
         cur_model, cur_res, cur_pred = win.fit.model, win.fit, win.prediction
         remaining = [c for c in remaining if c != verdict]
     # confusable candidates: significant alone in round 1, explained away by the winner

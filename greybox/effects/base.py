@@ -68,6 +68,10 @@ class Effect:
     signals: ClassVar[tuple[str, ...]] = ()
     """Logged signals the effect reads as extra model inputs (e.g. ``vbat``), after the
     rotor speeds in the input vector; a log supplies them as extra columns."""
+    per_flight: ClassVar[bool] = False
+    """Whether its parameters belong to one flight rather than to the vehicle (the day's
+    wind, the battery's state): a fit of several flights with ``per_flight="auto"`` gives
+    each flight its own copy of them and shares the rest."""
 
     def parameters(self, airframe: "Airframe") -> list[Parameter]:
         return []

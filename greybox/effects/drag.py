@@ -153,6 +153,7 @@ class Wind(Effect):
     fit_advice = 'horizontal flight in several directions'
     channels = ('x', 'y')
     shifts_trim = True
+    per_flight = True      # the air moves differently on each flight
 
     def parameters(self, airframe):
         return [Parameter("wind", 2, 0.0, "m/s", -30.0, 30.0, 1.0, 0.0, True,

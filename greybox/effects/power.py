@@ -17,6 +17,7 @@ class ThrustDrift(Effect):
     summary = "thrust coefficient drifting linearly in time"
     excited_by = 'the same manoeuvre repeated early and late in the flight'
     fit_advice = 'a longer flight, repeating the same manoeuvres early and late'
+    per_flight = True      # how fast thrust sags depends on the battery each flight starts with
     channels = ('z',)
     distinguish = {
         'ground_effect': 'repeat the same climb early and late in the flight, away from the ground',

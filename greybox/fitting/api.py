@@ -104,6 +104,16 @@ class FitResult(FittedModel):
     process_cost: float = 0.0           # 0.5 * sum of squared gaps / q^2 (soft continuity)
     certificate: Certificate | None = None   # ``converged`` is ``certificate.optimal``
     provenance: dict = field(default_factory=dict)   # logs, greybox version, time (saved with the model)
+    per_flight_: dict = field(default_factory=dict)   # {component: {"value": [per flight], "std": [...]}}
+    per_flight_rule: str | list[str] | None = None   # what fit(per_flight=...) was asked (refits ask the same)
+
+    def flight_p(self, flight: int) -> np.ndarray:
+        """Flight ``flight``'s parameter vector: ``p`` with its own values of the parameters
+        fitted per flight (``fit(..., per_flight=...)``); ``p`` itself without them."""
+        p = self.p.copy()
+        for name, v in self.per_flight_.items():
+            p[self.model.param_names.index(name)] = v["value"][flight]
+        return p
 
     @property
     def parameters(self) -> dict[str, dict[str, float | None]]:
@@ -140,7 +150,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         interval: int | None = None, noise: Mapping[str, float] | None = None,
         max_iter: int = 60, tol: float = 1e-7, reweight: bool = True, compile: str = "auto",
         progress: bool | Callable[[str], None] = False, initial_states: Sequence[np.ndarray] | None = None,
-        process_noise: str | Mapping[str, float] | None = None, solver: Solver | None = None) -> FitResult:
+        process_noise: str | Mapping[str, float] | None = None, solver: Solver | None = None,
+        per_flight: str | Iterable[str] | None = None) -> FitResult:
     """Fit the free parameters of ``model`` to one or several flight logs.
 
     Args:
@@ -165,6 +176,13 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             state at the starting point and is re-estimated (downwards only) after each
             solve. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
             fit of such data can only shrink the parameters until the model stops moving.
+        per_flight: with several logs, parameters each flight gets its own value of (the
+            day's wind, the battery's sag) while the rest are shared: ``"auto"`` for the
+            parameters of the model's effects that declare ``per_flight`` (``wind``,
+            ``thrust_drift``), or effect / parameter / component names. ``None`` (default):
+            everything shared. The result's ``p``, ``std`` and ``covariance`` then give such a
+            parameter's mean over the flights; ``per_flight_`` each flight's value and std,
+            and ``flight_p(f)`` flight ``f``'s parameter vector.
         solver: the strategy that runs the iterations (a :class:`~greybox.fitting.Solver`);
             default :class:`~greybox.fitting.GaussNewton`. Whichever solver ran, the end
             point is certified the same way (``FitResult.certificate``).
@@ -207,15 +225,19 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         p = model.default_parameters() if p0 is None else np.array(p0, dtype=float)
     free_idx = free_indices(model, free, fixed)
     free_names = [model.param_names[i] for i in free_idx]
+    spread = per_flight_positions(model, free_names, per_flight)    # names checked with one log too
+    spread = spread if len(logs) > 1 else []
     sigma = noise_levels(logs, noise)
-    ses = FitSession(model, logs, free_idx, p, sigma, interval, compile, say, solver)
+    ses = FitSession(model, logs, free_idx, p, sigma, interval, compile, say, solver, per_flight=spread)
+    if spread:
+        say(f"fit: per flight: {', '.join(free_names[j] for j in spread)} ({len(logs)} copies each)")
     say(f"fit: {len(logs)} flight(s), {sum(len(l) for l in logs)} samples, {len(free_idx)} free "
         f"parameters, interval {interval} samples; interval function: {ses.prob.how} ({ses.t_build:.1f} s)")
     if initial_states is not None:
         X = np.vstack([np.array(s, dtype=float) for s in initial_states])
     else:
         X = ses.initial_nodes(p)
-    th = p[free_idx] / ses.scale
+    th = ses.theta(p)
     data = ses.data
     n_c = data.mask.sum(axis=1)
     user_sigma = np.array([n in (noise or {}) for n in OUTPUTS])
@@ -340,7 +362,16 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     sigma, scale, nth, nx = ses.sigma, ses.scale, ses.nth, ses.nx
     cch = blocks[4]
     cost = ses.total_cost(X, blocks[0], cch)
-    cov = s2 * P * np.outer(scale, scale)
+    # Reported per free parameter: a parameter fitted per flight by its mean over the flights
+    # (``T`` averages its copies; a linear map, so the covariance follows exactly), each
+    # flight's own value and std in ``per_flight_``.
+    cov_all = s2 * P * np.outer(scale, scale)
+    n_flights = len(logs)
+    T = np.zeros((len(free_idx), nth))
+    for f in range(n_flights):
+        T[np.arange(len(free_idx)), ses.theta_index[f]] += 1.0 / n_flights   # shared: one column, sum 1
+    cov = T @ cov_all @ T.T
+    P = T @ P @ T.T
     var = np.diag(cov)
     warnings: list[str] = []
     if np.any(var <= 0) or not np.all(np.isfinite(var)):
@@ -352,7 +383,17 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         corr = cov / np.outer(std, std)
     corr = np.clip(np.nan_to_num(corr), -1.0, 1.0)
     p_out = p.copy()
-    p_out[free_idx] = th * scale
+    p_out[free_idx] = T @ (th * scale)
+    var_all = np.diag(cov_all)
+    per_flight_out = {free_names[j]: {
+        "value": [float(th[ses.theta_index[f, j]] * scale[ses.theta_index[f, j]]) for f in range(n_flights)],
+        "std": [float(np.sqrt(var_all[ses.theta_index[f, j]])) if var_all[ses.theta_index[f, j]] > 0
+                else float("nan") for f in range(n_flights)]} for j in spread}
+
+    def flight_vector(f: int) -> np.ndarray:
+        pf = p_out.copy()
+        pf[free_idx] = ses.flight_theta(th, f)
+        return pf
     warnings += _identifiability_warnings(model, free_names, p_out[free_idx], std, corr, P)
     if not converged:
         warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
@@ -378,7 +419,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             M = math.ceil(len(log) / check_n)
             idx = np.minimum(np.arange(M + 1) * check_n, len(log) - 1)
             nodes = nodes[idx]          # soft fits have a node at every sample
-        probe = FitResult(model, p_out, free_names, np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0)), converged,
+        probe = FitResult(model, flight_vector(f), free_names, np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0)), converged,
                           status, 0, 0.0, 0, {}, {}, [nodes], [idx], interval=check_n)
         E = output_residuals(log, fitted_trajectory(model, probe, log, 0)[1])
         for c, n in enumerate(OUTPUTS):
@@ -402,7 +443,32 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
                      cost - 0.5 * float(cch.sum()), certificate,
                      provenance(logs, status=status, converged=bool(converged), interval=interval,
                                 process_noise=process_noise if isinstance(process_noise, str) else
-                                (dict(process_noise) if process_noise else None)))
+                                (dict(process_noise) if process_noise else None),
+                                **({"per_flight": per_flight_out} if per_flight_out else {})),
+                     per_flight_out,
+                     per_flight if per_flight is None or isinstance(per_flight, str) else list(per_flight))
+
+
+def per_flight_positions(model: QuadrotorModel, free_names: list[str],
+                         per_flight: "str | Iterable[str] | None") -> list[int]:
+    """Positions in ``free_names`` of the parameters fitted per flight (see :func:`fit`)."""
+    if per_flight is None:
+        return []
+    if isinstance(per_flight, str):
+        if per_flight == "auto":
+            chosen = {c for e in model.effects if e.per_flight
+                      for par in model.parameters if par.effect == e.name for c in par.component_names}
+            return [j for j, n in enumerate(free_names) if n in chosen]
+        per_flight = [x.strip() for x in per_flight.split(",") if x.strip()]
+    chosen = set()
+    for item in per_flight:
+        comps = [c for par in model.parameters if item in (par.name, par.effect) for c in par.component_names]
+        comps += [item] if item in model.param_names else []
+        if not comps:
+            raise GreyboxInputError(f"per_flight: {item!r} is neither an effect of the model nor one of its "
+                                    f"parameters (effects: {', '.join(model.effect_names)})")
+        chosen.update(comps)
+    return [j for j, n in enumerate(free_names) if n in chosen]
 
 
 def _identifiability_warnings(model: QuadrotorModel, names: list[str], values: np.ndarray, std: np.ndarray,

@@ -169,16 +169,37 @@ class FitSession:
 
     def __init__(self, model: QuadrotorModel, logs: Sequence[FlightLog], free_idx: list[int], p: np.ndarray,
                  sigma: np.ndarray, interval: int, compile: str, say: Callable[[str], None],
-                 solver: "Solver | None" = None):
+                 solver: "Solver | None" = None, per_flight: Sequence[int] = ()):
         self.model, self.logs, self.free_idx, self.say = model, list(logs), free_idx, say
         self.solver = solver if solver is not None else GaussNewton()
         params_by_comp = {n: par for par in model.parameters for n in par.component_names}
         # scale by the starting value where there is one (a 30 g and a 3 kg vehicle differ in
         # K_T by 1000x); a parameter starting at zero gets its nominal scale
-        self.scale = np.array([abs(p[i]) if p[i] != 0 else params_by_comp[model.param_names[i]].scale
-                               for i in free_idx])
+        scale = np.array([abs(p[i]) if p[i] != 0 else params_by_comp[model.param_names[i]].scale
+                          for i in free_idx])
+        self.scale_local = scale
+        # Parameters fitted per flight (``per_flight``: positions in ``free_idx``): the solver's
+        # parameter vector holds one copy per flight; ``theta_index[f, j]`` is where flight f's
+        # free parameter j sits in it. The interval functions see only their flight's copy,
+        # so the structure (and its compiled code) is that of one flight.
+        n_local, n_flights = len(free_idx), len(self.logs)
+        spread = sorted(set(per_flight)) if n_flights > 1 else []
+        self.theta_index = np.tile(np.arange(n_local), (n_flights, 1))
+        names = [model.param_names[i] for i in free_idx]
+        self.names = [f"{n}@1" if j in spread else n for j, n in enumerate(names)]
+        k = n_local
+        for f in range(1, n_flights):
+            for j in spread:
+                self.theta_index[f, j] = k
+                self.names.append(f"{names[j]}@{f + 1}")
+                k += 1
+        self.per_flight = spread
+        self.local_of = np.empty(k, dtype=int)       # global position -> free parameter
+        for f in range(n_flights):
+            self.local_of[self.theta_index[f]] = np.arange(n_local)
+        self.scale = scale[self.local_of]
         lo, hi = parameter_bounds(model)
-        self.lo_s, self.hi_s = lo[free_idx] / self.scale, hi[free_idx] / self.scale
+        self.lo_s, self.hi_s = lo[free_idx][self.local_of] / self.scale, hi[free_idx][self.local_of] / self.scale
         self.sigma = sigma.copy()
         self.q: np.ndarray | None = None   # process noise per state (None: hard continuity)
         self.max_step: float | None = None   # trust region on the scaled parameters (None: off)
@@ -190,8 +211,13 @@ class FitSession:
         self.data = layout(model, logs, interval, sigma)
         self.n_int = sum(M for _, M in self.data.flights)
         self.mapped = self.prob.mapped(self.n_int)
-        self.kkt = BandedKKT(self.data.flights, model.nx, len(free_idx))
-        self.nx, self.nth, self.nz = model.nx, len(free_idx), self.prob.nz
+        self.nx, self.nth = model.nx, len(self.local_of)
+        self.nz = self.nx + self.nth
+        self.kkt = BandedKKT(self.data.flights, model.nx, self.nth)
+        counts = [M for _, M in self.data.flights]
+        self.interval_slices = [slice(a, a + M) for a, M in zip(np.cumsum([0] + counts[:-1]), counts)]
+        # per interval, the solver's parameters its flight's copy is made of
+        self.theta_of_interval = np.repeat(self.theta_index, counts, axis=0)
         self.pfix = p.copy()
         n_nodes = self.n_int + len(self.data.flights)
         self.last_mask = np.zeros(n_nodes, dtype=bool)
@@ -209,17 +235,51 @@ class FitSession:
         return np.vstack([initial_node_states(self.model, log, idx, p)
                           for log, idx in zip(self.logs, self.data.node_index)])
 
+    def theta(self, p: "np.ndarray | Sequence[np.ndarray]") -> np.ndarray:
+        """The solver's scaled parameters: every flight's copy at ``p``'s value, or at its own
+        flight's (``p`` a list of one parameter vector per flight)."""
+        if isinstance(p, np.ndarray) and p.ndim == 1:
+            return p[self.free_idx][self.local_of] / self.scale
+        th = np.empty(self.nth)
+        for f, pf in enumerate(p):
+            th[self.theta_index[f]] = np.asarray(pf)[self.free_idx] / self.scale_local
+        return th
+
+    def flight_theta(self, th: np.ndarray, f: int) -> np.ndarray:
+        """Flight ``f``'s free parameters (unscaled, ``free_idx`` order)."""
+        return th[self.theta_index[f]] * self.scale_local
+
     def evaluate(self, X, th, blocks=True):
-        nx, nz, n_int = self.nx, self.nz, self.n_int
-        args = (X[~self.last_mask].T, th, self.scale, self.pfix, self.data.U, self.data.T, self.data.Hs,
+        nx, n_int = self.nx, self.n_int
+        spread = bool(self.per_flight)
+        nz = nx + len(self.free_idx)
+        # one flight's copy per interval (a map input given per column), or the one vector
+        th_arg = th[self.theta_of_interval].T if spread else th
+        args = (X[~self.last_mask].T, th_arg, self.scale_local, self.pfix, self.data.U, self.data.T, self.data.Hs,
                 self.data.Y, self.data.W)
         if blocks:
             xe, S, H, g, c = self.mapped.blocks(*args)
             S = np.asarray(S).reshape(nx, n_int, nz).transpose(1, 0, 2)
             H = np.asarray(H).reshape(nz, n_int, nz).transpose(1, 0, 2)
-            return np.asarray(xe).T, S, H, np.asarray(g).T, np.asarray(c)
+            g = np.asarray(g).T
+            if spread:
+                S, H, g = self._spread(S, H, g)
+            return np.asarray(xe).T, S, H, g, np.asarray(c)
         xe, c = self.mapped.value(*args)
         return np.asarray(xe).T, np.asarray(c)
+
+    def _spread(self, S, H, g):
+        """Blocks in one flight's parameters -> blocks in the solver's (all flights' copies)."""
+        nx, nz = self.nx, self.nz
+        S2 = np.zeros((S.shape[0], nx, nz))
+        H2 = np.zeros((H.shape[0], nz, nz))
+        g2 = np.zeros((g.shape[0], nz))
+        for f, sl in enumerate(self.interval_slices):
+            zi = np.concatenate([np.arange(nx), nx + self.theta_index[f]])
+            S2[sl, :, zi] = S[sl]      # one advanced index: its axis stays in place
+            H2[sl, zi[:, None], zi[None, :]] = H[sl]
+            g2[sl, zi] = g[sl]
+        return S2, H2, g2
 
     def gaps(self, X, xe):
         return xe - X[self.nxt]
@@ -339,7 +399,7 @@ class FitSession:
         zero whatever the size of the residuals. Returns (step/std, state step/noise,
         gap/noise, held parameters, reasons it is not optimal)."""
         reasons: list[str] = []
-        names = [self.model.param_names[i] for i in self.free_idx]
+        names = self.names
         try:
             dz, _, _, _, cz = self.step(X, th, blocks, 0.0)
         except SolverError as e:
