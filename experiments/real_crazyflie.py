@@ -106,6 +106,14 @@ def run(path: Path, out: Path) -> dict:
         "nrmse_final": (diag.final_prediction.nrmse | {"total": diag.final_prediction.total})
         if diag.final_prediction else None,
         "verdicts": [r.verdict for r in diag.rounds if r.verdict],
+        # issue 15's checks: a certified base fit, b/K_T in 0.001-0.05 m (published Crazyflie
+        # torque-to-thrust ratios 0.002-0.034 m), and the final model against the naive
+        # constant-velocity / constant-rate predictor at 0.25 s and 0.5 s
+        "base_certified": bool(base.converged),
+        "base_status": base.status,
+        "b_over_K_T_base": base.value("b") / base.value("K_T"),
+        "b_over_K_T_final": final.value("b") / final.value("K_T"),
+        "horizons_final": _at(diag.final_prediction or diag.baseline_prediction, (0.25, 0.5)),
         "final_effects": (diag.final_model or model).effect_names,
         "warnings": diag.warnings,
         "report": str(report),
@@ -113,6 +121,21 @@ def run(path: Path, out: Path) -> dict:
     }
     print(diag.summary(), flush=True)
     return row
+
+
+def _at(pred, horizons) -> dict:
+    """RMS prediction error of the model and of the naive predictor at ``horizons`` (s), per
+    position and attitude channel, and whether the model beats the naive one there."""
+    he = pred.horizon_errors().as_dict()
+    hs = list(he["horizons"])
+    out = {}
+    for h in horizons:
+        k = int(np.argmin([abs(x - h) for x in hs]))
+        for ch in ("x", "y", "z", "phi", "theta", "psi"):
+            if ch in he["model"]:
+                m, n = he["model"][ch][k], he["naive"][ch][k]
+                out[f"{ch}@{h:g}"] = {"model": m, "naive": n, "beats": bool(m < n)}
+    return out
 
 
 def markdown(rows: list[dict]) -> str:
@@ -128,6 +151,20 @@ def markdown(rows: list[dict]) -> str:
                      f"{r['imu_specific_force_over_g']:.3f} | {kd} | "
                      f"{r['imu_drag']['k_x']:.4f}, {r['imu_drag']['k_y']:.4f} | "
                      f"{r['nrmse_base']['total']:.2f} → {fin:.2f} |")
+    lines.append("")
+    lines.append("Issue 15's checks (final model; beats naive: channels of x, y, z, phi, theta, psi where the "
+                 "model's RMS prediction error is below the naive predictor's):")
+    lines.append("")
+    lines.append("| flight | base certified | b/K_T base → final (m) | beats naive at 0.25 s | at 0.5 s | diagnosis (s) |")
+    lines.append("|---|---|---|---|---|---|")
+    for r in rows:
+        hz = r["horizons_final"]
+        beat = {h: [k.split("@")[0] for k, v in hz.items() if k.endswith(f"@{h}") and v["beats"]]
+                for h in ("0.25", "0.5")}
+        lines.append(f"| {r['flight']} | {'yes' if r['base_certified'] else 'no'} | "
+                     f"{r['b_over_K_T_base']:.4f} → {r['b_over_K_T_final']:.4f} | "
+                     f"{', '.join(beat['0.25']) or 'none'} | {', '.join(beat['0.5']) or 'none'} | "
+                     f"{r['seconds']:.0f} |")
     lines.append("")
     lines.append("Per-channel 1-s nrmse (validation, last 20 %):")
     lines.append("")

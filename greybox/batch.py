@@ -809,8 +809,10 @@ class BatchResult:
                 left = list(self.fleet.get("left_out") or [])
                 lines.append(f"fleet: joint fit on {len(self.fleet['flights'])} flights"
                              + (f" (left out: {', '.join(left)})" if left else "") + f" -> {self.out / 'fleet.json'}; "
-                             + (f"beyond {OUTLIER_STD:g} std:" if named else f"no flight beyond {OUTLIER_STD:g} std"))
+                             + ("named:" if named else "no flight named"))
                 lines += [f"  {s}" for s in named]
+                cmp = self.fleet["comparison"]
+                lines += [f"  {cmp[k]}" for k in ("note", "advice", "warning") if cmp.get(k)]
         return "\n".join(lines)
 
 
@@ -1082,7 +1084,22 @@ def _fleet(engine: _Engine | None, scheduler, workers, flights: Sequence[Flight]
                     nuisance.append(e)
         for e in nuisance:
             flight_bound |= {c for par in fx.by_name(e).parameters(model.airframe) for c in par.component_names}
-    screen = fleet_comparison(fits, None, n_rotors, exclude=flight_bound)
+    # What the joint fit will see of each flight: its final model where that differs from the
+    # joint's by per-flight effects only; where its diagnosis added something of the vehicle
+    # (a weak rotor's motor_asymmetry) the joint's model cannot follow it, and its base fit
+    # (bent by what is missing) shows that and leaves it out of the joint fit.
+    vehicle_added = {f.name: [e for e in str(records[f.name].get("added") or "").split(",")
+                              if e and e not in nuisance and not (e in fx.known_effects()
+                                                                  and fx.effect_class(e).per_flight)]
+                     for f in good}
+    as_joint = dict(fits)
+    for f in good:
+        if vehicle_added[f.name]:
+            try:
+                as_joint[f.name] = json.loads((out / f.name / "fit.json").read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                pass
+    screen = fleet_comparison(as_joint, None, n_rotors, exclude=flight_bound)
     odd = [f.name for f in good if screen["outliers"][f.name]]
     inliers = [f for f in good if f.name not in odd]
     if len(inliers) < max(2, (len(good) + 1) // 2):
@@ -1119,6 +1136,22 @@ def _fleet(engine: _Engine | None, scheduler, workers, flights: Sequence[Flight]
                 engine.__exit__(None, None, None)
         model_doc = result["model"]
     comparison = fleet_comparison(fits, result["fit"], n_rotors, exclude=flight_bound)
+    # what the flights' own diagnoses added to the vehicle: on most flights, the vehicle has it
+    # (said once, as advice); on a few, those flights are odd (said for each, whatever the
+    # statistics above: a weak rotor is the verdict of its flight)
+    counts: dict[str, int] = {}
+    for added in vehicle_added.values():
+        for e in added:
+            counts[e] = counts.get(e, 0) + 1
+    common = sorted(e for e, k in counts.items() if 2 * k >= len(good))
+    if common:
+        comparison["advice"] = (f"the diagnoses of most flights added {', '.join(common)}: the vehicle has it; "
+                                f"add it to the model (--effects {','.join(common)}) and the joint fit has it too")
+    for name, added in vehicle_added.items():
+        rare = [e for e in added if e not in common]
+        if rare:
+            comparison["outliers"][name].insert(0, f"flight {name}: its own diagnosis added {', '.join(rare)}, "
+                                                   "which the other flights' did not")
     if not result["converged"]:
         comparison["warning"] = (f"the joint fit is not certified ({result['status']}): its values and std are "
                                  "not those of an optimum; read the comparison with care")

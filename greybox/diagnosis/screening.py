@@ -114,7 +114,9 @@ def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], nam
     ses = FitSession(ext, logs, free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
                      lambda _m: None, per_flight=spread)
     if res.process_noise is not None:
-        ses.q = np.array(list(_process_noise(ext, res).values()))
+        qd = _process_noise(ext, res)    # per state a std, or one per flight
+        qf = np.array([[v[f] if isinstance(v, (list, tuple)) else v for v in qd.values()] for f in range(len(logs))])
+        ses.q = qf[0] if len(logs) == 1 else qf[ses.flight_of_interval]
     X = np.vstack(_extend_nodes(ext, res, logs, p))
     th = ses.theta(flight_vectors(ext, p, res, len(logs)))
     d = ses.predicted_decrease(X, th)

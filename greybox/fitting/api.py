@@ -100,7 +100,7 @@ class FitResult(FittedModel):
     interval: int = 50
     channel_cost: dict[str, float] = field(default_factory=dict)   # sum of squared weighted residuals
     channel_count: dict[str, int] = field(default_factory=dict)    # measured samples per channel
-    process_noise: dict[str, float] | None = None   # q per state when continuity was soft
+    process_noise: dict[str, "float | list[float]"] | None = None   # q per state (per flight if they differ), soft continuity
     process_cost: float = 0.0           # 0.5 * sum of squared gaps / q^2 (soft continuity)
     certificate: Certificate | None = None   # ``converged`` is ``certificate.optimal``
     provenance: dict = field(default_factory=dict)   # logs, greybox version, time (saved with the model)
@@ -174,7 +174,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             gaps are process noise, penalised by ``|gap_i|^2 / (2 q_i^2)`` (a filter-error
             / smoothing formulation); with ``"auto"`` ``q`` starts as the RMS gap of each
             state at the starting point and is re-estimated (downwards only) after each
-            solve. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
+            solve, each flight its own; a std in ``{state: std}`` may be one per flight. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
             fit of such data can only shrink the parameters until the model stops moving.
         per_flight: with several logs, parameters each flight gets its own value of (the
             day's wind, the battery's sag) while the rest are shared: ``"auto"`` for the
@@ -212,10 +212,14 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         if isinstance(process_noise, str) and process_noise != "auto":
             raise GreyboxInputError(f"process_noise must be None, 'auto' or {{state: std}}, got {process_noise!r}")
         q_given = {} if isinstance(process_noise, str) else dict(process_noise)
-        for k in q_given:
+        for k, v in q_given.items():
             if k not in model.state_names:
                 raise GreyboxInputError(f"process_noise: unknown state {k!r}; states are "
                                         f"{', '.join(model.state_names)}")
+            arr = np.atleast_1d(np.asarray(v, dtype=float))
+            if arr.size not in (1, len(logs)) or not np.all(np.isfinite(arr) & (arr > 0)):
+                raise GreyboxInputError(f"process_noise[{k!r}]: a positive std, or one per flight ({len(logs)}), "
+                                        f"got {v!r}")
     logs = [model.prepare_log(log) for log in logs]
     for log in logs:
         log.check_fittable(min_samples=max(2 * interval, 20))
@@ -249,20 +253,25 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     if soft:
         def estimate_q(X_, th_) -> np.ndarray:
             xe = ses.evaluate(X_, th_, blocks=False)[0]
-            rms = np.sqrt(np.mean(ses.gaps(X_, xe) ** 2, axis=0))
+            gaps = ses.gaps(X_, xe)
             floor = 1e-6 * (np.abs(X_).max(axis=0) + 1e-3)
+            # Several flights: each its own process noise. One flight the model cannot follow
+            # (a weak rotor among healthy ones) has gaps 10^4 times the others'; a common q
+            # would let every flight's states drift that much, and the shared parameters
+            # went 26 % off.
+            rms = np.vstack([np.sqrt(np.mean(gaps[sl] ** 2, axis=0)) for sl in ses.interval_slices])
             q = np.maximum(rms, floor)
+            for name, v in q_given.items():
+                q[:, model.state_names.index(name)] = np.broadcast_to(np.asarray(v, dtype=float), len(logs))
+            q = q[0] if len(logs) == 1 else q[ses.flight_of_interval]
             if ses.q is not None:
                 # only downwards: grown process noise would let the states follow measurement
                 # noise, and the gaps grow with it (the degenerate end of joint Q estimation)
                 q = np.minimum(q, ses.q)
-            for name, v in q_given.items():
-                q[model.state_names.index(name)] = float(v)
             return q
 
         ses.q = estimate_q(X, th)
-        say("fit: process noise (RMS gap per state): " +
-            ", ".join(f"{n}={v:.2g}" for n, v in zip(model.state_names, ses.q)))
+        say("fit: process noise (RMS gap per state): " + _q_text(model, ses))
     sensor = sensor_noise(logs)
     n_res = int(data.mask.sum())
     dof = max(n_res - ses.nth - ses.nx * len(logs), 1)
@@ -293,7 +302,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             if np.all(np.abs(q_new / ses.q - 1) < 0.2):
                 break
             ses.q = q_new
-            say("fit: process noise re-estimated: " + ", ".join(f"{n}={v:.2g}" for n, v in zip(model.state_names, ses.q)))
+            say("fit: process noise re-estimated: " + _q_text(model, ses))
             X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
             total_iters += iters
         for _ in range(3 if reweight and not soft else 0):
@@ -439,7 +448,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
                      node_states, data.node_index, warnings, timings, ses.prob.how, interval,
                      {n: float(cc[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
                      {n: int(n_c[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
-                     dict(zip(model.state_names, map(float, ses.q))) if soft else None,
+                     _q_dict(model, ses) if soft else None,
                      cost - 0.5 * float(cch.sum()), certificate,
                      provenance(logs, status=status, converged=bool(converged), interval=interval,
                                 process_noise=process_noise if isinstance(process_noise, str) else
@@ -447,6 +456,26 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
                                 **({"per_flight": per_flight_out} if per_flight_out else {})),
                      per_flight_out,
                      per_flight if per_flight is None or isinstance(per_flight, str) else list(per_flight))
+
+
+def _flight_q(ses: FitSession) -> np.ndarray:
+    """Process noise per flight and state, (n_flights, nx)."""
+    if ses.q.ndim == 1:
+        return np.tile(ses.q, (len(ses.interval_slices), 1))
+    return np.vstack([ses.q[sl.start] for sl in ses.interval_slices])
+
+
+def _q_dict(model: QuadrotorModel, ses: FitSession) -> dict[str, "float | list[float]"]:
+    """``FitResult.process_noise``: per state a number, or one per flight when they differ."""
+    qf = _flight_q(ses)
+    return {n: float(qf[0, j]) if np.all(qf[:, j] == qf[0, j]) else [float(v) for v in qf[:, j]]
+            for j, n in enumerate(model.state_names)}
+
+
+def _q_text(model: QuadrotorModel, ses: FitSession) -> str:
+    qf = _flight_q(ses)
+    return ", ".join(f"{n}={qf[0, j]:.2g}" if np.all(qf[:, j] == qf[0, j]) else
+                     f"{n}={qf[:, j].min():.2g}..{qf[:, j].max():.2g}" for j, n in enumerate(model.state_names))
 
 
 def per_flight_positions(model: QuadrotorModel, free_names: list[str],

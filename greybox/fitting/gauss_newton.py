@@ -105,7 +105,8 @@ class BandedKKT:
         g: (n_nodes, nz), G: (n_int, nz, nz) interval constraint Jacobians, c: (n_int, nz)
         gaps. ``q2`` (nz,): process-noise variances of soft continuity rows (0 = hard):
         the penalty ``|gap|^2/(2 q^2)`` puts ``-q^2`` on the multiplier diagonal, which keeps
-        the band. Returns the solution vector (or matrix for ``rhs_extra``)."""
+        the band; ``(n_int, nz)`` for one per interval. Returns the solution vector (or matrix
+        for ``rhs_extra``)."""
         nz, nth, nx = self.nz, self.nth, self.nx
         l = u = self.bw
         ab = np.zeros((l + u + 1, self.n))
@@ -135,7 +136,9 @@ class BandedKKT:
         put(self.lams, zto, negI)
         put(zto, self.lams, negI)
         if q2 is not None and np.any(q2 > 0):
-            put(self.lams, self.lams, np.broadcast_to(-np.diag(q2), (nI, nz, nz)))
+            blk = np.zeros((nI, nz, nz))
+            blk[:, ar, ar] = -np.broadcast_to(q2, (nI, nz))
+            put(self.lams, self.lams, blk)
         if self.link:
             L = np.zeros((nth, nz))
             L[:, nx:] = np.eye(nth)
@@ -201,7 +204,9 @@ class FitSession:
         lo, hi = parameter_bounds(model)
         self.lo_s, self.hi_s = lo[free_idx][self.local_of] / self.scale, hi[free_idx][self.local_of] / self.scale
         self.sigma = sigma.copy()
-        self.q: np.ndarray | None = None   # process noise per state (None: hard continuity)
+        # process noise per state, (nx,), or per interval (n_int, nx) when flights have their
+        # own (None: hard continuity)
+        self.q: np.ndarray | None = None
         self.max_step: float | None = None   # trust region on the scaled parameters (None: off)
         self.interval = interval
         h_max = max(float(np.diff(l.t).max()) for l in logs)
@@ -218,6 +223,7 @@ class FitSession:
         self.interval_slices = [slice(a, a + M) for a, M in zip(np.cumsum([0] + counts[:-1]), counts)]
         # per interval, the solver's parameters its flight's copy is made of
         self.theta_of_interval = np.repeat(self.theta_index, counts, axis=0)
+        self.flight_of_interval = np.repeat(np.arange(len(counts)), counts)
         self.pfix = p.copy()
         n_nodes = self.n_int + len(self.data.flights)
         self.last_mask = np.zeros(n_nodes, dtype=bool)
@@ -287,6 +293,8 @@ class FitSession:
     def _q2(self) -> np.ndarray | None:
         if self.q is None:
             return None
+        if self.q.ndim == 2:
+            return np.concatenate([self.q ** 2, np.zeros((self.q.shape[0], self.nth))], axis=1)
         return np.concatenate([self.q ** 2, np.zeros(self.nth)])
 
     def total_cost(self, X, xe, c) -> float:
