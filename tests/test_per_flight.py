@@ -170,3 +170,27 @@ def test_batch_joint_with_winds_found_by_each_flights_diagnosis(windy, tmp_path)
     # three identical vehicles: none named (not for its wind, nor for a K_T 0.2 % off at 100 std)
     assert not any(fleet["comparison"]["outliers"].values()), fleet["comparison"]["outliers"]
     assert "wind[0]" not in fleet["comparison"]["parameters"]["wind0"]
+
+
+def test_soft_fit_of_several_flights_gives_each_its_own_process_noise(tmp_path):
+    """A weak-rotor flight beside a healthy one, both fitted with process noise: the weak one's
+    gaps are far larger; with one q for both, the healthy flight's states could drift as much
+    and the shared b went off (26 % on three Crazyflie-scale flights). Each flight its own q:
+    b within 5 % of the truth, K_T as on the healthy flight alone."""
+    from importlib import resources
+    from greybox import load_airframe, load_log
+    paper = str(resources.files("greybox") / "data" / "airframes" / "paper.toml")
+    common = ["--airframe", paper, "--duration", "8", "--rate", "100"]
+    assert main(["synth", *common, "--out", str(tmp_path / "good.csv"), "--seed", "11"]) == 0
+    assert main(["synth", *common, "--out", str(tmp_path / "weak.csv"), "--seed", "15", "--effects",
+                 "motor_asymmetry", "--set", "K_T_dev=0.025641,-0.076923,0.025641"]) == 0
+    model = QuadrotorModel(load_airframe(paper))
+    good, weak = (load_log(tmp_path / f"{n}.csv").split(0.8)[0] for n in ("good", "weak"))
+    alone = fit(model, good, process_noise="auto", max_iter=200)
+    both = fit(model, [good, weak], process_noise="auto", max_iter=200)
+    assert alone.converged and both.converged, both.status
+    q_p = both.process_noise["p"]
+    assert isinstance(q_p, list) and q_p[1] > 100 * q_p[0], q_p
+    # the paper airframe's truth (as tests/test_batch.py): the weak flight's yaw still informs b
+    assert both.value("b") == pytest.approx(6.8429e-07, rel=0.05)
+    assert both.value("K_T") == pytest.approx(alone.value("K_T"), rel=0.01)
