@@ -95,6 +95,15 @@ class Effect:
     def modify_measurement(self, ctx: ModelContext, y: dict[str, ca.SX]) -> None:
         pass
 
+    def plausibility_warnings(self, values: dict[str, float], std: dict[str, float],
+                              airframe: "Airframe") -> list[str]:
+        """Warnings, in words, when the fitted values of this effect's free parameters are
+        physically implausible for the airframe (a fit that reached them explained the data
+        with the parameter standing in for something else). ``values``: every parameter by
+        component name; ``std``: the free ones' (a fixed parameter is absent: no warning
+        about it). Default: none."""
+        return []
+
     def plausible_values(self, airframe: "Airframe", K_T: float) -> dict:
         """Physically plausible parameter magnitudes for this airframe (synthetic flights, a
         diagnosis' cold refits, the negligibility test); ``{}``: use the parameters' scales."""

@@ -27,6 +27,27 @@ class YawTorque(Effect):
         return [Parameter("b", 1, 5e-7, "N m/(rad/s)^2", 0.0, np.inf, 1e-6, 0.0, True,
                           "rotor reaction torque coefficient", self.name)]
 
+    # Torque-to-thrust ratio b/K_T of propellers, m: published Crazyflie values 0.002-0.034 m,
+    # larger propellers 0.01-0.03 m.
+    RATIO_RANGE = (0.001, 0.05)
+
+    def plausibility_warnings(self, values, std, airframe):
+        b, kt = values.get("b"), values.get("K_T")
+        if "b" not in std or b is None or not kt:
+            return []
+        lo, hi = self.RATIO_RANGE
+        ratio = b / kt
+        if lo <= ratio <= hi:
+            return []
+        s = std.get("b")
+        within = (s is not None and np.isfinite(s) and s > 0 and (lo * kt - b) / s < 2 and (b - hi * kt) / s < 2)
+        why = ("the data hardly constrain it (a plausible b is within 2 std)" if within else
+               "the data put it there: the yaw is explained by something the model lacks (a torque difference "
+               "between the two spin directions, motors whose command-to-speed maps differ), or b stands in for it")
+        return [f"b/K_T = {ratio:.2g} m is outside what propellers give ({lo:g}-{hi:g} m): b is not identified "
+                f"from this flight as a rotor's reaction torque; {why}; fly yaw steps, or hold b at a measured "
+                "value (--set b=... --fixed b)"]
+
     def add_forces(self, ctx):
         b = ctx.params["b"]
         spins = ca.DM(ctx.airframe.spins)

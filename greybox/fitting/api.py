@@ -404,6 +404,9 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         pf[free_idx] = ses.flight_theta(th, f)
         return pf
     warnings += _identifiability_warnings(model, free_names, p_out[free_idx], std, corr, P)
+    values, fitted_std = model.parameter_dict(p_out), dict(zip(free_names, map(float, std)))
+    for effect in model.effects:
+        warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
     if not converged:
         warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
         import warnings as _w

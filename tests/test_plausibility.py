@@ -1,0 +1,35 @@
+"""Physically implausible fitted values are said in words (effects' plausibility_warnings):
+a torque-to-thrust ratio b/K_T outside what propellers give (0.001-0.05 m)."""
+from importlib import resources
+
+import pytest
+
+from greybox import QuadrotorModel, load_airframe, load_log
+from greybox.cli import main
+from greybox.effects import YawTorque
+from greybox.fitting import fit
+
+PAPER = str(resources.files("greybox") / "data" / "airframes" / "paper.toml")
+
+
+def test_b_over_K_T_in_the_propeller_range_is_not_flagged_and_outside_it_is():
+    y = YawTorque()
+    assert y.plausibility_warnings({"K_T": 2.4e-5, "b": 6.8e-7}, {"b": 1e-9}, None) == []   # 0.028 m
+    w = y.plausibility_warnings({"K_T": 1.06e-8, "b": 2.2e-12}, {"b": 2.6e-12}, None)        # 0.0002 m
+    assert len(w) == 1 and "b/K_T = 0.00021 m" in w[0] and "the data put it there" in w[0]
+    w = y.plausibility_warnings({"K_T": 1.06e-8, "b": 2.2e-12}, {"b": 1e-11}, None)
+    assert "hardly constrain" in w[0]
+    # held fixed by the user: the user's value, not the fit's
+    assert y.plausibility_warnings({"K_T": 1.06e-8, "b": 2.2e-12}, {}, None) == []
+
+
+@pytest.mark.parametrize("b_true, flagged", [(6.8429e-07, False), (1.0e-8, True)])
+def test_a_fit_says_when_its_b_is_implausible(tmp_path, b_true, flagged):
+    """Paper airframe (b/K_T = 0.029 m), and a vehicle whose rotors give 35 times less
+    reaction torque (0.0004 m): the fit recovers b either way and says so for the second."""
+    out = tmp_path / "f.csv"
+    assert main(["synth", "--airframe", PAPER, "--out", str(out), "--duration", "8", "--rate", "100",
+                 "--seed", "4", "--set", f"b={b_true}"]) == 0
+    res = fit(QuadrotorModel(load_airframe(PAPER)), load_log(out).split(0.8)[0])
+    assert res.converged and res.value("b") == pytest.approx(b_true, rel=0.1)
+    assert any("b/K_T" in w for w in res.warnings) == flagged, res.warnings
