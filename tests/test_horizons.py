@@ -27,13 +27,14 @@ def test_a_right_model_beats_the_naive_predictor_and_the_json_says_so(tmp_path):
     for ch in ("z", "phi", "theta", "p", "q"):
         for i in (i25, i50):
             assert h["model"][ch][i] < h["naive"][ch][i], (ch, h["horizons"][i])
-    # one sample ahead the two predictors start from the same state: nearly the same error
-    assert h["model"]["phi"][0] == pytest.approx(h["naive"]["phi"][0], rel=0.2)
+    # one sample ahead both are at the attitude noise: the model's smoothed start state about
+    # one noise std off, the naive predictor's start (the last samples, no model) at most sqrt(2)
+    assert h["model"]["phi"][0] <= h["naive"]["phi"][0] <= 1.6 * h["model"]["phi"][0]
     assert (tmp_path / "plots" / "horizons.png").exists()
 
 
 def test_naive_predictor_by_hand():
-    """Constant velocity and rates: with a known start state and measurements, the errors are
+    """Constant velocity and rates from the measurements before the window: the errors are
     what one computes by hand."""
     from greybox.validation import Prediction
     from greybox.data import log_from_arrays
@@ -54,3 +55,30 @@ def test_naive_predictor_by_hand():
     fig = Figure()
     ax = fig.add_subplot()
     assert plotting.horizons(he, ax=ax) is fig and ax.lines
+
+
+def test_naive_predictor_takes_its_state_from_the_measurements_not_the_model():
+    """A window starting at 0.5 s of x = 2 t (1 mm noise-free), y = 0, phi = 0.1 t with a gyro
+    p = 0.1: the naive predictor continues the line exactly, whatever the model's estimated
+    start state (here absurd: 10 m off, 50 rad/s)."""
+    from greybox.validation import Prediction, naive_start
+    from greybox.data import log_from_arrays
+    t = np.arange(0, 1.0, 0.01)
+    n = t.size
+    meas = np.zeros((n, 9))
+    meas[:, 0] = 2.0 * t
+    meas[:, 3] = 0.1 * t
+    meas[:, 6] = 0.1
+    log = log_from_arrays(t, np.full((n, 4), 300.0), meas)
+    x_bad = np.full(12, 10.0)
+    x_bad[9:12] = 50.0
+    a = 50
+    pv, eul, rate, om = naive_start(log, np.column_stack([meas, np.full((n, 3), np.nan)]), a, x_bad)
+    assert pv[0] == pytest.approx(1.0) and pv[3] == pytest.approx(2.0)       # x(0.5), vx
+    assert pv[1] == pytest.approx(0.0) and pv[4] == pytest.approx(0.0)
+    assert eul[0] == pytest.approx(0.05) and rate[0] == pytest.approx(0.1) and om[0] == pytest.approx(0.1)
+    pr = Prediction(log, np.column_stack([meas, np.full((n, 3), np.nan)]), [(a, n)], ["x", "phi"],
+                    {"x": 0.1, "phi": 0.1}, 0.1, 0.5, np.zeros((n, 12)), start_states=x_bad[None, :])
+    he = HorizonErrors.from_prediction(pr, horizons=[0.1, 0.25])
+    assert he.naive["x"][he.horizons.index(0.25)] == pytest.approx(0.0, abs=1e-9)
+    assert he.naive["phi"][he.horizons.index(0.25)] == pytest.approx(0.0, abs=1e-9)
