@@ -81,7 +81,8 @@ def _ipopt_problem(model, est, N=50):
     step = rk4_step(model, 1)
     p_def = model.parameter_vector(START)
     scale = p_def[:5].copy()
-    sig = np.array([estimate_noise(est.output(c)) for c in OUTPUTS])
+    # channels the log does not have (the accelerometer) get no weight
+    sig = np.array([estimate_noise(est.output(c)) if c in est.output_names else 1.0 for c in OUTPUTS])
     x = ca.MX.sym("x", model.nx)
     th = ca.MX.sym("th", 5)
     U = ca.MX.sym("U", model.nu, N)
@@ -99,7 +100,8 @@ def _ipopt_problem(model, est, N=50):
     Fm = F.map(M)
     Yd = np.full((n_use, model.ny), np.nan)
     for c, name in enumerate(OUTPUTS):
-        Yd[:, c] = est.output(name)[:n_use]
+        if name in est.output_names:
+            Yd[:, c] = est.output(name)[:n_use]
     mask = np.isfinite(Yd)
     Wd = np.where(mask, 1 / sig, 0.0).T
     Yd = np.where(mask, Yd, 0.0).T
