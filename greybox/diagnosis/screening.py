@@ -24,7 +24,8 @@ from ..shooting import ShootingProblem, free_indices
 from ..validation import Prediction, predict_flights, validation_vectors
 
 __all__ = ["NEGLIGIBLE_FRACTION", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
-           "explained_fraction", "physically_negligible", "null_on_bound", "precompile_candidates"]
+           "explained_fraction", "physically_negligible", "physically_implausible", "null_on_bound",
+           "precompile_candidates"]
 
 
 NEGLIGIBLE_FRACTION = 0.01
@@ -313,6 +314,17 @@ def physically_negligible(fr: FitResult, effect: str) -> str:
     if not parts:
         return ""
     return f"{', '.join(parts)} (below {100 * NEGLIGIBLE_FRACTION:.0f} % of a plausible size for this airframe)"
+
+
+def physically_implausible(fr: FitResult, effect: str) -> str:
+    """Words saying that the fitted parameters of ``effect`` are beyond what it physically
+    does on the airframe (the effect's :meth:`~greybox.effects.Effect.plausibility_warnings`),
+    or ""."""
+    e = next((x for x in fr.model.effects if x.name == effect), None)
+    if e is None:
+        return ""
+    std = dict(zip(fr.free_names, map(float, fr.std)))
+    return "; ".join(e.plausibility_warnings(fr.model.parameter_dict(fr.p), std, fr.model.airframe))
 
 
 def null_on_bound(ext: QuadrotorModel, name: str) -> bool:

@@ -35,6 +35,11 @@ class CogOffset(Effect):
         arm = max(airframe.arm_length, 1e-3)
         return {"r_cog": [0.06 * arm, -0.04 * arm]}
 
+    def plausible_limits(self, airframe):
+        # 15 % of the arm (7 mm on a Crazyflie, 2.5 cm on a 1 kg quad): beyond, a payload
+        # would hang visibly off the middle
+        return {"r_cog": 0.15 * max(airframe.arm_length, 1e-3)}
+
     def modify(self, ctx):
         c = ctx.params["r_cog"]
         n = ctx.airframe.n_rotors
@@ -62,6 +67,11 @@ class MotorAsymmetry(Effect):
     def plausible_values(self, airframe, K_T):
         n = airframe.n_rotors
         return {"K_T_dev": [-0.08] + [0.08 / (n - 1)] * (n - 2)}
+
+    def plausible_limits(self, airframe):
+        # a worn or chipped propeller, a tired motor: up to about a quarter of the thrust;
+        # a rotor further off is a broken one, which one sees before one fits it
+        return {"K_T_dev": 0.25}
 
     def modify(self, ctx):
         d = ctx.params["K_T_dev"]

@@ -95,14 +95,33 @@ class Effect:
     def modify_measurement(self, ctx: ModelContext, y: dict[str, ca.SX]) -> None:
         pass
 
+    def plausible_limits(self, airframe: "Airframe") -> dict[str, float]:
+        """The largest magnitude ``|value - null|`` each parameter can physically have on this
+        airframe (``{name: limit}``); a fit beyond it has the parameter standing in for
+        something else. Default ``{}``: no limit known."""
+        return {}
+
     def plausibility_warnings(self, values: dict[str, float], std: dict[str, float],
                               airframe: "Airframe") -> list[str]:
         """Warnings, in words, when the fitted values of this effect's free parameters are
         physically implausible for the airframe (a fit that reached them explained the data
         with the parameter standing in for something else). ``values``: every parameter by
         component name; ``std``: the free ones' (a fixed parameter is absent: no warning
-        about it). Default: none."""
-        return []
+        about it). Default: the components beyond :meth:`plausible_limits`."""
+        limits = self.plausible_limits(airframe)
+        beyond = []
+        for par in self.parameters(airframe):
+            if par.name not in limits:
+                continue
+            for comp in par.component_names:
+                if comp in std and comp in values and abs(values[comp] - par.null) > limits[par.name]:
+                    unit = "" if par.unit in ("", "1") else f" {par.unit}"
+                    beyond.append(f"{comp} = {values[comp]:.3g}{unit}")
+        if not beyond:
+            return []
+        lim = ", ".join(f"|{n}| <= {v:.3g}" for n, v in limits.items())
+        return [f"{', '.join(beyond)}: beyond what {self.name} physically does on this airframe ({lim}); "
+                f"the fit has it standing in for something the model lacks"]
 
     def plausible_values(self, airframe: "Airframe", K_T: float) -> dict:
         """Physically plausible parameter magnitudes for this airframe (synthetic flights, a
