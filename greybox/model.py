@@ -159,7 +159,9 @@ class QuadrotorModel:
         from .data import FlightLog
         where = log.source or "log"
         cmd = self.command_names
-        known_signals = {s for e in fx.known_effects().values() for s in e.signals}
+        # this model's own signals count too: a discovered effect (a class made at run time,
+        # not registered) reads pwm4, and a log already prepared for the model carries it
+        known_signals = {s for e in fx.known_effects().values() for s in e.signals} | set(self.signal_names)
         if list(log.input_names[:len(cmd)]) != cmd or \
                 any(n not in known_signals for n in log.input_names[len(cmd):]):
             raise GreyboxInputError(f"{where}: inputs {','.join(log.input_names)} do not match the "

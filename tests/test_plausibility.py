@@ -64,3 +64,24 @@ def test_a_rotor_deviation_beyond_the_limit_is_never_the_verdict(tmp_path):
     assert cand.effect == "motor_asymmetry" and cand.fit.value("K_T_dev[0]") == pytest.approx(-0.3, abs=0.03)
     assert d.verdict is None and "physically implausible" in cand.reason, cand.reason
     assert any("beyond what motor_asymmetry physically does" in w for w in cand.fit.warnings)
+
+
+def test_a_log_prepared_for_a_model_with_an_unregistered_signal_effect_prepares_again():
+    """A discovered effect is a class made at run time (not registered) that may read a
+    logged signal such as pwm4; the fitter prepares the log again for its residual check.
+    That once failed on a real flight ("inputs w1,..,pwm4 do not match the model's w1,..,pwm4")."""
+    import numpy as np
+    from greybox.data import log_from_arrays
+    from greybox.effects import Effect
+
+    class ReadsPwm(Effect):
+        name = "reads_pwm_test"
+        signals = ("pwm4",)
+
+    t = np.arange(0, 1.0, 0.01)
+    log = log_from_arrays(t, np.full((t.size, 4), 300.0), np.zeros((t.size, 9)))
+    log.extras["pwm4"] = np.full(t.size, 30000.0)
+    m = QuadrotorModel(load_airframe(PAPER)) + ReadsPwm()
+    once = m.prepare_log(log)
+    assert once.input_names[-1] == "pwm4"
+    assert m.prepare_log(once).input_names == once.input_names
