@@ -502,7 +502,7 @@ def fleet_comparison(flight_fits: Mapping[str, dict], fleet_fit: dict | None, n_
     flight-to-flight scatter beyond the fits' own std (robust, from the median absolute
     deviation; 0 with fewer than 4 flights): battery state, wind and the like make real
     flights differ by more than one fit's std says. Beyond ``threshold`` a flight is named in
-    words if it is also physically different: at least ``min_deviation`` (3 %) away from a
+    words if it is also physically different: at least ``min_deviation`` (2 %) away from a
     fleet value that is itself clearly non-zero (a 0.2 % difference in ``K_T`` can be 100 std
     on a long flight and still be the same vehicle). With ``motor_asymmetry`` in the model the rotors are compared by their thrust
     coefficients ``K_T (1 + d_i)`` (``d_N = -sum d``; std by the delta method). Parameters that
@@ -1070,28 +1070,23 @@ def _fleet(engine: _Engine | None, scheduler, workers, flights: Sequence[Flight]
         return {"error": f"no joint fit: it needs at least two good flights, {len(good)} here", "flights": []}
     n_rotors = model.airframe.n_rotors
     from . import effects as fx
+
+    def of_a_flight(e: str) -> bool:
+        return e in fx.known_effects() and fx.effect_class(e).per_flight
+
+    added = {f.name: [e for e in str(records[f.name].get("added") or "").split(",") if e] for f in good}
+    # per-flight effects the flights' own diagnoses added (a wind on some days) join the joint
+    # fit, one value per flight
+    nuisance = list(dict.fromkeys(e for f in good for e in added[f.name] if e not in model.effects
+                                  and of_a_flight(e))) if opts.per_flight == "auto" else []
     # a flight's wind or battery sag says nothing about the vehicle: not compared
-    flight_bound = {c for par in model.parameters if par.effect in model.effects
-                    and fx.effect_class(par.effect).per_flight for c in par.component_names}
-    nuisance: list[str] = []
-    if opts.per_flight == "auto":
-        # per-flight effects the flights' own diagnoses added (a wind on some days) join the
-        # joint fit, one value per flight
-        for f in good:
-            for e in str(records[f.name].get("added") or "").split(","):
-                if e and e not in model.effects and e not in nuisance and e in fx.known_effects() \
-                        and fx.effect_class(e).per_flight:
-                    nuisance.append(e)
-        for e in nuisance:
-            flight_bound |= {c for par in fx.by_name(e).parameters(model.airframe) for c in par.component_names}
+    flight_bound = {c for par in (model + [fx.by_name(e) for e in nuisance]).parameters
+                    if of_a_flight(par.effect) for c in par.component_names}
     # What the joint fit will see of each flight: its final model where that differs from the
     # joint's by per-flight effects only; where its diagnosis added something of the vehicle
     # (a weak rotor's motor_asymmetry) the joint's model cannot follow it, and its base fit
     # (bent by what is missing) shows that and leaves it out of the joint fit.
-    vehicle_added = {f.name: [e for e in str(records[f.name].get("added") or "").split(",")
-                              if e and e not in nuisance and not (e in fx.known_effects()
-                                                                  and fx.effect_class(e).per_flight)]
-                     for f in good}
+    vehicle_added = {n: [e for e in es if e not in nuisance and not of_a_flight(e)] for n, es in added.items()}
     as_joint = dict(fits)
     for f in good:
         if vehicle_added[f.name]:

@@ -15,7 +15,7 @@ from .integrate import n_substeps, parallel_map, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 
 __all__ = ["fitted_trajectory", "output_residuals", "whiteness_fraction", "long_run_factor",
-           "std_widening", "WHITENESS_LAGS"]
+           "std_widening", "residual_widening", "WHITENESS_LAGS"]
 
 WHITENESS_LAGS = 30
 """Autocorrelation lags (in measured samples) examined by :func:`whiteness_fraction`."""
@@ -98,5 +98,11 @@ def std_widening(res: Any, logs: "list[FlightLog]") -> float:
     white residuals; a model that is not exact leaves residuals correlated over dozens of
     samples, and each sample then carries less information than the std count."""
     E = np.vstack([output_residuals(lg, fitted_trajectory(res.model, res, lg, i)[1]) for i, lg in enumerate(logs)])
-    facs = [long_run_factor(E[:, c]) for c, ch in enumerate(OUTPUTS) if ch in res.sigma]
+    return residual_widening(E, res.sigma)
+
+
+def residual_widening(E: np.ndarray, channels) -> float:
+    """The square root of the median :func:`long_run_factor` of the residual columns of ``E``
+    (n, ny; ``OUTPUTS`` order) whose channel is in ``channels``; 1 without any."""
+    facs = [long_run_factor(E[:, c]) for c, ch in enumerate(OUTPUTS) if ch in channels]
     return math.sqrt(float(np.median(facs))) if facs else 1.0

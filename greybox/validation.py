@@ -261,11 +261,11 @@ def naive_start(log: FlightLog, meas: np.ndarray, a: int, x0: np.ndarray
         if yk.size:
             om[j], gyro[j] = yk[-1], True
     eul = np.empty(3)
-    last = np.array([samples(3 + j)[1][-1] if samples(3 + j)[1].size else x0[3 + j] for j in range(3)])
+    angles = [samples(3 + j) for j in range(3)]
     if gyro.all():
+        last = [yk[-1] if yk.size else x0[3 + j] for j, (_, yk) in enumerate(angles)]
         rate = euler_rates_from_body_rates(last[0], last[1], om)
-        for j in range(3):
-            tk, yk = samples(3 + j)
+        for j, (tk, yk) in enumerate(angles):
             eul[j] = float(np.mean(yk - rate[j] * tk)) if yk.size else x0[3 + j]
     else:
         rate = np.empty(3)

@@ -12,8 +12,8 @@ import numpy as np
 from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxError
 from ..fitting import FitResult, fit
-from ..model import OUTPUTS, QuadrotorModel
-from ..residuals import long_run_factor
+from ..model import QuadrotorModel
+from ..residuals import residual_widening
 
 __all__ = ["CONSISTENCY_Z", "half_consistency"]
 
@@ -52,8 +52,7 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
     if not all(f.converged for f in fits):
         return out
     a, b = fits
-    widen = math.sqrt(float(np.median([long_run_factor(E[:, c]) for c, ch in enumerate(OUTPUTS)
-                                       if ch in res.sigma])))
+    widen = residual_widening(E, res.sigma)
     for i, n in enumerate(res.free_names):
         if n in res.per_flight_:
             continue    # a wind or battery sag of other flights: no reason to agree
