@@ -398,7 +398,7 @@ def run_fleet(flights: Sequence[Flight], opts: Options, nuisance: Sequence[str] 
     from . import effects as fx
     from .commands import fit_json, model_log
     from .fitting import fit
-    from .validation import predict
+    from .validation import predict, prediction_options
     model, p0 = _model(opts)
     if nuisance:
         start = dict(zip(model.param_names, p0))
@@ -413,7 +413,7 @@ def run_fleet(flights: Sequence[Flight], opts: Options, nuisance: Sequence[str] 
         _warnings.simplefilter("ignore", ConvergenceWarning)
         res = fit(model, [est for est, _ in parts], p0=p0, max_iter=200, process_noise=opts.process_noise,
                   per_flight=list(opts.per_flight) if isinstance(opts.per_flight, tuple) else opts.per_flight)
-    preds = [predict(model, res.flight_p(i), val) for i, (_, val) in enumerate(parts)]
+    preds = [predict(model, res.flight_p(i), val, **prediction_options(res)) for i, (_, val) in enumerate(parts)]
     from .residuals import std_widening
     fitj = fit_json(model, res, preds, [f.path for f in flights])
     fitj["std_factor"] = std_widening(res, [est for est, _ in parts])

@@ -354,7 +354,7 @@ def _per_flight(text: str | None) -> str | list[str] | None:
 def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting import fit
     from . import plotting
-    from .validation import pool_predictions, predict
+    from .validation import pool_predictions, predict, prediction_options
     model, p0, logs = _load_fit_inputs(args)
     parts = [log.split(0.8) for log in logs]
     with _warnings.catch_warnings():
@@ -366,7 +366,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if not res.converged:
         raise GreyboxError(f"fit did not converge: {res.status}")
     # each flight validated with its own values of the per-flight parameters (wind, battery sag)
-    preds = [predict(model, res.flight_p(i), val, horizon=args.horizon) for i, (_, val) in enumerate(parts)]
+    preds = [predict(model, res.flight_p(i), val, horizon=args.horizon, **prediction_options(res))
+             for i, (_, val) in enumerate(parts)]
     print(res.summary())
     for log, pred in zip(logs, preds):
         where = f" of {log.source}" if len(logs) > 1 else ""

@@ -112,8 +112,8 @@ class FittedModel:
         """k-step-ahead prediction on ``log`` (:func:`greybox.validation.predict`), or on
         several flights pooled (:func:`greybox.validation.predict_flights`): a
         :class:`~greybox.validation.Prediction` with ``.nrmse`` per channel and ``.total``."""
-        from .validation import predict_flights
-        return predict_flights(self.model, self.p, log, horizon=horizon, **options)
+        from .validation import predict_flights, prediction_options
+        return predict_flights(self.model, self.p, log, horizon=horizon, **{**prediction_options(self), **options})
 
     def simulate(self, t, inputs, x0=None, method: str = "rk4"):
         """Open-loop simulation from inputs held between samples

@@ -32,7 +32,7 @@ from .model import OUTPUTS, QuadrotorModel
 from .rotations import euler_rates_from_body_rates
 
 __all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
-           "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW"]
+           "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options"]
 
 DEFAULT_HORIZON = 1.0
 DEFAULT_INIT_WINDOW = 0.5
@@ -387,6 +387,20 @@ def pool_predictions(preds: Sequence[Prediction]) -> Prediction:
     return Prediction(preds[0].log, np.vstack([p.predicted for p in preds]), windows, channels, scores,
                       float(np.mean(list(scores.values()))), preds[0].horizon,
                       np.vstack([p.errors for p in preds]), preds)
+
+
+def prediction_options(res) -> dict:
+    """Options of :func:`predict` that match how the fit ``res`` was made (``{}``: the
+    defaults). A fit with process noise (soft continuity) trusted its model open loop over
+    one sample only: such a model may diverge within the default 0.5 s start window (a real
+    Crazyflie's roll does) and a start state fitted over it is then wrong from the first
+    sample. Its predictions estimate each window's start state from the last
+    :data:`NAIVE_FIT_WINDOW` seconds instead, the measurements the naive predictor starts
+    from."""
+    soft = getattr(res, "process_noise", None) or (getattr(res, "provenance", None) or {}).get("process_noise")
+    if soft:   # a loaded model knows how it was fitted from its provenance
+        return {"init_window": NAIVE_FIT_WINDOW}
+    return {}
 
 
 def predict_flights(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]",

@@ -147,6 +147,7 @@ class Effects:
 
     rotor_drag_hub: float = 0.0                 # k: F_i = -k w_i [v_hub_x, v_hub_y, 0] (body)
     linear_drag: Sequence[float] | None = None  # [kx, ky, kz]: F_b = -K R^T v_air
+    drag_height: float = 0.0                    # h: that drag acts at body (0, 0, -h), h above the CoG
     ground_effect: bool = False                 # per-rotor Cheeseman-Bennett, factor <= 2
     motor_gains: Sequence[float] | None = None  # per-rotor thrust scale
     motor_gains_torque: bool = False            # ... also scaling the reaction torque
@@ -160,6 +161,8 @@ class Effects:
             out["rotor_drag_hub"] = float(self.rotor_drag_hub)
         if self.linear_drag is not None and np.any(np.asarray(self.linear_drag) != 0):
             out["linear_drag"] = [float(x) for x in self.linear_drag]
+            if self.drag_height:
+                out["drag_height"] = float(self.drag_height)
         if self.ground_effect:
             out["ground_effect"] = True
         if self.motor_gains is not None and np.any(np.asarray(self.motor_gains) != 1):
@@ -273,7 +276,10 @@ class Dynamics:
             F_b = F_b + Fi.sum(axis=0)
             tau = tau + np.cross(self.hubs, Fi).sum(axis=0)
         if self.K_lin is not None:
-            F_b = F_b - self.K_lin * v_air_b
+            F_lin = -self.K_lin * v_air_b
+            F_b = F_b + F_lin
+            if self.fx.drag_height:   # applied above the centre of gravity: a moment too
+                tau = tau + np.cross(np.array([0.0, 0.0, -self.fx.drag_height]), F_lin)
         acc = self.g * E3 + (R @ F_b) / self.m
         return acc, tau, T
 
@@ -632,6 +638,7 @@ class ForeignFlight:
 
 def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0, seed: int = 0,
                     *, rotor_drag_hub: float = 0.0, linear_drag: Sequence[float] | None = None,
+                    drag_height: float = 0.0,
                     ground_effect: bool = False, motor_gains: Sequence[float] | None = None,
                     motor_gains_torque: bool = False, cog_offset: Sequence[float] | None = None,
                     wind: Sequence[float] | None = None, rotor_accel_torque: bool = False,
@@ -674,7 +681,7 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
     from greybox.data import FlightLog
 
     veh = _vehicle(vehicle)
-    fx = Effects(rotor_drag_hub=rotor_drag_hub, linear_drag=linear_drag,
+    fx = Effects(rotor_drag_hub=rotor_drag_hub, linear_drag=linear_drag, drag_height=drag_height,
                  ground_effect=ground_effect, motor_gains=motor_gains,
                  motor_gains_torque=motor_gains_torque, cog_offset=cog_offset, wind=wind,
                  rotor_accel_torque=rotor_accel_torque)
@@ -814,6 +821,8 @@ def _truth(veh: Vehicle, fx: Effects, sens: Sensors, seed, duration, ctrl_rate) 
     equiv["Kd"] = lin          # body-frame drag; equal to world-frame drag when kx = ky
     if fx.rotor_drag_hub:
         equiv["k_rd"] = float(fx.rotor_drag_hub)
+    if fx.drag_height:
+        equiv["k_dm"] = [fx.drag_height * lin[1], fx.drag_height * lin[0]]
     if fx.ground_effect:
         equiv["k_ge"] = (veh.rotor_radius / 4.0) ** 2
     if fx.cog_offset is not None:

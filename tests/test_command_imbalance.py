@@ -24,7 +24,8 @@ def test_a_weak_rotor_is_driven_harder_and_equal_rotors_are_not(base):
     m0, p0 = model_with_hidden_effects(base, [])
     equal = command_imbalance(base, synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log)
     assert not equal.notable and max(abs(v) for v in equal.share.values()) < 0.01
-    assert set(equal.as_dict()) == {"share", "spin", "seconds", "notable"}
+    assert set(equal.as_dict()) == {"share", "spin", "seconds", "notable", "speed_trim"}
+    assert "speed" not in equal.evidence and "steady" in weak.evidence
 
 
 def test_default_candidates_over_several_flights(base):
@@ -41,3 +42,22 @@ def test_default_candidates_over_several_flights(base):
     assert "battery_voltage" not in default_candidates(base, [a, b])
     b.extras["vbat"] = np.full(len(b), 4.0)
     assert "battery_voltage" in default_candidates(base, [a, b])
+
+
+def test_a_trim_that_follows_the_speed_points_at_drag_acting_above_the_centre_of_gravity():
+    """On another simulator's flights (tests/foreign_sim.py): a body drag K acting h above
+    the CoG needs a thrust-point shift of h K v / (m g) to trim, roll against body-y speed
+    and pitch against body-x speed with opposite signs; the same drag at the CoG needs none."""
+    from foreign_sim import airframe_dict, crazyflie, simulate_flight
+    from greybox.airframe import airframe_from_dict
+    veh = crazyflie()
+    model = QuadrotorModel(airframe_from_dict(airframe_dict(veh)))
+    h, K = 0.03, 0.01
+    above = simulate_flight(veh, duration=20.0, seed=2, linear_drag=[K, K, 0.005], drag_height=h).log
+    ci = command_imbalance(model, above)
+    slope = h * K / (veh.mass * veh.gravity)
+    assert "speed" in ci.evidence and "drag_moment" in ci.text()
+    assert ci.speed_trim["roll"][0] == pytest.approx(slope, rel=0.2) and ci.speed_trim["roll"][1] > 0.5
+    assert ci.speed_trim["pitch"][0] == pytest.approx(-slope, rel=0.2) and ci.speed_trim["pitch"][1] < -0.5
+    at_cog = simulate_flight(veh, duration=20.0, seed=2, linear_drag=[K, K, 0.005]).log
+    assert "speed" not in command_imbalance(model, at_cog).evidence

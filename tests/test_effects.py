@@ -134,6 +134,26 @@ def test_motor_lag_first_order_step(base):
     np.testing.assert_allclose(sim.state("w_eff1"), expect, rtol=1e-8)
 
 
+def test_drag_moment_pitches_against_the_airflow(base):
+    """Drag acting above the centre of gravity: flying forward pitches the nose up (+q),
+    flying right rolls left (-p); no vertical or yaw moment, no force."""
+    m = base.without("linear_drag") + effects.DragMoment()
+    kx, ky = 2e-3, 3e-3
+    p = m.parameter_vector({"k_dm": [kx, ky]})
+    w = m.hover_speed()
+    x = hover_state()
+    x[6] = 2.0                                    # heading north, flying north: body forward
+    xd = rhs(m, x, [w] * 4, p)
+    Jx = Jy = 0.0082                              # conftest airframe
+    assert xd[10] == pytest.approx(ky * 2.0 / Jy, rel=1e-9) and xd[10] > 0
+    assert abs(xd[9]) < 1e-12 and abs(xd[11]) < 1e-12
+    assert np.allclose(xd[6:9], [0.0, 0.0, 0.0], atol=1e-9)
+    x[5] = np.pi / 2                              # now facing east: the same velocity is to the left
+    xd = rhs(m, x, [w] * 4, p)
+    assert xd[9] == pytest.approx(-kx * -2.0 / Jx, rel=1e-9) and xd[9] > 0
+    assert abs(xd[10]) < 1e-12
+
+
 def test_cog_offset_pitches_at_equal_rotor_speeds(base):
     m = base + effects.CogOffset()
     dx, dy = 0.01, -0.02

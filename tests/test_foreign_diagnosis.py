@@ -85,6 +85,25 @@ def test_crazyflie_hub_rotor_drag_discovery_reads_only_a_certified_baseline():
 
 
 @pytest.mark.slow
+def test_crazyflie_drag_above_the_centre_of_gravity_is_named_drag_moment():
+    """The foreign simulator's body drag acts 3 cm above the CoG (its own form: a force
+    -K R^T v at (0, 0, -h), torque r x F): the controller trims out a pitch moment that
+    follows the speed, as on real Crazyflie flights. The catalogue's drag_moment is named
+    and its k_dm = h K recovered."""
+    est, val = _flights(crazyflie(), linear_drag=[0.01, 0.01, 0.005], drag_height=0.03)
+    # the confusable candidates: a constant offset, and the drags that act at the CoG or the hubs
+    d = diagnose(_model(crazyflie()), est.log, validation=val.log, iterate=False, discover=False,
+                 candidates=["drag_moment", "cog_offset", "hub_rotor_drag", "rotor_drag", "motor_asymmetry"])
+    assert d.baseline_certified and d.verdict == "drag_moment", d.summary()
+    top = d.ranking[0]
+    assert top.explained > 0.9
+    for i, truth in enumerate(est.truth["greybox_equivalent"]["k_dm"]):
+        assert top.fit.value(f"k_dm[{i}]") == pytest.approx(truth, rel=0.05)
+    for ch in ("phi", "theta"):
+        assert top.channels_after[ch] < 0.1 * d.baseline_prediction.nrmse[ch]
+
+
+@pytest.mark.slow
 def test_one_kg_per_rotor_ground_effect_is_named():
     """Cheeseman-Bennett per rotor at the hub height (4 cm above the CoG): another functional
     form than the catalogue's (CoG height), still named ground_effect."""

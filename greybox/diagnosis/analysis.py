@@ -83,27 +83,62 @@ class CommandImbalance:
     ``spin[+1 / -1]`` the same for the two spin directions. A model with equal rotors needs a
     steady torque to explain an imbalance: a weaker rotor (``motor_asymmetry``, thrust and
     torque), a centre of gravity off the middle (``cog_offset``, roll and pitch only), or,
-    between spin directions, a yaw-torque difference that drives ``b`` towards zero."""
+    between spin directions, a yaw-torque difference that drives ``b`` towards zero.
+
+    ``speed_trim[axis]`` (axis ``"roll"``: against the body-y speed, ``"pitch"``: against the
+    body-x speed) is ``(slope, r, change)``: how the point where the steady thrust acts (``-sum
+    y_i w_i^2 / sum w_i^2`` for roll, ``sum x_i w_i^2 / sum w_i^2`` for pitch, in metres)
+    moves with the speed (m per m/s), its correlation, and its change over the speeds flown as
+    a fraction of the rotor arm. A trim that follows the speed is a moment that follows it:
+    drag acting above the centre of gravity (``drag_moment``), which a constant offset or a
+    weak rotor cannot be."""
 
     share: dict[str, float]
     spin: dict[int, float]
     seconds: float                      # steady flight the averages are taken over
+    speed_trim: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 
     @property
     def notable(self) -> bool:
-        return max(abs(v) for v in self.share.values()) > IMBALANCE_NOTABLE
+        return max(abs(v) for v in self.share.values()) > IMBALANCE_NOTABLE or self.follows_speed
+
+    @property
+    def follows_speed(self) -> bool:
+        """The roll or pitch trim follows the body speed (|r| >= :data:`SPEED_TRIM_R`). No
+        floor on its size: a trim shift of 0.3 % of the arm over slow steady flight was, on
+        another simulator's flights, a moment that made the whole attitude prediction."""
+        return any(abs(r) >= SPEED_TRIM_R for _, r, _ in self.speed_trim.values())
+
+    @property
+    def evidence(self) -> set[str]:
+        """What the imbalance points at (matched against each effect's ``trim_evidence``):
+        ``"steady"`` (rotors unequal on average), ``"speed"`` (a trim that follows the speed)."""
+        out = set()
+        if max(abs(v) for v in self.share.values()) > IMBALANCE_NOTABLE:
+            out.add("steady")
+        if self.follows_speed:
+            out.add("speed")
+        return out
 
     def text(self) -> str:
         rotors = ", ".join(f"{n} {100 * v:+.1f} %" for n, v in self.share.items())
         pairs = " vs ".join(f"spin {k:+d} rotors {100 * v:+.1f} %" for k, v in sorted(self.spin.items()))
-        return (f"in {self.seconds:.1f} s of steady flight the rotors are driven unequally ({rotors} of the mean "
-                f"squared speed; {pairs}): equal rotors would need a steady torque here — a weaker rotor "
-                "(motor_asymmetry, thrust and torque), a centre of gravity off the middle (cog_offset), or, between "
-                "spin directions, a yaw-torque difference that pulls b towards zero")
+        out = (f"in {self.seconds:.1f} s of steady flight the rotors are driven unequally ({rotors} of the mean "
+               f"squared speed; {pairs}): equal rotors would need a steady torque here — a weaker rotor "
+               "(motor_asymmetry, thrust and torque), a centre of gravity off the middle (cog_offset), or, between "
+               "spin directions, a yaw-torque difference that pulls b towards zero")
+        if self.follows_speed:
+            moves = "; ".join(f"the {ax} trim moves {1000 * slope:+.2f} mm per m/s of body-{'y' if ax == 'roll' else 'x'} "
+                              f"speed (r = {r:+.2f}, {100 * change:.0f} % of the arm over the speeds flown)"
+                              for ax, (slope, r, change) in self.speed_trim.items() if abs(r) >= SPEED_TRIM_R)
+            out += (f". And {moves}: a moment that follows the speed, as drag acting above the centre of gravity "
+                    "gives (drag_moment)")
+        return out
 
     def as_dict(self) -> dict:
         return {"share": dict(self.share), "spin": {str(k): v for k, v in self.spin.items()},
-                "seconds": self.seconds, "notable": self.notable}
+                "seconds": self.seconds, "notable": self.notable,
+                "speed_trim": {ax: {"slope": v[0], "r": v[1], "change": v[2]} for ax, v in self.speed_trim.items()}}
 
 
 def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], max_rate: float = 0.3,
@@ -111,11 +146,12 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     """Per-rotor share of the squared rotor speeds in steady flight (body rates below
     ``max_rate`` rad/s, roll and pitch below ``max_tilt`` rad, angular acceleration below
     ``max_angular_acc`` rad/s²; from the smoothed measurements, no model), over one flight or
-    several. None when there is less than a second of it, or the inputs are not rotor speeds."""
+    several, and how the roll and pitch trims follow the body speed there. None when there is
+    less than a second of it, or the inputs are not rotor speeds."""
     n_rot = model.airframe.n_rotors
     if model.inputs != "rotor_speeds":
         return None
-    rows, seconds = [], 0.0
+    rows, vbs, seconds = [], [], 0.0
     for lg in ([log] if isinstance(log, FlightLog) else list(log)):
         if len(lg) < 10:
             continue
@@ -126,13 +162,35 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
                   & (np.abs(acc).max(axis=1) < max_angular_acc))
         seconds += float(np.append(np.diff(lg.t), 0.0)[steady].sum())
         rows.append(lg.inputs[steady, :n_rot] ** 2)
+        R = rotation_matrices(X[steady, 3], X[steady, 4], X[steady, 5])
+        vbs.append(np.einsum("kji,kj->ki", R, X[steady, 6:9]))
     if seconds < 1.0:
         return None
-    mean = np.vstack(rows).mean(axis=0)
+    W2 = np.vstack(rows)
+    mean = W2.mean(axis=0)
     share = {name: float(m / mean.mean() - 1.0) for name, m in zip(model.command_names[:n_rot], mean)}
     spins = model.airframe.spins
     spin = {int(s): float(mean[spins == s].mean() / mean.mean() - 1.0) for s in np.unique(spins)}
-    return CommandImbalance(share, spin, seconds)
+    return CommandImbalance(share, spin, seconds, _speed_trim(model, W2, np.vstack(vbs)))
+
+
+SPEED_TRIM_R = 0.5
+"""Correlation of a roll/pitch trim with the body speed from which it counts as following it."""
+
+
+def _speed_trim(model: QuadrotorModel, W2: np.ndarray, vb: np.ndarray) -> dict[str, tuple[float, float, float]]:
+    pos = model.airframe.rotor_positions
+    arm = max(float(np.abs(pos[:, :2]).max()), 1e-6)
+    total = np.maximum(W2.sum(axis=1), 1e-300)
+    trims = {"roll": (-(W2 @ pos[:, 1]) / total, vb[:, 1]), "pitch": ((W2 @ pos[:, 0]) / total, vb[:, 0])}
+    out = {}
+    for ax, (trim, v) in trims.items():
+        if v.size < 20 or np.ptp(v) < 1e-6 or np.ptp(trim) < 1e-15:
+            continue
+        slope, _, r, _, _ = stats.linregress(v, trim)
+        span = float(np.percentile(v, 95) - np.percentile(v, 5))
+        out[ax] = (float(slope), float(r), abs(float(slope)) * span / arm)
+    return out
 
 
 def residual_analysis(model: QuadrotorModel, res: FitResult, log: FlightLog | Sequence[FlightLog],

@@ -49,11 +49,12 @@ compensating for something: candidates are then also refitted from the airframe'
 
 def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Sequence[FlightLog],
                val: Sequence[FlightLog],
-               candidates: Sequence[str], compile: str, say: Callable[[str], None], n_refit: int
-               ) -> list[CandidateResult]:
+               candidates: Sequence[str], compile: str, say: Callable[[str], None], n_refit: int,
+               nominated: Sequence[str] = ()) -> list[CandidateResult]:
     """Screen ``candidates`` against the fitted model ``res`` (validation prediction
     ``pred``), refit the ``n_refit`` best (or all, from cold, when the baseline has a
-    parameter on a bound), test and confirm each; the candidates best first."""
+    parameter on a bound) and the ``nominated`` ones (effects the logged commands point at),
+    test and confirm each; the candidates best first."""
     sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
     n_sub = n_substeps(max(float(np.diff(lg.t).max()) for lg in est))
     t0 = time.perf_counter()
@@ -87,7 +88,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         to_refit = list(out)
     else:
         to_refit = []
-        for c in out[:n_refit]:
+        for c in out[:n_refit] + [c for c in out[n_refit:] if c.effect in nominated]:
             p = score_p(c)
             if c.score <= 0:
                 c.reason = "no improvement in the allowed direction"

@@ -16,7 +16,7 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import fit, progress_printer
 from ..model import QuadrotorModel
-from ..validation import predict_flights, validation_vectors
+from ..validation import predict_flights, prediction_options, validation_vectors
 from .discovery import discover as discover_beyond_catalogue
 from .analysis import command_imbalance, residual_analysis
 from .consistency import half_consistency
@@ -124,7 +124,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                                     f"({res.status}); the diagnosis uses soft continuity (process noise, as "
                                     f"--process-noise auto), whose fit is certified")
                 res, process_noise = soft, "auto"
-    pred = predict_flights(model, validation_vectors(res, est, val), val, compile=compile)
+    pred = predict_flights(model, validation_vectors(res, est, val), val, compile=compile, **prediction_options(res))
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split)})")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
                                                             validation_is_tail=validation is None)
@@ -151,11 +151,16 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                             "model lacks, and its value is not a property of the vehicle")
     cur_model, cur_res, cur_pred = model, res, pred
     remaining = list(candidates) if res.converged else []
+    imbalance = command_imbalance(model, est)
+    # effects the logged commands point at (data only, no model) are refitted whatever their score
+    evidence = imbalance.evidence if imbalance is not None else set()
+    nominated = [n for n in remaining if evidence & set(getattr(fx.known_effects().get(n), "trim_evidence", ()))]
     for r in range(max_rounds if iterate else 1):
         if not remaining:
             break
         say(f"diagnose: round {r + 1}: screening {len(remaining)} candidates")
-        ranking = rank_round(cur_model, cur_res, cur_pred, est, val, remaining, compile, say, n_refit)
+        ranking = rank_round(cur_model, cur_res, cur_pred, est, val, remaining, compile, say, n_refit,
+                             nominated=[n for n in nominated if n in remaining])
         verdict = ranking[0].effect if ranking and ranking[0].significant else None
         rounds.append(Round(cur_model, cur_res, cur_pred, ranking, verdict))
         if verdict is None:
@@ -175,7 +180,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                                 "candidate was tested against it")
                 break
             win.fit, win.prediction = more, predict_flights(more.model, validation_vectors(more, est, val), val,
-                                                            compile=compile)
+                                                            compile=compile, **prediction_options(more))
         cur_model, cur_res, cur_pred = win.fit.model, win.fit, win.prediction
         remaining = [c for c in remaining if c != verdict]
     # confusable candidates: significant alone in round 1, explained away by the winner
@@ -219,7 +224,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est[0],
                      validation_source=_validation_source(validation, split, len(est)), unexplained=unexplained,
-                     inconsistent=inconsistent, command_imbalance=command_imbalance(model, est),
+                     inconsistent=inconsistent, command_imbalance=imbalance,
                      discovered=discovered, discovery=discovery_note)
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")

@@ -38,7 +38,7 @@ from .asymmetry import CogOffset, MotorAsymmetry
 from .base import Effect, EffectLibrary, ModelContext
 from .catalogue import APPLY_ORDER, BASE_EFFECTS, CATALOGUE, SIGNAL_EFFECTS
 from .discovered import DiscoveredEffect
-from .drag import HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag, Wind
+from .drag import DragMoment, HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag, Wind
 from .ground import GroundEffect
 from .power import BatteryVoltage, RotorMap, ThrustDrift
 from .registry import (ENTRY_POINT_GROUP, by_name, distinguishing_manoeuvre, effect_class, example_values,
@@ -50,7 +50,7 @@ from .sensors import AttitudeBias, PositionDelay
 __all__ = [
     "Effect", "EffectLibrary", "ModelContext", "CATALOGUE", "BASE_EFFECTS", "by_name",
     "parse_effect_names", "YawTorque", "LinearDrag", "Gyroscopic", "QuadraticDrag", "RotorDrag",
-    "HubRotorDrag", "GroundEffect", "MotorLag", "CogOffset", "MotorAsymmetry", "Wind", "ThrustDrift",
+    "HubRotorDrag", "DragMoment", "GroundEffect", "MotorLag", "CogOffset", "MotorAsymmetry", "Wind", "ThrustDrift",
     "PositionDelay", "AttitudeBias", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
     "APPLY_ORDER", "register", "load_effects_file", "known_effects", "registered_effects",
     "effect_class", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP", "example_values", "DiscoveredEffect",

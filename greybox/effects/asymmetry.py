@@ -26,6 +26,7 @@ class CogOffset(Effect):
         'attitude_bias': 'fly roll and pitch steps: a bias shifts readings, an offset needs torque',
     }
     shifts_trim = True
+    trim_evidence = ("steady",)
 
     def parameters(self, airframe):
         return [Parameter("r_cog", 2, 0.0, "m", -0.5, 0.5, 0.01, 0.0, True,
@@ -59,6 +60,7 @@ class MotorAsymmetry(Effect):
     fit_advice = 'roll and pitch steps with varied thrust'
     channels = ('phi', 'theta', 'p', 'q', 'psi', 'r', 'x', 'y')
     shifts_trim = True
+    trim_evidence = ("steady",)
 
     def parameters(self, airframe):
         return [Parameter("K_T_dev", airframe.n_rotors - 1, 0.0, "1", -0.9, 0.9, 0.05, 0.0, True,

@@ -65,6 +65,12 @@ class Effect:
     shifts_trim: ClassVar[bool] = False
     """Whether it changes where, or with which rotor speeds, a level hover balances (the
     closed-form hover trim then does not apply)."""
+    trim_evidence: ClassVar[tuple[str, ...]] = ()
+    """What in the logged commands of steady flight points at this effect before any fit
+    (:class:`~greybox.diagnosis.CommandImbalance`): ``"steady"`` (rotors driven unequally on
+    average), ``"speed"`` (a roll/pitch trim that follows the body speed). The diagnosis
+    refits an effect the evidence points at even when its score test, taken at a baseline
+    that absorbs much into process noise, ranks it low."""
     signals: ClassVar[tuple[str, ...]] = ()
     """Logged signals the effect reads as extra model inputs (e.g. ``vbat``), after the
     rotor speeds in the input vector; a log supplies them as extra columns."""

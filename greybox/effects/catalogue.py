@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .asymmetry import CogOffset, MotorAsymmetry
 from .base import Effect
-from .drag import HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag, Wind
+from .drag import DragMoment, HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag, Wind
 from .ground import GroundEffect
 from .power import BatteryVoltage, RotorMap, ThrustDrift
 from .rotor import Gyroscopic, MotorLag, YawTorque
@@ -14,7 +14,7 @@ __all__ = ["CATALOGUE", "SIGNAL_EFFECTS", "APPLY_ORDER", "BASE_EFFECTS"]
 
 CATALOGUE: dict[str, type[Effect]] = {
     cls.name: cls
-    for cls in (YawTorque, LinearDrag, Gyroscopic, QuadraticDrag, RotorDrag, HubRotorDrag, GroundEffect,
+    for cls in (YawTorque, LinearDrag, Gyroscopic, QuadraticDrag, RotorDrag, HubRotorDrag, DragMoment, GroundEffect,
                 MotorLag, CogOffset, MotorAsymmetry, Wind, ThrustDrift, PositionDelay,
                 AttitudeBias)
 }

@@ -9,7 +9,7 @@ import numpy as np
 from ..parameters import Parameter
 from .base import Effect
 
-__all__ = ["LinearDrag", "QuadraticDrag", "RotorDrag", "HubRotorDrag", "Wind"]
+__all__ = ["LinearDrag", "QuadraticDrag", "RotorDrag", "HubRotorDrag", "DragMoment", "Wind"]
 
 
 def _sumsq_speed(v: ca.SX) -> ca.SX:
@@ -140,6 +140,56 @@ class HubRotorDrag(Effect):
             torque += ca.cross(r, f)
         ctx.force_world += ctx.R @ force
         ctx.torque_body += torque
+
+
+class DragMoment(Effect):
+    """The horizontal aerodynamic force on the rotors (rotor drag, blade flapping) acts at
+    the rotor plane, above the centre of gravity, so it also pitches and rolls the vehicle:
+    ``M_b = [-k_dm[0] * vb_y, k_dm[1] * vb_x, 0]`` (body FRD, ``vb = R^T v_air``). With the
+    rotor plane a height ``h`` above the centre of gravity and a horizontal drag
+    ``-k v_b`` acting there, ``k_dm = h k``: flying forward pitches the nose up, flying to
+    the right rolls to the left. The controller trims it out in steady flight, so a model
+    without it sees rotor-speed differences that follow the speed and explain no motion.
+    """
+
+    name = "drag_moment"
+    summary = "moment of the rotor drag acting above the centre of gravity: pitches against the airflow"
+    excited_by = "translations at several speeds in several directions (the trim follows the speed)"
+    fit_advice = "fast translations forward/backward and left/right"
+    channels = ("phi", "theta", "p", "q", "x", "y")
+    trim_evidence = ("speed",)
+    distinguish = {
+        "cog_offset": "fly at several speeds: an offset's trim is the same at every speed, the drag "
+                      "moment's grows with it",
+        "hub_rotor_drag": "fly translations: the hub drag with rotors in the plane of the centre of "
+                          "gravity changes the force, the drag moment the attitude trim",
+    }
+
+    def parameters(self, airframe):
+        lim = self._bound(airframe)
+        scale = self.plausible_values(airframe, 0.0)["k_dm"][0]
+        return [Parameter("k_dm", 2, 0.0, "N m s/m", -lim, lim, scale, 0.0, True,
+                          "drag moment about body x per body-y air speed, about body y per body-x",
+                          self.name)]
+
+    @staticmethod
+    def _bound(airframe) -> float:
+        # the largest drag linear_drag allows (time constant 0.1 s) acting two arms above
+        return 2.0 * max(airframe.arm_length, 1e-3) * 10.0 * airframe.mass
+
+    def plausible_values(self, airframe, K_T):
+        # a horizontal drag of 0.35 m (N s/m per kg, as rotor_drag's) at a third of the arm
+        k = 0.35 * airframe.mass * 0.3 * max(airframe.arm_length, 1e-3)
+        return {"k_dm": [k, k]}
+
+    def plausible_limits(self, airframe):
+        # the largest drag linear_drag allows acting one arm above the centre of gravity
+        return {"k_dm": max(airframe.arm_length, 1e-3) * 10.0 * airframe.mass}
+
+    def add_forces(self, ctx):
+        vb = ctx.R.T @ ctx.v_air
+        k = ctx.params["k_dm"]
+        ctx.torque_body += ca.vertcat(-k[0] * vb[1], k[1] * vb[0], 0)
 
 
 class Wind(Effect):
