@@ -1,0 +1,101 @@
+"""How predictable are a real Crazyflie's roll and pitch from its logged motor commands?
+
+    python experiments/real_predictability.py [FILES...]
+
+For each NanoBench flight (default: every ``../shared/realdata/nanobench/*.csv``), the
+attitude change over a horizon ``H`` beyond the naive predictor's (constant body rates),
+``sum_k (omega[i+k] - omega[i]) dt`` per body axis (the small-angle attitude error of the
+naive predictor), is regressed on the same double integral of:
+
+- ``w^2``: the four logged squared rotor speeds at lags 0..10 samples (any per-motor gain,
+  any motor lag or delay up to 0.1 s, a constant trim) — every model whose torque is linear
+  in the logged ``w_i^2``;
+- ``w^2 + v_b + omega``: the same plus body velocity and body rates (drag moments, rate
+  damping).
+
+The regression is fitted on the first half of the flight and scored on the second (held
+out). Its held-out RMS is what the best such model could reach; when it is not below the
+naive predictor's, no model driven by these inputs beats the naive predictor on that axis —
+the logged PWM (a snapshot at ~85 Hz of a 500 Hz controller's output) does not carry the
+torque the vehicle felt. Writes ``experiments/out/real_predictability.md``.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from greybox.importers import import_nanobench
+from greybox.model import rotation_matrices
+
+HERE = Path(__file__).resolve().parent
+REAL = HERE.parents[1] / "shared" / "realdata" / "nanobench"
+LAGS = range(0, 11, 2)
+
+
+def bound(path: Path, horizon: float) -> dict[str, tuple[float, float, float]]:
+    """{axis: (naive RMS, best w^2-linear RMS, best w^2+v_b+omega RMS)} in rad, held out."""
+    log = import_nanobench(path).log
+    dt = float(np.median(np.diff(log.t)))
+    H = int(round(horizon / dt))
+    om = np.column_stack([log.output(c) for c in "pqr"])
+    eul = np.column_stack([log.output(c) for c in ("phi", "theta", "psi")])
+    pos = np.column_stack([log.output(c) for c in "xyz"])
+    ok = np.isfinite(om).all(1) & np.isfinite(eul).all(1) & np.isfinite(pos).all(1)
+    t = log.t
+    om = np.column_stack([np.interp(t, t[ok], om[ok, i]) for i in range(3)])
+    v = np.column_stack([np.gradient(np.interp(t, t[ok], pos[ok, i]), t) for i in range(3)])
+    eul = np.column_stack([np.interp(t, t[ok], eul[ok, i]) for i in range(3)])
+    vb = np.einsum("kji,kj->ki", rotation_matrices(eul[:, 0], eul[:, 1], eul[:, 2]), v)
+    w2 = log.inputs[:, :4] ** 2
+    n = len(t)
+    idx = np.arange(max(LAGS) + 1, n - H)
+
+    def double_integral(x: np.ndarray) -> np.ndarray:
+        c1 = np.cumsum(x, axis=0) * dt
+        c2 = np.cumsum(c1, axis=0) * dt
+        return c2[idx + H] - c2[idx] - H * dt * c1[idx]
+
+    c_om = np.cumsum(om, axis=0) * dt
+    y_all = (c_om[idx + H] - c_om[idx]) - H * dt * om[idx]
+    ones = np.ones((n, 1))
+    sets = [[np.roll(w2, j, axis=0) for j in LAGS] + [ones],
+            [np.roll(w2, j, axis=0) for j in LAGS] + [ones, vb, om]]
+    half = len(idx) // 2
+    out = {}
+    for a, axis in enumerate(("roll", "pitch", "yaw")):
+        y = y_all[:, a]
+        naive = float(np.sqrt(np.mean(y[half:] ** 2)))
+        best = []
+        for feats in sets:
+            X = double_integral(np.concatenate(feats, axis=1))
+            scale = np.maximum(np.abs(X[:half]).max(axis=0), 1e-300)
+            coef, *_ = np.linalg.lstsq(X[:half] / scale, y[:half], rcond=None)
+            r = y[half:] - (X[half:] / scale) @ coef
+            best.append(float(np.sqrt(np.mean(r ** 2))))
+        out[axis] = (naive, *best)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("files", nargs="*", type=Path)
+    ap.add_argument("--out", type=Path, default=HERE / "out" / "real_predictability.md")
+    a = ap.parse_args()
+    files = [f if f.exists() else REAL / f for f in a.files] or sorted(REAL.glob("*.csv"))
+    lines = ["| flight | horizon | axis | naive (rad) | best linear in w² (rad) | + v_b, ω (rad) |",
+             "|---|---|---|---|---|---|"]
+    for f in files:
+        for h in (0.25, 0.5):
+            for axis, (nv, b1, b2) in bound(f, h).items():
+                lines.append(f"| {f.stem} | {h:g} s | {axis} | {nv:.4f} | {b1:.4f} ({100 * (b1 / nv - 1):+.0f} %) "
+                             f"| {b2:.4f} ({100 * (b2 / nv - 1):+.0f} %) |")
+        print("\n".join(lines[-6:]), flush=True)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {a.out}")
+
+
+if __name__ == "__main__":
+    main()
