@@ -184,7 +184,8 @@ def main() -> None:
     ap.add_argument("files", nargs="*", type=Path)
     ap.add_argument("--out", type=Path, default=HERE / "out" / "real_crazyflie")
     args = ap.parse_args()
-    files = args.files or sorted(REAL.glob("*.csv"))
+    # a bare file name is looked up among the shared NanoBench flights
+    files = [f if f.exists() else REAL / f for f in args.files] or sorted(REAL.glob("*.csv"))
     if not files:
         raise SystemExit(f"no NanoBench files given and none in {REAL}")
     args.out.mkdir(parents=True, exist_ok=True)

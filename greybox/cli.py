@@ -351,11 +351,30 @@ def _per_flight(text: str | None) -> str | list[str] | None:
     return None if text == "none" else _names(text)
 
 
+def _fit_imu_only(args: argparse.Namespace, model: QuadrotorModel, logs) -> int:
+    """``greybox fit`` on a log with gyro and accelerometer but no position or attitude: the
+    equation-error identification of :mod:`greybox.fitting.imu`."""
+    from .fitting.imu import fit_imu
+    if len(logs) > 1:
+        raise GreyboxInputError(f"{logs[0].source}: an IMU-only log (no position, no attitude) is fitted on its "
+                                "own; give one log")
+    res = fit_imu(model, logs[0])
+    print(res.summary())
+    out = res.as_dict()
+    out["effects"] = ["yaw_torque", "motor_lag"]
+    if args.json:
+        write_outputs([(Path(args.json), _json_text(out))])
+    return 0
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting import fit
+    from .fitting.imu import is_imu_only
     from . import plotting
     from .validation import pool_predictions, predict, prediction_options
     model, p0, logs = _load_fit_inputs(args)
+    if any(is_imu_only(log) for log in logs):
+        return _fit_imu_only(args, model, logs)
     parts = [log.split(0.8) for log in logs]
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # said below, once, as the error

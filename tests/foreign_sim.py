@@ -613,6 +613,7 @@ class Sensors:
     pos_gaps: Sequence[tuple[float, float]] = ()   # time windows without position
     accel: bool = False                  # ax, ay, az: the accelerometer as output channels
     accel_noise: float = 0.02
+    log_commands: bool = False           # log the commanded rotor speeds (as a PWM log does), not the actual
     psi_wrap: bool = True                # psi in (-pi, pi] (else unwrapped)
 
 
@@ -650,7 +651,7 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
                     gyro_noise: float | None = None, w_noise: float = 0.0,
                     pos_dropout: float = 0.0, att_dropout: float = 0.0,
                     gyro_dropout: float = 0.0, pos_gaps: Sequence[tuple[float, float]] = (),
-                    accel: bool = False, psi_wrap: bool = True, psi0: float = 0.0,
+                    accel: bool = False, psi_wrap: bool = True, psi0: float = 0.0, log_commands: bool = False,
                     ctrl_K_T_factor: float = 1.0, ctrl_b_factor: float = 1.0,
                     method: str = "RK45", rtol: float = 1e-8) -> ForeignFlight:
     """Fly ``vehicle`` under the own cascaded controller along ``manoeuvres`` and log it.
@@ -690,7 +691,7 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
                    att_noise=veh.att_noise if att_noise is None else att_noise, gyro=gyro,
                    gyro_noise=veh.gyro_noise if gyro_noise is None else gyro_noise,
                    w_noise=w_noise, pos_dropout=pos_dropout, att_dropout=att_dropout,
-                   gyro_dropout=gyro_dropout, pos_gaps=tuple(pos_gaps), accel=accel,
+                   gyro_dropout=gyro_dropout, pos_gaps=tuple(pos_gaps), accel=accel, log_commands=log_commands,
                    psi_wrap=psi_wrap)
     rng = np.random.default_rng(seed)
     dyn = Dynamics(veh, fx)
@@ -774,7 +775,7 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
             gy[rng.random(n_log) < sens.gyro_dropout] = np.nan
         cols.append(gy)
         names += ["p", "q", "r"]
-    W_log = W + (sens.w_noise * rng.standard_normal(W.shape) if sens.w_noise else 0.0)
+    W_log = (Wc if sens.log_commands else W) + (sens.w_noise * rng.standard_normal(W.shape) if sens.w_noise else 0.0)
     if sens.accel:
         A = np.array([dyn.specific_force_body(si) for si in S])
         A += sens.accel_noise * rng.standard_normal(A.shape)

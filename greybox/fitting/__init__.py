@@ -7,7 +7,9 @@
   as solvers see it;
 * :class:`Certificate` (:mod:`greybox.fitting.certificate`) — whether the end point is the
   optimum and the model adequate;
-* :class:`GreyBoxEstimator` (:mod:`greybox.fitting.estimator`) — scikit-learn's contract.
+* :class:`GreyBoxEstimator` (:mod:`greybox.fitting.estimator`) — scikit-learn's contract;
+* :func:`fit_imu` (:mod:`greybox.fitting.imu`) — what a log of the IMU and the rotor commands
+  alone identifies (no position, no attitude): thrust, yaw torque, motor lag, torque gains.
 
 The problem itself (interval functions, data layout, initial states, noise) is
 :mod:`greybox.shooting`.
@@ -19,8 +21,9 @@ from .api import (MAX_RESTARTS, THRUST_ADVICE, TRUST_REGION, FitResult, fit, man
 from .certificate import Certificate
 from .estimator import GreyBoxEstimator
 from .gauss_newton import FitSession, GaussNewton, Solver
+from .imu import ImuFit, fit_imu, is_imu_only
 
 __all__ = ["fit", "FitResult", "Certificate", "GreyBoxEstimator", "Solver", "GaussNewton", "FitSession",
            "estimate_noise", "sensor_noise", "initial_node_states", "DEFAULT_INTERVAL_S",
            "default_interval", "THRUST_ADVICE", "manoeuvre_advice", "MAX_RESTARTS", "TRUST_REGION", "progress_printer",
-           "per_flight_positions"]
+           "per_flight_positions", "fit_imu", "ImuFit", "is_imu_only"]

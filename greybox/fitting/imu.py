@@ -1,0 +1,226 @@
+"""What a log of the IMU and the rotor commands alone identifies (no position, no attitude).
+
+A Crazyflie's uSD log, a bench log, a flight without motion capture: gyro, accelerometer
+and rotor speeds (or commands mapped to speeds). Without position the translational states
+are unobservable (velocity only up to a drift), so the multiple-shooting fit of the full
+model cannot be posed; the rigid body's *equations* can be, sample by sample, from the
+measured quantities (an equation-error fit, as the data-driven identification of
+quadrotors with motor delays does):
+
+* thrust, from the specific force along the rotor axis: ``-m a_z = K_T sum_i w_eff_i^2``;
+* roll and pitch, from the gyro's derivative: ``(J omega_dot + omega x J omega)_x =
+  g_x K_T sum_i (-y_i) w_eff_i^2 + c_x`` (``g_x = 1`` when the airframe's arm and inertia
+  are right; ``c_x`` a constant trim: a centre-of-gravity offset, unequal rotors), and the
+  same for pitch with ``x_i``;
+* yaw: ``(J omega_dot + omega x J omega)_z = b sum_i spin_i w_eff_i^2 + c_z``;
+* the rotors' first-order lag ``w_eff' = (w - w_eff)/tau_m``, chosen by profiling the
+  equations' joint fit over ``tau_m``.
+
+Identified: ``K_T`` (relative to the mass you give), ``b``, ``tau_m``, and the roll/pitch
+torque gains ``g_x, g_y`` (a check of arm and inertia). Not identified: drag (it needs the
+velocity), the absolute inertia (only torque over inertia is seen), the position and
+attitude of anything. Both sides are smoothed by the same Savitzky-Golay filter, so the
+filtering does not bias the coefficients; the commands are regressors, not noisy
+measurements. In closed loop the controller answers every disturbance torque, which can
+pull the torque coefficients towards zero: read ``g_x, g_y`` far below 1 that way.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import lfilter, savgol_filter
+
+from ..data import FlightLog
+from ..errors import GreyboxInputError
+from ..model import QuadrotorModel
+from ..residuals import long_run_factor
+
+__all__ = ["ImuFit", "fit_imu", "is_imu_only", "IMU_EQUATIONS", "TAU_GRID"]
+
+IMU_EQUATIONS = ("az", "p_dot", "q_dot", "r_dot")
+"""The equations fitted: specific force along the rotor axis, angular accelerations."""
+
+TAU_GRID = tuple(float(x) for x in np.r_[0.0, np.arange(0.005, 0.3001, 0.005)])
+"""Motor time constants (s) the profile is taken over."""
+
+SMOOTHING_S = 0.02
+"""Savitzky-Golay window (s) for the gyro's derivative and, alike, the regressors."""
+
+
+def is_imu_only(log: FlightLog) -> bool:
+    """Whether ``log`` has gyro and accelerometer but neither position nor attitude."""
+    def measured(ch):
+        return ch in log.output_names and np.isfinite(log.output(ch)).any()
+    return (not any(measured(c) for c in ("x", "y", "z", "phi", "theta", "psi"))
+            and all(measured(c) for c in ("p", "q", "r", "az")))
+
+
+@dataclass
+class ImuFit:
+    """An IMU-only identification (:func:`fit_imu`). ``parameters[name] = (value, std)``;
+    ``nrmse[eq]`` the validation error of each equation (RMS residual over the RMS of the
+    measured side about its mean) on the last part of the log; ``tau_profile`` the joint
+    cost against ``tau_m``."""
+
+    parameters: dict[str, tuple[float, float]]
+    nrmse: dict[str, float]
+    tau_profile: list[tuple[float, float]]
+    mass: float
+    samples: int
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def total(self) -> float:
+        return float(np.mean(list(self.nrmse.values())))
+
+    def value(self, name: str) -> float:
+        return self.parameters[name][0]
+
+    def summary(self) -> str:
+        lines = [f"IMU-only identification ({self.samples} samples; mass {self.mass:g} kg as given):"]
+        for n, (v, s) in self.parameters.items():
+            lines.append(f"  {n:<6} = {v:.5g} ± {s:.2g}")
+        lines.append("  validation nrmse (equation error, last 20 %): " +
+                     ", ".join(f"{k} {v:.3f}" for k, v in self.nrmse.items()))
+        lines.append("  not identified from an IMU-only log: drag (needs the velocity), absolute inertia, "
+                     "position and attitude")
+        lines += [f"  note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+    def as_dict(self) -> dict:
+        return {"parameters": {n: {"value": v, "std": s} for n, (v, s) in self.parameters.items()},
+                "validation": {"nrmse": self.total, "channels": dict(self.nrmse),
+                               "yardstick": "equation error: specific force and angular acceleration"},
+                "imu_only": True, "tau_profile": [[t, c] for t, c in self.tau_profile],
+                "not_identified": ["Kd", "inertia (absolute)", "position", "attitude"],
+                "notes": list(self.notes)}
+
+
+def _lagged(w: np.ndarray, tau: float, dt: float) -> np.ndarray:
+    if tau <= 0:
+        return w
+    a = math.exp(-dt / tau)
+    # a first-order lag of inputs held over each step (exact discretisation), from rest at w[0]
+    return lfilter([1 - a], [1, -a], w - w[0], axis=0) + w[0]
+
+
+def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
+            tau_grid: "tuple[float, ...] | None" = None) -> ImuFit:
+    """Identify ``K_T``, ``b``, the motor time constant and the roll/pitch torque gains from
+    the gyro, the accelerometer and the rotor speeds of ``log`` (module docstring), on its
+    first ``split`` part; validate on the rest.
+
+    Raises :class:`~greybox.errors.GreyboxInputError` naming the log when a needed channel
+    is missing or the log is too short."""
+    where = log.source or "log"
+    if model.inputs != "rotor_speeds":
+        raise GreyboxInputError(f"{where}: an IMU-only fit needs rotor speeds as inputs")
+    for ch in ("p", "q", "r", "az"):
+        if ch not in log.output_names or not np.isfinite(log.output(ch)).any():
+            raise GreyboxInputError(f"{where}: an IMU-only fit needs column {ch!r} (gyro and accelerometer)")
+    af = model.airframe
+    n_rot = af.n_rotors
+    t = log.t
+    dt = float(np.median(np.diff(t)))
+    grid = np.arange(t[0], t[-1] + 0.5 * dt, dt)
+    win = max(5, int(round(SMOOTHING_S / dt)) | 1)
+    if grid.size < 10 * win:
+        raise GreyboxInputError(f"{where}: too short for an IMU-only fit ({t[-1] - t[0]:.2f} s)")
+
+    def on_grid(y):
+        ok = np.isfinite(y)
+        return np.interp(grid, t[ok], y[ok]), np.interp(grid, t, (~ok).astype(float)) > 0.5
+    cols, gaps = [], np.zeros(grid.size, bool)
+    for ch in ("p", "q", "r", "az"):
+        y, miss = on_grid(log.output(ch))
+        cols.append(y)
+        gaps |= miss
+    om, az = np.column_stack(cols[:3]), cols[3]
+    w = np.column_stack([np.interp(grid, t, log.inputs[:, i]) for i in range(n_rot)])
+    # rows whose smoothing window touches a gap of the IMU are left out
+    bad = np.convolve(gaps.astype(float), np.ones(win), mode="same") > 0
+    smooth = lambda y: savgol_filter(y, win, 2, axis=0)  # noqa: E731
+    om_s = smooth(om)
+    om_dot = savgol_filter(om, win, 2, deriv=1, delta=dt, axis=0)
+    J = np.asarray(af.inertia, dtype=float)
+    lhs = om_dot @ J.T + np.cross(om_s, om_s @ J.T)
+    P, spins = af.rotor_positions, af.spins
+    m = af.mass
+    n = grid.size
+    edge = np.zeros(n, bool)
+    edge[:win] = edge[-win:] = True
+    use = ~(bad | edge)
+    cut = int(split * n)
+    est = use & (np.arange(n) < cut)
+    val = use & (np.arange(n) >= cut)
+    if est.sum() < 50 or val.sum() < 20:
+        raise GreyboxInputError(f"{where}: too few usable IMU samples for an IMU-only fit")
+    y_eq = {"az": -m * smooth(az), "p_dot": lhs[:, 0], "q_dot": lhs[:, 1], "r_dot": lhs[:, 2]}
+
+    def regressors(tau):
+        w2 = smooth(_lagged(w, tau, dt) ** 2)
+        return {"az": w2.sum(axis=1)[:, None],
+                "p_dot": np.column_stack([w2 @ (-P[:, 1]), np.ones(n)]),
+                "q_dot": np.column_stack([w2 @ P[:, 0], np.ones(n)]),
+                "r_dot": np.column_stack([w2 @ spins, np.ones(n)])}
+
+    def solve(tau):
+        X = regressors(tau)
+        coef, cost = {}, 0.0
+        for eq, y in y_eq.items():
+            c, *_ = np.linalg.lstsq(X[eq][est], y[est], rcond=None)
+            r = y[est] - X[eq][est] @ c
+            coef[eq] = c
+            cost += float(r @ r) / max(float(np.var(y[est])) * est.sum(), 1e-300)
+        return coef, cost, X
+
+    grid_tau = tuple(tau_grid) if tau_grid is not None else TAU_GRID
+    profile = [(tau, solve(tau)[1]) for tau in grid_tau]
+    k = int(np.argmin([c for _, c in profile]))
+    tau = grid_tau[k]
+    # the profile's curvature at its minimum gives tau's std (cost is a sum of normalised
+    # squares: 2 / curvature per unit of normalised variance, scaled by the residual level)
+    coef, cost, X = solve(tau)
+    if 0 < k < len(grid_tau) - 1:
+        (t0, c0), (t1, c1), (t2, c2) = profile[k - 1], profile[k], profile[k + 1]
+        curv = 2 * ((c2 - c1) / (t2 - t1) - (c1 - c0) / (t1 - t0)) / (t2 - t0)
+        # coloured residuals carry less information per sample: widen by their long-run factor
+        colour = float(np.median([long_run_factor(y_eq[eq][est] - X[eq][est] @ coef[eq]) for eq in y_eq]))
+        tau_std = math.sqrt(c1 / (2 * est.sum()) / curv * colour) if curv > 0 else float("nan")
+    else:
+        tau_std = float("nan")
+    params: dict[str, tuple[float, float]] = {}
+    nrmse: dict[str, float] = {}
+    for eq, y in y_eq.items():
+        A, c = X[eq][est], coef[eq]
+        r = y[est] - A @ c
+        s2 = float(r @ r) / max(est.sum() - A.shape[1], 1) * long_run_factor(r)
+        cov = s2 * np.linalg.pinv(A.T @ A)
+        std = np.sqrt(np.clip(np.diag(cov), 0, None))
+        rv = y[val] - X[eq][val] @ c
+        spread = float(np.sqrt(np.mean((y[val] - y[val].mean()) ** 2)))
+        nrmse[eq] = float(np.sqrt(np.mean(rv ** 2)) / spread) if spread > 0 else float("inf")
+        if eq == "az":
+            params["K_T"] = (float(c[0]), float(std[0]))
+        elif eq == "r_dot":
+            params["b"] = (float(c[0]), float(std[0]))
+        else:
+            params[f"g_{'x' if eq == 'p_dot' else 'y'}"] = (float(c[0]), float(std[0]))
+    K_T, sK = params["K_T"]
+    for g in ("g_x", "g_y"):     # torque coefficient over K_T: the gain against the geometry
+        v, s = params[g]
+        params[g] = (v / K_T, math.hypot(s / K_T, v * sK / K_T ** 2))
+    params["tau_m"] = (float(tau), tau_std)
+    notes = []
+    if k == len(grid_tau) - 1:
+        notes.append(f"tau_m is at the end of the profile ({tau:g} s): the rotors' response is slower than "
+                     "a first-order lag of that time constant, or something else filters the torque")
+    if k == 0 and grid_tau[0] == 0.0:
+        notes.append("tau_m = 0: no lag between the logged and the effective rotor speeds (an ESC RPM log "
+                     "measures the actual speed)")
+    ratio = params["b"][0] / K_T if K_T > 0 else float("nan")
+    if not 0.001 <= abs(ratio) <= 0.05:
+        notes.append(f"b/K_T = {ratio:.4g} m is outside what propellers give (0.001-0.05 m)")
+    return ImuFit(params, nrmse, [(float(a), float(b)) for a, b in profile], m, int(est.sum()), notes)

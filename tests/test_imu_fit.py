@@ -1,0 +1,87 @@
+"""IMU-only identification (greybox.fitting.imu): a log with gyro, accelerometer and rotor
+commands but no position or attitude (a Crazyflie uSD log)."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel
+from greybox.airframe import airframe_from_dict
+from greybox.cli import main
+from greybox.data import FlightLog, save_log
+from greybox.fitting.imu import fit_imu, is_imu_only
+
+from foreign_sim import airframe_dict, crazyflie, simulate_flight
+
+USD = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "crazyflie_usd" / "log10"
+
+
+def _imu_only(log: FlightLog) -> FlightLog:
+    Y = log.outputs.copy()
+    for c in ("x", "y", "z", "phi", "theta", "psi"):
+        Y[:, log.output_names.index(c)] = np.nan
+    return FlightLog(log.t, log.inputs, log.input_names, Y, list(log.output_names), dict(log.extras), [],
+                     "foreign-imu.csv")
+
+
+@pytest.fixture(scope="module")
+def foreign():
+    """Another simulator's closed-loop flight (its own controller answers every torque), the
+    commanded rotor speeds logged as a PWM log does, the motors lagging them by 20 ms."""
+    veh = crazyflie()
+    fl = simulate_flight(veh, duration=20.0, seed=2, accel=True, log_commands=True)
+    return veh, _imu_only(fl.log)
+
+
+def test_imu_only_fit_recovers_thrust_torque_and_motor_lag_on_foreign_data(foreign):
+    veh, log = foreign
+    assert is_imu_only(log)
+    model = QuadrotorModel(airframe_from_dict(airframe_dict(veh, K_T_guess_factor=1.3)))
+    res = fit_imu(model, log)
+    assert res.value("K_T") == pytest.approx(veh.K_T, rel=0.01)
+    assert res.value("b") == pytest.approx(veh.b, rel=0.03)
+    assert res.value("tau_m") == pytest.approx(veh.tau_motor, rel=0.2)
+    # the airframe's arm and inertia are the truth: the torque gains are 1 (closed loop or not)
+    assert res.value("g_x") == pytest.approx(1.0, abs=0.05) and res.value("g_y") == pytest.approx(1.0, abs=0.05)
+    assert res.nrmse["az"] < 0.1
+    # lag or no lag is told apart: the profile's minimum is well inside the grid
+    costs = dict(res.tau_profile)
+    assert costs[0.0] > 1.2 * min(costs.values())
+
+
+def test_imu_only_fit_from_the_command_line(foreign, tmp_path, capsys):
+    veh, log = foreign
+    csv = tmp_path / "imu.csv"
+    save_log(log, csv)
+    af = tmp_path / "cf.toml"
+    from foreign_sim import airframe_toml
+    af.write_text(airframe_toml(airframe_dict(veh)))
+    assert main(["fit", str(csv), "--airframe", str(af), "--json", str(tmp_path / "r.json")]) == 0
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert r["imu_only"] is True and set(r["parameters"]) >= {"K_T", "b", "tau_m", "g_x", "g_y"}
+    assert r["parameters"]["K_T"]["value"] == pytest.approx(veh.K_T, rel=0.01)
+    assert "Kd" in r["not_identified"]
+    assert "IMU-only identification" in capsys.readouterr().out
+    # several IMU-only logs are not pooled: one clear error, exit 2
+    assert main(["fit", str(csv), str(csv), "--airframe", str(af)]) == 2
+
+
+@pytest.mark.skipif(not USD.exists(), reason="../shared/realdata/crazyflie_usd not present")
+def test_real_crazyflie_usd_log_gives_a_motor_lag_and_a_propeller_torque_ratio(tmp_path):
+    """The real 1 kHz uSD log (IMU + PWM, no position): a motor time constant of tens of
+    milliseconds, K_T near the hover estimate, b/K_T where propellers are; the roll/pitch
+    torque per PWM difference is about a third of what the published map, arm and inertia
+    give (README, "Real flights")."""
+    from greybox.io import import_crazyflie_usd
+    imp = import_crazyflie_usd(USD)
+    from greybox.importers import crazyflie_airframe_toml
+    import tomllib
+    model = QuadrotorModel(airframe_from_dict(tomllib.loads(crazyflie_airframe_toml(0.030, imp.hover_rotor_speed)),
+                                              "cf"))
+    res = fit_imu(model, imp.log)
+    k_hover = 0.030 * 9.81 / (4 * imp.hover_rotor_speed ** 2)
+    assert res.value("K_T") == pytest.approx(k_hover, rel=0.1)
+    assert 0.01 < res.value("tau_m") < 0.15
+    assert 0.001 <= res.value("b") / res.value("K_T") <= 0.05
+    assert 0.15 < res.value("g_x") < 0.6 and 0.15 < res.value("g_y") < 0.6
