@@ -361,7 +361,7 @@ def _fit_imu_only(args: argparse.Namespace, model: QuadrotorModel, logs) -> int:
     res = fit_imu(model, logs[0])
     print(res.summary())
     out = res.as_dict()
-    out["effects"] = ["yaw_torque", "motor_lag"]
+    out["effects"] = model.effect_names + [e for e in ("motor_lag",) if e not in model.effect_names]
     if args.json:
         write_outputs([(Path(args.json), _json_text(out))])
     return 0
