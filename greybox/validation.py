@@ -32,7 +32,7 @@ from .model import OUTPUTS, QuadrotorModel
 from .rotations import euler_rates_from_body_rates
 
 __all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
-           "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options"]
+           "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options", "predict_after_fit"]
 
 DEFAULT_HORIZON = 1.0
 DEFAULT_INIT_WINDOW = 0.5
@@ -425,6 +425,13 @@ def validation_vectors(res, est: Sequence[FlightLog], val: Sequence[FlightLog]) 
                 and v.source == e.source and v.t[0] == e.t[-1])
         out.append(res.flight_p(i) if tail else res.p)
     return out
+
+
+def predict_after_fit(res, est: Sequence[FlightLog], val: Sequence[FlightLog], **kw) -> Prediction:
+    """The validation prediction of a fit ``res`` on ``est``: its model on ``val``, each
+    flight with its parameter vector (:func:`validation_vectors`) and the start-state options
+    the fit calls for (:func:`prediction_options`), pooled."""
+    return predict_flights(res.model, validation_vectors(res, est, val), val, **prediction_options(res), **kw)
 
 
 def nrmse(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,

@@ -33,13 +33,16 @@ class Finding:
     errors: np.ndarray | None = field(default=None, repr=False)   # error envelope at those samples
 
 
+def _body_velocity(X: np.ndarray) -> np.ndarray:
+    """Body-frame velocity ``R^T v`` of states ``X`` (n, >= 9)."""
+    return np.einsum("kji,kj->ki", rotation_matrices(X[:, 3], X[:, 4], X[:, 5]), X[:, 6:9])
+
+
 def _regime_variables(model: QuadrotorModel, X: np.ndarray, log: FlightLog) -> dict[str, np.ndarray]:
     """Flight-condition variables at every sample, from states ``X`` (e.g. smoothed measurements)."""
     af = model.airframe
-    ph, th, ps = X[:, 3], X[:, 4], X[:, 5]
     v = X[:, 6:9]
-    # body-frame velocity: R^T v
-    vb = np.einsum("kji,kj->ki", rotation_matrices(ph, th, ps), v)
+    vb = _body_velocity(X)
     dt = np.gradient(log.t)
     acc = np.gradient(v, axis=0) / dt[:, None]
     n_cmd = len(model.command_names)
@@ -100,7 +103,7 @@ class CommandImbalance:
 
     @property
     def notable(self) -> bool:
-        return max(abs(v) for v in self.share.values()) > IMBALANCE_NOTABLE or self.follows_speed
+        return bool(self.evidence)
 
     @property
     def follows_speed(self) -> bool:
@@ -162,8 +165,7 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
                   & (np.abs(acc).max(axis=1) < max_angular_acc))
         seconds += float(np.append(np.diff(lg.t), 0.0)[steady].sum())
         rows.append(lg.inputs[steady, :n_rot] ** 2)
-        R = rotation_matrices(X[steady, 3], X[steady, 4], X[steady, 5])
-        vbs.append(np.einsum("kji,kj->ki", R, X[steady, 6:9]))
+        vbs.append(_body_velocity(X[steady]))
     if seconds < 1.0:
         return None
     W2 = np.vstack(rows)

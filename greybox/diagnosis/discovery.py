@@ -66,7 +66,7 @@ from ..fitting import FitResult, fit
 from ..model import OUTPUTS, QuadrotorModel, rotation_matrices
 from ..residuals import fitted_trajectory
 from ..shooting import initial_node_states
-from ..validation import Prediction, predict_flights, prediction_options, validation_vectors
+from ..validation import Prediction, predict_after_fit
 from .analysis import estimation_residuals
 from .ranking import ALPHA, MAX_VALIDATION_LOSS, MIN_VALIDATION_GAIN
 from .results import Discovered, DiscoveredTerm
@@ -458,7 +458,7 @@ def _fit_with(sig: Sequence[Discovered], model: QuadrotorModel, res: FitResult, 
         fr = fit(ext, est, free=list(res.free_names) + new, p0=p0, noise=res.sigma, reweight=False,
                  compile=compile, max_iter=200, initial_states=res.node_states, interval=res.interval,
                  process_noise=res.process_noise, per_flight=res.per_flight_rule)
-    pr = predict_flights(ext, validation_vectors(fr, est, val), val, compile=compile, **prediction_options(fr))
+    pr = predict_after_fit(fr, est, val, compile=compile)
     lr, p = lr_test(res, fr, estimation_residuals(ext, fr, est), len(new), False, max(n_tests, 1))
     return ext, fr, pr, lr, p
 

@@ -21,7 +21,7 @@ from ..integrate import n_substeps, rk4_step
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import long_run_factor
 from ..shooting import ShootingProblem, free_indices
-from ..validation import Prediction, predict_flights, prediction_options, validation_vectors
+from ..validation import Prediction, predict_after_fit
 
 __all__ = ["NEGLIGIBLE_FRACTION", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
            "explained_fraction", "physically_negligible", "physically_implausible", "null_on_bound",
@@ -200,8 +200,7 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
         again = refit(model, res, est, None, name, sigma, compile, cold=True, max_iter=COLD_REFIT_ITER)[1]
         if profile_log_likelihood(again) > profile_log_likelihood(fr):
             fr = again
-    return ext, fr, (predict_flights(ext, validation_vectors(fr, est, val), val, compile=compile, **prediction_options(fr))
-                     if val is not None else None)
+    return ext, fr, predict_after_fit(fr, est, val, compile=compile) if val is not None else None
 
 
 def _guesses(ext: QuadrotorModel, name: str | fx.Effect) -> np.ndarray:

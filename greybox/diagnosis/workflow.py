@@ -16,7 +16,7 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import fit, progress_printer
 from ..model import QuadrotorModel
-from ..validation import predict_flights, prediction_options, validation_vectors
+from ..validation import predict_after_fit
 from .discovery import discover as discover_beyond_catalogue
 from .analysis import command_imbalance, residual_analysis
 from .consistency import half_consistency
@@ -124,7 +124,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                                     f"({res.status}); the diagnosis uses soft continuity (process noise, as "
                                     f"--process-noise auto), whose fit is certified")
                 res, process_noise = soft, "auto"
-    pred = predict_flights(model, validation_vectors(res, est, val), val, compile=compile, **prediction_options(res))
+    pred = predict_after_fit(res, est, val, compile=compile)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split)})")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
                                                             validation_is_tail=validation is None)
@@ -160,7 +160,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             break
         say(f"diagnose: round {r + 1}: screening {len(remaining)} candidates")
         ranking = rank_round(cur_model, cur_res, cur_pred, est, val, remaining, compile, say, n_refit,
-                             nominated=[n for n in nominated if n in remaining])
+                             nominated=nominated)
         verdict = ranking[0].effect if ranking and ranking[0].significant else None
         rounds.append(Round(cur_model, cur_res, cur_pred, ranking, verdict))
         if verdict is None:
@@ -179,8 +179,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                 warnings.append(f"{verdict}'s refit did not reach a certified optimum ({more.status}): no further "
                                 "candidate was tested against it")
                 break
-            win.fit, win.prediction = more, predict_flights(more.model, validation_vectors(more, est, val), val,
-                                                            compile=compile, **prediction_options(more))
+            win.fit, win.prediction = more, predict_after_fit(more, est, val, compile=compile)
         cur_model, cur_res, cur_pred = win.fit.model, win.fit, win.prediction
         remaining = [c for c in remaining if c != verdict]
     # confusable candidates: significant alone in round 1, explained away by the winner
