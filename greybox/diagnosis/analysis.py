@@ -126,17 +126,20 @@ class CommandImbalance:
     def text(self) -> str:
         rotors = ", ".join(f"{n} {100 * v:+.1f} %" for n, v in self.share.items())
         pairs = " vs ".join(f"spin {k:+d} rotors {100 * v:+.1f} %" for k, v in sorted(self.spin.items()))
-        out = (f"in {self.seconds:.1f} s of steady flight the rotors are driven unequally ({rotors} of the mean "
-               f"squared speed; {pairs}): equal rotors would need a steady torque here — a weaker rotor "
-               "(motor_asymmetry, thrust and torque), a centre of gravity off the middle (cog_offset), or, between "
-               "spin directions, a yaw-torque difference that pulls b towards zero")
+        parts = []
+        if "steady" in self.evidence:
+            parts.append(f"in {self.seconds:.1f} s of steady flight the rotors are driven unequally ({rotors} of the "
+                         f"mean squared speed; {pairs}): equal rotors would need a steady torque here — a weaker rotor "
+                         "(motor_asymmetry, thrust and torque), a centre of gravity off the middle (cog_offset), or, "
+                         "between spin directions, a yaw-torque difference that pulls b towards zero")
         if self.follows_speed:
             moves = "; ".join(f"the {ax} trim moves {1000 * slope:+.2f} mm per m/s of body-{'y' if ax == 'roll' else 'x'} "
                               f"speed (r = {r:+.2f}, {100 * change:.0f} % of the arm over the speeds flown)"
                               for ax, (slope, r, change) in self.speed_trim.items() if abs(r) >= SPEED_TRIM_R)
-            out += (f". And {moves}: a moment that follows the speed, as drag acting above the centre of gravity "
-                    "gives (drag_moment)")
-        return out
+            lead = "" if parts else f"in {self.seconds:.1f} s of steady flight "
+            parts.append(f"{lead}{moves}: a moment that follows the speed, as drag acting above the centre of "
+                         "gravity gives (drag_moment)")
+        return ". And ".join(parts)
 
     def as_dict(self) -> dict:
         return {"share": dict(self.share), "spin": {str(k): v for k, v in self.spin.items()},
