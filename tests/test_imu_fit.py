@@ -48,6 +48,13 @@ def test_imu_only_fit_recovers_thrust_torque_and_motor_lag_on_foreign_data(forei
     # lag or no lag is told apart: the profile's minimum is well inside the grid
     costs = dict(res.tau_profile)
     assert costs[0.0] > 1.2 * min(costs.values())
+    # the fitted rotational dynamics predict the rates open loop far better than holding them
+    h = res.horizons
+    assert {0.25, 0.5} <= set(h.horizons) and set(h.model) == {"p", "q", "r", "az"}
+    for ch in h.model:
+        for horizon in (0.25, 0.5):
+            i = h.horizons.index(horizon)
+            assert h.model[ch][i] < 0.2 * h.naive[ch][i], (ch, horizon)
 
 
 def test_imu_only_fit_from_the_command_line(foreign, tmp_path, capsys):
@@ -62,6 +69,11 @@ def test_imu_only_fit_from_the_command_line(foreign, tmp_path, capsys):
     assert r["imu_only"] is True and set(r["parameters"]) >= {"K_T", "b", "tau_m", "g_x", "g_y"}
     assert r["parameters"]["K_T"]["value"] == pytest.approx(veh.K_T, rel=0.01)
     assert "Kd" in r["not_identified"]
+    # contract section 5: the error against horizon beside the naive predictor's
+    hz = r["horizons"]
+    assert {0.25, 0.5} <= set(hz["horizons"])
+    assert set(hz["model"]) == set(hz["naive"]) == {"p", "q", "r", "az"}
+    assert all(len(v) == len(hz["horizons"]) for v in [*hz["model"].values(), *hz["naive"].values()])
     assert "IMU-only identification" in capsys.readouterr().out
     # several IMU-only logs are not pooled: one clear error, exit 2
     assert main(["fit", str(csv), str(csv), "--airframe", str(af)]) == 2
@@ -85,3 +97,8 @@ def test_real_crazyflie_usd_log_gives_a_motor_lag_and_a_propeller_torque_ratio(t
     assert 0.01 < res.value("tau_m") < 0.15
     assert 0.001 <= res.value("b") / res.value("K_T") <= 0.05
     assert 0.15 < res.value("g_x") < 0.6 and 0.15 < res.value("g_y") < 0.6
+    # 50 ms ahead the fitted torques predict the rates better than holding them; by 0.25 s
+    # roll and pitch no longer are (README, "Real flights")
+    h = res.horizons
+    i = h.horizons.index(0.05)
+    assert all(h.model[ch][i] < h.naive[ch][i] for ch in ("p", "q", "r"))

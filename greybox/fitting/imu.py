@@ -36,8 +36,9 @@ from ..data import FlightLog
 from ..errors import GreyboxInputError
 from ..model import QuadrotorModel
 from ..residuals import long_run_factor
+from ..validation import DEFAULT_HORIZONS, HorizonErrors
 
-__all__ = ["ImuFit", "fit_imu", "is_imu_only", "IMU_EQUATIONS", "TAU_GRID"]
+__all__ = ["ImuFit", "fit_imu", "is_imu_only", "IMU_EQUATIONS", "TAU_GRID", "HORIZON_CHANNELS"]
 
 IMU_EQUATIONS = ("az", "p_dot", "q_dot", "r_dot")
 """The equations fitted: specific force along the rotor axis, angular accelerations."""
@@ -47,6 +48,12 @@ TAU_GRID = tuple(float(x) for x in np.r_[0.0, np.arange(0.005, 0.3001, 0.005)])
 
 SMOOTHING_S = 0.02
 """Savitzky-Golay window (s) for the gyro's derivative and, alike, the regressors."""
+
+HORIZON_CHANNELS = ("p", "q", "r", "az")
+"""Channels whose prediction error against horizon an IMU-only fit reports."""
+
+WINDOW_SPACING_S = 0.05
+"""s between the starts of the prediction windows of :func:`imu_horizon_errors`."""
 
 
 def is_imu_only(log: FlightLog) -> bool:
@@ -62,7 +69,9 @@ class ImuFit:
     """An IMU-only identification (:func:`fit_imu`). ``parameters[name] = (value, std)``;
     ``nrmse[eq]`` the validation error of each equation (RMS residual over the RMS of the
     measured side about its mean) on the last part of the log; ``tau_profile`` the joint
-    cost against ``tau_m``."""
+    cost against ``tau_m``; ``horizons`` the open-loop prediction error of the body rates
+    and the specific force against horizon on that part, beside the naive predictor's
+    (:func:`fit_imu`)."""
 
     parameters: dict[str, tuple[float, float]]
     nrmse: dict[str, float]
@@ -70,6 +79,7 @@ class ImuFit:
     mass: float
     samples: int
     notes: list[str] = field(default_factory=list)
+    horizons: "HorizonErrors | None" = None
 
     @property
     def total(self) -> float:
@@ -84,6 +94,13 @@ class ImuFit:
             lines.append(f"  {n:<6} = {v:.5g} ± {s:.2g}")
         lines.append("  validation nrmse (equation error, last 20 %): " +
                      ", ".join(f"{k} {v:.3f}" for k, v in self.nrmse.items()))
+        if self.horizons is not None:
+            h = self.horizons
+            for target in (0.25, 0.5):
+                if any(abs(x - target) < 1e-9 for x in h.horizons):
+                    i = min(range(len(h.horizons)), key=lambda j: abs(h.horizons[j] - target))
+                    lines.append(f"  {target:g} s ahead, RMS error model / naive: " + ", ".join(
+                        f"{ch} {h.model[ch][i]:.3g}/{h.naive[ch][i]:.3g}" for ch in h.model))
         lines.append("  not identified from an IMU-only log: drag (needs the velocity), absolute inertia, "
                      "position and attitude")
         lines += [f"  note: {n}" for n in self.notes]
@@ -93,6 +110,7 @@ class ImuFit:
         return {"parameters": {n: {"value": v, "std": s} for n, (v, s) in self.parameters.items()},
                 "validation": {"nrmse": self.total, "channels": dict(self.nrmse),
                                "yardstick": "equation error: specific force and angular acceleration"},
+                **({"horizons": self.horizons.as_dict()} if self.horizons is not None else {}),
                 "imu_only": True, "tau_profile": [[t, c] for t, c in self.tau_profile],
                 "not_identified": ["Kd", "inertia (absolute)", "position", "attitude"],
                 "notes": list(self.notes)}
@@ -104,6 +122,65 @@ def _lagged(w: np.ndarray, tau: float, dt: float) -> np.ndarray:
     a = math.exp(-dt / tau)
     # a first-order lag of inputs held over each step (exact discretisation), from rest at w[0]
     return lfilter([1 - a], [1, -a], w - w[0], axis=0) + w[0]
+
+
+def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, w2: np.ndarray, coef: dict,
+                    geometry: tuple[np.ndarray, np.ndarray, np.ndarray, float], first: int,
+                    horizons: "tuple[float, ...]") -> HorizonErrors:
+    """Open-loop prediction of the body rates and the specific force from the samples
+    ``first``.. on: windows start every :data:`WINDOW_SPACING_S` at a measured gyro sample
+    (the naive predictor's and the model's start alike: no smoothing reaches into the
+    window), the rates integrated by Heun's rule through ``J omega_dot = tau(w_eff) - omega
+    x J omega`` with the fitted torque coefficients and trims; the specific force is the
+    output map ``-K_T sum w_eff^2 / m`` (no state). The naive predictor holds the start's
+    rates and specific force."""
+    J, P, spins, m = geometry
+    dt = float(grid[1] - grid[0])
+    Jinv = np.linalg.inv(J)
+    torque = np.column_stack([np.column_stack([w2 @ (-P[:, 1]), np.ones(len(grid))]) @ coef["p_dot"],
+                              np.column_stack([w2 @ P[:, 0], np.ones(len(grid))]) @ coef["q_dot"],
+                              np.column_stack([w2 @ spins, np.ones(len(grid))]) @ coef["r_dot"]])
+    az_model = -(w2.sum(axis=1) * coef["az"][0]) / m
+    hs = sorted({round(dt, 9), *horizons})
+    steps = [int(round(h / dt)) for h in hs]
+    longest = max(steps)
+    spacing = max(1, int(round(WINDOW_SPACING_S / dt)))
+    starts = np.arange(first, len(grid) - 1, spacing)
+    starts = starts[np.isfinite(om[starts]).all(axis=1) & np.isfinite(az[starts])]
+    names = ("p", "q", "r")
+    sq_m = {ch: np.zeros(len(hs)) for ch in HORIZON_CHANNELS}
+    sq_n = {ch: np.zeros(len(hs)) for ch in HORIZON_CHANNELS}
+    cnt = {ch: np.zeros(len(hs)) for ch in HORIZON_CHANNELS}
+    if starts.size:
+        def rate(o, k):      # omega_dot of every window at step k of its own
+            idx = np.minimum(starts + k, len(grid) - 1)
+            return (torque[idx] - np.cross(o, o @ J.T)) @ Jinv.T
+        o = om[starts].copy()
+        pred = {0: o.copy()}
+        for k in range(longest):
+            f0 = rate(o, k)
+            o1 = o + dt * f0
+            o = o + 0.5 * dt * (f0 + rate(o1, k + 1))
+            if k + 1 in steps:
+                pred[k + 1] = o.copy()
+        for i, k in enumerate(steps):
+            idx = starts + k
+            inside = idx < len(grid)
+            idx = idx[inside]
+            for j, ch in enumerate(names):
+                y = om[idx, j]
+                ok = np.isfinite(y)
+                sq_m[ch][i] += float(np.sum((y[ok] - pred[k][inside][ok, j]) ** 2))
+                sq_n[ch][i] += float(np.sum((y[ok] - om[starts[inside][ok], j]) ** 2))
+                cnt[ch][i] += ok.sum()
+            y = az[idx]
+            ok = np.isfinite(y)
+            sq_m["az"][i] += float(np.sum((y[ok] - az_model[idx][ok]) ** 2))
+            sq_n["az"][i] += float(np.sum((y[ok] - az[starts[inside][ok]]) ** 2))
+            cnt["az"][i] += ok.sum()
+    rms = lambda sq, n: [float(math.sqrt(s / c)) if c else float("nan") for s, c in zip(sq, n)]  # noqa: E731
+    return HorizonErrors([float(h) for h in hs], {ch: rms(sq_m[ch], cnt[ch]) for ch in HORIZON_CHANNELS},
+                         {ch: rms(sq_n[ch], cnt[ch]) for ch in HORIZON_CHANNELS})
 
 
 def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
@@ -223,4 +300,10 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     ratio = params["b"][0] / K_T if K_T > 0 else float("nan")
     if not 0.001 <= abs(ratio) <= 0.05:
         notes.append(f"b/K_T = {ratio:.4g} m is outside what propellers give (0.001-0.05 m)")
-    return ImuFit(params, nrmse, [(float(a), float(b)) for a, b in profile], m, int(est.sum()), notes)
+    # the measured samples, not the smoothed ones, start and score the predictions
+    om_raw = np.where(gaps[:, None], np.nan, om)
+    az_raw = np.where(gaps, np.nan, az)
+    horizons = _horizon_errors(grid, om_raw, az_raw, _lagged(w, tau, dt) ** 2, coef, (J, P, spins, m), cut,
+                               DEFAULT_HORIZONS)
+    return ImuFit(params, nrmse, [(float(a), float(b)) for a, b in profile], m, int(est.sum()), notes,
+                  horizons)
