@@ -118,6 +118,38 @@ def test_ground_effect_cheeseman_bennett(base):
     assert xd[8] == pytest.approx(G * (1 - 1 / (1 - k / 0.04)), rel=1e-9)
 
 
+def test_ground_effect_rights_a_vehicle_tilted_near_the_ground(base):
+    """Per rotor: pitched nose up by theta at height h, the front rotor (plus layout, x = l)
+    is at h + l sin(theta), the rear at h - l sin(theta); the rear gains more thrust, a
+    nose-down moment l K_T w^2 (f(h_front) - f(h_rear)), f(h) = 1 / (1 - k/h^2). Rolled right
+    (phi > 0), the left rotor (y = -l) is the higher one, and the moment rolls left."""
+    m = base + effects.GroundEffect()
+    k, h, l = 0.025 ** 2, 0.15, 0.17
+    p = m.parameter_vector({"k_ge": k})
+    w = m.hover_speed()
+    K_T = float(p[m.param_names.index("K_T")])
+    f = lambda hh: 1.0 / (1.0 - k / hh ** 2)  # noqa: E731
+    J = 0.0082
+    for angle in (0.05, 0.2):
+        x = hover_state(-h)
+        x[4] = angle                                         # nose up
+        qd = rhs(m, x, [w] * 4, p)[10]
+        want = l * K_T * w ** 2 * (f(h + l * np.sin(angle)) - f(h - l * np.sin(angle))) / J
+        assert want < 0 and qd == pytest.approx(want, rel=1e-9)
+        x = hover_state(-h)
+        x[3] = angle                                         # right side down
+        pd = rhs(m, x, [w] * 4, p)[9]
+        # rotor 2 at y = +l is now lower (h - l sin(phi)), rotor 4 at y = -l higher; torque -y T
+        want = -l * K_T * w ** 2 * (f(h - l * np.sin(angle)) - f(h + l * np.sin(angle))) / J
+        assert want < 0 and pd == pytest.approx(want, rel=1e-9)
+    # 5 m up the rotors' heights hardly differ: a moment 1/(33^3) as large (k l sin / h^3)
+    x = hover_state(-5.0)
+    x[4] = 0.2
+    x_low = hover_state(-h)
+    x_low[4] = 0.2
+    assert abs(rhs(m, x, [w] * 4, p)[10]) < 1e-4 * abs(rhs(m, x_low, [w] * 4, p)[10])
+
+
 def test_motor_lag_first_order_step(base):
     m = base + effects.MotorLag()
     tau = 0.04

@@ -10,14 +10,17 @@ __all__ = ["GroundEffect"]
 
 
 class GroundEffect(Effect):
-    """Thrust increase near the ground (Cheeseman–Bennett):
-    ``T_IGE / T = 1 / (1 - k_ge / h**2)`` with ``h = ground_z - z`` the height above the
-    ground plane and ``k_ge = (R_rotor/4)**2``. The ratio ``k_ge/h**2`` is capped at 0.5
+    """Thrust increase near the ground (Cheeseman–Bennett), rotor by rotor:
+    ``T_i,IGE / T_i = 1 / (1 - k_ge / h_i**2)`` with ``h_i = ground_z - z_i`` the height of
+    rotor ``i`` above the ground plane and ``k_ge = (R_rotor/4)**2``. Level, every rotor is
+    at the vehicle's height ``ground_z - z``; tilted, the lower rotors gain more thrust than
+    the higher ones, a moment that rights the vehicle (what a vehicle tilted in a low pass
+    feels, and its controller trims out). The ratio ``k_ge/h_i**2`` is capped at 0.5
     (factor 2) so the model stays finite on the ground.
     """
 
     name = "ground_effect"
-    summary = "thrust increase close to the ground, 1/(1 - k_ge/h^2)"
+    summary = "thrust increase close to the ground, 1/(1 - k_ge/h_i^2) per rotor"
     excited_by = 'low passes close to the ground (below about two rotor diameters)'
     fit_advice = 'a slow pass close to the ground (ground)'
     channels = ('z',)
@@ -32,6 +35,9 @@ class GroundEffect(Effect):
         return {"k_ge": (r_rotor / 4) ** 2 * 4}
 
     def modify(self, ctx):
-        h = ca.fmax(ctx.airframe.ground_z - ctx.pos[2], 1e-3)
-        ratio = ca.fmin(ctx.params["k_ge"] / h ** 2, 0.5)
-        ctx.thrust_scale *= 1.0 / (1.0 - ratio)
+        # world z of each rotor: the centre of gravity's plus the rotated arm
+        arm_z = ctx.rotor_pos @ ctx.R[2, :].T
+        for i in range(ctx.airframe.n_rotors):
+            h = ca.fmax(ctx.airframe.ground_z - ctx.pos[2] - arm_z[i], 1e-3)
+            ratio = ca.fmin(ctx.params["k_ge"] / h ** 2, 0.5)
+            ctx.thrust_scale[i] *= 1.0 / (1.0 - ratio)
