@@ -179,15 +179,21 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def nanobench_files(names: list[Path]) -> list[Path]:
+    """The flights named on a command line, a bare file name looked up among the shared
+    NanoBench flights; every one of them when none is named."""
+    files = [f if f.exists() else REAL / f for f in names] or sorted(REAL.glob("*.csv"))
+    if not files:
+        raise SystemExit(f"no NanoBench files given and none in {REAL}")
+    return files
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("files", nargs="*", type=Path)
     ap.add_argument("--out", type=Path, default=HERE / "out" / "real_crazyflie")
     args = ap.parse_args()
-    # a bare file name is looked up among the shared NanoBench flights
-    files = [f if f.exists() else REAL / f for f in args.files] or sorted(REAL.glob("*.csv"))
-    if not files:
-        raise SystemExit(f"no NanoBench files given and none in {REAL}")
+    files = nanobench_files(args.files)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = [run(f, args.out) for f in files]
     (args.out / "summary.json").write_text(json.dumps(rows, indent=2, default=float))

@@ -33,8 +33,9 @@ import numpy as np
 from greybox.importers import import_nanobench
 from greybox.model import rotation_matrices
 
+from real_crazyflie import nanobench_files  # the sibling script: how flights are named
+
 HERE = Path(__file__).resolve().parent
-REAL = HERE.parents[1] / "shared" / "realdata" / "nanobench"
 LAGS = range(0, 11, 2)
 
 
@@ -89,7 +90,7 @@ def main() -> None:
     ap.add_argument("files", nargs="*", type=Path)
     ap.add_argument("--out", type=Path, default=HERE / "out" / "real_predictability.md")
     a = ap.parse_args()
-    files = [f if f.exists() else REAL / f for f in a.files] or sorted(REAL.glob("*.csv"))
+    files = nanobench_files(a.files)
     lines = ["| flight | horizon | axis | naive (rad) | best linear in w² (rad) | + v_b, ω (rad) "
              "| Δw², start's torque held (rad) |",
              "|---|---|---|---|---|---|---|"]

@@ -34,9 +34,9 @@ from scipy.signal import butter, filtfilt, lfilter, savgol_filter
 from greybox.airframe import airframe_from_dict
 from greybox.importers import crazyflie_airframe_toml, import_nanobench
 
+from real_crazyflie import MASS, nanobench_files  # the sibling script: the vehicle, how flights are named
+
 HERE = Path(__file__).resolve().parent
-REAL = HERE.parents[1] / "shared" / "realdata" / "nanobench"
-MASS = 0.030
 TAU = 0.045
 BANDS = ((0.1, 1.0), (1.0, 3.0), (3.0, 8.0), (8.0, 20.0))
 DELAYS = range(0, 4)
@@ -83,7 +83,7 @@ def main() -> None:
     ap.add_argument("files", nargs="*", type=Path)
     ap.add_argument("--out", type=Path, default=HERE / "out" / "real_torque_bands.md")
     a = ap.parse_args()
-    files = [f if f.exists() else REAL / f for f in a.files] or sorted(REAL.glob("*.csv"))
+    files = nanobench_files(a.files)
     head = " | ".join(f"{lo:g}-{hi:g} Hz" for lo, hi in BANDS)
     lines = [f"| flight | axis | {head} |", "|---|---|" + "---|" * len(BANDS)]
     for f in files:

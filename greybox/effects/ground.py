@@ -35,9 +35,7 @@ class GroundEffect(Effect):
         return {"k_ge": (r_rotor / 4) ** 2 * 4}
 
     def modify(self, ctx):
-        # world z of each rotor: the centre of gravity's plus the rotated arm
-        arm_z = ctx.rotor_pos @ ctx.R[2, :].T
-        for i in range(ctx.airframe.n_rotors):
-            h = ca.fmax(ctx.airframe.ground_z - ctx.pos[2] - arm_z[i], 1e-3)
-            ratio = ca.fmin(ctx.params["k_ge"] / h ** 2, 0.5)
-            ctx.thrust_scale[i] *= 1.0 / (1.0 - ratio)
+        # height of each rotor: the centre of gravity's less the world z of its rotated arm
+        h = ca.fmax(ctx.airframe.ground_z - ctx.pos[2] - ctx.rotor_pos @ ctx.R[2, :].T, 1e-3)
+        ratio = ca.fmin(ctx.params["k_ge"] / h ** 2, 0.5)
+        ctx.thrust_scale *= 1.0 / (1.0 - ratio)

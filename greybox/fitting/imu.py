@@ -53,7 +53,7 @@ HORIZON_CHANNELS = ("p", "q", "r", "az")
 """Channels whose prediction error against horizon an IMU-only fit reports."""
 
 WINDOW_SPACING_S = 0.05
-"""s between the starts of the prediction windows of :func:`imu_horizon_errors`."""
+"""s between the starts of the prediction windows of an IMU-only fit's ``horizons``."""
 
 
 def is_imu_only(log: FlightLog) -> bool:
@@ -97,8 +97,8 @@ class ImuFit:
         if self.horizons is not None:
             h = self.horizons
             for target in (0.25, 0.5):
-                if any(abs(x - target) < 1e-9 for x in h.horizons):
-                    i = min(range(len(h.horizons)), key=lambda j: abs(h.horizons[j] - target))
+                if target in h.horizons:
+                    i = h.horizons.index(target)
                     lines.append(f"  {target:g} s ahead, RMS error model / naive: " + ", ".join(
                         f"{ch} {h.model[ch][i]:.3g}/{h.naive[ch][i]:.3g}" for ch in h.model))
         lines.append("  not identified from an IMU-only log: drag (needs the velocity), absolute inertia, "
@@ -124,6 +124,16 @@ def _lagged(w: np.ndarray, tau: float, dt: float) -> np.ndarray:
     return lfilter([1 - a], [1, -a], w - w[0], axis=0) + w[0]
 
 
+def _regressors(w2: np.ndarray, P: np.ndarray, spins: np.ndarray) -> dict[str, np.ndarray]:
+    """Per equation of :data:`IMU_EQUATIONS`, the regressors of squared effective rotor speeds
+    ``w2`` (n, rotors): total thrust; roll, pitch and yaw moment arms, each with a constant trim."""
+    ones = np.ones(len(w2))
+    return {"az": w2.sum(axis=1)[:, None],
+            "p_dot": np.column_stack([w2 @ (-P[:, 1]), ones]),
+            "q_dot": np.column_stack([w2 @ P[:, 0], ones]),
+            "r_dot": np.column_stack([w2 @ spins, ones])}
+
+
 def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, w2: np.ndarray, coef: dict,
                     geometry: tuple[np.ndarray, np.ndarray, np.ndarray, float], first: int,
                     horizons: "tuple[float, ...]") -> HorizonErrors:
@@ -137,17 +147,15 @@ def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, w2: np.nda
     J, P, spins, m = geometry
     dt = float(grid[1] - grid[0])
     Jinv = np.linalg.inv(J)
-    torque = np.column_stack([np.column_stack([w2 @ (-P[:, 1]), np.ones(len(grid))]) @ coef["p_dot"],
-                              np.column_stack([w2 @ P[:, 0], np.ones(len(grid))]) @ coef["q_dot"],
-                              np.column_stack([w2 @ spins, np.ones(len(grid))]) @ coef["r_dot"]])
-    az_model = -(w2.sum(axis=1) * coef["az"][0]) / m
+    X = _regressors(w2, P, spins)
+    torque = np.column_stack([X[eq] @ coef[eq] for eq in ("p_dot", "q_dot", "r_dot")])
+    az_model = -(X["az"] @ coef["az"]) / m
     hs = sorted({round(dt, 9), *horizons})
     steps = [int(round(h / dt)) for h in hs]
     longest = max(steps)
     spacing = max(1, int(round(WINDOW_SPACING_S / dt)))
     starts = np.arange(first, len(grid) - 1, spacing)
     starts = starts[np.isfinite(om[starts]).all(axis=1) & np.isfinite(az[starts])]
-    names = ("p", "q", "r")
     sq_m = {ch: np.zeros(len(hs)) for ch in HORIZON_CHANNELS}
     sq_n = {ch: np.zeros(len(hs)) for ch in HORIZON_CHANNELS}
     cnt = {ch: np.zeros(len(hs)) for ch in HORIZON_CHANNELS}
@@ -167,7 +175,7 @@ def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, w2: np.nda
             idx = starts + k
             inside = idx < len(grid)
             idx = idx[inside]
-            for j, ch in enumerate(names):
+            for j, ch in enumerate(HORIZON_CHANNELS[:3]):
                 y = om[idx, j]
                 ok = np.isfinite(y)
                 sq_m[ch][i] += float(np.sum((y[ok] - pred[k][inside][ok, j]) ** 2))
@@ -237,11 +245,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     y_eq = {"az": -m * smooth(az), "p_dot": lhs[:, 0], "q_dot": lhs[:, 1], "r_dot": lhs[:, 2]}
 
     def regressors(tau):
-        w2 = smooth(_lagged(w, tau, dt) ** 2)
-        return {"az": w2.sum(axis=1)[:, None],
-                "p_dot": np.column_stack([w2 @ (-P[:, 1]), np.ones(n)]),
-                "q_dot": np.column_stack([w2 @ P[:, 0], np.ones(n)]),
-                "r_dot": np.column_stack([w2 @ spins, np.ones(n)])}
+        return _regressors(smooth(_lagged(w, tau, dt) ** 2), P, spins)
 
     def solve(tau):
         X = regressors(tau)
