@@ -241,6 +241,22 @@ def test_process_noise_fit_recovers_parameters_of_an_exact_model():
         fit(model, est, process_noise={"vw": 1.0})
 
 
+def test_process_noise_between_longer_intervals_fits_and_checks_its_residuals():
+    """Soft continuity between intervals of several samples (``interval=5`` with process
+    noise) used to end in an IndexError in the residual check, which assumed a node at every
+    sample; it fits, recovers the parameters and judges the residuals over its own intervals."""
+    model = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    syn = synthesize(model, duration=10.0, seed=23, sensors=SensorSpec(rate=250.0, vision_rate=125.0))
+    est, _ = syn.log.split()
+    p0 = model.parameter_vector({"K_T": 2.395e-5 * 1.3, "b": 6.8429e-7 * 0.7, "Kd": [0.15, 0.05, 0.2]})
+    res = fit(model, est, p0=p0, process_noise="auto", interval=5)
+    assert res.converged, res.status
+    assert res.interval == 5 and res.process_noise is not None
+    assert res.value("K_T") == pytest.approx(2.395e-5, rel=0.01)
+    assert res.value("b") == pytest.approx(6.8429e-7, rel=0.03)
+    assert all(v < 3.0 for v in res.certificate.residual_over_noise.values())
+
+
 def test_process_noise_diagnosis_finds_the_missing_yaw_torque():
     """The seed paper's story with soft continuity: screening and refits use the baseline's
     process noise, and the verdict and the recovered b are right."""

@@ -421,10 +421,11 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     # the residual check: RMS against the noise of the data, whiteness of the residual series.
     # With process noise the fitted states follow the data through the gaps, so residuals at
     # the nodes say nothing about the model: it is judged open loop instead, over intervals of
-    # the default length (50 ms) started from the fitted states.
+    # the default length (50 ms) started from the fitted states (or over the fit's own
+    # intervals when they are longer than one sample).
     white: dict[str, list[float]] = {}
     sq: dict[str, list[float]] = {}
-    check_n = default_interval(logs) if soft else interval
+    check_n = default_interval(logs) if soft and interval == 1 else interval
     for f, log in enumerate(logs):
         nodes, idx = node_states[f], data.node_index[f]
         if check_n != interval:
