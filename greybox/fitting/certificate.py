@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-__all__ = ["Certificate", "STEP_TOLERANCE", "GAP_TOLERANCE", "NOISE_RATIO_ADEQUATE",
+__all__ = ["Certificate", "STEP_TOLERANCE", "GAP_TOLERANCE", "DECREASE_TOLERANCE", "NOISE_RATIO_ADEQUATE",
            "NOISE_RATIO_COLOURED", "WHITENESS_ADEQUATE"]
 
 STEP_TOLERANCE = 0.1
@@ -14,6 +14,11 @@ than this fraction of its noise scale: further iterations cannot change a conclu
 GAP_TOLERANCE = 0.1
 """Largest continuity gap allowed at a certified optimum, as a fraction of the state's noise
 scale (output-error fits; with process noise the gaps are residuals)."""
+DECREASE_TOLERANCE = 0.01
+"""A remaining node-state step larger than :data:`STEP_TOLERANCE` of its noise scale is
+accepted at an optimum when the parameters and gaps pass and the step would lower the cost
+(half the chi-square of the weighted residuals) by less than this: the state is one the
+measurements barely see, and no test statistic can move by more than twice this."""
 NOISE_RATIO_ADEQUATE = 2.0
 """Residual RMS up to this multiple of the sensor noise (estimated from the measurements'
 high-frequency content) counts as "at the noise level" when the residuals are white."""
