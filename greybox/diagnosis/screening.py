@@ -23,7 +23,7 @@ from ..residuals import long_run_factor
 from ..shooting import ShootingProblem, free_indices
 from ..validation import Prediction, predict_after_fit
 
-__all__ = ["NEGLIGIBLE_FRACTION", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
+__all__ = ["NEGLIGIBLE_FRACTION", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
            "explained_fraction", "physically_negligible", "physically_implausible", "null_on_bound",
            "precompile_candidates"]
 
@@ -32,6 +32,80 @@ NEGLIGIBLE_FRACTION = 0.01
 """An effect whose fitted parameters are all below this fraction of their physically plausible
 magnitude for the airframe (:func:`greybox.effects.example_values`) is negligible: never the
 verdict, whatever its likelihood ratio."""
+
+MIN_FORCE_SHARE = 0.02
+"""An effect whose largest force and moment along the flight (99th percentile of the
+accelerations it adds, a misread tilt counted as the horizontal force ``g * tilt`` it
+stands for) stay below this fraction of the RMS acceleration the vehicle flies with, in
+both groups, is physically negligible: never the verdict, whatever its likelihood ratio.
+The same share as a discovered term must reach (:data:`~greybox.diagnosis.MIN_CONTRIBUTION`).
+In force terms, a 2.5 m/s "wind" behind a drag coefficient of 0.0035 N s/m pushes a
+1 kg vehicle with 9 mN (0.4 % of its 2.5 m/s^2); a per-rotor ground effect reaches 8 %."""
+
+
+def effect_accelerations(fr: FitResult, effect: str, logs: Sequence[FlightLog]
+                         ) -> tuple[float, float, float, float] | None:
+    """The size of ``effect`` in the fit ``fr``, in force terms, along the fitted states of
+    the flights ``logs``: (99th percentile of the translational acceleration it adds, of the
+    angular acceleration it adds, RMS translational acceleration, RMS angular acceleration
+    of the model), m/s^2 and rad/s^2, comparing the effect at its fitted values with the
+    effect at its null values. A roll/pitch measurement offset counts as the horizontal
+    acceleration ``g * offset`` a model must otherwise explain. None when the effect cannot be
+    switched off this way (its own states, a parameter whose null is outside its bounds) or
+    when, without a force, it changes other measurements (a position delay)."""
+    model = fr.model
+    comps = [(model.param_names.index(c), par.null) for par in model.parameters if par.effect == effect
+             for c in par.component_names]
+    if not comps or any(e.name == effect and e.state_names(model.airframe) for e in model.effects):
+        return None
+    if any(par.effect == effect and not par.lower <= par.null <= par.upper for par in model.parameters):
+        return None
+    da, dw, a_all, w_all = [], [], [], []
+    g = model.airframe.gravity
+    moved = [OUTPUTS.index(c) for c in ("x", "y", "z", "psi", "p", "q", "r")]
+    for f, log in enumerate(logs):
+        X, idx = fr.node_states[f], fr.node_index[f]
+        idx = np.minimum(idx, len(log) - 1)
+        p = fr.flight_p(f)
+        p0 = p.copy()
+        for j, null in comps:
+            p0[j] = null
+        n = len(idx)
+        args = (X.T, log.inputs[idx].T)
+        xd1 = np.asarray(model.rhs.map(n)(*args, p, log.t[idx][None, :]))
+        xd0 = np.asarray(model.rhs.map(n)(*args, p0, log.t[idx][None, :]))
+        y1 = np.asarray(model.output.map(n)(*args, p, log.t[idx][None, :]))
+        y0 = np.asarray(model.output.map(n)(*args, p0, log.t[idx][None, :]))
+        force = np.any(np.abs(xd1 - xd0) > 1e-12 * (1.0 + np.abs(xd1)))
+        dy = np.abs(y1 - y0)
+        if not force and np.any(dy[moved] > 1e-9 * (1.0 + np.abs(y1[moved]))):
+            return None
+        # a force moves the measurements through the state; only a pure measurement effect
+        # is judged by what it does to them
+        tilt = 0.0 if force else g * np.hypot(dy[OUTPUTS.index("phi")], dy[OUTPUTS.index("theta")])
+        da.append(np.linalg.norm(xd1[6:9] - xd0[6:9], axis=0) + tilt)
+        dw.append(np.linalg.norm(xd1[9:12] - xd0[9:12], axis=0))
+        a_all.append(np.sum(xd1[6:9] ** 2, axis=0))
+        w_all.append(np.sum(xd1[9:12] ** 2, axis=0))
+    da, dw = np.concatenate(da), np.concatenate(dw)
+    return (float(np.percentile(da, 99)), float(np.percentile(dw, 99)),
+            float(np.sqrt(np.mean(np.concatenate(a_all)))), float(np.sqrt(np.mean(np.concatenate(w_all)))))
+
+
+def physically_small(fr: FitResult, effect: str, logs: Sequence[FlightLog]) -> str:
+    """Words saying that ``effect`` is physically negligible in force terms in the fit ``fr``
+    (:data:`MIN_FORCE_SHARE`, :func:`effect_accelerations`), or ""."""
+    size = effect_accelerations(fr, effect, logs)
+    if size is None:
+        return ""
+    da, dw, a, w = size
+    share_a = da / a if a > 0 else 0.0
+    share_w = dw / w if w > 0 else 0.0
+    if max(share_a, share_w) >= MIN_FORCE_SHARE:
+        return ""
+    return (f"its largest force adds {da:.2g} m/s^2 ({100 * share_a:.1f} % of the {a:.2g} m/s^2 RMS the vehicle "
+            f"flies with) and its largest moment {dw:.2g} rad/s^2 ({100 * share_w:.1f} % of {w:.2g} rad/s^2), below "
+            f"{100 * MIN_FORCE_SHARE:.0f} %")
 
 
 def extended_model(model: QuadrotorModel, res: FitResult, name: str
