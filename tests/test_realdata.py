@@ -277,3 +277,20 @@ def test_log_with_more_rotors_than_the_model_is_refused(battery_flight):
                      log.outputs, log.output_names, source="five.csv")
     with pytest.raises(GreyboxInputError, match="five.csv: inputs w1,w2,w3,w4,w5 do not match"):
         syn.model.prepare_log(five)
+
+
+def test_motor_lag_fit_started_at_the_true_values_stays_there_and_is_certified():
+    """The motor-lag states' node guesses are the logged commands filtered by the lag: with
+    the commands themselves a fit started at the true values (30 ms lag, aggressive
+    manoeuvres) opened gaps of 10^3 noise levels and left for drags on their bounds; and a
+    lag state the outputs barely see no longer keeps the optimum from being certified."""
+    base = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    model = base + effects.MotorLag()
+    p = model.parameter_vector({"tau_m": 0.03})
+    syn = synthesize(model, p, duration=30.0, seed=3, sensors=SensorSpec(rate=200.0, vision_rate=60.0),
+                     manoeuvres=["hover", "ground", "step_x", "sprint", "yaw", "step_z", "fast", "step_y"])
+    res = fit(model, syn.log, p0=p)
+    assert res.converged, res.status
+    assert res.value("tau_m") == pytest.approx(0.03, rel=0.02)
+    assert res.value("Kd[0]") == pytest.approx(0.1, rel=0.05)
+    assert max(res.certificate.residual_over_noise.values()) < 1.5
