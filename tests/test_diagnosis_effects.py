@@ -29,10 +29,7 @@ def base():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("hidden", ["yaw_torque", "linear_drag", "gyroscopic", "quadratic_drag", "rotor_drag",
-                                    "ground_effect", pytest.param("motor_lag", marks=pytest.mark.xfail(
-                                        strict=True, reason="named motor_asymmetry (first and verdict), "
-                                        "also at d22c473, before session 10's changes; untraced")),
-                                    "cog_offset", "motor_asymmetry", "wind",
+                                    "ground_effect", "motor_lag", "cog_offset", "motor_asymmetry", "wind",
                                     "thrust_drift", "position_delay", "attitude_bias"])
 def test_hidden_effect_ranked_first_and_error_falls(base, hidden):
     r = sweep.case(base, hidden, duration=30.0, seed=3, rate=200.0)
