@@ -170,6 +170,8 @@ def test_demo_finds_the_hidden_ground_effect(tmp_path, capsys):
     assert k_ge["value"] == pytest.approx(1.80625e-3, rel=0.05)
     out = capsys.readouterr().out
     assert "validation flight demo_ground_effect_validation.csv" in out and "verdict: ground_effect" in out
+    # the second round is in the summary too, with why it stopped
+    assert "round 2 (with ground_effect): nothing more; best candidate" in out
     assert (tmp_path / "rep" / "report.html").exists()
 
 

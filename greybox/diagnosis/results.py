@@ -281,6 +281,7 @@ class Diagnosis:
             lines.append("   verdict: null (cannot tell: the baseline fit is not certified)")
         else:
             lines.append("   verdict: null (nothing significant is missing)")
+        lines += self._later_round_lines()
         if self.final_prediction is not None and self.final_model is not None:
             added = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
             f = self.final_prediction
@@ -314,6 +315,21 @@ class Diagnosis:
             after = f"{d.nrmse_after:.3f}" if d.nrmse_after is not None else "  -  "
             lines.append(f"   {'*' if d.significant else ' '} {d.text()}  nrmse {d.nrmse_before:.3f} -> {after}  "
                          f"{d.reason}")
+        return lines
+
+    def _later_round_lines(self) -> list[str]:
+        """One line per round after the first: what it added, or why it stopped (its best
+        refitted candidate and the reason it is not the verdict)."""
+        lines = []
+        for k, rnd in enumerate(self.rounds[1:], start=2):
+            best = next((c for c in rnd.ranking if c.lr is not None), rnd.ranking[0] if rnd.ranking else None)
+            after = ", ".join(e for e in rnd.model.effect_names if e not in self.model.effect_names)
+            if rnd.verdict:
+                lines.append(f"   round {k} (with {after}): verdict {rnd.verdict}  ({best.reason})")
+            elif best is not None:
+                lines.append(f"   round {k} (with {after}): nothing more; best candidate {best.effect}: {best.reason}")
+            else:
+                lines.append(f"   round {k} (with {after}): nothing more")
         return lines
 
     def _far_off(self) -> str:
