@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from greybox import QuadrotorModel, effects, fit, load_airframe
+from greybox.data import FlightLog
 from greybox.synth import synthesize
 from greybox.diagnosis.screening import MIN_FORCE_SHARE, effect_accelerations, physically_small
 
@@ -64,3 +65,17 @@ def test_a_weak_wind_behind_a_small_drag_is_physically_small():
     strong = model.parameter_vector({"Kd": [0.2, 0.2, 0.1], "wind": [2.5, 0.0]})
     res2 = fit(model, log, p0=strong, free=["K_T"])
     assert physically_small(res2, "wind", [log]) == ""
+
+
+def test_a_log_prepared_for_a_model_with_more_inputs_is_read_with_this_models_inputs(fitted):
+    """A diagnosis' estimation log may carry ``vbat`` as an input (prepared for a model with
+    ``battery_voltage``); a candidate's size is taken with its own model's inputs (on a real
+    Crazyflie flight this was a CasADi dimension error, 5 inputs for 4)."""
+    res, log = fitted
+    battery = res.model + effects.BatteryVoltage()
+    vb = FlightLog(log.t, log.inputs, log.input_names, log.outputs, log.output_names,
+                   {"vbat": np.full(len(log.t), 3.9)})
+    prepared = battery.prepare_log(vb)
+    assert prepared.inputs.shape[1] == 5
+    assert effect_accelerations(res, "wind", [prepared]) == pytest.approx(
+        effect_accelerations(res, "wind", [log]))

@@ -64,6 +64,7 @@ def effect_accelerations(fr: FitResult, effect: str, logs: Sequence[FlightLog]
     g = model.airframe.gravity
     moved = [OUTPUTS.index(c) for c in ("x", "y", "z", "psi", "p", "q", "r")]
     for f, log in enumerate(logs):
+        log = model.prepare_log(log)     # the model's inputs (a log may hold more signals)
         X, idx = fr.node_states[f], fr.node_index[f]
         idx = np.minimum(idx, len(log) - 1)
         p = fr.flight_p(f)
