@@ -113,7 +113,7 @@ def run(path: Path, out: Path) -> dict:
         "base_status": base.status,
         "b_over_K_T_base": base.value("b") / base.value("K_T"),
         "b_over_K_T_final": final.value("b") / final.value("K_T"),
-        "horizons_final": _at(diag.final_prediction or diag.baseline_prediction, (0.25, 0.5)),
+        "horizons_final": _at(diag.final_horizons or diag.baseline_horizons, (0.25, 0.5)),
         "final_effects": (diag.final_model or model).effect_names,
         "warnings": diag.warnings,
         "report": str(report),
@@ -123,10 +123,11 @@ def run(path: Path, out: Path) -> dict:
     return row
 
 
-def _at(pred, horizons) -> dict:
+def _at(he, horizons) -> dict:
     """RMS prediction error of the model and of the naive predictor at ``horizons`` (s), per
-    position and attitude channel, and whether the model beats the naive one there."""
-    he = pred.horizon_errors().as_dict()
+    position and attitude channel, and whether the model beats the naive one there (``he``:
+    the diagnosis' :class:`~greybox.validation.HorizonErrors`, the JSON's ``horizons``)."""
+    he = he.as_dict()
     hs = list(he["horizons"])
     out = {}
     for h in horizons:

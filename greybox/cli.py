@@ -371,7 +371,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting import fit
     from .fitting.imu import is_imu_only
     from . import plotting
-    from .validation import pool_predictions, predict, prediction_options
+    from .validation import horizon_errors_after, predict, prediction_options
     model, p0, logs = _load_fit_inputs(args)
     if any(is_imu_only(log) for log in logs):
         return _fit_imu_only(args, model, logs)
@@ -392,14 +392,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
         where = f" of {log.source}" if len(logs) > 1 else ""
         print(f"validation ({args.horizon:g} s-ahead, last 20 %{where}): nrmse {pred.total:.4f}  " +
               "  ".join(f"{c}={v:.3f}" for c, v in pred.nrmse.items()))
-    result = fit_json(model, res, preds, [log.source for log in logs])
+    he = horizon_errors_after(res, preds, [res.flight_p(i) for i in range(len(preds))])
+    result = fit_json(model, res, preds, [log.source for log in logs], horizons=he)
     if len(logs) > 1:
         print(f"validation, mean over {len(logs)} flights: nrmse {result['validation']['nrmse']:.4f}")
     # everything is computed before the first file is written, and the files go together
     # (an interrupt while they are written removes the ones already there)
     outputs: list[tuple[Path, str | bytes]] = []
     if args.plots:
-        he = pool_predictions(preds).horizon_errors()
         out = Path(args.plots)
         for k, pred in enumerate(preds):
             suffix = f"_{k + 1}" if len(preds) > 1 else ""

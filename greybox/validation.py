@@ -33,7 +33,8 @@ from .model import OUTPUTS, QuadrotorModel
 from .rotations import euler_rates_from_body_rates
 
 __all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
-           "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options", "predict_after_fit"]
+           "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options", "predict_after_fit",
+           "horizon_options", "horizon_errors_after"]
 
 DEFAULT_HORIZON = 1.0
 DEFAULT_INIT_WINDOW = 0.5
@@ -403,14 +404,37 @@ def prediction_options(res) -> dict:
     Crazyflie's roll does) and a start state fitted over it is then wrong from the first
     sample. Its predictions estimate each window's start state from the last
     :data:`NAIVE_FIT_WINDOW` seconds instead, the measurements the naive predictor starts
-    from, together with the roll and pitch moment the vehicle feels there, held over the
-    window (``held_moment``: the process noise stood for inputs the log does not show; on a
-    real Crazyflie flight it took x, y, z and psi below the naive predictor at 0.25 s and
-    0.5 s)."""
+    from."""
     soft = getattr(res, "process_noise", None) or (getattr(res, "provenance", None) or {}).get("process_noise")
     if soft:   # a loaded model knows how it was fitted from its provenance
-        return {"init_window": NAIVE_FIT_WINDOW, "held_moment": True}
+        return {"init_window": NAIVE_FIT_WINDOW}
     return {}
+
+
+def horizon_options(res) -> dict:
+    """Options of :func:`predict` for the error-against-horizon report of the fit ``res``
+    (:class:`HorizonErrors`, the JSON's ``horizons``): :func:`prediction_options`, and after a
+    fit with process noise also ``held_moment`` — the roll and pitch moment the vehicle feels
+    at each window's start, estimated with its state and held (a predictor's disturbance
+    model; the process noise stood for inputs the log does not show). On a real Crazyflie
+    flight it took x, y, z and psi below the naive predictor at 0.25 s and 0.5 s. The
+    validation nrmse that confirms a diagnosis' candidates does without it: a held moment
+    would hide the moment a candidate (a CoG offset) adds."""
+    opts = prediction_options(res)
+    return {**opts, "held_moment": True} if opts else opts
+
+
+def horizon_errors_after(res, preds: "Sequence[Prediction]", ps: "Sequence[np.ndarray]",
+                         compile: str = "auto") -> "HorizonErrors":
+    """The error-against-horizon report of the fit ``res`` validated by ``preds`` (one
+    prediction per flight, made with the parameter vectors ``ps`` and
+    :func:`prediction_options`): from those predictions, or predicted again with
+    :func:`horizon_options` where they differ."""
+    opts = horizon_options(res)
+    if opts == prediction_options(res):
+        return pool_predictions(list(preds)).horizon_errors()
+    again = [predict(res.model, p, pr.log, pr.horizon, compile=compile, **opts) for p, pr in zip(ps, preds)]
+    return pool_predictions(again).horizon_errors()
 
 
 def predict_flights(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]",

@@ -104,7 +104,7 @@ def test_a_process_noise_fit_of_a_model_that_diverges_starts_its_windows_at_the_
     res = fit(model, est, process_noise="auto", progress=False)
     assert res.converged
     opts = prediction_options(res)
-    assert opts == {"init_window": NAIVE_FIT_WINDOW, "held_moment": True}
+    assert opts == {"init_window": NAIVE_FIT_WINDOW}
     assert prediction_options(type("ExactFit", (), {"process_noise": None})()) == {}
 
     def first_sample(**kw):
@@ -128,7 +128,7 @@ def test_a_held_moment_predicts_a_vehicle_whose_controller_trims_out_a_moment_th
     from foreign_sim import airframe_dict, crazyflie, simulate_flight
     from greybox import fit
     from greybox.airframe import airframe_from_dict
-    from greybox.validation import predict
+    from greybox.validation import horizon_errors_after, horizon_options, predict, prediction_options
 
     flight = simulate_flight(crazyflie(), duration=12.0, seed=4, cog_offset=(0.003, -0.002))
     est, val = flight.log.split(0.8)
@@ -141,3 +141,8 @@ def test_a_held_moment_predicts_a_vehicle_whose_controller_trims_out_a_moment_th
     for ch in ("phi", "theta"):
         assert held.model[ch][k] < 0.5 * plain.model[ch][k], ch
         assert held.model[ch][k] < held.naive[ch][k], ch
+    # the fit's horizons report (JSON "horizons") holds the moment; its validation nrmse does not
+    assert prediction_options(res) == {"init_window": 0.05}
+    assert horizon_options(res) == {"init_window": 0.05, "held_moment": True}
+    report = horizon_errors_after(res, [predict(model, res.p, val, **prediction_options(res))], [res.p])
+    assert report.model["phi"] == pytest.approx(held.model["phi"])

@@ -13,7 +13,7 @@ from ..data import FlightLog
 from ..effects.discovered import CHANNEL_UNITS, DiscoveredEffect, discovered_effect_class, effect_file_text
 from ..fitting import FitResult
 from ..model import QuadrotorModel
-from ..validation import Prediction
+from ..validation import HorizonErrors, Prediction
 from .analysis import CommandImbalance, Finding
 
 __all__ = ["CandidateResult", "Round", "Diagnosis", "Discovered", "DiscoveredTerm"]
@@ -203,6 +203,9 @@ class Diagnosis:
     # parameter -> (first half, std, second half, std) where the halves disagree
     discovered: list[Discovered] = field(default_factory=list)   # beyond the catalogue, best first
     discovery: dict = field(default_factory=dict)   # status, text (or why it cannot tell), together
+    # error against horizon of the baseline and the final model (validation.horizon_errors_after)
+    baseline_horizons: HorizonErrors | None = None
+    final_horizons: HorizonErrors | None = None
 
     @property
     def baseline_certified(self) -> bool:
@@ -225,7 +228,7 @@ class Diagnosis:
         """The diagnose JSON (README, "Command line"), plus findings, warnings and the added effects."""
         out = {"baseline": {"nrmse": self.baseline_prediction.total,
                             "channels": dict(self.baseline_prediction.nrmse),
-                            "horizons": self.baseline_prediction.horizon_errors().as_dict()},
+                            "horizons": (self.baseline_horizons or self.baseline_prediction.horizon_errors()).as_dict()},
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
                "findings": [f.text for f in self.findings],
@@ -241,7 +244,7 @@ class Diagnosis:
             out["added"] = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
             out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
                             "channels": dict(self.final_prediction.nrmse),
-                            "horizons": self.final_prediction.horizon_errors().as_dict()}
+                            "horizons": (self.final_horizons or self.final_prediction.horizon_errors()).as_dict()}
         out["model"] = {"effects": self.fitted_model.model.effect_names, "parameters": self.parameter_table(),
                         "certified": bool(self.fitted_model.converged)}
         out["discovered"] = [d.as_dict() for d in self.discovered]

@@ -16,7 +16,7 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import fit, progress_printer
 from ..model import QuadrotorModel
-from ..validation import predict_after_fit
+from ..validation import horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue
 from .analysis import command_imbalance, residual_analysis
 from .consistency import half_consistency
@@ -225,6 +225,13 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      validation_source=_validation_source(validation, split, len(est)), unexplained=unexplained,
                      inconsistent=inconsistent, command_imbalance=imbalance,
                      discovered=discovered, discovery=discovery_note)
+    # the error-against-horizon report (a process-noise fit's predictor holds the moment felt
+    # at each window's start: validation.horizon_options)
+    diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
+                                                  compile=compile)
+    diag.final_horizons = diag.baseline_horizons if cur_res is res else \
+        horizon_errors_after(cur_res, cur_pred.parts or [cur_pred], validation_vectors(cur_res, est, val),
+                             compile=compile)
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
