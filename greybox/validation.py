@@ -405,10 +405,12 @@ def prediction_options(res) -> dict:
     sample. Its predictions estimate each window's start state from the last
     :data:`NAIVE_FIT_WINDOW` seconds instead, the measurements the naive predictor starts
     from."""
-    soft = getattr(res, "process_noise", None) or (getattr(res, "provenance", None) or {}).get("process_noise")
-    if soft:   # a loaded model knows how it was fitted from its provenance
-        return {"init_window": NAIVE_FIT_WINDOW}
-    return {}
+    return {"init_window": NAIVE_FIT_WINDOW} if _fitted_with_process_noise(res) else {}
+
+
+def _fitted_with_process_noise(res) -> bool:
+    """Whether the fit ``res`` used process noise (a loaded model knows it from its provenance)."""
+    return bool(getattr(res, "process_noise", None) or (getattr(res, "provenance", None) or {}).get("process_noise"))
 
 
 def horizon_options(res) -> dict:
@@ -421,7 +423,7 @@ def horizon_options(res) -> dict:
     validation nrmse that confirms a diagnosis' candidates does without it: a held moment
     would hide the moment a candidate (a CoG offset) adds."""
     opts = prediction_options(res)
-    return {**opts, "held_moment": True} if opts else opts
+    return {**opts, "held_moment": True} if _fitted_with_process_noise(res) else opts
 
 
 def horizon_errors_after(res, preds: "Sequence[Prediction]", ps: "Sequence[np.ndarray]",

@@ -181,13 +181,11 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             cand.reason = f"p = {cand.p_value:.2g}; validation {best_ch} {-100 * falls[best_ch]:+.0f} %, " \
                           f"total {-100 * gain:+.0f} %"
 
-    exts: dict[str, QuadrotorModel] = {}
     for cand in to_refit:
         t0 = time.perf_counter()
         ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=cold,
                              start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if cold else None,
                              restart=bool(far_off))
-        exts[cand.effect] = ext
         judge(cand, ext, fr, pr)
         say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
             f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s)")

@@ -71,12 +71,11 @@ def effect_accelerations(fr: FitResult, effect: str, logs: Sequence[FlightLog]
         p0 = p.copy()
         for j, null in comps:
             p0[j] = null
-        n = len(idx)
+        rhs, out = model.rhs.map(len(idx)), model.output.map(len(idx))
         args = (X.T, log.inputs[idx].T)
-        xd1 = np.asarray(model.rhs.map(n)(*args, p, log.t[idx][None, :]))
-        xd0 = np.asarray(model.rhs.map(n)(*args, p0, log.t[idx][None, :]))
-        y1 = np.asarray(model.output.map(n)(*args, p, log.t[idx][None, :]))
-        y0 = np.asarray(model.output.map(n)(*args, p0, log.t[idx][None, :]))
+        T = log.t[idx][None, :]
+        xd1, xd0 = np.asarray(rhs(*args, p, T)), np.asarray(rhs(*args, p0, T))
+        y1, y0 = np.asarray(out(*args, p, T)), np.asarray(out(*args, p0, T))
         force = np.any(np.abs(xd1 - xd0) > 1e-12 * (1.0 + np.abs(xd1)))
         dy = np.abs(y1 - y0)
         if not force and np.any(dy[moved] > 1e-9 * (1.0 + np.abs(y1[moved]))):
