@@ -34,7 +34,7 @@ from .rotations import euler_rates_from_body_rates
 
 __all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
            "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options", "predict_after_fit",
-           "horizon_options", "horizon_errors_after"]
+           "horizon_errors_after", "horizon_errors", "HORIZON_START_EVERY"]
 
 DEFAULT_HORIZON = 1.0
 DEFAULT_INIT_WINDOW = 0.5
@@ -159,6 +159,25 @@ def _prediction_function(model: QuadrotorModel, n_steps: int, n_sub: int, n_wind
     return parallel_map(ca.Function("predict", [X0, U, P, T, Hs], [Y]), n_windows)
 
 
+def _predict_windows(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts: np.ndarray,
+                     n_steps: int, L: int, sigma: np.ndarray | None, compile: str
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Open-loop predictions of ``n_steps`` samples from each of ``starts`` (a prepared log),
+    each started at its moving-horizon estimate over the ``L`` samples before it. Returns the
+    predicted outputs (windows, n_steps, ny; a window running past the log's end repeats its
+    last sample) and the start states (windows, nx)."""
+    t = log.t
+    x0 = estimate_states(model, p, log, starts, L, sigma, compile=compile)
+    n_sub = n_substeps(float(np.diff(t).max()))
+    F = _prediction_function(model, n_steps, n_sub, len(starts))
+    idx = np.minimum(starts[:, None] + np.arange(n_steps)[None, :], t.size - 1)   # (nW, n_steps)
+    nxt = np.minimum(idx + 1, t.size - 1)
+    h = t[nxt] - t[idx]
+    U = log.inputs[idx.ravel()].T
+    Yp = np.asarray(F(x0.T, U, p, t[idx.ravel()][None, :], h.ravel()[None, :]))   # (ny, nW*n_steps)
+    return Yp.reshape(model.ny, len(starts), n_steps).transpose(1, 2, 0), x0
+
+
 def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,
             init_window: float = DEFAULT_INIT_WINDOW, sigma: np.ndarray | None = None,
             compile: str = "auto", held_moment: bool = False) -> Prediction:
@@ -166,7 +185,9 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
 
     ``held_moment``: also estimate, with each window's start state, the roll and pitch moment
     the commands do not show, and hold it over the window (:class:`~greybox.effects.HeldMoment`,
-    a disturbance model; ``p`` is unchanged: it has no parameters).
+    a disturbance model; ``p`` is unchanged: it has no parameters). It helps where a constant
+    moment is missing from the model (a simulated CoG offset); on real Crazyflie flights it made
+    roll and pitch worse, and greybox's own reports do not use it.
 
     Example::
 
@@ -187,23 +208,11 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
         raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
                                 f"{init_window + 2 * dt:.3f} s")
     starts = np.array([a for a, _ in wins])
-    x0 = estimate_states(model, p, log, starts, L, sigma, compile=compile)
-    n_steps = max(b - a for a, b in wins)
-    n_sub = n_substeps(float(np.diff(t).max()))
-    F = _prediction_function(model, n_steps, n_sub, len(wins))
-    idx = np.array([np.minimum(a + np.arange(n_steps), t.size - 1) for a, _ in wins])   # (nW, n_steps)
-    nxt = np.minimum(idx + 1, t.size - 1)
-    h = t[nxt] - t[idx]
-    U = log.inputs[idx.ravel()].T
-    Yp = np.asarray(F(x0.T, U, p, t[idx.ravel()][None, :], h.ravel()[None, :]))   # (ny, nW*n_steps)
-    Yp = Yp.reshape(model.ny, len(wins), n_steps)
+    Yp, x0 = _predict_windows(model, p, log, starts, max(b - a for a, b in wins), L, sigma, compile)
     pred = np.full((t.size, model.ny), np.nan)
     for w, (a, b) in enumerate(wins):
-        pred[a:b] = Yp[:, w, :b - a].T
-    meas = np.full((t.size, model.ny), np.nan)
-    for c, name in enumerate(OUTPUTS):
-        if name in log.output_names:
-            meas[:, c] = log.output(name)
+        pred[a:b] = Yp[w, :b - a]
+    meas = _measured(log, model.ny)
     err = meas - pred
     err[:, PSI] = np.arctan2(np.sin(err[:, PSI]), np.cos(err[:, PSI]))
     scores, channels = {}, []
@@ -300,11 +309,13 @@ class HorizonErrors:
     start state stands in.
 
     ``model[ch][i]`` and ``naive[ch][i]`` are RMS errors in the channel's units (m, rad,
-    rad/s, m/s^2) at ``horizons[i]`` seconds ahead, over every window of the prediction."""
+    rad/s, m/s^2) at ``horizons[i]`` seconds ahead, over every window of the prediction;
+    ``windows`` is how many windows were scored (their starts; not in :meth:`as_dict`)."""
 
     horizons: list[float]
     model: dict[str, list[float]]
     naive: dict[str, list[float]]
+    windows: int = 0
 
     def as_dict(self) -> dict:
         clean = lambda d: {ch: [v if math.isfinite(v) else None for v in vals] for ch, vals in d.items()}  # noqa: E731
@@ -317,52 +328,140 @@ class HorizonErrors:
 
     @classmethod
     def from_prediction(cls, pred: "Prediction", horizons: Sequence[float] | None = None) -> "HorizonErrors":
+        """From the windows of one (pooled) prediction: consecutive, so each horizon is scored
+        once per window (a 5-s validation flight gives 5 samples per horizon at the default
+        1-s windows; :func:`horizon_errors` starts many overlapping windows instead)."""
         parts = pred.parts or [pred]
         dt = float(np.median(np.diff(parts[0].log.t)))
         hs = sorted({round(dt, 9), *[h for h in (horizons or DEFAULT_HORIZONS) if h <= pred.horizon + 1e-9]})
-        sq_m = {ch: np.zeros(len(hs)) for ch in pred.channels}
-        sq_n = {ch: np.zeros(len(hs)) for ch in pred.channels}
-        cnt = {ch: np.zeros(len(hs)) for ch in pred.channels}
+        acc = _HorizonSums(hs, pred.channels, dt)
         for part in parts:
             if part.start_states is None:
                 raise GreyboxInputError("horizon errors need a prediction made by greybox.predict")
-            t = part.log.t
-            meas = part.predicted + part.errors
+            meas = _measured(part.log, part.predicted.shape[1])
             for w, (a, b) in enumerate(part.windows):
-                pv, eul0, eul_rate, om0 = naive_start(part.log, meas, a, part.start_states[w])
-                x0 = pv
-                naive_rate = {"x": pv[3], "y": pv[4], "z": pv[5]}
-                for ch in pred.channels:
-                    c = OUTPUTS.index(ch)
-                    # this channel's measured samples in the window (multi-rate logs)
-                    ks = a + np.flatnonzero(np.isfinite(part.errors[a:b, c]))
-                    if ks.size == 0:
-                        continue
-                    for i, h in enumerate(hs):
-                        # the measured sample nearest h ahead, if near enough
-                        k = int(ks[np.argmin(np.abs(t[ks] - t[a] - h))])
-                        tau = t[k] - t[a]
-                        if abs(tau - h) > 0.2 * h + 0.5 * dt:
-                            continue
-                        naive = {"x": x0[0] + naive_rate["x"] * tau, "y": x0[1] + naive_rate["y"] * tau,
-                                 "z": x0[2] + naive_rate["z"] * tau, "phi": eul0[0] + eul_rate[0] * tau,
-                                 "theta": eul0[1] + eul_rate[1] * tau, "psi": eul0[2] + eul_rate[2] * tau,
-                                 "p": om0[0], "q": om0[1], "r": om0[2]}
-                        if ch not in naive:
-                            # the accelerometer is no state: held at its first sample of the window
-                            naive[ch] = meas[ks[0], c]
-                        em, y = part.errors[k, c], meas[k, c]
-                        if not np.isfinite(y):
-                            continue
-                        en = y - naive[ch]
-                        if c == PSI:
-                            en = math.atan2(math.sin(en), math.cos(en))
-                        sq_m[ch][i] += em * em
-                        sq_n[ch][i] += en * en
-                        cnt[ch][i] += 1
+                acc.add(part.log, meas, a, part.errors[a:b], part.start_states[w])
+        return acc.result()
+
+
+def _measured(log: FlightLog, ny: int) -> np.ndarray:
+    """The log's outputs as an (n, ny) array in ``OUTPUTS`` order, NaN where not measured."""
+    meas = np.full((len(log.t), ny), np.nan)
+    for c, name in enumerate(OUTPUTS[:ny]):
+        if name in log.output_names:
+            meas[:, c] = log.output(name)
+    return meas
+
+
+class _HorizonSums:
+    """Squared model and naive errors at each horizon, summed over prediction windows."""
+
+    def __init__(self, hs: Sequence[float], channels: Sequence[str], dt: float):
+        self.hs, self.channels, self.dt = list(hs), list(channels), dt
+        self.sq_m = {ch: np.zeros(len(hs)) for ch in channels}
+        self.sq_n = {ch: np.zeros(len(hs)) for ch in channels}
+        self.cnt = {ch: np.zeros(len(hs)) for ch in channels}
+        self.windows = 0
+
+    def add(self, log: FlightLog, meas: np.ndarray, a: int, errors: np.ndarray, x0: np.ndarray) -> None:
+        """One window starting at sample ``a``: ``errors`` (its samples, ny) measured minus
+        predicted, psi wrapped; ``x0`` the model's start state (the naive predictor's
+        fallback where a channel has no recent sample)."""
+        t, dt = log.t, self.dt
+        self.windows += 1
+        pv, eul0, eul_rate, om0 = naive_start(log, meas, a, x0)
+        for ch in self.channels:
+            c = OUTPUTS.index(ch)
+            # this channel's measured samples in the window (multi-rate logs)
+            ks = np.flatnonzero(np.isfinite(errors[:, c]))
+            if ks.size == 0:
+                continue
+            for i, h in enumerate(self.hs):
+                # the measured sample nearest h ahead, if near enough
+                j = int(ks[np.argmin(np.abs(t[a + ks] - t[a] - h))])
+                k = a + j
+                tau = t[k] - t[a]
+                if abs(tau - h) > 0.2 * h + 0.5 * dt:
+                    continue
+                y = meas[k, c]
+                if not np.isfinite(y):
+                    continue
+                naive = {"x": pv[0] + pv[3] * tau, "y": pv[1] + pv[4] * tau, "z": pv[2] + pv[5] * tau,
+                         "phi": eul0[0] + eul_rate[0] * tau, "theta": eul0[1] + eul_rate[1] * tau,
+                         "psi": eul0[2] + eul_rate[2] * tau, "p": om0[0], "q": om0[1], "r": om0[2]}
+                # the accelerometer is no state: held at its first sample of the window
+                en = y - naive.get(ch, meas[a + ks[0], c])
+                if c == PSI:
+                    en = math.atan2(math.sin(en), math.cos(en))
+                em = errors[j, c]
+                self.sq_m[ch][i] += em * em
+                self.sq_n[ch][i] += en * en
+                self.cnt[ch][i] += 1
+
+    def result(self) -> HorizonErrors:
         rms = lambda sq, n: [float(math.sqrt(s / c)) if c else float("nan") for s, c in zip(sq, n)]  # noqa: E731
-        return cls([float(h) for h in hs], {ch: rms(sq_m[ch], cnt[ch]) for ch in pred.channels},
-                   {ch: rms(sq_n[ch], cnt[ch]) for ch in pred.channels})
+        return HorizonErrors([float(h) for h in self.hs],
+                             {ch: rms(self.sq_m[ch], self.cnt[ch]) for ch in self.channels},
+                             {ch: rms(self.sq_n[ch], self.cnt[ch]) for ch in self.channels}, self.windows)
+
+
+HORIZON_START_EVERY = 0.1
+"""s between the starts of :func:`horizon_errors`' overlapping windows."""
+HORIZON_MAX_STARTS = 200
+"""at most this many window starts per flight (spread evenly) in :func:`horizon_errors`."""
+
+
+def horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]",
+                   logs: "FlightLog | Sequence[FlightLog]", horizons: Sequence[float] | None = None,
+                   start_every: float = HORIZON_START_EVERY, init_window: float = DEFAULT_INIT_WINDOW,
+                   sigma: np.ndarray | None = None, compile: str = "auto",
+                   held_moment: bool = False) -> HorizonErrors:
+    """Prediction error against horizon beside the naive predictor's (:class:`HorizonErrors`),
+    from windows started every ``start_every`` seconds (overlapping; at most
+    :data:`HORIZON_MAX_STARTS` per flight), each predicted ``max(horizons)`` ahead open loop
+    from its moving-horizon start state (``init_window``, ``held_moment`` as in
+    :func:`predict`). ``p``: one parameter vector, or one per flight.
+
+    Consecutive 1-s windows (:meth:`Prediction.horizon_errors`) score each horizon once per
+    second of log; on a 5-s validation flight that is five samples, too few to tell a model
+    from the naive predictor (on a real Crazyflie flight the verdict at 0.5 s flipped on
+    x, y and psi between the two).
+
+    Example::
+
+        he = horizon_errors(model, res.p, val)
+        he.beats_naive("x", 0.25), he.as_dict()
+    """
+    logs = [logs] if isinstance(logs, FlightLog) else list(logs)
+    ps = [p] * len(logs) if isinstance(p, np.ndarray) and p.ndim == 1 else list(p)
+    if held_moment and fx.HeldMoment.name not in model.effects:
+        model = model + fx.HeldMoment()
+    hs_req = sorted(horizons or DEFAULT_HORIZONS)
+    acc = None
+    for pk, log in zip(ps, logs):
+        log = model.prepare_log(log)
+        t = log.t
+        dt = float(np.median(np.diff(t)))
+        if acc is None:
+            hs = sorted({round(dt, 9), *hs_req})
+            channels = [name for name in OUTPUTS if name in log.output_names]
+            acc = _HorizonSums(hs, channels, dt)
+        L = max(int(round(init_window / dt)), 3)
+        n_steps = int(np.searchsorted(t - t[0], max(acc.hs) * 1.2 + dt, side="right")) + 1
+        last = t.size - 2
+        if last <= L:
+            raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
+                                    f"{init_window + 2 * dt:.3f} s")
+        step = max(1, int(round(start_every / dt)), int(math.ceil((last - L) / HORIZON_MAX_STARTS)))
+        starts = np.arange(L, last, step)
+        Yp, x0 = _predict_windows(model, np.asarray(pk, dtype=float), log, starts, n_steps, L, sigma, compile)
+        meas = _measured(log, model.ny)
+        for w, a in enumerate(starts):
+            b = min(a + n_steps, t.size)
+            err = meas[a:b] - Yp[w, :b - a]
+            err[:, PSI] = np.arctan2(np.sin(err[:, PSI]), np.cos(err[:, PSI]))
+            acc.add(log, meas, a, err, x0[w])
+    return acc.result()
 
 
 def pool_predictions(preds: Sequence[Prediction]) -> Prediction:
@@ -413,30 +512,14 @@ def _fitted_with_process_noise(res) -> bool:
     return bool(getattr(res, "process_noise", None) or (getattr(res, "provenance", None) or {}).get("process_noise"))
 
 
-def horizon_options(res) -> dict:
-    """Options of :func:`predict` for the error-against-horizon report of the fit ``res``
-    (:class:`HorizonErrors`, the JSON's ``horizons``): :func:`prediction_options`, and after a
-    fit with process noise also ``held_moment`` — the roll and pitch moment the vehicle feels
-    at each window's start, estimated with its state and held (a predictor's disturbance
-    model; the process noise stood for inputs the log does not show). On a real Crazyflie
-    flight it took x, y, z and psi below the naive predictor at 0.25 s and 0.5 s. The
-    validation nrmse that confirms a diagnosis' candidates does without it: a held moment
-    would hide the moment a candidate (a CoG offset) adds."""
-    opts = prediction_options(res)
-    return {**opts, "held_moment": True} if _fitted_with_process_noise(res) else opts
-
-
 def horizon_errors_after(res, preds: "Sequence[Prediction]", ps: "Sequence[np.ndarray]",
                          compile: str = "auto") -> "HorizonErrors":
     """The error-against-horizon report of the fit ``res`` validated by ``preds`` (one
-    prediction per flight, made with the parameter vectors ``ps`` and
-    :func:`prediction_options`): from those predictions, or predicted again with
-    :func:`horizon_options` where they differ."""
-    opts = horizon_options(res)
-    if opts == prediction_options(res):
-        return pool_predictions(list(preds)).horizon_errors()
-    again = [predict(res.model, p, pr.log, pr.horizon, compile=compile, **opts) for p, pr in zip(ps, preds)]
-    return pool_predictions(again).horizon_errors()
+    prediction per flight, made with the parameter vectors ``ps``): :func:`horizon_errors` on
+    those flights with the start-state options the fit calls for (:func:`prediction_options`).
+    No held moment: scored over overlapping windows it made every real Crazyflie flight's
+    roll and pitch predictions worse (a moment estimated from 50 ms of gyro is mostly noise)."""
+    return horizon_errors(res.model, list(ps), [pr.log for pr in preds], compile=compile, **prediction_options(res))
 
 
 def predict_flights(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]",

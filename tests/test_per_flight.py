@@ -186,8 +186,10 @@ def test_soft_fit_of_several_flights_gives_each_its_own_process_noise(tmp_path):
                  "motor_asymmetry", "--set", "K_T_dev=0.025641,-0.076923,0.025641"]) == 0
     model = QuadrotorModel(load_airframe(paper))
     good, weak = (load_log(tmp_path / f"{n}.csv").split(0.8)[0] for n in ("good", "weak"))
-    alone = fit(model, good, process_noise="auto", max_iter=200)
-    both = fit(model, [good, weak], process_noise="auto", max_iter=200)
+    # every sample a node: process noise then absorbs the missing asymmetry wherever it acts
+    # (over the default 50-ms intervals it biases b by a third: a model error, not the q)
+    alone = fit(model, good, process_noise="auto", interval=1, max_iter=200)
+    both = fit(model, [good, weak], process_noise="auto", interval=1, max_iter=200)
     assert alone.converged and both.converged, both.status
     q_p = both.process_noise["p"]
     assert isinstance(q_p, list) and q_p[1] > 100 * q_p[0], q_p

@@ -230,11 +230,11 @@ def test_rotor_map_offset_is_recovered():
 def test_process_noise_fit_recovers_parameters_of_an_exact_model():
     model = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
     syn = synthesize(model, duration=10.0, seed=23, sensors=SensorSpec(rate=250.0, vision_rate=125.0))
-    est, _ = syn.log.split()    # 250 Hz: every sample is a node
+    est, _ = syn.log.split()    # 250 Hz: a node every 12 samples (nearest 50 ms), as without process noise
     p0 = model.parameter_vector({"K_T": 2.395e-5 * 1.3, "b": 6.8429e-7 * 0.7, "Kd": [0.15, 0.05, 0.2]})
     res = fit(model, est, p0=p0, process_noise="auto")
     assert res.converged, res.status
-    assert res.process_noise is not None and res.interval == 1
+    assert res.process_noise is not None and res.interval == 12
     assert res.value("K_T") == pytest.approx(2.395e-5, rel=0.01)
     assert res.value("b") == pytest.approx(6.8429e-7, rel=0.03)
     with pytest.raises(GreyboxInputError, match="process_noise: unknown state 'vw'"):

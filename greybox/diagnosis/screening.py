@@ -24,7 +24,7 @@ from ..shooting import ShootingProblem, free_indices
 from ..validation import Prediction, predict_after_fit
 
 __all__ = ["NEGLIGIBLE_FRACTION", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
-           "explained_fraction", "physically_negligible", "physically_implausible", "null_on_bound",
+           "explained_fraction", "physically_negligible", "physically_implausible", "held_on_bound", "null_on_bound",
            "precompile_candidates"]
 
 
@@ -398,6 +398,30 @@ def physically_implausible(fr: FitResult, effect: str) -> str:
         return ""
     std = dict(zip(fr.free_names, map(float, fr.std)))
     return "; ".join(e.plausibility_warnings(fr.model.parameter_dict(fr.p), std, fr.model.airframe))
+
+
+def held_on_bound(fr: FitResult, effect: str) -> str:
+    """Words naming the parameters of ``effect`` that the refit ``fr`` holds on a bound away
+    from their null value (``"k_M = 0.02 (lower bound)"``), or "". An effect whose parameter
+    runs to a bound stands in for something the model lacks: on a real Crazyflie flight the
+    moment gain ran to 0.02 (a vehicle that ignores its commands) before the CoG offset that
+    balances the commanded trim moment was in the model."""
+    held = set(fr.certificate.held) if fr.certificate is not None else set()
+    parts = []
+    for par in fr.model.parameters:
+        if par.effect != effect:
+            continue
+        nulls = np.broadcast_to(np.asarray(par.null, dtype=float), (par.size,))
+        for comp, null in zip(par.component_names, nulls):
+            v = fr.value(comp)
+            if comp not in held or np.isclose(v, null, rtol=1e-6, atol=1e-12):
+                continue
+            side = "lower" if abs(v - par.lower) <= abs(v - par.upper) else "upper"
+            # a bound that stands for the null (a motor lag's 2 ms floor) is no stand-in
+            if (side == "lower" and null <= par.lower) or (side == "upper" and null >= par.upper):
+                continue
+            parts.append(f"{comp} = {v:.3g} ({side} bound)")
+    return ", ".join(parts)
 
 
 def null_on_bound(ext: QuadrotorModel, name: str) -> bool:

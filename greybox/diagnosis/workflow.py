@@ -37,7 +37,7 @@ distinguishing_manoeuvre = fx.distinguishing_manoeuvre
 
 
 def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, candidates: Sequence[str] | None = None,
-             iterate: bool = True, max_rounds: int = 3, split: float = 0.8, p0=None,
+             iterate: bool = True, max_rounds: int = 4, split: float = 0.8, p0=None,
              n_refit: int = N_REFIT, compile: str = "auto",
              progress: bool | Callable[[str], None] = False,
              process_noise: str | dict[str, float] | None = None,
@@ -225,8 +225,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      validation_source=_validation_source(validation, split, len(est)), unexplained=unexplained,
                      inconsistent=inconsistent, command_imbalance=imbalance,
                      discovered=discovered, discovery=discovery_note)
-    # the error-against-horizon report (a process-noise fit's predictor holds the moment felt
-    # at each window's start: validation.horizon_options)
+    # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile)
     diag.final_horizons = diag.baseline_horizons if cur_res is res else \

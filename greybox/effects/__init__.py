@@ -45,7 +45,7 @@ from .power import BatteryVoltage, RotorMap, ThrustDrift
 from .registry import (ENTRY_POINT_GROUP, by_name, distinguishing_manoeuvre, effect_class, example_values,
                        known_effects, load_effects_file, parse_effect_names, register, registered_effects,
                        unregister)
-from .rotor import Gyroscopic, MotorLag, YawTorque
+from .rotor import Gyroscopic, MomentGain, MotorLag, YawTorque
 from .sensors import AttitudeBias, PositionDelay
 
 __all__ = [
@@ -55,5 +55,5 @@ __all__ = [
     "PositionDelay", "AttitudeBias", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
     "APPLY_ORDER", "register", "load_effects_file", "known_effects", "registered_effects",
     "effect_class", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP", "example_values", "DiscoveredEffect",
-    "unregister", "HeldMoment",
+    "unregister", "HeldMoment", "MomentGain",
 ]

@@ -1,5 +1,6 @@
 """Effects of the spinning rotors on the body: the reaction torque, the gyroscopic torque
-(both in the base model) and the lag between logged and effective rotor speed."""
+(both in the base model), the lag between logged and effective rotor speed, and the scale
+of the roll/pitch moment they give."""
 from __future__ import annotations
 
 import casadi as ca
@@ -8,7 +9,7 @@ import numpy as np
 from ..parameters import Parameter
 from .base import Effect
 
-__all__ = ["YawTorque", "Gyroscopic", "MotorLag"]
+__all__ = ["YawTorque", "Gyroscopic", "MotorLag", "MomentGain"]
 
 
 class YawTorque(Effect):
@@ -114,3 +115,56 @@ class MotorLag(Effect):
 
     def state_derivative(self, ctx):
         return (ctx.w_command - ctx.extra_states[self.name]) / ctx.params["tau_m"]
+
+
+class MomentGain(Effect):
+    """The rotor thrusts' roll and pitch moment scaled by ``k_M`` (1: the airframe's).
+
+    The moment a model computes from logged rotor speeds rests on the inertia, the arm
+    length and, when the speeds come from motor commands, on the command-to-speed map. A
+    ``k_M`` below 1 says the body turns less per logged speed difference than those predict:
+    a larger inertia, or a map that overstates speed differences (on real Crazyflie flights
+    with the published PWM map the cross-correlation of gyro-derived angular acceleration with
+    the modelled one gives about 0.2-0.35). Roll and pitch only: the yaw moment has its own
+    coefficient ``b``.
+    """
+
+    name = "moment_gain"
+    summary = "roll/pitch moment per logged rotor-speed difference, relative to the airframe's"
+    excited_by = 'roll and pitch manoeuvres (attitude steps, figure-eights)'
+    fit_advice = 'roll and pitch steps flown open enough that the attitude follows the commands'
+    channels = ('phi', 'theta', 'p', 'q', 'x', 'y')
+    distinguish = {
+        'motor_lag': 'fast rotor-speed steps: a lag delays the moment, a gain scales it at every frequency',
+    }
+
+    def parameters(self, airframe):
+        return [Parameter("k_M", 1, 1.0, "1", 0.02, 5.0, 0.3, 1.0, True,
+                          "roll/pitch moment of the rotor thrusts relative to the airframe's", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"k_M": 0.7}
+
+    def plausible_limits(self, airframe):
+        # a tenth of the airframe's moment would be ten times its inertia, or a command map
+        # ten times too steep: beyond, the gain has the model ignore its commands instead
+        # (a real Crazyflie flight without its CoG offset: k_M 0.02, on its bound)
+        return {"k_M": 0.9}
+
+    def plausibility_warnings(self, values, std, airframe):
+        if "k_M" not in std:
+            return []
+        k, lim = values["k_M"], self.plausible_limits(airframe)["k_M"]
+        if abs(k - 1.0) <= lim:
+            return []
+        return [f"k_M = {k:.3g}: beyond what moment_gain physically does ({1 - lim:.1f} <= k_M <= {1 + lim:.1f}: "
+                f"an inertia or command map off by more than that is a wrong airframe file); the fit has it "
+                f"standing in for something the model lacks"]
+
+    def add_forces(self, ctx):
+        k = ctx.params["k_M"]
+        tau = ca.SX.zeros(3)
+        for i in range(ctx.airframe.n_rotors):
+            tau += ca.cross(ctx.rotor_pos[i, :].T, ca.vertcat(0, 0, -ctx.rotor_thrust[i]))
+        ctx.torque_body += (k - 1) * ca.vertcat(tau[0], tau[1], 0)
+
