@@ -167,6 +167,19 @@ def markdown(rows: list[dict]) -> str:
                      f"{', '.join(beat['0.25']) or 'none'} | {', '.join(beat['0.5']) or 'none'} | "
                      f"{r['seconds']:.0f} |")
     lines.append("")
+    lines.append("RMS prediction error of the final model / the naive predictor (m, rad; windows started "
+                 "every 0.1 s of the validation part):")
+    lines.append("")
+    pose = ["x", "y", "z", "phi", "theta", "psi"]
+    lines.append("| flight | ahead | " + " | ".join(pose) + " |")
+    lines.append("|---|---|" + "---|" * len(pose))
+    for r in rows:
+        hz = r["horizons_final"]
+        for h in ("0.25", "0.5"):
+            cells = [f"{hz[f'{c}@{h}']['model']:.3f} / {hz[f'{c}@{h}']['naive']:.3f}" if f"{c}@{h}" in hz else "-"
+                     for c in pose]
+            lines.append(f"| {r['flight']} | {h} s | " + " | ".join(cells) + " |")
+    lines.append("")
     lines.append("Per-channel 1-s nrmse (validation, last 20 %):")
     lines.append("")
     chans = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
@@ -196,9 +209,12 @@ def main() -> None:
     args = ap.parse_args()
     files = nanobench_files(args.files)
     args.out.mkdir(parents=True, exist_ok=True)
-    rows = [run(f, args.out) for f in files]
-    (args.out / "summary.json").write_text(json.dumps(rows, indent=2, default=float))
-    (args.out / "summary.md").write_text(markdown(rows))
+    rows = []
+    for f in files:
+        rows.append(run(f, args.out))
+        # after every flight: a later flight's failure keeps the earlier ones' results
+        (args.out / "summary.json").write_text(json.dumps(rows, indent=2, default=float))
+        (args.out / "summary.md").write_text(markdown(rows))
     print(markdown(rows))
 
 

@@ -73,8 +73,10 @@ class Prediction:
         return {c: 100.0 * (1.0 - v) for c, v in self.nrmse.items()}
 
     def as_dict(self) -> dict:
-        return {"nrmse": self.total, "channels": dict(self.nrmse), "horizon": self.horizon,
-                "windows": len(self.windows)}
+        """JSON-ready; a diverged prediction's infinite nrmse is ``None`` (null)."""
+        num = lambda v: v if math.isfinite(v) else None   # noqa: E731
+        return {"nrmse": num(self.total), "channels": {c: num(v) for c, v in self.nrmse.items()},
+                "horizon": self.horizon, "windows": len(self.windows)}
 
 
 def _windows(t: np.ndarray, L: int, horizon: float) -> list[tuple[int, int]]:
@@ -215,9 +217,15 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
     meas = _measured(log, model.ny)
     err = meas - pred
     err[:, PSI] = np.arctan2(np.sin(err[:, PSI]), np.cos(err[:, PSI]))
+    # a prediction that diverged (NaN, inf) where there is a measurement is an infinite error,
+    # not a sample left out: scoring the finite rest would make a blown-up model look good
+    covered = np.zeros(t.size, dtype=bool)
+    for a, b in wins:
+        covered[a:b] = True
+    err[covered[:, None] & np.isfinite(meas) & ~np.isfinite(pred)] = np.inf
     scores, channels = {}, []
     for c, name in enumerate(OUTPUTS):
-        k = np.isfinite(err[:, c])
+        k = covered & np.isfinite(meas[:, c])
         if k.sum() < 3:
             continue
         ref = meas[k, c]

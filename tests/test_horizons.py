@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from greybox import QuadrotorModel, load_airframe, plotting
+from greybox import QuadrotorModel, effects, load_airframe, plotting
 from greybox.cli import main
 from greybox.data import save_log
 from greybox.synth import SensorSpec, model_with_hidden_effects, synthesize
@@ -175,3 +175,21 @@ def test_overlapping_windows_score_many_more_starts_and_reduce_to_the_consecutiv
     twice = horizon_errors(base, [res.p, res.p], [val, val], horizons=[0.25, 0.5])
     assert twice.windows == 2 * many.windows
     assert twice.model["z"] == pytest.approx(many.model["z"], rel=1e-9, nan_ok=True)
+
+
+def test_a_prediction_that_is_not_finite_scores_infinite_not_the_finite_rest():
+    """A model whose outputs are NaN (here a NaN thrust coefficient, as a blow-up to inf and
+    back gives) in every window: its nrmse is infinite (null in JSON), not an input error
+    'no measured channel' (a diagnosis' discovered-effect refit on a real flight ended so)."""
+    from greybox.validation import predict
+    base = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    log = synthesize(base, base.default_parameters(), 6.0, SensorSpec(rate=100.0), seed=1).log
+    p = base.default_parameters()
+    good = predict(base, p, log)
+    assert np.isfinite(good.total)
+    bad = p.copy()
+    bad[base.param_names.index("K_T")] = np.nan
+    with np.errstate(all="ignore"):
+        pr = predict(base, bad, log)
+    assert pr.total == float("inf") and all(v == float("inf") for v in pr.nrmse.values())
+    assert pr.as_dict()["nrmse"] is None and json.dumps(pr.as_dict(), allow_nan=False)

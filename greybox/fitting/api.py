@@ -176,6 +176,9 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             state at the starting point and is re-estimated (downwards only) after each
             solve, each flight its own; a std in ``{state: std}`` may be one per flight. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
             fit of such data can only shrink the parameters until the model stops moving.
+            The gaps sit at the shooting nodes (``interval``, default every 50 ms);
+            ``interval=1`` makes every sample a node (an equation-error fit: it absorbs a
+            model error sample by sample, but is biased on closed-loop data).
         per_flight: with several logs, parameters each flight gets its own value of (the
             day's wind, the battery's sag) while the rest are shared: ``"auto"`` for the
             parameters of the model's effects that declare ``per_flight`` (``wind``,
