@@ -341,6 +341,7 @@ class QuadrotorModel:
         torque = ca.SX.zeros(3)
         for i in range(n):
             torque += ca.cross(ctx.rotor_pos[i, :].T, ca.vertcat(0, 0, -ctx.rotor_thrust[i]))
+        ctx.thrust_torque = torque
         for e in self.effects:
             e.add_forces(ctx)
 

@@ -44,6 +44,7 @@ class ModelContext:
     force_world: ca.SX = None  # forces added by effects (world, N)
     torque_body: ca.SX = None  # torques added by effects (body, N m)
     rotor_thrust: ca.SX = None  # per-rotor thrust magnitude along body -z (N), set by the model
+    thrust_torque: ca.SX = None  # the rotor thrusts' moment about the CoG (body, N m), set by the model
     signals: dict[str, ca.SX] = None  # extra logged inputs by name (see Effect.signals)
     acc_world: ca.SX = None    # translational acceleration, set before measurement hooks
 

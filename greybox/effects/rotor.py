@@ -162,9 +162,6 @@ class MomentGain(Effect):
                 f"standing in for something the model lacks"]
 
     def add_forces(self, ctx):
-        k = ctx.params["k_M"]
-        tau = ca.SX.zeros(3)
-        for i in range(ctx.airframe.n_rotors):
-            tau += ca.cross(ctx.rotor_pos[i, :].T, ca.vertcat(0, 0, -ctx.rotor_thrust[i]))
-        ctx.torque_body += (k - 1) * ca.vertcat(tau[0], tau[1], 0)
+        tau = ctx.thrust_torque
+        ctx.torque_body += (ctx.params["k_M"] - 1) * ca.vertcat(tau[0], tau[1], 0)
 
