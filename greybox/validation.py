@@ -380,8 +380,9 @@ class _HorizonSums:
         pv, eul0, eul_rate, om0 = naive_start(log, meas, a, x0)
         for ch in self.channels:
             c = OUTPUTS.index(ch)
-            # this channel's measured samples in the window (multi-rate logs)
-            ks = np.flatnonzero(np.isfinite(errors[:, c]))
+            # this channel's measured samples in the window (multi-rate logs); where the
+            # prediction is not finite there, the model's error is infinite (as in predict)
+            ks = np.flatnonzero(np.isfinite(meas[a:a + len(errors), c]))
             if ks.size == 0:
                 continue
             for i, h in enumerate(self.hs):
@@ -392,8 +393,6 @@ class _HorizonSums:
                 if abs(tau - h) > 0.2 * h + 0.5 * dt:
                     continue
                 y = meas[k, c]
-                if not np.isfinite(y):
-                    continue
                 naive = {"x": pv[0] + pv[3] * tau, "y": pv[1] + pv[4] * tau, "z": pv[2] + pv[5] * tau,
                          "phi": eul0[0] + eul_rate[0] * tau, "theta": eul0[1] + eul_rate[1] * tau,
                          "psi": eul0[2] + eul_rate[2] * tau, "p": om0[0], "q": om0[1], "r": om0[2]}
@@ -401,7 +400,7 @@ class _HorizonSums:
                 en = y - naive.get(ch, meas[a + ks[0], c])
                 if c == PSI:
                     en = math.atan2(math.sin(en), math.cos(en))
-                em = errors[j, c]
+                em = errors[j, c] if np.isfinite(errors[j, c]) else np.inf
                 self.sq_m[ch][i] += em * em
                 self.sq_n[ch][i] += en * en
                 self.cnt[ch][i] += 1

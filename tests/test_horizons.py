@@ -193,3 +193,11 @@ def test_a_prediction_that_is_not_finite_scores_infinite_not_the_finite_rest():
         pr = predict(base, bad, log)
     assert pr.total == float("inf") and all(v == float("inf") for v in pr.nrmse.values())
     assert pr.as_dict()["nrmse"] is None and json.dumps(pr.as_dict(), allow_nan=False)
+    # the horizons too: the model's error is infinite, the naive predictor's is not
+    from greybox.validation import horizon_errors
+    with np.errstate(all="ignore"):
+        he = horizon_errors(base, bad, log, horizons=[0.25])
+    k = he.horizons.index(0.25)
+    assert he.model["z"][k] == float("inf") and he.model["phi"][k] == float("inf")
+    assert np.isfinite(he.naive["phi"][k])    # from the gyro and angle samples alone
+    assert pr.horizon_errors(horizons=[0.25]).model["z"][k] == float("inf")
