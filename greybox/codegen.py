@@ -5,6 +5,11 @@ times faster than CasADi's virtual machine. Compilation takes a few seconds, so 
 library is cached under ``$GREYBOX_CACHE`` (default ``~/.cache/greybox``), keyed by a hash
 of the function's serialised form: a second fit of the same model structure loads it at
 once. Without a C compiler (or with ``GREYBOX_NO_COMPILE=1``) the function is used as is.
+
+The cache key is the function itself (a hash of its serialised form, the C compiler's
+optimisation flag and CasADi's version): two flights of one vehicle, or two processes,
+that build the same function share one library, and a function that differs in anything
+(an effect's option, an edited user effect, another airframe constant) gets its own.
 """
 from __future__ import annotations
 
@@ -22,7 +27,12 @@ import numpy as np
 
 from .errors import CacheWarning
 
-__all__ = ["compiled", "precompile", "cache_dir", "compiler_available", "CacheWarning"]
+__all__ = ["compiled", "cached", "expected_build_seconds", "cache_dir", "compiler_available",
+           "CacheWarning"]
+
+# Seconds of C compiler time per CasADi instruction (gcc 12, one core, generated step
+# functions of 3k-120k instructions: -O1 1.9 s for 34k, 6.2 s for 96k; -O0 about half).
+BUILD_SECONDS_PER_INSTRUCTION = {"-O0": 3e-5, "-O1": 6e-5}
 
 
 def cache_dir() -> Path:
@@ -36,21 +46,15 @@ def compiler_available() -> str | None:
     return shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
 
 
-def source_fingerprint() -> str:
-    """Hash of the source that defines compiled functions: changing it invalidates cached libraries."""
-    h = hashlib.sha1(ca.__version__.encode())
-    # the modules that define what gets compiled (not the CLI, reports, ...)
-    here = Path(__file__).parent
-    for name in ("airframe", "codegen", "shooting", "integrate", "model", "parameters", "rotations"):
-        h.update((here / f"{name}.py").read_bytes())
-    # the effects package, every module of it (sorted: the same key on every machine)
-    for path in sorted((here / "effects").glob("*.py")):
-        h.update(path.name.encode() + path.read_bytes())
-    return h.hexdigest()
+def expected_build_seconds(f: ca.Function, opt: str = "-O1") -> float:
+    """About how long the C compiler takes on ``f`` (generation, compiling, linking)."""
+    return BUILD_SECONDS_PER_INSTRUCTION.get(opt, 6e-5) * f.n_instructions()
 
 
 def _lib_path(f: ca.Function, key: str | None, opt: str) -> Path:
-    text = (key + source_fingerprint()) if key is not None else f.serialize()
+    # the serialised function (20 ms for 36k instructions) is the exact key; an explicit
+    # ``key`` is the caller's promise that it determines ``f``
+    text = key if key is not None else f.serialize()
     digest = hashlib.sha1((text + opt + ca.__version__).encode()).hexdigest()[:20]
     return cache_dir() / f"{f.name()}_{digest}.so"
 
@@ -112,43 +116,6 @@ def _writable_cache() -> bool:
         _note(f"compile cache {cache_dir()} is not writable ({e.strerror or e}); using CasADi's "
               "virtual machine (several times slower). Set GREYBOX_CACHE to a writable folder.")
         return False
-
-
-def precompile(items: "list[tuple[ca.Function, str | None]]", workers: int = 2, opt: str = "-O1") -> None:
-    """Compile several functions into the cache at once, ``workers`` compilers in parallel
-    (code generation is serial; the C compiler runs concurrently). An interrupt kills every
-    compiler started (their whole process groups) before it propagates."""
-    cc = compiler_available()
-    if cc is None:
-        return
-    todo = [(f, _lib_path(f, key, opt)) for f, key in items]
-    todo = [(f, lib) for f, lib in todo if not lib.exists()]
-    if not todo or not _writable_cache():
-        return
-    running: list = []
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            jobs = []
-            for i, (f, lib) in enumerate(todo):
-                d = Path(tmp) / str(i)
-                d.mkdir()
-                jobs.append((_generate(f, str(d)), d / "lib.so", lib))
-            for src, out, lib in jobs:
-                while len(running) >= workers:
-                    _finish(running.pop(0))
-                running.append((_start_compiler(_compile_command(cc, opt, src, out), Path(tmp)), out, lib))
-            while running:
-                _finish(running.pop(0))
-    except BaseException:
-        for proc, _, _ in running:
-            _kill(proc)
-        raise
-
-
-def _finish(job) -> None:
-    proc, out, lib = job
-    if proc.wait() == 0 and out.exists():
-        _install(out, lib)
 
 
 def _install(out: Path, lib: Path) -> None:
@@ -264,12 +231,20 @@ def _load_checked(f: ca.Function, lib: Path, private: bool = False) -> ca.Functi
     return g
 
 
+def cached(f: ca.Function, key: str | None = None, opt: str = "-O1") -> ca.Function | None:
+    """The compiled twin of ``f`` if the cache holds a good one, else None (nothing is built)."""
+    if compiler_available() is None:
+        return None
+    lib = _lib_path(f, key, opt)
+    return _load_checked(f, lib) if lib.exists() else None
+
+
 def compiled(f: ca.Function, key: str | None = None, opt: str = "-O1") -> tuple[ca.Function, str]:
     """``(function, how)``: the compiled twin of ``f`` (``how`` = ``"cached"`` or ``"compiled"``)
     or ``f`` itself (``how`` = ``"virtual machine"``) when no compiler works.
 
-    ``key`` must determine ``f`` completely (with greybox's source, which is added); without
-    it the serialised function is hashed, which is exact but slower for large functions.
+    ``key``, when given, must determine ``f`` completely; without it (the usual way) the
+    serialised function is hashed.
     A cached library is checked against ``f`` before use; a broken one is rebuilt. When the
     cache cannot be written, a warning says so once and ``f`` runs as is."""
     cc = compiler_available()

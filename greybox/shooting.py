@@ -6,7 +6,8 @@ measured sample of every channel, subject to continuity: integrating the model (
 held) from ``s_j`` over interval j must land on ``s_{j+1}``.
 
 This module holds what describes that problem: the CasADi interval functions
-(:class:`ShootingProblem`, compiled to C and cached by :mod:`greybox.codegen`), the flights
+(:class:`ShootingProblem`, compiled to C when that pays and cached by
+:mod:`greybox.codegen`), the flights
 laid out as padded intervals (:class:`ShootingData`), state guesses from the measurements
 (:func:`initial_node_states`), channel noise estimates and the parameters' bounds. The
 solvers live in :mod:`greybox.fitting`; :mod:`greybox.validation` uses the problem's
@@ -15,6 +16,7 @@ functions for predictions.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from typing import Iterable, Mapping, Sequence
 
@@ -22,7 +24,7 @@ import casadi as ca
 import numpy as np
 from scipy.signal import savgol_filter
 
-from .codegen import compiled
+from . import codegen
 from .data import FlightLog
 from .errors import GreyboxInputError
 from .integrate import n_substeps, parallel_map, rk4_step
@@ -31,30 +33,11 @@ from .rotations import body_rates_from_euler_rates
 
 __all__ = ["ShootingProblem", "MappedPair", "ShootingData", "layout", "initial_node_states",
            "estimate_noise", "noise_levels", "sensor_noise", "free_indices", "parameter_bounds",
-           "DEFAULT_INTERVAL_S", "default_interval", "effect_source"]
+           "DEFAULT_INTERVAL_S", "default_interval"]
 
 DEFAULT_INTERVAL_S = 0.05
 """Default shooting interval in seconds: 50 samples at 1 kHz, chosen by
 ``experiments/bench_fit.py``; at other rates the nearest whole number of samples."""
-
-
-def effect_source(effect) -> str:
-    """What defines an effect's equations beyond its options, for compile-cache keys: nothing
-    for greybox's own (their source is hashed with the package), the class's source code for
-    an effect defined elsewhere: its whole source file (editing it — the class or a constant
-    beside it — must not reload old compiled code)."""
-    import inspect
-    cls = type(effect)
-    if cls.__module__.startswith("greybox."):
-        return ""
-    try:
-        # the whole file: a module-level constant the class reads is part of its equations
-        path = inspect.getsourcefile(cls)
-        with open(path, "rb") as fh:
-            return f"{cls.__qualname__}:" + fh.read().hex()
-    except (OSError, TypeError):
-        # no source to read (defined interactively): never share a cached library
-        return f"{cls.__module__}.{cls.__qualname__}@{id(cls)}"
 
 
 def default_interval(logs: "Sequence[FlightLog]") -> int:
@@ -164,14 +147,25 @@ def _effect_states_along(model: QuadrotorModel, log: FlightLog, X: np.ndarray, p
 class ShootingProblem:
     """CasADi functions for the interval blocks of a given model, free set and interval.
 
-    The per-sample step functions (small) are compiled to C and cached; the fold over an
-    interval's samples and the map over intervals stay CasADi constructs around them.
+    The per-sample step functions (small) run compiled to C or on CasADi's virtual machine;
+    the fold over an interval's samples and the map over intervals stay CasADi constructs
+    around them. ``compile_mode``:
+
+    - ``"auto"``: a library from the compile cache if there is one; otherwise the virtual
+      machine, until the time spent evaluating there reaches the compiler's expected time
+      for the function, then it is compiled (``-O1``) and used from there on. A job that
+      evaluates a function a few times (a screening, a short refit) never waits for a
+      compiler; a long fit pays at most twice what knowing its length beforehand would.
+    - ``"always"``: compile at once (``-O1``); ``"quick"``: at once, unoptimised (``-O0``);
+    - ``"never"``: the virtual machine only.
     """
+
+    KINDS = ("blocks", "value")
 
     @staticmethod
     def step_functions(model: QuadrotorModel, free_idx: list[int], n_sub: int
-                       ) -> tuple[ca.Function, ca.Function, str]:
-        """Per-sample Gauss-Newton step functions and the cache key that determines them."""
+                       ) -> tuple[ca.Function, ca.Function]:
+        """Per-sample Gauss-Newton step functions: (blocks, value)."""
         nx, nu, ny, npar = model.nx, model.nu, model.ny, model.n_params
         nth = len(free_idx)
         nz = nx + nth
@@ -206,35 +200,28 @@ class ShootingProblem:
         step_blk = ca.Function("gb_step_blocks", [x, S, H, g, c, u, t, h, ym, w, th, sc, pfix],
                                [xn, Sn, H + Je.T @ Je, g + Je.T @ e, c + e * e])
         step_val = ca.Function("gb_step_value", [x, c, u, t, h, ym, w, th, sc, pfix], [xn, c + e * e])
-        af = model.airframe
-        key = repr((af.mass, af.inertia.tolist(), af.rotor_positions.tolist(), af.spins.tolist(),
-                    af.gravity, af.ground_z, af.rotor_inertia,
-                    af.parameters if model.inputs == "controls" else None,
-                    [(e.name, sorted(e.options().items()), effect_source(e)) for e in model.effects],
-                    model.inputs, free_idx, n_sub))
-        return step_blk, step_val, key
+        return step_blk, step_val
 
     def __init__(self, model: QuadrotorModel, free_idx: list[int], N: int, n_sub: int,
                  compile_mode: str):
+        if compile_mode not in ("auto", "always", "quick", "never"):
+            raise GreyboxInputError(f"compile must be 'auto', 'always', 'quick' or 'never', not {compile_mode!r}")
         self.model, self.free_idx, self.N = model, free_idx, N
         nx, nu, ny, npar = model.nx, model.nu, model.ny, model.n_params
         nth = len(free_idx)
         nz = nx + nth
         self.nx, self.nth, self.nz, self.ny = nx, nth, nz, ny
-        step_blk, step_val, key = self.step_functions(model, free_idx, n_sub)
-        self.how = "virtual machine"
-        if compile_mode != "never":
-            # "quick": a faster build, slower code, for functions evaluated once or twice
-            opt = "-O0" if compile_mode == "quick" else "-O1"
-            step_blk, self.how = compiled(step_blk, key + "blocks", opt)
-            # the line-search function compiles when first used (screening never needs it)
-            self._value_step = (step_val, key + "value", opt)
-        else:
-            self._value_step = (step_val, None, None)
-        self._N = N
+        self.compile_mode = compile_mode
+        self._opt = "-O0" if compile_mode == "quick" else "-O1"
+        step_blk, step_val = self.step_functions(model, free_idx, n_sub)
+        self._symbolic = {"blocks": step_blk, "value": step_val}
+        self._step: dict[str, ca.Function] = {}
+        self._how: dict[str, str] = {}
+        self._vm_seconds = {kind: 0.0 for kind in self.KINDS}
+        self.version = 0            # bumped when a step function is swapped for its compiled twin
+        self._interval: dict[str, ca.Function] = {}
+        self._maps: dict[int, "MappedPair"] = {}
 
-        # fold over the interval's samples; theta, scale and fixed parameters are repeated
-        acc_b = step_blk.mapaccum("acc", N, [0, 1, 2, 3, 4], [0, 1, 2, 3, 4])
         xs = ca.MX.sym("s", nx)
         ths = ca.MX.sym("th", nth)
         scs = ca.MX.sym("scale", nth)
@@ -244,28 +231,77 @@ class ShootingProblem:
         Hs = ca.MX.sym("h", 1, N)
         Y = ca.MX.sym("Y", ny, N)
         W = ca.MX.sym("W", ny, N)
-        const = [ca.repmat(ths, 1, N), ca.repmat(scs, 1, N), ca.repmat(pf, 1, N)]
-        S0 = ca.horzcat(ca.MX.eye(nx), ca.MX.zeros(nx, nth))
-        r = acc_b(xs, S0, ca.MX.zeros(nz, nz), ca.MX.zeros(nz, 1), ca.MX.zeros(ny, 1), U, T, Hs, Y, W, *const)
-        ins = [xs, ths, scs, pf, U, T, Hs, Y, W]
-        self.blocks = ca.Function("gb_interval_blocks", ins,
-                                  [r[0][:, -1], r[1][:, -nz:], r[2][:, -nz:], r[3][:, -1], r[4][:, -1]])
-        self._value_args = (ins, const)
-        self._value: ca.Function | None = None
-        self._maps: dict[int, "MappedPair"] = {}
+        self._ins = [xs, ths, scs, pf, U, T, Hs, Y, W]
+        self._const = [ca.repmat(ths, 1, N), ca.repmat(scs, 1, N), ca.repmat(pf, 1, N)]
+        # the blocks now (the fit needs them first); the line-search function when first used
+        self._choose("blocks")
+
+    @property
+    def how(self) -> str:
+        """How the blocks run: "compiled", "cached" or "virtual machine"."""
+        return self._how["blocks"]
+
+    def _choose(self, kind: str) -> None:
+        f = self._symbolic[kind]
+        how = "virtual machine"
+        if self.compile_mode in ("always", "quick"):
+            f, how = codegen.compiled(f, opt=self._opt)
+        elif self.compile_mode == "auto":
+            g = codegen.cached(f, opt=self._opt)
+            if g is not None:
+                f, how = g, "cached"
+        self._step[kind], self._how[kind] = f, how
+
+    def account(self, kind: str, seconds: float) -> None:
+        """Record ``seconds`` spent evaluating ``kind`` ("blocks" or "value"); in ``"auto"``
+        mode, compile its step function once the virtual machine has cost as much as the
+        compiler is expected to."""
+        if self.compile_mode != "auto" or self._how.get(kind) != "virtual machine":
+            return
+        self._vm_seconds[kind] += seconds
+        f = self._symbolic[kind]
+        if self._vm_seconds[kind] < codegen.expected_build_seconds(f, self._opt):
+            return
+        g, how = codegen.compiled(f, opt=self._opt)
+        self._how[kind] = how
+        self._vm_seconds[kind] = -math.inf          # decided: never again
+        if how != "virtual machine":
+            self._step[kind] = g
+            self._interval.pop(kind, None)
+            self.version += 1
+
+    def interval_function(self, kind: str) -> ca.Function:
+        """The function of one interval: the fold of the step over its ``N`` samples."""
+        if kind not in self._interval:
+            if kind not in self._step:
+                self._choose(kind)
+            step = self._step[kind]
+            nz, ny = self.nz, self.ny
+            xs, U, T, Hs, Y, W = (self._ins[i] for i in (0, 4, 5, 6, 7, 8))
+            if kind == "blocks":
+                acc = step.mapaccum("acc", self.N, [0, 1, 2, 3, 4], [0, 1, 2, 3, 4])
+                S0 = ca.horzcat(ca.MX.eye(self.nx), ca.MX.zeros(self.nx, self.nth))
+                r = acc(xs, S0, ca.MX.zeros(nz, nz), ca.MX.zeros(nz, 1), ca.MX.zeros(ny, 1),
+                        U, T, Hs, Y, W, *self._const)
+                outs = [r[0][:, -1], r[1][:, -nz:], r[2][:, -nz:], r[3][:, -1], r[4][:, -1]]
+                name = "gb_interval_blocks"
+            else:
+                acc = step.mapaccum("accv", self.N, [0, 1], [0, 1])
+                r = acc(xs, ca.MX.zeros(ny, 1), U, T, Hs, Y, W, *self._const)
+                outs = [r[0][:, -1], r[1][:, -1]]
+                name = "gb_interval_value"
+            self._interval[kind] = ca.Function(name, self._ins, outs)
+        return self._interval[kind]
+
+    @property
+    def blocks(self) -> ca.Function:
+        """Interval function: (end state, its sensitivity, J'J, J'e, squared residuals)."""
+        return self.interval_function("blocks")
 
     @property
     def value(self) -> ca.Function:
-        if self._value is None:
-            step_val, key, opt = self._value_step
-            if key is not None:
-                step_val, _ = compiled(step_val, key, opt)
-            ins, const = self._value_args
-            xs, U, T, Hs, Y, W = ins[0], ins[4], ins[5], ins[6], ins[7], ins[8]
-            acc_v = step_val.mapaccum("accv", self._N, [0, 1], [0, 1])
-            rv = acc_v(xs, ca.MX.zeros(self.ny, 1), U, T, Hs, Y, W, *const)
-            self._value = ca.Function("gb_interval_value", ins, [rv[0][:, -1], rv[1][:, -1]])
-        return self._value
+        """Interval function: (end state, squared residuals)."""
+        return self.interval_function("value")
 
     def mapped(self, M: int) -> "MappedPair":
         if M not in self._maps:
@@ -274,18 +310,33 @@ class ShootingProblem:
 
 
 class MappedPair:
-    """The interval functions mapped over M intervals; the value function on first use."""
+    """The interval functions mapped over M intervals, called like functions
+    (``pair.blocks(*args)``); each call's time is reported to the problem, which may swap
+    in compiled code (then the maps are rebuilt)."""
 
     def __init__(self, prob: ShootingProblem, M: int):
         self.prob, self.M = prob, M
-        self.blocks = parallel_map(prob.blocks, M)
-        self._value = None
+        self._fun: dict[str, tuple[int, ca.Function]] = {}
 
-    @property
-    def value(self) -> ca.Function:
-        if self._value is None:
-            self._value = parallel_map(self.prob.value, self.M)
-        return self._value
+    def _function(self, kind: str) -> ca.Function:
+        version, f = self._fun.get(kind, (-1, None))
+        if version != self.prob.version:
+            f = parallel_map(self.prob.interval_function(kind), self.M)
+            self._fun[kind] = (self.prob.version, f)
+        return f
+
+    def _call(self, kind: str, args) -> list:
+        f = self._function(kind)
+        t0 = time.perf_counter()
+        out = f(*args)
+        self.prob.account(kind, time.perf_counter() - t0)
+        return out
+
+    def blocks(self, *args) -> list:
+        return self._call("blocks", args)
+
+    def value(self, *args) -> list:
+        return self._call("value", args)
 
 
 @dataclass

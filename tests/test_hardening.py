@@ -456,6 +456,33 @@ def test_foreign_library_under_a_cache_name_is_never_used(cache):
     np.testing.assert_allclose(_value(g), _value(f), rtol=1e-12)
 
 
+def test_auto_compiles_only_once_the_virtual_machine_has_cost_the_build(cache):
+    """compile="auto": nothing is built for a function evaluated a few times; it is compiled
+    once its evaluations have cost what the compiler is expected to, the compiled twin gives
+    the same blocks, and a second problem of the same structure loads it from the cache."""
+    from greybox.shooting import ShootingProblem
+    model = QuadrotorModel(load_airframe(resources.files("greybox") / "data" / "airframes" / "paper.toml"))
+    free = [model.param_names.index("K_T")]
+    prob = ShootingProblem(model, free, 5, 1, "auto")
+    assert prob.how == "virtual machine" and not list(cache.glob("*.so"))
+    M = 3
+    rng = np.random.default_rng(0)
+    f = prob.blocks
+    args = [rng.uniform(0.5, 1.5, (f.size1_in(i), f.size2_in(i) * M)) for i in range(f.n_in())]
+    pair = prob.mapped(M)
+    before = [np.asarray(a) for a in pair.blocks(*args)]
+    assert prob.how == "virtual machine"         # one cheap evaluation: no compiler started
+    need = codegen.expected_build_seconds(prob._symbolic["blocks"])
+    prob.account("blocks", need)                  # as if the VM had run that long
+    assert prob.how == "compiled" and len(list(cache.glob("gb_step_blocks_*.so"))) == 1
+    after = [np.asarray(a) for a in pair.blocks(*args)]     # the map was rebuilt around C code
+    for a, b in zip(before, after):
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12)
+    again = ShootingProblem(model, free, 5, 1, "auto")
+    assert again.how == "cached"
+    assert ShootingProblem(model, free, 5, 1, "never").how == "virtual machine"
+
+
 def test_unwritable_cache_falls_back_with_one_warning(tmp_path, monkeypatch):
     if codegen.compiler_available() is None:
         pytest.skip("no C compiler")
@@ -467,13 +494,14 @@ def test_unwritable_cache_falls_back_with_one_warning(tmp_path, monkeypatch):
     with pytest.warns(CacheWarning, match="not writable"):
         g, how = codegen.compiled(f, "test-c")
     assert how == "virtual machine" and g is f
-    codegen.precompile([(f, "test-c")])          # the diagnosis' path: no crash either
 
 
 def test_diagnose_runs_with_an_unwritable_cache(short_log, tmp_path, capsys, monkeypatch):
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
     monkeypatch.setenv("GREYBOX_CACHE", str(blocker / "cache"))
+    # compile at the first evaluation (a short diagnosis would otherwise never need the cache)
+    monkeypatch.setattr(codegen, "BUILD_SECONDS_PER_INSTRUCTION", {"-O0": 0.0, "-O1": 0.0})
     codegen._warned.clear()
     rc, err = _cli(capsys, "diagnose", str(short_log), "--airframe", PAPER, "--quiet",
                    "--candidates", "ground_effect", "--no-iterate", "--json", str(tmp_path / "d.json"))

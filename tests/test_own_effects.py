@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import greybox
+from greybox import codegen
 from greybox import effects as fx
 from greybox.cli import main
 from greybox.errors import GreyboxInputError
@@ -151,13 +152,20 @@ def test_hub_rotor_drag_damps_rates_by_hand():
 
 
 def test_compile_key_follows_effect_options_and_user_source(effect_file):
+    """The compile cache is keyed by the function itself: another option value or an edited
+    user effect is another library, the same model built twice is the same one."""
     af = greybox.load_airframe(PAPER)
-    keys = [ShootingProblem.step_functions(QuadrotorModel(af) + fx.BatteryVoltage(v_ref=v), [0], 1)[2]
-            for v in (4.0, 3.7)]
+
+    def lib(model):
+        blk = ShootingProblem.step_functions(model, [0], 1)[0]
+        return codegen._lib_path(blk, None, "-O1")
+
+    keys = [lib(QuadrotorModel(af) + fx.BatteryVoltage(v_ref=v)) for v in (4.0, 3.7)]
     assert keys[0] != keys[1]
+    assert lib(QuadrotorModel(af) + fx.BatteryVoltage(v_ref=4.0)) == keys[0]
     fx.load_effects_file(effect_file)
-    k1 = ShootingProblem.step_functions(QuadrotorModel(af, ["rate_damping"]), [0], 1)[2]
+    k1 = lib(QuadrotorModel(af, ["rate_damping"]))
     effect_file.write_text(RATE_DAMPING.replace("-= ctx.params", "-= 2 * ctx.params"))
     fx.load_effects_file(effect_file)
-    k2 = ShootingProblem.step_functions(QuadrotorModel(af, ["rate_damping"]), [0], 1)[2]
+    k2 = lib(QuadrotorModel(af, ["rate_damping"]))
     assert k1 != k2

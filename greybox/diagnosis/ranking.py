@@ -12,13 +12,12 @@ from scipy import stats
 from .. import effects as fx
 from ..data import FlightLog
 from ..fitting import FitResult
-from ..integrate import n_substeps
 from ..model import OUTPUTS, QuadrotorModel
 from ..validation import Prediction
 from .analysis import estimation_residuals
 from .results import CandidateResult
 from .screening import (explained_fraction, held_on_bound, lr_test, null_on_bound, physically_implausible, physically_negligible,
-                        physically_small, precompile_candidates, prediction_change, profile_log_likelihood, refit,
+                        physically_small, prediction_change, profile_log_likelihood, refit,
                         screen)
 
 __all__ = ["ALPHA", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "MIN_EXPLAINED", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
@@ -65,10 +64,6 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     parameter on a bound) and the ``nominated`` ones (effects the logged commands point at),
     test and confirm each; the candidates best first."""
     sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
-    n_sub = n_substeps(max(float(np.diff(lg.t).max()) for lg in est))
-    t0 = time.perf_counter()
-    precompile_candidates(model, res, candidates, n_sub, compile, "screen")
-    say(f"  built candidate models ({time.perf_counter() - t0:.1f} s)")
     out: list[CandidateResult] = []
     for name in candidates:
         t0 = time.perf_counter()
@@ -117,12 +112,9 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                 c.reason = f"score test not significant (p = {p:.2g}), not refitted"
             else:
                 to_refit.append(c)
-    # refitting every candidate from cold: ten quick builds beat ten optimised ones (on a
-    # fresh machine the -O1 builds alone took ~55 s of a 2-minute demo)
-    rcompile = "quick" if cold and compile == "auto" else compile
-    t0 = time.perf_counter()
-    precompile_candidates(model, res, [c.effect for c in to_refit], n_sub, rcompile, "refit")
-    say(f"  built refit models ({time.perf_counter() - t0:.1f} s)")
+    # No candidate model is compiled beforehand: with compile="auto" a screening or a
+    # short refit runs on CasADi's virtual machine and only a long refit compiles (on a
+    # 20-s real flight the builds took 50-120 s a round against 3-10 s of refits).
     starts: dict[str, FitResult] = {}
     if cold:
         # cold refits in two stages: a few iterations for every candidate (the right model
@@ -130,7 +122,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         # the best few by the cost reached are continued to the usual cap
         t0 = time.perf_counter()
         for cand in to_refit:
-            starts[cand.effect] = refit(model, res, est, None, cand.effect, res.sigma, rcompile, cold=True,
+            starts[cand.effect] = refit(model, res, est, None, cand.effect, res.sigma, compile, cold=True,
                                          max_iter=COLD_SCREEN_ITER)[1]
         # each cold refit re-estimates its own weights: they compare on the likelihood
         to_refit.sort(key=lambda c: -profile_log_likelihood(starts[c.effect]))
@@ -187,7 +179,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
 
     for cand in to_refit:
         t0 = time.perf_counter()
-        ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=cold,
+        ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, compile, cold=cold,
                              start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if cold else None,
                              restart=bool(far_off))
         judge(cand, ext, fr, pr)
@@ -206,7 +198,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                 not cand.nrmse_after < (1 - MIN_VALIDATION_GAIN) * min(pred.total, certified_best):
             continue
         t0 = time.perf_counter()
-        ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, rcompile, start=cand.fit, max_iter=200)
+        ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, compile, start=cand.fit, max_iter=200)
         judge(cand, ext, fr, pr)
         say(f"  solved on {cand.effect:<13} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
             f"{pr.total:.3f}  ({'certified' if fr.converged else fr.status}; {time.perf_counter() - t0:.1f} s)")

@@ -20,12 +20,11 @@ from ..fitting import FitResult, FitSession, fit, per_flight_positions
 from ..integrate import n_substeps, rk4_step
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import long_run_factor
-from ..shooting import ShootingProblem, free_indices
+from ..shooting import free_indices
 from ..validation import Prediction, predict_after_fit
 
 __all__ = ["NEGLIGIBLE_FRACTION", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
-           "explained_fraction", "physically_negligible", "physically_implausible", "held_on_bound", "null_on_bound",
-           "precompile_candidates"]
+           "explained_fraction", "physically_negligible", "physically_implausible", "held_on_bound", "null_on_bound"]
 
 
 NEGLIGIBLE_FRACTION = 0.01
@@ -186,8 +185,8 @@ def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], nam
     # flight) keep one copy per flight: the statistic's degrees of freedom count the copies
     spread = (per_flight_positions(ext, [ext.param_names[i] for i in free_idx], res.per_flight_rule)
               if len(logs) > 1 else [])
-    ses = FitSession(ext, logs, free_idx, p, sigma, res.interval, "quick" if compile != "never" else compile,
-                     lambda _m: None, per_flight=spread)
+    # one evaluation: on CasADi's virtual machine unless a compiled library is cached
+    ses = FitSession(ext, logs, free_idx, p, sigma, res.interval, compile, lambda _m: None, per_flight=spread)
     if res.process_noise is not None:
         qd = _process_noise(ext, res)    # per state a std, or one per flight
         qf = np.array([[v[f] if isinstance(v, (list, tuple)) else v for v in qd.values()] for f in range(len(logs))])
@@ -428,27 +427,3 @@ def null_on_bound(ext: QuadrotorModel, name: str) -> bool:
     """Whether a parameter of effect ``name`` has its null value on its lower bound (a
     one-sided test: chi-bar-square)."""
     return any(par.effect == name and par.lower >= min(par.null, par.upper) for par in ext.parameters)
-
-
-def precompile_candidates(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: int,
-                          compile: str, what: str) -> None:
-    """Compile candidates' step functions at once, two compilers in parallel, before they
-    are needed one by one: ``what`` = "screen" (blocks, quick build) or "refit" (blocks and
-    line search, optimised; plus the state estimator of the validation part)."""
-    if compile == "never":
-        return
-    from ..codegen import precompile
-    items, quick = [], []
-    for name in names:
-        ext, _, free = extended_model(model, res, name)
-        blk, val, key = ShootingProblem.step_functions(ext, free_indices(ext, free, None), n_sub)
-        if what == "screen":
-            quick.append((blk, key + "blocks"))
-        else:
-            items += [(blk, key + "blocks"), (val, key + "value")]
-            blk0, _, key0 = ShootingProblem.step_functions(ext, [], n_sub)
-            items.append((blk0, key0 + "blocks"))
-    if quick:
-        precompile(quick, opt="-O0")
-    if items:
-        precompile(items, opt="-O0" if compile == "quick" else "-O1")
