@@ -27,7 +27,7 @@ import numpy as np
 
 from .errors import CacheWarning
 
-__all__ = ["compiled", "cached", "expected_build_seconds", "cache_dir", "compiler_available",
+__all__ = ["compiled", "cached", "expected_build_seconds", "add_vm_seconds", "library_path", "precompile", "cache_dir", "compiler_available",
            "CacheWarning"]
 
 # Seconds of C compiler time per CasADi instruction (gcc 12, one core, generated step
@@ -49,6 +49,24 @@ def compiler_available() -> str | None:
 def expected_build_seconds(f: ca.Function, opt: str = "-O1") -> float:
     """About how long the C compiler takes on ``f`` (generation, compiling, linking)."""
     return BUILD_SECONDS_PER_INSTRUCTION.get(opt, 6e-5) * f.n_instructions()
+
+
+# Seconds each function (by its library path) has run on CasADi's virtual machine in this
+# process, summed over every problem that used it: many short fits of one model structure
+# (each below the build time) add up to a compile as one long fit does.
+_vm_seconds: dict[Path, float] = {}
+
+
+def add_vm_seconds(lib: Path, seconds: float) -> float:
+    """Add ``seconds`` of virtual-machine evaluation of the function cached at ``lib``
+    (:func:`library_path`); the total in this process."""
+    _vm_seconds[lib] = _vm_seconds.get(lib, 0.0) + seconds
+    return _vm_seconds[lib]
+
+
+def library_path(f: ca.Function, opt: str = "-O1", key: str | None = None) -> Path:
+    """Where the compile cache keeps ``f``'s library (whether or not it is there yet)."""
+    return _lib_path(f, key, opt)
 
 
 def _lib_path(f: ca.Function, key: str | None, opt: str) -> Path:
@@ -116,6 +134,44 @@ def _writable_cache() -> bool:
         _note(f"compile cache {cache_dir()} is not writable ({e.strerror or e}); using CasADi's "
               "virtual machine (several times slower). Set GREYBOX_CACHE to a writable folder.")
         return False
+
+
+def precompile(functions: "list[ca.Function]", workers: int = 2, opt: str = "-O1") -> None:
+    """Compile several functions into the cache at once, ``workers`` compilers in parallel
+    (code generation is serial; the C compiler runs concurrently), for a job known to need
+    them all (the diagnosis' cold refits of every candidate). An interrupt kills every
+    compiler started (their whole process groups) before it propagates."""
+    cc = compiler_available()
+    if cc is None:
+        return
+    todo = [(f, _lib_path(f, None, opt)) for f in functions]
+    todo = [(f, lib) for f, lib in todo if not lib.exists()]
+    if not todo or not _writable_cache():
+        return
+    running: list = []
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            jobs = []
+            for i, (f, lib) in enumerate(todo):
+                d = Path(tmp) / str(i)
+                d.mkdir()
+                jobs.append((_generate(f, str(d)), d / "lib.so", lib))
+            for src, out, lib in jobs:
+                while len(running) >= workers:
+                    _finish(running.pop(0))
+                running.append((_start_compiler(_compile_command(cc, opt, src, out), Path(tmp)), out, lib))
+            while running:
+                _finish(running.pop(0))
+    except BaseException:
+        for proc, _, _ in running:
+            _kill(proc)
+        raise
+
+
+def _finish(job) -> None:
+    proc, out, lib = job
+    if proc.wait() == 0 and out.exists():
+        _install(out, lib)
 
 
 def _install(out: Path, lib: Path) -> None:
@@ -231,11 +287,13 @@ def _load_checked(f: ca.Function, lib: Path, private: bool = False) -> ca.Functi
     return g
 
 
-def cached(f: ca.Function, key: str | None = None, opt: str = "-O1") -> ca.Function | None:
-    """The compiled twin of ``f`` if the cache holds a good one, else None (nothing is built)."""
+def cached(f: ca.Function, key: str | None = None, opt: str = "-O1", lib: Path | None = None
+           ) -> ca.Function | None:
+    """The compiled twin of ``f`` if the cache holds a good one, else None (nothing is built).
+    ``lib``: its :func:`library_path`, when known."""
     if compiler_available() is None:
         return None
-    lib = _lib_path(f, key, opt)
+    lib = lib if lib is not None else _lib_path(f, key, opt)
     return _load_checked(f, lib) if lib.exists() else None
 
 

@@ -152,10 +152,11 @@ class ShootingProblem:
     around them. ``compile_mode``:
 
     - ``"auto"``: a library from the compile cache if there is one; otherwise the virtual
-      machine, until the time spent evaluating there reaches the compiler's expected time
-      for the function, then it is compiled (``-O1``) and used from there on. A job that
-      evaluates a function a few times (a screening, a short refit) never waits for a
-      compiler; a long fit pays at most twice what knowing its length beforehand would.
+      machine, until the time spent evaluating it there (in this process, by every problem
+      of the same structure) reaches the compiler's expected time for it, then it is
+      compiled (``-O1``) and used from there on. A job that evaluates a function a few
+      times (a screening, a short refit) never waits for a compiler; a long fit, or many
+      short ones, pay at most twice what knowing the total beforehand would.
     - ``"always"``: compile at once (``-O1``); ``"quick"``: at once, unoptimised (``-O0``);
     - ``"never"``: the virtual machine only.
     """
@@ -217,7 +218,7 @@ class ShootingProblem:
         self._symbolic = {"blocks": step_blk, "value": step_val}
         self._step: dict[str, ca.Function] = {}
         self._how: dict[str, str] = {}
-        self._vm_seconds = {kind: 0.0 for kind in self.KINDS}
+        self._lib: dict[str, object] = {}     # kind -> its library path in the compile cache
         self.version = 0            # bumped when a step function is swapped for its compiled twin
         self._interval: dict[str, ca.Function] = {}
         self._maps: dict[int, "MappedPair"] = {}
@@ -246,8 +247,9 @@ class ShootingProblem:
         how = "virtual machine"
         if self.compile_mode in ("always", "quick"):
             f, how = codegen.compiled(f, opt=self._opt)
-        elif self.compile_mode == "auto":
-            g = codegen.cached(f, opt=self._opt)
+        elif self.compile_mode == "auto" and codegen.compiler_available():
+            self._lib[kind] = codegen.library_path(f, self._opt)
+            g = codegen.cached(f, opt=self._opt, lib=self._lib[kind])
             if g is not None:
                 f, how = g, "cached"
         self._step[kind], self._how[kind] = f, how
@@ -256,15 +258,14 @@ class ShootingProblem:
         """Record ``seconds`` spent evaluating ``kind`` ("blocks" or "value"); in ``"auto"``
         mode, compile its step function once the virtual machine has cost as much as the
         compiler is expected to."""
-        if self.compile_mode != "auto" or self._how.get(kind) != "virtual machine":
+        if kind not in self._lib or self._how.get(kind) != "virtual machine":
             return
-        self._vm_seconds[kind] += seconds
         f = self._symbolic[kind]
-        if self._vm_seconds[kind] < codegen.expected_build_seconds(f, self._opt):
+        if codegen.add_vm_seconds(self._lib[kind], seconds) < codegen.expected_build_seconds(f, self._opt):
             return
         g, how = codegen.compiled(f, opt=self._opt)
         self._how[kind] = how
-        self._vm_seconds[kind] = -math.inf          # decided: never again
+        del self._lib[kind]                 # decided: compiled, or the compiler failed (said once)
         if how != "virtual machine":
             self._step[kind] = g
             self._interval.pop(kind, None)

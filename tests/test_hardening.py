@@ -494,6 +494,7 @@ def test_unwritable_cache_falls_back_with_one_warning(tmp_path, monkeypatch):
     with pytest.warns(CacheWarning, match="not writable"):
         g, how = codegen.compiled(f, "test-c")
     assert how == "virtual machine" and g is f
+    codegen.precompile([f])          # the diagnosis' cold refits: no crash either
 
 
 def test_diagnose_runs_with_an_unwritable_cache(short_log, tmp_path, capsys, monkeypatch):

@@ -12,12 +12,13 @@ from scipy import stats
 from .. import effects as fx
 from ..data import FlightLog
 from ..fitting import FitResult
+from ..integrate import n_substeps
 from ..model import OUTPUTS, QuadrotorModel
 from ..validation import Prediction
 from .analysis import estimation_residuals
 from .results import CandidateResult
 from .screening import (explained_fraction, held_on_bound, lr_test, null_on_bound, physically_implausible, physically_negligible,
-                        physically_small, prediction_change, profile_log_likelihood, refit,
+                        physically_small, precompile_refits, prediction_change, profile_log_likelihood, refit,
                         screen)
 
 __all__ = ["ALPHA", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "MIN_EXPLAINED", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
@@ -112,9 +113,17 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                 c.reason = f"score test not significant (p = {p:.2g}), not refitted"
             else:
                 to_refit.append(c)
-    # No candidate model is compiled beforehand: with compile="auto" a screening or a
-    # short refit runs on CasADi's virtual machine and only a long refit compiles (on a
-    # 20-s real flight the builds took 50-120 s a round against 3-10 s of refits).
+    # No candidate model is compiled beforehand (with compile="auto" a screening or a short
+    # refit runs on CasADi's virtual machine and only a long refit compiles: on a 20-s real
+    # flight the builds took 50-120 s a round against 3-10 s of refits), except for the cold
+    # refits of every candidate, which all need their blocks: built at once, quick, in parallel.
+    rcompile = compile
+    if cold and compile == "auto":
+        t0 = time.perf_counter()
+        n_sub = n_substeps(max(float(np.diff(lg.t).max()) for lg in est))
+        precompile_refits(model, res, [c.effect for c in to_refit], n_sub)
+        rcompile = "quick"
+        say(f"  built refit models ({time.perf_counter() - t0:.1f} s)")
     starts: dict[str, FitResult] = {}
     if cold:
         # cold refits in two stages: a few iterations for every candidate (the right model
@@ -122,7 +131,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         # the best few by the cost reached are continued to the usual cap
         t0 = time.perf_counter()
         for cand in to_refit:
-            starts[cand.effect] = refit(model, res, est, None, cand.effect, res.sigma, compile, cold=True,
+            starts[cand.effect] = refit(model, res, est, None, cand.effect, res.sigma, rcompile, cold=True,
                                          max_iter=COLD_SCREEN_ITER)[1]
         # each cold refit re-estimates its own weights: they compare on the likelihood
         to_refit.sort(key=lambda c: -profile_log_likelihood(starts[c.effect]))
@@ -179,7 +188,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
 
     for cand in to_refit:
         t0 = time.perf_counter()
-        ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, compile, cold=cold,
+        ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=cold,
                              start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if cold else None,
                              restart=bool(far_off))
         judge(cand, ext, fr, pr)
