@@ -51,16 +51,42 @@ def expected_build_seconds(f: ca.Function, opt: str = "-O1") -> float:
     return BUILD_SECONDS_PER_INSTRUCTION.get(opt, 6e-5) * f.n_instructions()
 
 
-# Seconds each function (by its library path) has run on CasADi's virtual machine in this
-# process, summed over every problem that used it: many short fits of one model structure
-# (each below the build time) add up to a compile as one long fit does.
+# Seconds each function (by its library path) has run on CasADi's virtual machine, summed
+# over every problem that used it, in this process and in earlier runs (a ``.vmtime`` file
+# beside the library, appended in steps of VM_TIME_STEP): many short fits of one model
+# structure, or the same short job run again, add up to a compile as one long fit does.
 _vm_seconds: dict[Path, float] = {}
+_vm_unsaved: dict[Path, float] = {}
+VM_TIME_STEP = 0.25
+
+
+def _vm_file(lib: Path) -> Path:
+    return lib.with_suffix(".vmtime")
+
+
+def _saved_vm_seconds(lib: Path) -> float:
+    try:
+        return float(sum(float(x) for x in _vm_file(lib).read_text().split()))
+    except (OSError, ValueError):
+        return 0.0          # none yet, or unreadable: start from zero
 
 
 def add_vm_seconds(lib: Path, seconds: float) -> float:
     """Add ``seconds`` of virtual-machine evaluation of the function cached at ``lib``
-    (:func:`library_path`); the total in this process."""
-    _vm_seconds[lib] = _vm_seconds.get(lib, 0.0) + seconds
+    (:func:`library_path`); the total over this process and earlier runs."""
+    if lib not in _vm_seconds:
+        _vm_seconds[lib] = _saved_vm_seconds(lib)
+    _vm_seconds[lib] += seconds
+    _vm_unsaved[lib] = _vm_unsaved.get(lib, 0.0) + seconds
+    if _vm_unsaved[lib] >= VM_TIME_STEP:
+        try:
+            # one short append per step: concurrent runs add their lines, none is lost
+            lib.parent.mkdir(parents=True, exist_ok=True)
+            with open(_vm_file(lib), "a") as fh:
+                fh.write(f"{_vm_unsaved[lib]:.4f}\n")
+            _vm_unsaved[lib] = 0.0
+        except OSError:
+            pass            # an unwritable cache: this process still counts
     return _vm_seconds[lib]
 
 

@@ -456,7 +456,7 @@ def test_foreign_library_under_a_cache_name_is_never_used(cache):
     np.testing.assert_allclose(_value(g), _value(f), rtol=1e-12)
 
 
-def test_auto_compiles_only_once_the_virtual_machine_has_cost_the_build(cache):
+def test_auto_compiles_only_once_the_virtual_machine_has_cost_the_build(cache, monkeypatch):
     """compile="auto": nothing is built for a function evaluated a few times; it is compiled
     once its evaluations have cost what the compiler is expected to, the compiled twin gives
     the same blocks, and a second problem of the same structure loads it from the cache."""
@@ -481,6 +481,18 @@ def test_auto_compiles_only_once_the_virtual_machine_has_cost_the_build(cache):
     again = ShootingProblem(model, free, 5, 1, "auto")
     assert again.how == "cached"
     assert ShootingProblem(model, free, 5, 1, "never").how == "virtual machine"
+    # the VM time is kept beside the cache: a short job run twice compiles on its second run
+    other = [model.param_names.index("b")]
+    first = ShootingProblem(model, other, 5, 1, "auto")
+    need = codegen.expected_build_seconds(first._symbolic["blocks"])
+    first.account("blocks", 0.6 * need)
+    assert first.how == "virtual machine"
+    monkeypatch.setattr(codegen, "_vm_seconds", {})      # a new process
+    monkeypatch.setattr(codegen, "_vm_unsaved", {})
+    second = ShootingProblem(model, other, 5, 1, "auto")
+    assert second.how == "virtual machine"
+    second.account("blocks", 0.6 * need)
+    assert second.how == "compiled"
 
 
 def test_unwritable_cache_falls_back_with_one_warning(tmp_path, monkeypatch):
