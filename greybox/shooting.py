@@ -242,6 +242,11 @@ class ShootingProblem:
         """How the blocks run: "compiled", "cached" or "virtual machine"."""
         return self._how["blocks"]
 
+    @property
+    def compiles_when_it_pays(self) -> bool:
+        """Whether the blocks run on the virtual machine for now and compile once that pays."""
+        return "blocks" in self._lib
+
     def _choose(self, kind: str) -> None:
         f = self._symbolic[kind]
         how = "virtual machine"

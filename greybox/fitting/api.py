@@ -244,7 +244,9 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     if spread:
         say(f"fit: per flight: {', '.join(free_names[j] for j in spread)} ({len(logs)} copies each)")
     say(f"fit: {len(logs)} flight(s), {sum(len(l) for l in logs)} samples, {len(free_idx)} free "
-        f"parameters, interval {interval} samples; interval function: {ses.prob.how} ({ses.t_build:.1f} s)")
+        f"parameters, interval {interval} samples; interval function: {ses.prob.how}"
+        f"{' (compiled once that pays)' if ses.prob.compiles_when_it_pays else ''}"
+        f" ({ses.t_build:.1f} s)")
     if initial_states is not None:
         X = np.vstack([np.array(s, dtype=float) for s in initial_states])
     else:
