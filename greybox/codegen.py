@@ -323,18 +323,19 @@ def cached(f: ca.Function, key: str | None = None, opt: str = "-O1", lib: Path |
     return _load_checked(f, lib) if lib.exists() else None
 
 
-def compiled(f: ca.Function, key: str | None = None, opt: str = "-O1") -> tuple[ca.Function, str]:
+def compiled(f: ca.Function, key: str | None = None, opt: str = "-O1", lib: Path | None = None
+             ) -> tuple[ca.Function, str]:
     """``(function, how)``: the compiled twin of ``f`` (``how`` = ``"cached"`` or ``"compiled"``)
     or ``f`` itself (``how`` = ``"virtual machine"``) when no compiler works.
 
     ``key``, when given, must determine ``f`` completely; without it (the usual way) the
-    serialised function is hashed.
+    serialised function is hashed; ``lib``: its :func:`library_path`, when already known.
     A cached library is checked against ``f`` before use; a broken one is rebuilt. When the
     cache cannot be written, a warning says so once and ``f`` runs as is."""
     cc = compiler_available()
     if cc is None:
         return f, "virtual machine"
-    lib = _lib_path(f, key, opt)
+    lib = lib if lib is not None else _lib_path(f, key, opt)
     broken = False
     if lib.exists():
         g = _load_checked(f, lib)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
 import casadi as ca
@@ -152,16 +153,15 @@ class ShootingProblem:
     around them. ``compile_mode``:
 
     - ``"auto"``: a library from the compile cache if there is one; otherwise the virtual
-      machine, until the time spent evaluating it there (in this process, by every problem
-      of the same structure) reaches the compiler's expected time for it, then it is
+      machine, until the time spent evaluating it there (by every problem of the same
+      structure, in this process and earlier runs: :func:`greybox.codegen.add_vm_seconds`)
+      reaches the compiler's expected time for it, then it is
       compiled (``-O1``) and used from there on. A job that evaluates a function a few
       times (a screening, a short refit) never waits for a compiler; a long fit, or many
       short ones, pay at most twice what knowing the total beforehand would.
     - ``"always"``: compile at once (``-O1``); ``"quick"``: at once, unoptimised (``-O0``);
     - ``"never"``: the virtual machine only.
     """
-
-    KINDS = ("blocks", "value")
 
     @staticmethod
     def step_functions(model: QuadrotorModel, free_idx: list[int], n_sub: int
@@ -218,7 +218,7 @@ class ShootingProblem:
         self._symbolic = {"blocks": step_blk, "value": step_val}
         self._step: dict[str, ca.Function] = {}
         self._how: dict[str, str] = {}
-        self._lib: dict[str, object] = {}     # kind -> its library path in the compile cache
+        self._lib: dict[str, Path] = {}       # kind -> its library path in the compile cache
         self.version = 0            # bumped when a step function is swapped for its compiled twin
         self._interval: dict[str, ca.Function] = {}
         self._maps: dict[int, "MappedPair"] = {}
@@ -268,7 +268,7 @@ class ShootingProblem:
         f = self._symbolic[kind]
         if codegen.add_vm_seconds(self._lib[kind], seconds) < codegen.expected_build_seconds(f, self._opt):
             return
-        g, how = codegen.compiled(f, opt=self._opt)
+        g, how = codegen.compiled(f, opt=self._opt, lib=self._lib[kind])
         self._how[kind] = how
         del self._lib[kind]                 # decided: compiled, or the compiler failed (said once)
         if how != "virtual machine":
