@@ -10,6 +10,8 @@ that can be discretised (zero-order hold) or handed to python-control.
 """
 from __future__ import annotations
 
+import warnings
+
 from dataclasses import dataclass
 
 import casadi as ca
@@ -180,19 +182,21 @@ def hover_trim(model: QuadrotorModel, p: np.ndarray | None = None, position=(0.0
     pos = np.array([position[0], position[1], af.ground_z - 1.0 if position[2] is None else position[2]], float)
     x = np.zeros(12)
     x[0:3], x[5] = pos, psi
+    # in a steady state a derived input (an earlier command) equals its command
+    S = model.steady_input_map()
     if _closed_form_ok(model):
         w = np.full(model.nu, model.hover_speed(p))
         return model.initial_state(x, w, p), w
     # unknowns: inputs, roll, pitch, effect states; equations: every state derivative
     # except the position/attitude kinematics that hold trivially at rest
     n_extra = model.nx - 12
-    u = ca.SX.sym("u", model.nu)
+    u = ca.SX.sym("u", S.shape[1])
     ang = ca.SX.sym("ang", 2)
     xe = ca.SX.sym("xe", n_extra)
     xs = ca.vertcat(ca.DM(x[0:3]), ang, psi, ca.DM.zeros(6), xe)
-    f = model.rhs(xs, u, p, t)
+    f = model.rhs(xs, ca.DM(S) @ u, p, t)
     if model.inputs == "rotor_speeds":
-        u0 = np.full(model.nu, model.hover_speed(p))
+        u0 = np.full(S.shape[1], model.hover_speed(p))
     else:
         u0 = np.array([af.mass * af.gravity, 0.0, 0.0, 0.0])
     scale = np.abs(u0) + (af.mass * af.gravity if model.inputs == "controls" else 0.0) + 1e-9
@@ -200,13 +204,14 @@ def hover_trim(model: QuadrotorModel, p: np.ndarray | None = None, position=(0.0
     nlp = {"x": ca.vertcat(u, ang, xe), "f": obj, "g": f[6:]}
     solver = ca.nlpsol("trim", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": False,
                                               "ipopt.tol": 1e-12, "ipopt.sb": "yes"})
-    x0 = model.initial_state(x, u0, p)
+    x0 = model.initial_state(x, S @ u0, p)
     sol = solver(x0=np.concatenate([u0, [0.0, 0.0], x0[12:]]), lbg=0, ubg=0)
     z = np.asarray(sol["x"]).ravel()
     if not solver.stats()["success"] or np.abs(np.asarray(sol["g"])).max() > 1e-7:
         raise SolverError(f"no hover trim found: {solver.stats()['return_status']}")
-    u_t = z[:model.nu]
-    x_t = np.concatenate([x[:3], z[model.nu:model.nu + 2], [psi], np.zeros(6), z[model.nu + 2:]])
+    n_u = S.shape[1]
+    u_t = S @ z[:n_u]
+    x_t = np.concatenate([x[:3], z[n_u:n_u + 2], [psi], np.zeros(6), z[n_u + 2:]])
     return x_t, u_t
 
 
@@ -232,5 +237,18 @@ def linearize(model: QuadrotorModel, p: np.ndarray | None = None, x: np.ndarray 
     y = model.output(xs, us, p, t)
     J = ca.Function("linearization", [xs, us], [ca.jacobian(f, xs), ca.jacobian(f, us), ca.jacobian(y, xs), ca.jacobian(y, us)])
     A, B, C, D = (np.asarray(M) for M in J(x, u))
+    S = model.steady_input_map()
+    if S.shape[0] != S.shape[1]:
+        # inputs derived from the commands (command_delay's earlier commands) fold into their
+        # command: the linear model sees the delay's static part; the delay itself has no
+        # finite state-space form
+        warnings.warn(f"linearize: the model's command delay (tau_cmd = {_value(model, p, 'tau_cmd')}) is not "
+                      "in the linear model; a controller designed on it ignores that delay", stacklevel=2)
+        return LinearModel(A, B @ S, C, D @ S, model.state_names, model.steady_input_names,
+                           list(model.output_names), x, np.linalg.pinv(S) @ u)
     return LinearModel(A, B, C, D, model.state_names, model.input_names, list(model.output_names), x, u)
+
+
+def _value(model: QuadrotorModel, p: np.ndarray, name: str) -> str:
+    return f"{p[model.param_names.index(name)]:.3g} s" if name in model.param_names else "?"
 

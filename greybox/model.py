@@ -132,11 +132,29 @@ class QuadrotorModel:
 
     @property
     def signal_names(self) -> list[str]:
-        """Logged signals the effects read (e.g. ``vbat``): inputs after the rotor speeds."""
+        """Signals the effects read: logged ones (e.g. ``vbat``), then those derived from the
+        log (``command_delay``'s earlier commands, ``w1@10ms``): inputs after the rotor speeds."""
         out: list[str] = []
         for e in self.effects:
             out += [s for s in e.signals if s not in out]
+        for e in self.effects:
+            out += [s for s in e.derived_signals(self.command_names) if s not in out]
         return out
+
+    @property
+    def steady_input_names(self) -> list[str]:
+        """The inputs that are free in a steady state: the commands and the logged signals
+        (a derived signal, an earlier command, then equals its command)."""
+        return [n for n in self.input_names if not fx.is_derived_signal(n)]
+
+    def steady_input_map(self) -> np.ndarray:
+        """``S`` (``nu`` x ``len(steady_input_names)``): the model's inputs in a steady state,
+        ``u = S @ u_steady``; a derived signal ``w1@10ms`` copies ``w1``."""
+        free = self.steady_input_names
+        S = np.zeros((self.nu, len(free)))
+        for i, name in enumerate(self.input_names):
+            S[i, free.index(name.split("@")[0] if fx.is_derived_signal(name) else name)] = 1.0
+        return S
 
     @property
     def command_names(self) -> list[str]:
@@ -152,7 +170,8 @@ class QuadrotorModel:
 
     def prepare_log(self, log: "FlightLog") -> "FlightLog":
         """The log with its inputs in this model's order: actuator inputs checked against
-        the model's, signals (e.g. ``vbat``) taken from the log's extra columns.
+        the model's, signals (e.g. ``vbat``) taken from the log's extra columns, derived
+        signals (e.g. ``w1@10ms``) computed from the log.
 
         Raises a :class:`GreyboxInputError` naming the log and column when they do not match.
         """
@@ -163,7 +182,7 @@ class QuadrotorModel:
         # not registered) reads pwm4, and a log already prepared for the model carries it
         known_signals = {s for e in fx.known_effects().values() for s in e.signals} | set(self.signal_names)
         if list(log.input_names[:len(cmd)]) != cmd or \
-                any(n not in known_signals for n in log.input_names[len(cmd):]):
+                any(n not in known_signals and not fx.is_derived_signal(n) for n in log.input_names[len(cmd):]):
             raise GreyboxInputError(f"{where}: inputs {','.join(log.input_names)} do not match the "
                                     f"model's {','.join(self.input_names)}")
         if list(log.input_names) == self.input_names:
@@ -173,6 +192,12 @@ class QuadrotorModel:
         # signals the log carries as inputs but this model does not read go back to extras
         for j, name in enumerate(log.input_names[len(cmd):], start=len(cmd)):
             extras.setdefault(name, log.inputs[:, j])
+        # derived signals (earlier commands) come from the log itself; a log prepared before
+        # and split keeps its columns, which hold the history before the split
+        commands = {c: log.inputs[:, i] for i, c in enumerate(cmd)}
+        for e in self.effects:
+            if any(n not in extras for n in e.derived_signals(cmd)):
+                extras.update({n: v for n, v in e.derive_signals(log.t, commands).items() if n not in extras})
         for name in self.signal_names:
             if name not in extras:
                 users = [e.name for e in self.effects if name in e.signals]

@@ -653,6 +653,7 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
                     gyro_dropout: float = 0.0, pos_gaps: Sequence[tuple[float, float]] = (),
                     accel: bool = False, psi_wrap: bool = True, psi0: float = 0.0, log_commands: bool = False,
                     ctrl_K_T_factor: float = 1.0, ctrl_b_factor: float = 1.0,
+                    command_delay: float = 0.0,
                     method: str = "RK45", rtol: float = 1e-8) -> ForeignFlight:
     """Fly ``vehicle`` under the own cascaded controller along ``manoeuvres`` and log it.
 
@@ -674,6 +675,8 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
         psi_wrap: log psi in (-pi, pi] (as an IMU does) or unwrapped.
         ctrl_K_T_factor, ctrl_b_factor: the controller's own model error (its integrators
             absorb it).
+        command_delay: s (a whole number of control periods) between a command's issue,
+            which ``log_commands`` logs, and the motors receiving it (the trim until then).
 
     Returns: :class:`ForeignFlight` with ``.log`` (FlightLog, inputs ``w1..w4`` = actual
     rotor speeds at the log times, outputs NaN where not measured), ``.truth`` and
@@ -712,6 +715,8 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
     Wc = np.empty((n_log, 4))
     REF = np.empty((n_log, 4))
     j = 0
+    n_delay = int(round(command_delay * ctrl_rate))
+    pending = [w_trim.copy()] * n_delay          # commands issued but not yet at the motors
     for k in range(n_ctrl):
         t0 = k * dt_c
         if j >= n_log:
@@ -719,7 +724,9 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
         t1 = (k + 1) * dt_c
         p, v, R, om, w = unpack(s)
         r = ref(t0)
-        w_cmd = ctrl(t0, p, v, R, om, r)
+        w_issued = ctrl(t0, p, v, R, om, r)
+        pending.append(w_issued)
+        w_cmd = pending.pop(0)
         j1 = j
         while j1 < n_log and t_log[j1] < t1 - 1e-12:
             j1 += 1
@@ -735,7 +742,7 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
         if rest.size:
             S[js:j1] = Ys
         for jj in range(j, j1):
-            Wc[jj] = w_cmd
+            Wc[jj] = w_issued
             rr = ref(t_log[jj])
             REF[jj, :3], REF[jj, 3] = rr[0], rr[3]
         j = j1
@@ -786,6 +793,7 @@ def simulate_flight(vehicle: Vehicle | str = "crazyflie", duration: float = 20.0
                     "foreign_sim")
 
     truth = _truth(veh, fx, sens, seed, duration, ctrl_rate)
+    truth["command_delay"] = n_delay / ctrl_rate
     states = {"t": t_log, "pos": P, "vel": V, "R": Rs, "omega": OM, "w": W, "w_cmd": Wc,
               "euler": eul_unwrapped, "ref_pos": REF[:, :3], "ref_psi": REF[:, 3]}
     return ForeignFlight(log=log, truth=truth, states=states)

@@ -190,7 +190,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         t0 = time.perf_counter()
         ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=cold,
                              start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if cold else None,
-                             restart=bool(far_off))
+                             restart=bool(far_off), horizon=pred.horizon)
         judge(cand, ext, fr, pr)
         say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
             f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s)")
@@ -207,7 +207,8 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                 not cand.nrmse_after < (1 - MIN_VALIDATION_GAIN) * min(pred.total, certified_best):
             continue
         t0 = time.perf_counter()
-        ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, compile, start=cand.fit, max_iter=200)
+        ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, compile, start=cand.fit, max_iter=200,
+                            horizon=pred.horizon)
         judge(cand, ext, fr, pr)
         say(f"  solved on {cand.effect:<13} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
             f"{pr.total:.3f}  ({'certified' if fr.converged else fr.status}; {time.perf_counter() - t0:.1f} s)")
@@ -236,7 +237,9 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
 def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list[str]:
     """The effects :func:`diagnose` tries by default: the catalogue and the effects
     registered by the user (files, plugins) that are not in the model, and the effects that
-    read a logged signal when every flight has that signal."""
+    read a logged signal, or are tied to a logged column (``Effect.considered_when_logged``),
+    when every flight has it."""
     return [n for n, cls in fx.known_effects().items() if n not in model.effects
-            and (n in fx.CATALOGUE or n in fx.registered_effects() or cls.signals)
-            and all(all(s in lg.extras or s in lg.input_names for lg in logs) for s in cls.signals)]
+            and (n in fx.CATALOGUE or n in fx.registered_effects() or cls.signals or cls.considered_when_logged)
+            and all(all(s in lg.extras or s in lg.input_names for lg in logs)
+                    for s in cls.signals + cls.considered_when_logged)]

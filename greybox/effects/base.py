@@ -5,7 +5,7 @@ changes while the model is built), :class:`Effect` (the base class and its hooks
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar, Iterable, Iterator
+from typing import TYPE_CHECKING, ClassVar, Iterable, Iterator, Mapping, Sequence
 
 import casadi as ca
 import numpy as np
@@ -16,7 +16,13 @@ from ..parameters import Parameter
 if TYPE_CHECKING:  # pragma: no cover
     from ..airframe import Airframe
 
-__all__ = ["ModelContext", "Effect", "EffectLibrary"]
+__all__ = ["ModelContext", "Effect", "EffectLibrary", "is_derived_signal"]
+
+
+def is_derived_signal(name: str) -> bool:
+    """Whether an input name is a signal an effect derives from the log
+    (:meth:`Effect.derived_signals`, e.g. ``w1@10ms``) rather than a logged column."""
+    return "@" in name
 
 
 @dataclass
@@ -79,9 +85,25 @@ class Effect:
     """Whether its parameters belong to one flight rather than to the vehicle (the day's
     wind, the battery's state): a fit of several flights with ``per_flight="auto"`` gives
     each flight its own copy of them and shares the rest."""
+    considered_when_logged: ClassVar[tuple[str, ...]] = ()
+    """Log columns whose presence in every flight makes :func:`~greybox.diagnose` try this
+    effect although it reads no logged signal (``command_delay``: ``pwm1``, the rotor speeds
+    are mapped from logged motor commands)."""
 
     def parameters(self, airframe: "Airframe") -> list[Parameter]:
         return []
+
+    def derived_signals(self, commands: Sequence[str]) -> list[str]:
+        """Signals the effect computes from the log itself instead of reading a logged column
+        (``command_delay``: each command ``w1`` at earlier times, ``w1@10ms``), given the
+        model's command names. They follow :attr:`signals` in the model's inputs; their
+        names contain ``@`` (:func:`is_derived_signal`). Default: none."""
+        return []
+
+    def derive_signals(self, t: np.ndarray, commands: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Values of :meth:`derived_signals` on a log with sample times ``t`` and command
+        columns ``commands`` (by name)."""
+        return {}
 
     def state_names(self, airframe: "Airframe") -> list[str]:
         return []

@@ -1,11 +1,18 @@
 """What a logged command delivers: the thrust drifting as the battery sags, rotor speed
-scaling with the logged battery voltage, and the offset of a command-to-speed map."""
+scaling with the logged battery voltage, the offset of a command-to-speed map, and the
+delay between a logged command and the rotors' response."""
 from __future__ import annotations
 
+import math
+
+import casadi as ca
+import numpy as np
+
+from ..errors import GreyboxInputError
 from ..parameters import Parameter
 from .base import Effect
 
-__all__ = ["ThrustDrift", "RotorMap", "BatteryVoltage"]
+__all__ = ["ThrustDrift", "RotorMap", "BatteryVoltage", "CommandDelay"]
 
 
 class ThrustDrift(Effect):
@@ -86,3 +93,96 @@ class BatteryVoltage(Effect):
         scale = 1.0 + ctx.params["K_vbat"] * (ctx.signals["vbat"] - self.v_ref)
         ctx.w_command = ctx.w_command * scale
         ctx.w = ctx.w * scale
+
+
+class CommandDelay(Effect):
+    """The rotors acting on the logged commands ``tau_cmd`` seconds late:
+    ``w(t) = w_logged(t - tau_cmd)``.
+
+    A log of motor commands (PWM) is not a log of rotor speeds: the command reaches the
+    motor driver, the motor and the air later, and the onboard log's time stamps may lag the
+    samples they stamp. On real Crazyflie flights the gyro-derived angular acceleration
+    follows the modelled moment by 40-50 ms (``experiments/real_command_delay.py``), and a
+    first-order ``motor_lag`` cannot stand for that: it rounds the response instead of
+    shifting it and adds a state per rotor that the fit must estimate at every node.
+
+    The delayed command is interpolated (Catmull-Rom: smooth in ``tau_cmd``, so the fit's
+    gradient is continuous and the optimum can be certified) between copies of the commands
+    taken ``tap`` seconds apart, which the model derives from the log itself
+    (:meth:`derived_signals`: ``w1@10ms`` is ``w1`` 10 ms earlier; before the log's start
+    the first command is held). ``tau_cmd`` lies in ``[0, max_delay]``.
+    """
+
+    name = "command_delay"
+    summary = "logged rotor commands acting tau_cmd seconds late (transport delay)"
+    excited_by = 'fast command changes whose response is measured (attitude steps, aggressive turns)'
+    fit_advice = 'fast roll and pitch changes with the gyro or attitude logged at a high rate'
+    channels = ('phi', 'theta', 'p', 'q')
+    distinguish = {
+        'motor_lag': 'sharp command steps: a delay shifts the whole response, a lag rounds its start',
+        'position_delay': 'a delay of the commands delays attitude too, a vision delay only position',
+    }
+    considered_when_logged = ("pwm1",)
+
+    def __init__(self, max_delay: float = 0.1, tap: float = 0.01):
+        if not (tap > 0 and max_delay >= tap and math.isfinite(max_delay)):
+            raise GreyboxInputError(f"command_delay: need 0 < tap <= max_delay, got tap={tap!r}, "
+                                    f"max_delay={max_delay!r}")
+        self.max_delay = float(max_delay)
+        self.tap = float(tap)
+
+    @property
+    def n_taps(self) -> int:
+        """Number of ``tap`` intervals spanned by ``[0, max_delay]``."""
+        return int(math.ceil(self.max_delay / self.tap - 1e-9))
+
+    def _offsets(self) -> list[int]:
+        # Catmull-Rom on segment j reads taps j-1 .. j+2: one tap after the command (its
+        # next sample) and one beyond the last segment
+        return [j for j in range(-1, self.n_taps + 2) if j != 0]
+
+    def _name(self, command: str, j: int) -> str:
+        return f"{command}@{j * self.tap * 1e3:g}ms"
+
+    def parameters(self, airframe):
+        return [Parameter("tau_cmd", 1, 0.02, "s", 0.0, self.n_taps * self.tap, 0.01, 0.0, True,
+                          "delay of the rotors' response to the logged commands", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"tau_cmd": 0.03}
+
+    def derived_signals(self, commands):
+        if any(not c.startswith("w") for c in commands):
+            raise GreyboxInputError("command_delay delays logged rotor speeds (inputs w1..wN); a model "
+                                    "with inputs='controls' has none")
+        return [self._name(c, j) for j in self._offsets() for c in commands]
+
+    def derive_signals(self, t, commands):
+        t = np.asarray(t, dtype=float)
+        out = {}
+        for c, v in commands.items():
+            v = np.asarray(v, dtype=float)
+            for j in self._offsets():
+                # np.interp holds the end values: before the start, the first command
+                out[self._name(c, j)] = np.interp(t - j * self.tap, t, v)
+        return out
+
+    def modify(self, ctx):
+        n = ctx.airframe.n_rotors
+        commands = [f"w{i + 1}" for i in range(n)]
+        taps = {0: ctx.w_command}
+        for j in self._offsets():
+            taps[j] = ca.vertcat(*[ctx.signals[self._name(c, j)] for c in commands])
+        s = ctx.params["tau_cmd"] / self.tap
+
+        def segment(j):
+            f = s - j
+            p0, p1, p2, p3 = taps[j - 1], taps[j], taps[j + 1], taps[j + 2]
+            return 0.5 * (2 * p1 + (p2 - p0) * f + (2 * p0 - 5 * p1 + 4 * p2 - p3) * f ** 2
+                          + (3 * (p1 - p2) + p3 - p0) * f ** 3)
+
+        w = segment(0)
+        for j in range(1, self.n_taps):
+            w = ca.if_else(s >= j, segment(j), w)
+        ctx.w_command = w
+        ctx.w = w
