@@ -454,7 +454,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     diag = diagnose(model, logs, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=p0, progress=not args.quiet,
                     process_noise=args.process_noise, validation=validation,
-                    discover=not args.no_discover or bool(args.write_effect), per_flight=_per_flight(args.per_flight))
+                    discover=not args.no_discover or bool(args.write_effect), per_flight=_per_flight(args.per_flight),
+                    horizon=args.horizon)
     print(diag.summary())
     outputs: list[tuple[Path, str | bytes]] = []
     if args.json:
@@ -683,6 +684,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--validation", metavar="LOGV", nargs="+",
                    help="separate flight(s) to validate on (then all of each LOG is estimation data; "
                         "default: the last 20 %% of each LOG)")
+    g.add_argument("--horizon", type=_positive, default=1.0,
+                   help="validation prediction horizon, s, which confirms a candidate out of sample (default 1; "
+                        "0.5 for real flights, whose attitude is not predictable open loop for a second)")
     g.add_argument("--report", help="folder for the HTML report and its plots")
     g.add_argument("--quiet", action="store_true", help="no progress lines")
     g.add_argument("--json", help="write the result here")

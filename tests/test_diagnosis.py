@@ -62,12 +62,13 @@ def test_nothing_missing_gives_a_null_verdict(paper, normal_flight):
 def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airframe_path):
     save_log(normal_flight.log, tmp_path / "f.csv")
     rc = main(["diagnose", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--without", "yaw_torque",
-               "--candidates", "yaw_torque,attitude_bias", "--no-iterate", "--quiet",
+               "--candidates", "yaw_torque,attitude_bias", "--no-iterate", "--quiet", "--horizon", "0.5",
                "--json", str(tmp_path / "d.json"), "--report", str(tmp_path / "rep")])
     assert rc == 0
     r = json.loads((tmp_path / "d.json").read_text())
     assert set(r) >= {"baseline", "ranking", "verdict"}
-    assert set(r["baseline"]) == {"nrmse", "channels", "horizons"} and "psi" in r["baseline"]["channels"]
+    assert set(r["baseline"]) == {"nrmse", "channels", "horizon", "horizons"} and "psi" in r["baseline"]["channels"]
+    assert r["baseline"]["horizon"] == 0.5              # the validation that confirms: 0.5 s ahead
     assert set(r["baseline"]["horizons"]) == {"horizons", "model", "naive"}
     assert r["verdict"] == "yaw_torque"
     first = r["ranking"][0]
@@ -75,7 +76,7 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert first["nrmse_after"] < first["nrmse_before"]
     assert {c["effect"] for c in r["ranking"]} == {"yaw_torque", "attitude_bias"}
     html = (tmp_path / "rep" / "report.html").read_text()
-    assert "data:image/png;base64," in html and "yaw_torque" in html
+    assert "data:image/png;base64," in html and "yaw_torque" in html and "0.5 s ahead" in html
 
 
 def test_diagnose_cli_bad_candidate(tmp_path, normal_flight, paper_airframe_path, capsys):

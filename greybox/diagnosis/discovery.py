@@ -439,7 +439,7 @@ def discover(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seque
 
 
 def _fit_with(sig: Sequence[Discovered], model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog],
-              val: Sequence[FlightLog], compile: str, n_tests: int
+              val: Sequence[FlightLog], compile: str, n_tests: int, horizon: float
               ) -> tuple[QuadrotorModel, FitResult, Prediction, float, float]:
     """The model with the discovered combinations ``sig`` added, refitted by the ordinary
     fitter from the model's optimum (its node states and weights) with the new coefficients
@@ -458,7 +458,7 @@ def _fit_with(sig: Sequence[Discovered], model: QuadrotorModel, res: FitResult, 
         fr = fit(ext, est, free=list(res.free_names) + new, p0=p0, noise=res.sigma, reweight=False,
                  compile=compile, max_iter=200, initial_states=res.node_states, interval=res.interval,
                  process_noise=res.process_noise, per_flight=res.per_flight_rule)
-    pr = predict_after_fit(fr, est, val, compile=compile)
+    pr = predict_after_fit(fr, est, val, compile=compile, horizon=horizon)
     lr, p = lr_test(res, fr, estimation_residuals(ext, fr, est), len(new), False, max(n_tests, 1))
     return ext, fr, pr, lr, p
 
@@ -469,7 +469,7 @@ def _refit_together(sig: Sequence[Discovered], model: QuadrotorModel, res: FitRe
     """Every significant combination added at once and refitted (one channel's term is
     refitted while the others' missing forces still bend the model; together they are not)."""
     t0 = time.perf_counter()
-    ext, fr, pr, lr, p = _fit_with(sig, model, res, est, val, compile, n_tests)
+    ext, fr, pr, lr, p = _fit_with(sig, model, res, est, val, compile, n_tests, pred.horizon)
     say(f"  discovered, all together: nrmse {pred.total:.3f} -> {pr.total:.3f}  ({time.perf_counter() - t0:.1f} s)")
     return {"effects": [d.effect.name for d in sig], "nrmse_before": pred.total, "nrmse_after": pr.total,
             "channels_after": dict(pr.nrmse), "lr": lr, "lr_p_value": p, "certified": bool(fr.converged),
@@ -486,7 +486,7 @@ def _refit_and_judge(d: Discovered, model: QuadrotorModel, res: FitResult, pred:
     t0 = time.perf_counter()
     d.effect = discovered_effect_class(d.channel, [t.feature for t in d.terms],
                                        [t.coefficient for t in d.terms], [t.scale for t in d.terms])
-    ext, fr, pr, d.lr, d.lr_p_value = _fit_with([d], model, res, est, val, compile, n_tests)
+    ext, fr, pr, d.lr, d.lr_p_value = _fit_with([d], model, res, est, val, compile, n_tests, pred.horizon)
     d.fit, d.prediction = fr, pr
     d.nrmse_after, d.channels_after = pr.total, dict(pr.nrmse)
     d.fitted = []

@@ -228,6 +228,7 @@ class Diagnosis:
         """The diagnose JSON (README, "Command line"), plus findings, warnings and the added effects."""
         out = {"baseline": {"nrmse": self.baseline_prediction.total,
                             "channels": dict(self.baseline_prediction.nrmse),
+                            "horizon": self.baseline_prediction.horizon,
                             "horizons": (self.baseline_horizons or self.baseline_prediction.horizon_errors()).as_dict()},
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,

@@ -21,7 +21,7 @@ from ..integrate import n_substeps, rk4_step
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import long_run_factor
 from ..shooting import ShootingProblem, free_indices
-from ..validation import Prediction, predict_after_fit
+from ..validation import DEFAULT_HORIZON, Prediction, predict_after_fit
 
 __all__ = ["NEGLIGIBLE_FRACTION", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
            "explained_fraction", "physically_negligible", "physically_implausible", "held_on_bound", "null_on_bound", "precompile_refits"]
@@ -235,7 +235,7 @@ model gets there in a handful of iterations; a wrong one crawls, and is judged w
 def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: Sequence[FlightLog] | None,
           name: str,
           sigma: dict, compile: str, cold: bool = False, max_iter: int | None = None,
-          start: FitResult | None = None, restart: bool = False
+          start: FitResult | None = None, restart: bool = False, horizon: float = DEFAULT_HORIZON
           ) -> tuple[QuadrotorModel, FitResult, Prediction | None]:
     """Fit the model extended by ``name``: warm-started at the baseline optimum with the
     baseline's weights, or ``cold`` — from the airframe's guesses with the candidate's
@@ -273,7 +273,7 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
         again = refit(model, res, est, None, name, sigma, compile, cold=True, max_iter=COLD_REFIT_ITER)[1]
         if profile_log_likelihood(again) > profile_log_likelihood(fr):
             fr = again
-    return ext, fr, predict_after_fit(fr, est, val, compile=compile) if val is not None else None
+    return ext, fr, predict_after_fit(fr, est, val, compile=compile, horizon=horizon) if val is not None else None
 
 
 def _guesses(ext: QuadrotorModel, name: str | fx.Effect) -> np.ndarray:

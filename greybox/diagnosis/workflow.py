@@ -16,7 +16,7 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import fit, progress_printer
 from ..model import QuadrotorModel
-from ..validation import horizon_errors_after, predict_after_fit, validation_vectors
+from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue
 from .analysis import command_imbalance, residual_analysis
 from .consistency import half_consistency
@@ -42,7 +42,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
              progress: bool | Callable[[str], None] = False,
              process_noise: str | dict[str, float] | None = None,
              validation: FlightLog | Sequence[FlightLog] | None = None, discover: bool = True,
-             per_flight: str | Sequence[str] | None = "auto") -> Diagnosis:
+             per_flight: str | Sequence[str] | None = "auto", horizon: float = DEFAULT_HORIZON) -> Diagnosis:
     """Compare ``model`` with ``log``, find where it fails and which catalogue effect is
     missing; with ``iterate`` add significant effects until none is left (see module doc).
 
@@ -60,6 +60,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             :func:`~greybox.fitting.fit`'s): ``"auto"`` (default) a wind or battery sag, in the
             baseline and in a candidate's refit (the statistic's degrees of freedom count
             the copies); ``None``: everything shared.
+        horizon: seconds ahead the validation predicts (the ``nrmse`` that confirms a
+            candidate out of sample; default 1 s). A real vehicle's attitude, open loop, is
+            not predictable for a whole second: on real flights 0.5 s judges a model where it
+            is used (README, "Real flights").
 
     ``log`` may be several flights of one vehicle: they share the parameters, each has its
     own states (the baseline, the screening, every refit); each is split into estimation and
@@ -124,8 +128,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                                     f"({res.status}); the diagnosis uses soft continuity (process noise, as "
                                     f"--process-noise auto), whose fit is certified")
                 res, process_noise = soft, "auto"
-    pred = predict_after_fit(res, est, val, compile=compile)
-    say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split)})")
+    pred = predict_after_fit(res, est, val, compile=compile, horizon=horizon)
+    say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split, 1, horizon)})")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
                                                             validation_is_tail=validation is None)
     rounds: list[Round] = []
@@ -179,7 +183,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                 warnings.append(f"{verdict}'s refit did not reach a certified optimum ({more.status}): no further "
                                 "candidate was tested against it")
                 break
-            win.fit, win.prediction = more, predict_after_fit(more, est, val, compile=compile)
+            win.fit, win.prediction = more, predict_after_fit(more, est, val, compile=compile, horizon=horizon)
         cur_model, cur_res, cur_pred = win.fit.model, win.fit, win.prediction
         remaining = [c for c in remaining if c != verdict]
     # confusable candidates: significant alone in round 1, explained away by the winner
@@ -222,7 +226,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                             f"be {verdict} (see 'beyond the catalogue')")
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est[0],
-                     validation_source=_validation_source(validation, split, len(est)), unexplained=unexplained,
+                     validation_source=_validation_source(validation, split, len(est), horizon), unexplained=unexplained,
                      inconsistent=inconsistent, command_imbalance=imbalance,
                      discovered=discovered, discovery=discovery_note)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
@@ -236,9 +240,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     return diag
 
 
-def _validation_source(validation, split: float, n_flights: int = 1) -> str:
+def _validation_source(validation, split: float, n_flights: int = 1, horizon: float = DEFAULT_HORIZON) -> str:
+    ahead = f", {horizon:g} s ahead" if horizon != DEFAULT_HORIZON else ""
     if validation is None:
-        return f"last {100 * (1 - split):.0f} % of the log" + (f"s ({n_flights} flights)" if n_flights > 1 else "")
+        return f"last {100 * (1 - split):.0f} % of the log" + (f"s ({n_flights} flights)" if n_flights > 1 else "") + ahead
     vals = [validation] if isinstance(validation, FlightLog) else list(validation)
     names = [Path(v.source).name if v.source else "unnamed" for v in vals]
-    return ("validation flight " if len(vals) == 1 else "validation flights ") + ", ".join(names)
+    return ("validation flight " if len(vals) == 1 else "validation flights ") + ", ".join(names) + ahead
