@@ -42,16 +42,23 @@ BANDS = ((0.1, 1.0), (1.0, 3.0), (3.0, 8.0), (8.0, 20.0))
 DELAYS = range(0, 4)
 
 
+def roll_pitch_acceleration(log) -> np.ndarray:
+    """(n, 2) roll and pitch angular acceleration of a log: a Savitzky-Golay derivative of
+    its gyro (p, q), missing samples interpolated."""
+    t = log.t
+    om = np.column_stack([log.output(c) for c in "pq"])
+    ok = np.isfinite(om).all(axis=1)
+    om = np.column_stack([np.interp(t, t[ok], om[ok, i]) for i in range(2)])
+    return savgol_filter(om, 7, 2, deriv=1, delta=float(np.median(np.diff(t))), axis=0)
+
+
 def bands(path: Path) -> dict[str, list[tuple[float, float, int]]]:
     """{axis: [(gain, r, delay in samples) per band]}."""
     imp = import_nanobench(path)
     log = imp.log
     t = log.t
     dt = float(np.median(np.diff(t)))
-    om = np.column_stack([log.output(c) for c in "pq"])
-    ok = np.isfinite(om).all(axis=1)
-    om = np.column_stack([np.interp(t, t[ok], om[ok, i]) for i in range(2)])
-    om_dot = savgol_filter(om, 7, 2, deriv=1, delta=dt, axis=0)
+    om_dot = roll_pitch_acceleration(log)
     af = airframe_from_dict(tomllib.loads(crazyflie_airframe_toml(MASS, imp.hover_rotor_speed)), "crazyflie")
     J = np.diag(np.asarray(af.inertia, dtype=float))
     K_T = MASS * af.gravity / (4 * imp.hover_rotor_speed ** 2)

@@ -109,14 +109,21 @@ def test_options_inputs_and_saving(tmp_path):
     assert back.model.input_names == model.input_names
     assert back.value("tau_cmd") == 0.031
     # linearised about hover: the earlier commands fold into their command, and it says the
-    # delay is left out; the result is the base model's linearisation
-    with pytest.warns(UserWarning, match="command delay"):
-        lin = linearize(model, p)
-    base = QuadrotorModel(af)
-    lin0 = linearize(base, base.default_parameters())
-    assert lin.input_names == ["w1", "w2", "w3", "w4"]
-    np.testing.assert_allclose(lin.B, lin0.B, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(lin.u_op, lin0.u_op)
+    # delay is left out; the result is the model's linearisation without the delay, also
+    # where the trim is solved numerically (an offset centre of gravity: unequal rotors)
+    for extra in ([], [effects.CogOffset()]):
+        m = model + extra
+        base = QuadrotorModel(af) + extra
+        pv = m.parameter_vector({"tau_cmd": 0.031, **({"r_cog": [0.01, -0.005]} if extra else {})})
+        pb = base.parameter_vector({"r_cog": [0.01, -0.005]} if extra else {})
+        with pytest.warns(UserWarning, match="command delay"):
+            lin = linearize(m, pv)
+        lin0 = linearize(base, pb)
+        assert lin.input_names == ["w1", "w2", "w3", "w4"]
+        np.testing.assert_allclose(lin.A, lin0.A, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(lin.B, lin0.B, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(lin.u_op, lin0.u_op, rtol=1e-9)
+        assert np.ptp(lin.u_op) > 1.0 if extra else np.ptp(lin.u_op) < 1e-9
 
 
 def test_the_diagnosis_tries_it_when_the_speeds_come_from_logged_motor_commands():
