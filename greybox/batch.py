@@ -50,6 +50,7 @@ import numpy as np
 
 from . import __version__
 from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError
+from .fitting import IF_NEEDED
 
 __all__ = ["batch", "BatchResult", "FORMATS", "INSTALL_HINT", "fleet_comparison", "SUMMARY_COLUMNS"]
 
@@ -96,7 +97,7 @@ class Options:
     candidates: tuple[str, ...] | None = None
     iterate: bool = True
     discover: bool = True
-    process_noise: str | None = None
+    process_noise: str | None = IF_NEEDED
     import_format: str = "csv"
     pwm_map: str | None = None
     held: str = "interpolate"
@@ -821,7 +822,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
           held: str = "interpolate", effects: str | Sequence[str] | None = None,
           without: str | Sequence[str] | None = None, sets: Mapping[str, Any] | Sequence[str] | None = None,
           effects_files: Sequence[str | Path] = (), candidates: Sequence[str] | None = None, iterate: bool = True,
-          discover: bool = True, process_noise: str | None = None, workers: int = 2, scheduler: str | None = None, joint: bool = False,
+          discover: bool = True, process_noise: str | None = IF_NEEDED, workers: int = 2, scheduler: str | None = None, joint: bool = False,
           per_flight: str | Sequence[str] | None = "auto", retries: int = 1, progress: bool = True) -> BatchResult:
     """Import (if needed), fit and diagnose every flight in ``inputs`` on Dask distributed;
     results under ``out`` (see the module doc and README, "greybox batch").
@@ -888,8 +889,8 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
                    discover=bool(discover),
                    process_noise=process_noise, import_format=import_format, pwm_map=pwm_map, held=held,
                    per_flight=per_flight if per_flight is None or isinstance(per_flight, str) else tuple(per_flight))
-    if process_noise not in (None, "auto"):
-        raise GreyboxInputError(f"process_noise must be None or 'auto', got {process_noise!r}")
+    if process_noise not in (None, "auto", IF_NEEDED):
+        raise GreyboxInputError(f"process_noise must be {IF_NEEDED!r}, None or 'auto', got {process_noise!r}")
     # the model, its parameters and the candidates, checked here before any work is sent out
     from . import effects as fx
     the_model, _ = _model(opts)

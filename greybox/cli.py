@@ -344,6 +344,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _process_noise(args) -> str | None:
+    """``--process-noise`` as :func:`greybox.fitting.fit` takes it ('none': None)."""
+    return None if args.process_noise == "none" else args.process_noise
+
+
 def _per_flight(text: str | None) -> str | list[str] | None:
     """``--per-flight``: 'auto' (default), 'none' or a comma list of effects / parameters."""
     if text is None or text == "auto":
@@ -381,7 +386,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         # several flights: shared parameters, each flight its own states
         res = fit(model, [est for est, _ in parts], free=_names(args.free), fixed=_names(args.fixed), p0=p0,
                   interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
-                  process_noise=args.process_noise, per_flight=_per_flight(args.per_flight))
+                  process_noise=_process_noise(args), per_flight=_per_flight(args.per_flight))
     if not res.converged:
         raise GreyboxError(f"fit did not converge: {res.status}")
     # each flight validated with its own values of the per-flight parameters (wind, battery sag)
@@ -453,7 +458,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     validation = [_load_model_log(model, v, p0) for v in args.validation] if args.validation else None
     diag = diagnose(model, logs, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=p0, progress=not args.quiet,
-                    process_noise=args.process_noise, validation=validation,
+                    process_noise=_process_noise(args), validation=validation,
                     discover=not args.no_discover or bool(args.write_effect), per_flight=_per_flight(args.per_flight),
                     horizon=args.horizon)
     print(diag.summary())
@@ -488,7 +493,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
                 import_format=args.import_format, pwm_map=args.pwm_map, held=args.held, effects=args.effects,
                 without=args.without, sets=args.set, effects_files=args.effects_file or (),
                 candidates=_names(args.candidates), iterate=not args.no_iterate, discover=not args.no_discover,
-                process_noise=args.process_noise,
+                process_noise=_process_noise(args),
                 workers=args.workers or 2, scheduler=args.scheduler, joint=args.joint,
                 per_flight=_per_flight(args.per_flight), progress=not args.quiet)
     print(res.summary())
@@ -522,8 +527,10 @@ def _batch_parser(sub) -> None:
     b.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
     b.add_argument("--no-discover", action="store_true",
                    help="skip the discovery of residual forces beyond the catalogue")
-    b.add_argument("--process-noise", choices=["auto"],
-                   help="'auto': treat shooting gaps as process noise (real logs; see README)")
+    b.add_argument("--process-noise", choices=["if_needed", "auto", "none"], default="if_needed",
+                   help="how the shooting gaps are treated: 'if_needed' (default) output error, then "
+                        "process noise when output error cannot follow the data; 'auto' process noise "
+                        "(real logs); 'none' output error only (see README)")
     b.add_argument("--joint", action="store_true",
                    help="also fit the shared parameters on all good flights at once and name the flights more "
                         "than 3 std from the fleet")
@@ -654,8 +661,10 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--fixed", help="comma list of parameters to hold at their starting values")
     f.add_argument("--interval", type=_positive_int, help="samples per shooting interval (default: nearest 50 ms)")
     f.add_argument("--max-iter", type=_positive_int, default=60, help="Gauss-Newton iteration limit (default 60)")
-    f.add_argument("--process-noise", choices=["auto"],
-                   help="'auto': treat shooting gaps as process noise (real logs; see README)")
+    f.add_argument("--process-noise", choices=["if_needed", "auto", "none"], default="if_needed",
+                   help="how the shooting gaps are treated: 'if_needed' (default) output error, then "
+                        "process noise when output error cannot follow the data; 'auto' process noise "
+                        "(real logs); 'none' output error only (see README)")
     f.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with several logs, what each flight gets its own value of: 'auto' (default: the "
                         "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
@@ -676,8 +685,10 @@ def _parser() -> argparse.ArgumentParser:
     _model_args(g, "starting value (repeatable)")
     g.add_argument("--candidates", help="comma list of candidate effects (default: every effect not in the model)")
     g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
-    g.add_argument("--process-noise", choices=["auto"],
-                   help="'auto': treat shooting gaps as process noise (real logs; see README)")
+    g.add_argument("--process-noise", choices=["if_needed", "auto", "none"], default="if_needed",
+                   help="how the shooting gaps are treated: 'if_needed' (default) output error, then "
+                        "process noise when output error cannot follow the data; 'auto' process noise "
+                        "(real logs); 'none' output error only (see README)")
     g.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with several logs, what each flight gets its own value of (as for fit; default auto: "
                         "wind, thrust_drift)")

@@ -119,6 +119,8 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
                 "free": res.free_names, "correlation": res.correlation.tolist(),
                 "noise": res.sigma, "residual_rms": res.residual_rms, "warnings": res.warnings,
                 "certificate": res.certificate.as_dict() if res.certificate is not None else None,
+                # the formulation it ended in: the process noise per state (null: output error)
+                "process_noise": res.process_noise, "init_window": res.init_window,
                 "time_s": res.timings.get("total")})
     if getattr(res, "per_flight_", None):
         # parameters fitted per flight: "parameters" holds their mean over the flights

@@ -113,7 +113,7 @@ def _verdict_words(d: "Diagnosis") -> str:
         return d.verdict
     if not d.baseline_certified:
         return "null (cannot tell: the baseline fit is not certified)"
-    if d.unexplained:
+    if d.unexplained or d.unexplained_gaps:
         return "null (the model misses something no candidate explains)"
     return "null (nothing significant is missing)"
 

@@ -97,6 +97,11 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     # its refit removes 99 % of the residual. With soft continuity the states follow the data
     # and the residual does not measure how wrong the model is.
     cold = bool(at_bound) or (bool(far_off) and res.process_noise is None)
+    # With soft continuity a parameter held on its null bound may be compensating too (a
+    # flight in a 1.5 m/s east wind: no drag across it at all, Kd[1] = 0); a candidate refitted
+    # from there keeps it (the wind across is then invisible), so each refit is also tried
+    # from the airframe's guesses and the better kept
+    bent_soft = res.process_noise is not None and bool(res.certificate is not None and res.certificate.held)
     if cold:
         why = (f"baseline has {', '.join(at_bound)} on a bound" if at_bound else
                f"baseline misses {', '.join(far_off)} by more than {FAR_FROM_DATA:g}x the sensor noise")
@@ -190,7 +195,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         t0 = time.perf_counter()
         ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=cold,
                              start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if cold else None,
-                             restart=bool(far_off), horizon=pred.horizon)
+                             restart=bool(far_off) or bent_soft, horizon=pred.horizon)
         judge(cand, ext, fr, pr)
         say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
             f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s)")

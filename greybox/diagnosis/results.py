@@ -198,6 +198,7 @@ class Diagnosis:
     timings: dict[str, float] = field(default_factory=dict)
     validation_source: str = ""        # what the validation nrmse was computed on, in words
     unexplained: dict[str, float] = field(default_factory=dict)   # channel -> residual / sensor noise
+    unexplained_gaps: dict[str, float] = field(default_factory=dict)   # state -> gap RMS / its random part (process noise)
     inconsistent: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
     command_imbalance: "CommandImbalance | None" = None   # rotors driven unequally in steady flight
     # parameter -> (first half, std, second half, std) where the halves disagree
@@ -237,6 +238,7 @@ class Diagnosis:
                "effects": self.model.effect_names,
                "certificate": self.baseline.certificate.as_dict() if self.baseline.certificate else None,
                "unexplained": {ch: _num(v) for ch, v in self.unexplained.items()},
+               "unexplained_gaps": {n: _num(v) for n, v in self.unexplained_gaps.items()},
                "command_imbalance": self.command_imbalance.as_dict() if self.command_imbalance else None,
                "inconsistent_parameters": {n: {"first_half": a, "first_half_std": sa, "second_half": b,
                                                "second_half_std": sb}
@@ -276,11 +278,11 @@ class Diagnosis:
             share = (f"; it removes {100 * top.explained:.0f} % of the residual above the sensor noise"
                      if top is not None and top.explained is not None else "")
             lines.append(f"   verdict: {self.verdict}{share}")
-            if self.unexplained:
+            if self.unexplained or self.unexplained_gaps:
                 lines.append(f"   and the model still misses something no candidate explains: {self._far_off()}")
-        elif self.unexplained:
+        elif self.unexplained or self.unexplained_gaps:
             lines.append(f"   verdict: null -- the model is missing something no candidate explains: "
-                         f"{self._far_off()} and coloured" + (f"; {self.findings[0].text}" if self.findings else ""))
+                         f"{self._far_off()}" + (f"; {self.findings[0].text}" if self.findings else ""))
         elif not self.baseline_certified:
             lines.append("   verdict: null (cannot tell: the baseline fit is not certified)")
         else:
@@ -337,8 +339,16 @@ class Diagnosis:
         return lines
 
     def _far_off(self) -> str:
-        return "residuals in " + ", ".join(f"{ch} ({v:.3g}x the sensor noise)" for ch, v in self.unexplained.items()) + \
-            " stay far above the noise"
+        parts = []
+        if self.unexplained:
+            parts.append("residuals in " + ", ".join(f"{ch} ({v:.3g}x the sensor noise)"
+                                                     for ch, v in self.unexplained.items()) +
+                         " stay far above the noise and coloured")
+        if self.unexplained_gaps:
+            parts.append("the process noise of " + ", ".join(f"{n} ({v:.3g}x its random part)"
+                                                            for n, v in self.unexplained_gaps.items()) +
+                         " is mostly systematic (a force or torque acting over many intervals)")
+        return "; ".join(parts)
 
     def report(self, directory: str | Path) -> Path:
         """Write ``report.html`` (plots embedded) and the plots as PNG files into ``directory``."""

@@ -246,7 +246,8 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
     sits in a compensating basin (a vertical drag of 6.4 standing in for a ground effect), and
     the candidate's refit from there stays in it (k_ge at a third of its value after 200
     iterations), where a fit from the guesses gets to the truth in five. No validation when
-    ``val`` is None."""
+    ``val`` is None. With soft continuity the cold refit keeps the baseline's weights and
+    process noise, and the refit with the lower cost is kept."""
     ext, p, free = extended_model(model, res, name)
     soft = res.process_noise is not None
     reweight = False
@@ -269,9 +270,12 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
         fr = fit(ext, est, free=free, p0=p, noise=None if reweight else sigma, reweight=reweight,
                  compile=compile, max_iter=max_iter or cap, initial_states=init, interval=res.interval,
                  process_noise=_process_noise(ext, res), per_flight=res.per_flight_rule)
-    if restart and not soft and not cold and start is None:
+    if restart and not cold and start is None:
         again = refit(model, res, est, None, name, sigma, compile, cold=True, max_iter=COLD_REFIT_ITER)[1]
-        if profile_log_likelihood(again) > profile_log_likelihood(fr):
+        # output error: each re-estimated its weights, so they compare on the likelihood;
+        # soft continuity: the same weights and process noise, so on the cost
+        better = again.cost < fr.cost if soft else profile_log_likelihood(again) > profile_log_likelihood(fr)
+        if better:
             fr = again
     return ext, fr, predict_after_fit(fr, est, val, compile=compile, horizon=horizon) if val is not None else None
 

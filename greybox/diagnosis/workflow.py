@@ -14,7 +14,7 @@ import numpy as np
 from .. import effects as fx
 from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError
-from ..fitting import fit, progress_printer
+from ..fitting import IF_NEEDED, fit, progress_printer
 from ..model import QuadrotorModel
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue
@@ -40,7 +40,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
              iterate: bool = True, max_rounds: int = 4, split: float = 0.8, p0=None,
              n_refit: int = N_REFIT, compile: str = "auto",
              progress: bool | Callable[[str], None] = False,
-             process_noise: str | dict[str, float] | None = None,
+             process_noise: str | dict[str, float] | None = IF_NEEDED,
              validation: FlightLog | Sequence[FlightLog] | None = None, discover: bool = True,
              per_flight: str | Sequence[str] | None = "auto", horizon: float = DEFAULT_HORIZON) -> Diagnosis:
     """Compare ``model`` with ``log``, find where it fails and which catalogue effect is
@@ -49,8 +49,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     Args:
         candidates: effect names to consider (default: every catalogue effect not in the model).
         p0: starting values of the baseline fit.
-        process_noise: passed to the baseline :func:`~greybox.fitting.fit` (e.g. ``"auto"`` for
-            real logs); candidates are then fitted with the baseline's process noise.
+        process_noise: passed to the baseline :func:`~greybox.fitting.fit`: by default output
+            error, or soft continuity when output error cannot follow the data; ``"auto"`` for
+            soft continuity at once (real logs), ``None`` for output error only (an
+            uncertified baseline then makes the verdict null). Candidates are fitted in the
+            baseline's formulation, with its process noise.
         validation: a separate flight (or several) to validate on; then all of ``log`` is
             estimation data and ``split`` is not used.
         discover: after the ranking, look for the residual forces the fitted model (the
@@ -104,36 +107,24 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         + (f" of {len(est)} flights" if len(est) > 1 else ""))
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # judged below, in words
+        # by default output error, and soft continuity when it cannot follow the data (fit's
+        # "if_needed"): a model that misses a large force or torque, or logged inputs with a
+        # little noise, leave an open-loop unstable body's output-error fit far from the data,
+        # and test statistics there would credit any extra parameter with the distance
         res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise,
                   per_flight=per_flight)
         if not res.converged:
-            # one more go from where it stopped, with the weights it reached
+            # one more go from where it stopped, in its formulation, with the weights it reached
             say(f"diagnose: the baseline fit is not certified ({res.status}); solving on")
-            res = fit(model, est, p0=res.p, compile=compile, max_iter=200, process_noise=process_noise,
+            res = fit(model, est, p0=res.p, compile=compile, max_iter=200, process_noise=res.process_noise,
                       noise=res.sigma, reweight=False, initial_states=res.node_states,
-                      interval=res.interval, per_flight=per_flight)
-        formulation_note = ""
-        if not res.converged and process_noise is None:
-            # A model that misses a large force or torque cannot follow the data open loop
-            # over a shooting interval (a 1 kg vehicle with a weak rotor: the closed loop
-            # trims out a torque the model does not have, and K_T went to 1 % of its value),
-            # so its output-error problem has no optimum worth certifying. With soft
-            # continuity the states may follow the data between samples at a cost, and the
-            # statistics are taken in that formulation (gaps count as residuals).
-            say(f"diagnose: the baseline fit is not certified ({res.status}); fitting it again with "
-                "process noise (soft continuity)")
-            soft = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise="auto", per_flight=per_flight)
-            if soft.converged:
-                formulation_note = (f"the output-error fit of the baseline did not reach a certified optimum "
-                                    f"({res.status}); the diagnosis uses soft continuity (process noise, as "
-                                    f"--process-noise auto), whose fit is certified")
-                res, process_noise = soft, "auto"
+                      interval=res.interval, per_flight=per_flight, init_window=res.init_window)
     pred = predict_after_fit(res, est, val, compile=compile, horizon=horizon)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split, 1, horizon)})")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
                                                             validation_is_tail=validation is None)
     rounds: list[Round] = []
-    warnings: list[str] = ([formulation_note] if formulation_note else []) + list(res.warnings)
+    warnings: list[str] = list(res.warnings)
     if res.certificate is not None:
         say(f"diagnose: baseline {res.certificate.text()}")
     if not res.converged:
@@ -178,6 +169,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                 more = fit(win.fit.model, est, free=win.fit.free_names, p0=win.fit.p, noise=win.fit.sigma,
                            reweight=False, compile=compile, max_iter=200, initial_states=win.fit.node_states,
                            interval=win.fit.interval, process_noise=win.fit.process_noise,
+                           init_window=win.fit.init_window,
                            per_flight=win.fit.per_flight_rule)
             if not more.converged:
                 warnings.append(f"{verdict}'s refit did not reach a certified optimum ({more.status}): no further "
@@ -206,11 +198,15 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                             f"not exercise it, so it could not be confirmed: validate on a flight that does "
                             f"(validation=, --validation LOG2)")
     unexplained: dict[str, float] = {}
+    unexplained_gaps: dict[str, float] = {}
     if cur_res.converged and cur_res.certificate is not None:
-        # what the final model (the baseline when nothing was added) still misses by far
+        # what the final model (the baseline when nothing was added) still misses by far: in
+        # its residuals, or, with process noise, in shooting gaps that are mostly systematic
         cert = cur_res.certificate
         unexplained = {ch: cert.residual_over_noise[ch] for ch in cert.off_channels()
                        if cert.residual_over_noise[ch] > UNEXPLAINED_RATIO}
+        unexplained_gaps = {n: cert.systematic_gaps[n] for n in cert.off_states()
+                            if cert.systematic_gaps[n] > UNEXPLAINED_RATIO}
     discovered, discovery_note = [], {"status": "not run", "text": "not run (discover=False)", "together": None}
     if discover:
         # on the model as given, like the candidates (the same nrmse before): a catalogue
@@ -227,6 +223,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est[0],
                      validation_source=_validation_source(validation, split, len(est), horizon), unexplained=unexplained,
+                     unexplained_gaps=unexplained_gaps,
                      inconsistent=inconsistent, command_imbalance=imbalance,
                      discovered=discovered, discovery=discovery_note)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)

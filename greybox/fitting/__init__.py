@@ -16,8 +16,8 @@ The problem itself (interval functions, data layout, initial states, noise) is
 """
 from ..shooting import (DEFAULT_INTERVAL_S, default_interval, estimate_noise, initial_node_states,
                         sensor_noise)
-from .api import (MAX_RESTARTS, THRUST_ADVICE, TRUST_REGION, FitResult, fit, manoeuvre_advice, per_flight_positions,
-                  progress_printer)
+from .api import (IF_NEEDED, MAX_RESTARTS, THRUST_ADVICE, TRUST_REGION, FitResult, fit, manoeuvre_advice,
+                  per_flight_positions, progress_printer)
 from .certificate import Certificate
 from .estimator import GreyBoxEstimator
 from .gauss_newton import FitSession, GaussNewton, Solver
@@ -26,4 +26,4 @@ from .imu import ImuFit, fit_imu, is_imu_only
 __all__ = ["fit", "FitResult", "Certificate", "GreyBoxEstimator", "Solver", "GaussNewton", "FitSession",
            "estimate_noise", "sensor_noise", "initial_node_states", "DEFAULT_INTERVAL_S",
            "default_interval", "THRUST_ADVICE", "manoeuvre_advice", "MAX_RESTARTS", "TRUST_REGION", "progress_printer",
-           "per_flight_positions", "fit_imu", "ImuFit", "is_imu_only"]
+           "per_flight_positions", "fit_imu", "ImuFit", "is_imu_only", "IF_NEEDED"]

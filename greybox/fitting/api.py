@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+import warnings as _warnings
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Mapping, Sequence
 
@@ -23,12 +24,17 @@ from ..fitted import FittedModel, provenance
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import fitted_trajectory, output_residuals, whiteness_fraction
 from ..shooting import default_interval, free_indices, noise_levels, sensor_noise
-from .certificate import (GAP_TOLERANCE, NOISE_RATIO_ADEQUATE, NOISE_RATIO_COLOURED, STEP_TOLERANCE,
+from ..validation import INIT_WINDOWS, choose_init_window
+from .certificate import (GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE, NOISE_RATIO_COLOURED, STEP_TOLERANCE,
                           WHITENESS_ADEQUATE, Certificate)
 from .gauss_newton import FitSession, GaussNewton, Solver
 
 __all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS",
-           "TRUST_REGION"]
+           "TRUST_REGION", "IF_NEEDED"]
+
+IF_NEEDED = "if_needed"
+"""``fit``'s default ``process_noise``: output error, then soft continuity when output error
+cannot follow the data."""
 
 THRUST_ADVICE = "vertical steps (step_z) and climbs at varied thrust"
 """What pins ``K_T`` down (the other parameters' advice lives on their effects)."""
@@ -46,6 +52,8 @@ def manoeuvre_advice(model: QuadrotorModel, component: str) -> str:
 
 
 
+Q_ROUNDS = 6
+"""Times ``process_noise="auto"`` re-estimates the process noise and solves again."""
 MAX_RESTARTS = 2
 """Times a fit whose end point is not certified is solved on from there."""
 TRUST_REGION = 0.5
@@ -106,6 +114,7 @@ class FitResult(FittedModel):
     provenance: dict = field(default_factory=dict)   # logs, greybox version, time (saved with the model)
     per_flight_: dict = field(default_factory=dict)   # {component: {"value": [per flight], "std": [...]}}
     per_flight_rule: str | list[str] | None = None   # what fit(per_flight=...) was asked (refits ask the same)
+    init_window: float | None = None    # s of measurements its predictions start from (None: predict's default)
 
     def flight_p(self, flight: int) -> np.ndarray:
         """Flight ``flight``'s parameter vector: ``p`` with its own values of the parameters
@@ -150,8 +159,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         interval: int | None = None, noise: Mapping[str, float] | None = None,
         max_iter: int = 60, tol: float = 1e-7, reweight: bool = True, compile: str = "auto",
         progress: bool | Callable[[str], None] = False, initial_states: Sequence[np.ndarray] | None = None,
-        process_noise: str | Mapping[str, float] | None = None, solver: Solver | None = None,
-        per_flight: str | Iterable[str] | None = None) -> FitResult:
+        process_noise: str | Mapping[str, float] | None = IF_NEEDED, solver: Solver | None = None,
+        per_flight: str | Iterable[str] | None = None, init_window: float | None = None) -> FitResult:
     """Fit the free parameters of ``model`` to one or several flight logs.
 
     Args:
@@ -171,11 +180,21 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             optimisation: faster to build, slower to run) or ``"never"``.
         progress: True to print iterations to stderr, or a callable taking a line of text.
         initial_states: per flight (M+1, nx) node state guesses (default: from the data).
-        process_noise: ``None`` (default): the model is exact between measurements, the
-            shooting gaps must close (output error). ``"auto"`` or ``{state: std}``: the
+        process_noise: ``"if_needed"`` (default): output error first; when its end point
+            is not certified, or its residuals stay far above the sensor noise
+            (``certificate.adequate`` false), the fit is solved again with ``"auto"`` from the
+            same start, and that fit is returned when it is certified (a warning says so;
+            ``process_noise`` is then set). An open-loop unstable body integrates any noise
+            on its logged inputs (quantised ESC speeds, jittered time stamps): 0.05 % on the
+            rotor speeds leaves output-error residuals hundreds of times the sensor noise and
+            a drag coefficient far off, where soft continuity recovers every parameter.
+            ``None``: output error only: the model is exact between measurements, the
+            shooting gaps must close. ``"auto"`` or ``{state: std}``: the
             gaps are process noise, penalised by ``|gap_i|^2 / (2 q_i^2)`` (a filter-error
-            / smoothing formulation); with ``"auto"`` ``q`` starts as the RMS gap of each
-            state at the starting point and is re-estimated (downwards only) after each
+            / smoothing formulation); with ``"auto"`` ``q`` starts as the scale of each
+            state's gaps at the starting point (the RMS of their interval-to-interval
+            differences over sqrt(2): :func:`process_noise_scale`; what consecutive gaps share
+            is a model error, not noise) and is re-estimated (downwards only) after each
             solve, each flight its own; a std in ``{state: std}`` may be one per flight. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
             fit of such data can only shrink the parameters until the model stops moving.
             The gaps sit at the shooting nodes (``interval``, default every 50 ms);
@@ -191,6 +210,13 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         solver: the strategy that runs the iterations (a :class:`~greybox.fitting.Solver`);
             default :class:`~greybox.fitting.GaussNewton`. Whichever solver ran, the end
             point is certified the same way (``FitResult.certificate``).
+        init_window: seconds of measurements before each prediction window from which the
+            fitted model's predictions estimate the window's start state
+            (``FitResult.init_window``). Default: 0.5 s for an output-error fit; for a fit
+            with process noise, whichever of :data:`~greybox.validation.INIT_WINDOWS`
+            predicts the estimation data best 0.5 s ahead (a model trusted open loop over
+            50 ms may diverge within a long window; a short one estimates the velocity
+            from few position samples).
 
     Example::
 
@@ -200,6 +226,93 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         res = fit(model, est, p0={"K_T": 3e-5})
         print(res.summary()); res.parameters["K_T"]     # {"value": ..., "std": ...}
     """
+    kw = dict(free=free, fixed=fixed, p0=p0, interval=interval, noise=noise, max_iter=max_iter, tol=tol,
+              reweight=reweight, compile=compile, progress=progress, initial_states=initial_states,
+              solver=solver, per_flight=per_flight, init_window=init_window)
+    if not (isinstance(process_noise, str) and process_noise == IF_NEEDED):
+        return _fit_formulation(model, logs, process_noise=process_noise, **kw)
+    say = progress_printer() if progress is True else (progress or (lambda _m: None))
+    t_start = time.perf_counter()
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", ConvergenceWarning)     # judged here
+        oe = _fit_formulation(model, logs, process_noise=None, **kw)
+    if oe.converged and oe.certificate is not None and oe.certificate.adequate:
+        return oe
+    why = (f"its end point is not certified ({oe.status})" if not oe.converged else
+           "its residuals stay far above the sensor noise (" +
+           ", ".join(f"{ch} {oe.certificate.residual_over_noise[ch]:.3g}x" for ch in oe.certificate.off_channels()) + ")")
+    say(f"fit: the output-error fit cannot follow the data: {why}; solving again with process noise")
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", ConvergenceWarning)
+        soft = _fit_formulation(model, logs, process_noise="auto", **kw)
+    if soft.converged:
+        changed = _moved_parameters(oe, soft)
+        soft.warnings.insert(0, "fitted with process noise (soft continuity): the output-error fit could not "
+                                f"follow the data, {why}" + (f"; it had {changed}" if changed else "") +
+                             ". Noise on the logged inputs (quantised or jittered rotor speeds) or a force the "
+                             "model lacks make an open-loop unstable body drift away; with process noise the "
+                             "states may follow the data at a cost, and the residual check below says whether "
+                             "the model explains them over each interval")
+        soft.timings["total"] = time.perf_counter() - t_start
+        return soft
+    oe.warnings.append(f"a fit with process noise did not reach a certified optimum either ({soft.status})")
+    if not oe.converged:
+        _warnings.warn(f"fit did not converge: {oe.status}", ConvergenceWarning, stacklevel=2)
+    return oe
+
+
+def process_noise_scale(gaps: np.ndarray) -> np.ndarray:
+    """Per state (column), the process-noise std that the shooting gaps ``gaps`` (intervals x
+    states, in time order) of one flight call for: the RMS of their differences from one
+    interval to the next over sqrt(2), which is the std of white gaps.
+
+    Process noise is random and zero-mean; what a gap shares with its neighbours is a model
+    error that a parameter should take (a thrust coefficient 30 % low leaves every vertical
+    gap the same), or a force the model lacks. The gaps' RMS counted that as noise: started
+    40 % off, a 30 g vehicle's soft fit made ``q`` of its vertical velocity as large as the
+    thrust error it left, and stopped with K_T 29 % low and those gaps paid for; with the
+    differences' scale it gets K_T to 0.01 % from that start, as from the truth."""
+    if gaps.shape[0] < 3:
+        return np.sqrt(np.mean(gaps ** 2, axis=0))
+    return np.sqrt(0.5 * np.mean(np.diff(gaps, axis=0) ** 2, axis=0))
+
+
+def _systematic_gaps(model: QuadrotorModel, ses: FitSession, X: np.ndarray, th: np.ndarray,
+                     sensor: np.ndarray) -> dict[str, float]:
+    """Per state whose gaps are visible (RMS at least :data:`GAP_VISIBLE` of its noise scale
+    on some flight), the largest over the flights of RMS gap / :func:`process_noise_scale`."""
+    gaps = ses.gaps(X, ses.evaluate(X, th, blocks=False)[0])
+    scale = ses.state_noise_scale(sensor, X)
+    out: dict[str, float] = {}
+    for sl in ses.interval_slices:
+        g = gaps[sl]
+        if g.shape[0] < 3:
+            continue
+        rms, white = np.sqrt(np.mean(g ** 2, axis=0)), process_noise_scale(g)
+        for j, n in enumerate(model.state_names):
+            if rms[j] >= GAP_VISIBLE * scale[j] and white[j] > 0:
+                out[n] = max(out.get(n, 0.0), float(rms[j] / white[j]))
+    return out
+
+
+def _moved_parameters(oe: FitResult, soft: FitResult) -> str:
+    """The output-error estimates that differ from the soft-continuity ones by more than 3 of
+    the latter's std, in words (empty when none does)."""
+    out = []
+    for i, n in enumerate(soft.free_names):
+        if n not in oe.free_names:
+            continue
+        a, b, sb = oe.value(n), soft.value(n), float(soft.std[i])
+        if np.isfinite(sb) and abs(a - b) > 3 * sb and abs(a - b) > 1e-3 * max(abs(a), abs(b)):
+            out.append(f"{n} = {a:.4g} where process noise gives {b:.4g} ± {sb:.2g}")
+    return ", ".join(out)
+
+
+def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free, fixed, p0,
+                     interval, noise, max_iter, tol, reweight, compile, progress, initial_states,
+                     process_noise, solver, per_flight, init_window) -> FitResult:
+    """:func:`fit` in one formulation: output error (``process_noise=None``) or soft
+    continuity (``"auto"`` or ``{state: std}``)."""
     t_start = time.perf_counter()
     say = progress_printer() if progress is True else (progress or (lambda _m: None))
     given = logs
@@ -218,7 +331,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     soft = process_noise is not None
     if soft:   # checked before anything is built
         if isinstance(process_noise, str) and process_noise != "auto":
-            raise GreyboxInputError(f"process_noise must be None, 'auto' or {{state: std}}, got {process_noise!r}")
+            raise GreyboxInputError(f"process_noise must be {IF_NEEDED!r}, None, 'auto' or {{state: std}}, "
+                                    f"got {process_noise!r}")
         q_given = {} if isinstance(process_noise, str) else dict(process_noise)
         for k, v in q_given.items():
             if k not in model.state_names:
@@ -261,7 +375,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
 
     t0 = time.perf_counter()
     if soft:
-        def estimate_q(X_, th_) -> np.ndarray:
+        def estimate_q(X_, th_, first: bool = False) -> np.ndarray:
             xe = ses.evaluate(X_, th_, blocks=False)[0]
             gaps = ses.gaps(X_, xe)
             floor = 1e-6 * (np.abs(X_).max(axis=0) + 1e-3)
@@ -269,7 +383,15 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             # (a weak rotor among healthy ones) has gaps 10^4 times the others'; a common q
             # would let every flight's states drift that much, and the shared parameters
             # went 26 % off.
-            rms = np.vstack([np.sqrt(np.mean(gaps[sl] ** 2, axis=0)) for sl in ses.interval_slices])
+            # At the start, the gaps' RMS: a process noise that lets the states follow the data
+            # while the parameters are still far off (robust: the solve converges). After a
+            # solve, their random part (process_noise_scale), at most a tenfold step down per
+            # round: what consecutive gaps share is then a model error that the parameters
+            # should take, and a lower q makes them take it.
+            if first:
+                rms = np.vstack([np.sqrt(np.mean(gaps[sl] ** 2, axis=0)) for sl in ses.interval_slices])
+            else:
+                rms = np.vstack([process_noise_scale(gaps[sl]) for sl in ses.interval_slices])
             q = np.maximum(rms, floor)
             for name, v in q_given.items():
                 q[:, model.state_names.index(name)] = np.broadcast_to(np.asarray(v, dtype=float), len(logs))
@@ -277,11 +399,11 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             if ses.q is not None:
                 # only downwards: grown process noise would let the states follow measurement
                 # noise, and the gaps grow with it (the degenerate end of joint Q estimation)
-                q = np.minimum(q, ses.q)
+                q = np.clip(q, 0.1 * ses.q, ses.q)
             return q
 
-        ses.q = estimate_q(X, th)
-        say("fit: process noise (RMS gap per state): " + _q_text(model, ses))
+        ses.q = estimate_q(X, th, first=True)
+        say("fit: process noise (gap scale per state): " + _q_text(model, ses))
     sensor = sensor_noise(logs)
     n_res = int(data.mask.sum())
     dof = max(n_res - ses.nth - ses.nx * len(logs), 1)
@@ -305,16 +427,24 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         polished = not (reweight and not soft)
         X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-3, max_iter, tol, rough=not polished)
         total_iters = iters
-        for _ in range(3 if soft and process_noise == "auto" else 0):
+        for _ in range(Q_ROUNDS if soft and process_noise == "auto" else 0):
             if not converged:
                 break
             q_new = estimate_q(X, th)
             if np.all(np.abs(q_new / ses.q - 1) < 0.2):
                 break
+            kept = (X, th, mu, converged, status, blocks, ses.q)
             ses.q = q_new
             say("fit: process noise re-estimated: " + _q_text(model, ses))
             X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
             total_iters += iters
+            if not converged:
+                # a process noise this low lets the solve no longer converge (a model that
+                # misses a torque for good, with gaps alike from one interval to the next):
+                # the last certified one is where it stops
+                say(f"fit: with that process noise the solve stopped ({status}); keeping the last one")
+                X, th, mu, converged, status, blocks, ses.q = kept
+                break
         for _ in range(3 if reweight and not soft else 0):
             if not converged:
                 break
@@ -419,8 +549,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
     if not converged:
         warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
-        import warnings as _w
-        _w.warn(f"fit did not converge: {status}", ConvergenceWarning, stacklevel=2)
+        _warnings.warn(f"fit did not converge: {status}", ConvergenceWarning, stacklevel=3)
 
     cc = cch.sum(axis=1)
     resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
@@ -454,7 +583,13 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         converged, step_std, state_step, gap, held,
         {n: float(check_rms[n] / sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
         {n: float(np.nanmean(v)) if np.any(np.isfinite(v)) else float("nan") for n, v in white.items()},
-        {n: float(sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, reasons)
+        {n: float(sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, reasons,
+        _systematic_gaps(model, ses, X, th, sensor) if soft else {})
+    if init_window is None and soft:
+        init_window = choose_init_window(model, [flight_vector(f) for f in range(n_flights)], logs,
+                                         compile=compile)
+        say(f"fit: predictions start from {init_window:g} s of measurements (the best of "
+            f"{', '.join(f'{w:g}' for w in INIT_WINDOWS)} s on the estimation data)")
     timings = {"build": ses.t_build, "solve": t_solve, "total": time.perf_counter() - t_start}
     say(f"fit: {status} after {total_iters} iterations in {timings['total']:.2f} s")
     return FitResult(model, p_out, free_names, std, cov, corr, converged, status, total_iters, cost,
@@ -467,9 +602,11 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
                      provenance(logs, status=status, converged=bool(converged), interval=interval,
                                 process_noise=process_noise if isinstance(process_noise, str) else
                                 (dict(process_noise) if process_noise else None),
-                                **({"per_flight": per_flight_out} if per_flight_out else {})),
+                                **({"per_flight": per_flight_out} if per_flight_out else {}),
+                                **({"init_window": init_window} if init_window is not None else {})),
                      per_flight_out,
-                     per_flight if per_flight is None or isinstance(per_flight, str) else list(per_flight))
+                     per_flight if per_flight is None or isinstance(per_flight, str) else list(per_flight),
+                     init_window)
 
 
 def _flight_q(ses: FitSession) -> np.ndarray:

@@ -5,7 +5,7 @@ import math
 from dataclasses import dataclass, field
 
 __all__ = ["Certificate", "STEP_TOLERANCE", "GAP_TOLERANCE", "DECREASE_TOLERANCE", "NOISE_RATIO_ADEQUATE",
-           "NOISE_RATIO_COLOURED", "WHITENESS_ADEQUATE"]
+           "NOISE_RATIO_COLOURED", "WHITENESS_ADEQUATE", "GAP_VISIBLE"]
 
 STEP_TOLERANCE = 0.1
 """A fit is at its optimum when one more undamped Gauss-Newton step would move no free
@@ -29,6 +29,10 @@ logs a tiny systematic error is already far outside the whiteness band; it is no
 failure of the model."""
 WHITENESS_ADEQUATE = 0.2
 """Fraction of autocorrelation lags outside the 99 % band up to which residuals count as white."""
+GAP_VISIBLE = 1.0
+"""With process noise, a state's shooting gaps are judged only where their RMS reaches this
+multiple of the state's noise scale (what its measurements could just see over an interval):
+an exact model's gaps shrink towards zero, and their pattern then means nothing."""
 
 
 @dataclass
@@ -50,11 +54,23 @@ class Certificate:
     whiteness: dict[str, float]          # per channel: fraction of lags outside the 99 % band
     sensor_noise: dict[str, float]       # per channel: noise estimated from the measurements
     reasons: list[str] = field(default_factory=list)   # why not optimal, in words
+    systematic_gaps: dict[str, float] = field(default_factory=dict)
+    """With process noise: per state whose gaps are visible (:data:`GAP_VISIBLE`), their RMS
+    over their random part (the scale of their interval-to-interval differences,
+    :func:`~greybox.fitting.api.process_noise_scale`); about 1 for random forcing, large when
+    consecutive gaps share a force or torque the model lacks."""
 
     @property
     def adequate(self) -> bool:
-        """No channel's residuals are far above the noise, or coloured and above it."""
-        return not self.off_channels()
+        """No channel's residuals are far above the noise, or coloured and above it, and no
+        state's shooting gaps (with process noise) are mostly systematic."""
+        return not self.off_channels() and not self.off_states()
+
+    def off_states(self) -> list[str]:
+        """States whose shooting gaps (with process noise) are more than
+        :data:`NOISE_RATIO_ADEQUATE` times their random part: what the states were let do
+        between the nodes is a model error acting over many intervals, not noise."""
+        return [n for n, r in self.systematic_gaps.items() if r > NOISE_RATIO_ADEQUATE]
 
     def off_channels(self) -> list[str]:
         """Channels whose residuals are far above the noise level, or coloured with a
@@ -80,6 +96,11 @@ class Certificate:
                     ": the model does not explain these channels")
         else:
             tail = "residuals at the sensor noise"
+        states = self.off_states()
+        if states:
+            tail += ("; the shooting gaps of " + ", ".join(f"{n} ({self.systematic_gaps[n]:.3g}x their random part)"
+                                                         for n in states) +
+                     " are mostly systematic: a force or torque the model lacks acts there over many intervals")
         return f"{head}. {tail}."
 
     def as_dict(self) -> dict:
@@ -89,6 +110,7 @@ class Certificate:
                 "residual_over_noise": {k: _finite(v) for k, v in self.residual_over_noise.items()},
                 "whiteness": {k: _finite(v) for k, v in self.whiteness.items()},
                 "sensor_noise": {k: _finite(v) for k, v in self.sensor_noise.items()},
+                "systematic_gaps": {k: _finite(v) for k, v in self.systematic_gaps.items()},
                 "reasons": list(self.reasons), "text": self.text()}
 
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..data import FlightLog
 from ..model import QuadrotorModel
-from .api import fit
+from .api import IF_NEEDED, fit
 from .gauss_newton import Solver
 
 __all__ = ["GreyBoxEstimator"]
@@ -37,7 +37,7 @@ class GreyBoxEstimator:
                  fixed: Iterable[str] | None = None, p0: np.ndarray | Mapping[str, float] | None = None,
                  interval: int | None = None, noise: Mapping[str, float] | None = None,
                  max_iter: int = 60, tol: float = 1e-7, reweight: bool = True, compile: str = "auto",
-                 process_noise: str | Mapping[str, float] | None = None, solver: Solver | None = None,
+                 process_noise: str | Mapping[str, float] | None = IF_NEEDED, solver: Solver | None = None,
                  progress: bool | Callable[[str], None] = False, horizon: float = 1.0):
         # scikit-learn's rule: store the arguments as given, validate in fit
         self.model = model

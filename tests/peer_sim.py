@@ -1,0 +1,583 @@
+"""A second quadrotor simulator, independent of greybox and of ``foreign_sim.py``.
+
+``foreign_sim.py`` was the project's first simulator of its own beside greybox's synth; a
+fit or a diagnosis tuned against it could still pass by luck of one generator's choices.
+This one shares none of them: attitude as a unit quaternion, a fixed-step classical RK4
+integrator (not ``solve_ivp``), a geometric SE(3) tracking controller (Lee, Leok and
+McClamroch 2010) with integral action and a deliberately mismatched internal model (not a
+cascaded PID), explicit rotor tables in the Crazyflie firmware's order, an IMU-rate log with
+vision at 60 Hz that loses samples and whole stretches, timestamps with jitter, quantised
+ESC speed telemetry, and its own forms of the effects:
+
+* rotor drag at every hub on the hub's own air velocity ``R^T (v - wind) + omega x r_i``
+  (so it also damps the body rates), ``F_i = -k_rd w_i P (...)`` with ``P = diag(1, 1, 0)``;
+* Cheeseman-Bennett ground effect per rotor, ``T_IGE/T = 1/(1 - (rho/(4 h_i))^2)``, ``h_i`` the
+  hub's height above the floor, capped at the 1.33 of ``h_i = rho/2``;
+* per-rotor gains on thrust and reaction torque (a damaged propeller), a CoG offset, a
+  constant wind, body drag in the **body** frame;
+* effects the greybox catalogue does not hold: aerodynamic rate damping ``-D omega``,
+  blade-flapping moments ``k_f (e3 x v_b)``, thrust that falls with the inflow
+  ``T (1 - k_in v_z,b ...)`` (axial climb), a gyro bias, and turbulence (a random torque).
+
+Only the contract (frames, rotor conventions, the log's columns, the airframe schema) is
+shared with greybox. The log and the airframe are written by this module's own code, and
+greybox reads them as a user's files (``greybox.load_log``), so the whole path a user takes
+is exercised. Nothing here imports greybox.
+
+Physics, SI units, world NED (z down, gravity ``+g e3``), body FRD, the body origin at the
+centre of gravity:
+
+* ``m dv/dt = m g e3 + R F_b + F_w``, ``F_b = sum_i (-T_i e3 + F_i) + F_body``;
+* ``J domega/dt = M - omega x (J omega + h)``, ``h = -J_r sum(spin_i w_i) e3`` (the rotors turn
+  opposite to their reaction torque ``spin_i b w_i^2`` about ``+z``);
+* ``dq/dt = q (x) [0, omega] / 2``, ``q`` body to world, scalar first;
+* motors ``dw_i/dt = (w_cmd,i - w_i) / tau_m``, the command held between controller updates.
+
+Use::
+
+    from peer_sim import PeerVehicle, fly, write_case
+    flight = fly(PeerVehicle.crazyflie(), duration=20, seed=1)
+    flight.columns, flight.truth
+    write_case(flight, "DIR")          # DIR/flight.csv, DIR/airframe.toml, DIR/truth.json
+
+``python tests/peer_sim.py --vehicle one_kg --effects ground_effect --out DIR``.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+__all__ = ["PeerVehicle", "PeerEffects", "PeerSensors", "PeerFlight", "fly", "write_case",
+           "airframe_text", "quat_to_rot", "rot_to_euler"]
+
+E3 = np.array([0.0, 0.0, 1.0])
+
+
+# ============================================================================ vehicle
+@dataclass
+class PeerVehicle:
+    """The true vehicle. Rotors in the Crazyflie firmware's order (front-right, back-right,
+    back-left, front-left) with spins (-1, +1, -1, +1) ... as the airframe's [[rotor]] tables
+    give them; ``arm`` is the hub's distance from the centre."""
+
+    name: str
+    mass: float
+    inertia: tuple[float, float, float]
+    arm: float
+    K_T: float
+    b: float
+    tau_motor: float
+    rotor_radius: float
+    rotor_inertia: float = 0.0
+    hub_height: float = 0.0           # hubs this far above the CoG (body -z), m
+    spins: tuple[int, int, int, int] = (-1, 1, -1, 1)
+    gravity: float = 9.81
+    # flight envelope and flight plan scale
+    distance: float = 1.0             # m, step size
+    speed: float = 2.0                # m/s, figure-eight top speed
+    low_hover: float = 0.085          # m, hub height above the floor in the low hovers
+    cruise_height: float = 1.0        # m
+    # sensors
+    log_rate: float = 1000.0
+    pos_rate: float = 60.0
+    pos_noise: float = 0.001
+    att_noise: float = 0.002
+    gyro_noise: float = 0.005
+    speed_quantum: float = 0.0        # rad/s, resolution of the ESC speed telemetry
+    ctrl_rate: float = 500.0
+    attitude_bandwidth: float = 25.0  # rad/s, the controller's attitude loop
+    position_bandwidth: float = 2.5   # rad/s
+
+    @property
+    def J(self) -> np.ndarray:
+        return np.diag(self.inertia)
+
+    def rotor_positions(self) -> np.ndarray:
+        a = self.arm / math.sqrt(2.0)
+        return np.array([[a, a, 0.0], [-a, a, 0.0], [-a, -a, 0.0], [a, -a, 0.0]])
+
+    @property
+    def w_hover(self) -> float:
+        return math.sqrt(self.mass * self.gravity / (4 * self.K_T))
+
+    @classmethod
+    def crazyflie(cls, **kw: Any) -> "PeerVehicle":
+        """A 30 g vehicle of the Crazyflie's scale: K_T 2.3e-8, about 1800 rad/s in hover."""
+        base = dict(name="peer_cf", mass=0.031, inertia=(1.40e-5, 1.45e-5, 2.25e-5), arm=0.046,
+                    K_T=2.3e-8, b=1.6e-10, tau_motor=0.02, rotor_radius=0.023,
+                    rotor_inertia=1.0e-9, hub_height=0.012, distance=0.5, speed=1.2,
+                    low_hover=0.035, cruise_height=0.6, log_rate=500.0, pos_rate=100.0,
+                    pos_noise=0.001, att_noise=0.002, gyro_noise=0.01, attitude_bandwidth=30.0,
+                    position_bandwidth=2.5, ctrl_rate=500.0)
+        base.update(kw)
+        return cls(**base)
+
+    @classmethod
+    def one_kg(cls, **kw: Any) -> "PeerVehicle":
+        """A 1.2 kg vehicle with 9.5-inch propellers (rotor radius 12 cm)."""
+        base = dict(name="peer_1kg", mass=1.2, inertia=(0.011, 0.012, 0.021), arm=0.225,
+                    K_T=1.1e-5, b=1.7e-7, tau_motor=0.035, rotor_radius=0.12,
+                    rotor_inertia=4.0e-5, hub_height=0.03, distance=1.0, speed=2.0,
+                    low_hover=0.085, cruise_height=1.0, log_rate=1000.0, pos_rate=60.0,
+                    pos_noise=0.001, att_noise=0.003, gyro_noise=0.005, speed_quantum=1.0,
+                    attitude_bandwidth=20.0, position_bandwidth=2.0, ctrl_rate=500.0)
+        base.update(kw)
+        return cls(**base)
+
+    @classmethod
+    def three_kg(cls, **kw: Any) -> "PeerVehicle":
+        """A 3 kg vehicle, 15-inch propellers, a slower attitude loop, a 400 Hz log."""
+        base = dict(name="peer_3kg", mass=3.0, inertia=(0.05, 0.055, 0.09), arm=0.35,
+                    K_T=5.5e-5, b=1.2e-6, tau_motor=0.06, rotor_radius=0.19,
+                    rotor_inertia=3.0e-4, hub_height=0.05, distance=1.5, speed=2.5,
+                    low_hover=0.14, cruise_height=1.5, log_rate=400.0, pos_rate=50.0,
+                    pos_noise=0.002, att_noise=0.003, gyro_noise=0.004, speed_quantum=2.0,
+                    attitude_bandwidth=12.0, position_bandwidth=1.5, ctrl_rate=400.0)
+        base.update(kw)
+        return cls(**base)
+
+
+@dataclass
+class PeerEffects:
+    """The physics beyond the rigid body, thrust and reaction torque; all off by default."""
+
+    body_drag: Sequence[float] | None = None     # [Dx, Dy, Dz] N s/m, body frame, at the CoG
+    rotor_drag: float = 0.0                      # k_rd: per-hub drag -k w_i P v_hub
+    ground_effect: bool = False                  # Cheeseman-Bennett per rotor
+    motor_gains: Sequence[float] | None = None   # per-rotor thrust and torque scale
+    cog_offset: Sequence[float] | None = None    # CoG [dx, dy] from the rotor-plane centre, m
+    wind: Sequence[float] | None = None          # world NED, m/s
+    # outside greybox's catalogue
+    rate_damping: Sequence[float] | None = None  # [Dp, Dq, Dr] N m s: M = -D omega
+    flapping: float = 0.0                        # k_f N m s/m: M = k_f (e3 x v_b)
+    inflow: float = 0.0                          # T_i (1 + k_in v_z,b), 1/(m/s)
+    gyro_bias: Sequence[float] | None = None     # rad/s, added to the logged p, q, r
+    turbulence: float = 0.0                      # N m, RMS of a random torque (1-s correlation)
+
+    def active(self) -> dict[str, Any]:
+        out = {}
+        for k, v in asdict(self).items():
+            if v is None or v is False or (not isinstance(v, (list, tuple)) and v == 0):
+                continue
+            out[k] = list(v) if isinstance(v, (list, tuple)) else v
+        return out
+
+
+# ============================================================================ rotations
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.array([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw])
+
+
+def quat_to_rot(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix (body to world) of the unit quaternion ``q = [w, x, y, z]``."""
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def quat_from_yaw(psi: float) -> np.ndarray:
+    return np.array([math.cos(psi / 2), 0.0, 0.0, math.sin(psi / 2)])
+
+
+def rot_to_euler(R: np.ndarray) -> tuple[float, float, float]:
+    """ZYX Euler angles (phi, theta, psi) of R = Rz(psi) Ry(theta) Rx(phi)."""
+    return (math.atan2(R[2, 1], R[2, 2]), -math.asin(max(-1.0, min(1.0, R[2, 0]))),
+            math.atan2(R[1, 0], R[0, 0]))
+
+
+def vee(S: np.ndarray) -> np.ndarray:
+    return np.array([S[2, 1], S[0, 2], S[1, 0]])
+
+
+# ============================================================================ dynamics
+class PeerDynamics:
+    """State ``s = [p(3), v(3), q(4), omega(3), w(4)]`` (17)."""
+
+    def __init__(self, veh: PeerVehicle, fx: PeerEffects, rng: np.random.Generator):
+        self.veh, self.fx = veh, fx
+        cog = np.zeros(3)
+        if fx.cog_offset is not None:
+            cog[:len(fx.cog_offset)] = fx.cog_offset
+        self.hubs = veh.rotor_positions() + np.array([0.0, 0.0, -veh.hub_height]) - cog
+        self.spin = np.asarray(veh.spins, float)
+        self.gain = np.ones(4) if fx.motor_gains is None else np.asarray(fx.motor_gains, float)
+        self.J, self.Jinv = veh.J, np.linalg.inv(veh.J)
+        self.wind = np.zeros(3) if fx.wind is None else np.asarray(
+            list(fx.wind) + [0.0] * (3 - len(fx.wind)), float)
+        self.body_drag = None if fx.body_drag is None else np.asarray(fx.body_drag, float)
+        self.rate_damping = None if fx.rate_damping is None else np.asarray(fx.rate_damping, float)
+        self.ge = (veh.rotor_radius / 4.0) ** 2
+        self.disturbance = np.zeros(3)          # turbulence torque, updated by the simulator
+
+    def loads(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World acceleration of the CoG and the body moment (without the gyroscopic terms)."""
+        veh, fx = self.veh, self.fx
+        p, v, q, om, w = s[0:3], s[3:6], s[6:10], s[10:13], s[13:17]
+        R = quat_to_rot(q)
+        w2 = w * w
+        T = veh.K_T * self.gain * w2
+        vb = R.T @ (v - self.wind)
+        if fx.inflow:
+            T = T * (1.0 + fx.inflow * vb[2])
+        if fx.ground_effect:
+            h = -(p[2] + R[2] @ self.hubs.T)           # floor at world z = 0
+            ratio = np.minimum(self.ge / np.maximum(h, 1e-6) ** 2, 0.25)
+            T = T / (1.0 - ratio)
+        F = np.array([0.0, 0.0, -T.sum()])
+        M = np.array([-(self.hubs[:, 1] @ T), self.hubs[:, 0] @ T,
+                      veh.b * (self.spin * self.gain) @ w2])
+        if fx.rotor_drag:
+            v_hub = vb + np.cross(om, self.hubs)       # (4, 3)
+            Fi = -fx.rotor_drag * w[:, None] * v_hub
+            Fi[:, 2] = 0.0
+            F = F + Fi.sum(axis=0)
+            M = M + np.cross(self.hubs, Fi).sum(axis=0)
+        if self.body_drag is not None:
+            F = F - self.body_drag * vb
+        if self.rate_damping is not None:
+            M = M - self.rate_damping * om
+        if fx.flapping:
+            M = M + fx.flapping * np.array([-vb[1], vb[0], 0.0])
+        M = M + self.disturbance
+        acc = veh.gravity * E3 + R @ F / veh.mass
+        return acc, M
+
+    def rhs(self, s: np.ndarray, w_cmd: np.ndarray) -> np.ndarray:
+        v, q, om, w = s[3:6], s[6:10], s[10:13], s[13:17]
+        acc, M = self.loads(s)
+        h = np.array([0.0, 0.0, -self.veh.rotor_inertia * (self.spin @ w)])
+        omdot = self.Jinv @ (M - np.cross(om, self.J @ om + h))
+        qdot = 0.5 * quat_mul(q, np.array([0.0, om[0], om[1], om[2]]))
+        wdot = (w_cmd - w) / self.veh.tau_motor
+        return np.concatenate([v, acc, qdot, omdot, wdot])
+
+    def rk4(self, s: np.ndarray, w_cmd: np.ndarray, dt: float) -> np.ndarray:
+        k1 = self.rhs(s, w_cmd)
+        k2 = self.rhs(s + 0.5 * dt * k1, w_cmd)
+        k3 = self.rhs(s + 0.5 * dt * k2, w_cmd)
+        k4 = self.rhs(s + dt * k3, w_cmd)
+        out = s + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        out[6:10] /= np.linalg.norm(out[6:10])
+        return out
+
+
+# ============================================================================ reference
+def _quintic(u: np.ndarray) -> np.ndarray:
+    u = np.clip(u, 0.0, 1.0)
+    return u ** 3 * (10 - 15 * u + 6 * u * u)
+
+
+class FlightPlan:
+    """Position and yaw references: minimum-jerk moves between waypoints, plus figure
+    eights whose amplitude fades in and out smoothly. Derivatives by central differences of
+    the smooth reference (it has continuous second derivatives)."""
+
+    def __init__(self, veh: PeerVehicle, duration: float, rng: np.random.Generator,
+                 low_hovers: bool):
+        d, H = veh.distance, veh.cruise_height
+        low_z = -(veh.low_hover + veh.hub_height)          # CoG z of a low hover
+        sx, sy = rng.choice([-1.0, 1.0], size=2)
+        # (duration of the move, target x, y, z, psi), each followed by a hold
+        legs: list[tuple[float, float, float, float, float, float]] = []
+        legs.append((1.0, 0, 0, -H, 0.0, 0.5))
+        if low_hovers:                       # the first low hover
+            legs += [(2.0, 0, 0, low_z, 0.0, 1.5), (1.5, 0, 0, -H, 0.0, 0.3)]
+        # a figure eight (its amplitude fades in and out), flown about the current waypoint
+        period = 2 * math.pi * d / veh.speed * 1.2
+        length = max(2 * period, 6.0)
+        t = sum(m + h for m, *_, h in legs)
+        self.eight = [(t, length, d, period)]    # (start, length, amplitude, period)
+        legs.append((length, 0, 0, -H, 0.0, 0.3))
+        legs += [(1.4, sx * d, 0, -H, 0.0, 0.3), (1.4, sx * d, sy * d, -H * 1.2, 0.0, 0.3),
+                 (1.6, 0, 0, -H, 1.2 * sx, 0.5), (1.4, -sx * d, -sy * d * 0.5, -H * 0.8, 0.4 * sx, 0.3)]
+        if low_hovers and duration > 30:     # the second low hover, off centre and yawed
+            legs += [(2.0, 0.3 * d * sx, 0, low_z, 0.6 * sy, 1.5), (1.5, 0, 0, -H, 0.0, 0.3)]
+        # fill the rest with random steps and yaw turns
+        while sum(m + h for m, *_, h in legs) < duration + 2:
+            x, y = rng.uniform(-d, d, size=2)
+            legs.append((1.6, x, y, -H * rng.uniform(0.8, 1.3), rng.uniform(-1.5, 1.5), 0.4))
+        self.knots = []
+        t0, prev = 0.0, np.array([0.0, 0.0, -H, 0.0])
+        for move, x, y, z, psi, hold in legs:
+            target = np.array([x, y, z, psi], float)
+            self.knots.append((t0, move, prev, target))
+            t0 += move + hold
+            prev = target
+        self.start = np.array([0.0, 0.0, -H, 0.0])
+
+    def pose(self, t: float) -> np.ndarray:
+        out = self.start.copy()
+        for t0, move, a, b in self.knots:
+            if t < t0:
+                break
+            out = a + (b - a) * float(_quintic(np.array((t - t0) / move)))
+        for t0, length, amp, period in self.eight:
+            if t0 <= t <= t0 + length:
+                env = float(_quintic(np.array((t - t0) / 1.5)) * _quintic(np.array((t0 + length - t) / 1.5)))
+                om = 2 * math.pi / period
+                out = out + env * np.array([amp * math.sin(om * (t - t0)),
+                                            0.5 * amp * math.sin(2 * om * (t - t0)), 0.0, 0.0])
+        return out
+
+    def reference(self, t: float, eps: float = 2e-3) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        a, b, c = self.pose(t - eps), self.pose(t), self.pose(t + eps)
+        vel = (c - a) / (2 * eps)
+        acc = (c - 2 * b + a) / eps ** 2
+        return b[:3], vel[:3], acc[:3], float(b[3])
+
+
+# ============================================================================ controller
+class GeometricController:
+    """Lee-Leok-McClamroch tracking on SE(3), NED: ``-f R e3 = m (a_d - g e3) - k_x e_x -
+    k_v e_v - k_i int e_x``; attitude ``M = -k_R e_R - k_W omega + omega x J omega``. Its
+    internal model (mass, inertia, K_T, b) is off by a few per cent: a controller knows its
+    vehicle only roughly, and the integral trims the rest."""
+
+    def __init__(self, veh: PeerVehicle, rng: np.random.Generator):
+        self.veh = veh
+        off = lambda s: 1.0 + rng.uniform(-s, s)          # noqa: E731
+        self.m = veh.mass * off(0.05)
+        self.J = veh.J * off(0.15)
+        self.K_T = veh.K_T * off(0.08)
+        self.b = veh.b * off(0.2)
+        wa, wp = veh.attitude_bandwidth, veh.position_bandwidth
+        band = np.array([wa, wa, wa / 3])            # yaw: a third of the bandwidth
+        self.kR = np.diag(self.J) * band ** 2
+        self.kW = np.diag(self.J) * 2 * 0.8 * band
+        self.kx = self.m * wp ** 2
+        self.kv = self.m * 2 * 0.9 * wp
+        self.ki = self.m * 0.3 * wp ** 3
+        self.ix = np.zeros(3)
+        P = veh.rotor_positions()
+        spin = np.asarray(veh.spins, float)
+        # [f, Mx, My, Mz] = A T  with T_i the rotor thrusts
+        self.A = np.vstack([np.ones(4), -P[:, 1], P[:, 0], spin * self.b / self.K_T])
+        self.Ainv = np.linalg.inv(self.A)
+        w_h = math.sqrt(self.m * veh.gravity / (4 * self.K_T))
+        self.T_min = self.K_T * (0.2 * w_h) ** 2
+        self.T_max = self.K_T * (1.8 * w_h) ** 2
+
+    def __call__(self, p, v, R, om, ref, dt: float) -> np.ndarray:
+        pd, vd, ad, psid = ref
+        ex, ev = p - pd, v - vd
+        self.ix = np.clip(self.ix + ex * dt, -0.5, 0.5)
+        A = -self.kx * ex - self.kv * ev - self.ki * self.ix + self.m * (ad - self.veh.gravity * E3)
+        b3d = -A / np.linalg.norm(A)
+        f = float(-A @ R[:, 2])
+        b1c = np.array([math.cos(psid), math.sin(psid), 0.0])
+        b2d = np.cross(b3d, b1c)
+        b2d /= np.linalg.norm(b2d)
+        Rd = np.column_stack([np.cross(b2d, b3d), b2d, b3d])
+        eR = 0.5 * vee(Rd.T @ R - R.T @ Rd)
+        M = -self.kR * eR - self.kW * om + np.cross(om, self.J @ om)
+        # yaw has the lowest priority: its moment is scaled down until no rotor saturates
+        T0 = self.Ainv @ np.array([f, M[0], M[1], 0.0])
+        Ty = self.Ainv[:, 3] * M[2]
+        k = 1.0
+        for t0, ty in zip(T0, Ty):
+            if ty > 0 and t0 + ty > self.T_max:
+                k = min(k, max((self.T_max - t0) / ty, 0.0))
+            elif ty < 0 and t0 + ty < self.T_min:
+                k = min(k, max((self.T_min - t0) / ty, 0.0))
+        T = np.clip(T0 + k * Ty, self.T_min, self.T_max)
+        return np.sqrt(T / self.K_T)
+
+
+# ============================================================================ flight
+@dataclass
+class PeerSensors:
+    pos_dropout: float = 0.05            # probability a vision sample is lost
+    pos_gaps: Sequence[tuple[float, float]] = ((0.45, 0.4),)   # (start as a fraction of the flight, length s): vision lost
+    time_jitter: float = 0.1             # of a sample period, uniform
+    accel: bool = False
+    accel_noise: float = 0.05
+
+
+@dataclass
+class PeerFlight:
+    columns: dict[str, np.ndarray]       # the log, column by column (NaN: not measured)
+    truth: dict[str, Any]
+    states: np.ndarray = field(repr=False, default=None)   # true states at the log's rows
+
+
+def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
+        effects: PeerEffects | None = None, sensors: PeerSensors | None = None,
+        low_hovers: bool = True) -> PeerFlight:
+    """Fly ``vehicle`` along its flight plan under the geometric controller and log it."""
+    veh, fx = vehicle, effects or PeerEffects()
+    sens = sensors or PeerSensors()
+    rng = np.random.default_rng(seed)
+    dyn = PeerDynamics(veh, fx, rng)
+    ctrl = GeometricController(veh, rng)
+    plan = FlightPlan(veh, duration, rng, low_hovers)
+    # integration step: the log's period split so that steps stay below 1 ms
+    log_dt = 1.0 / veh.log_rate
+    sub = max(1, math.ceil(log_dt / 1e-3))
+    dt = log_dt / sub
+    ctrl_every = max(1, round(1.0 / (veh.ctrl_rate * dt)))
+    # start in a trimmed hover at the plan's first pose
+    p0 = plan.start[:3].copy()
+    s = np.concatenate([p0, np.zeros(3), quat_from_yaw(0.0), np.zeros(3), np.full(4, veh.w_hover)])
+    warm = 2.0                                   # s flown before logging: the integral settles
+    n_warm = int(round(warm / dt))
+    n = int(round(duration / log_dt))
+    states = np.empty((n, 17))
+    w_cmd = np.full(4, veh.w_hover)
+    turb_tau = 1.0
+    for k in range(-n_warm, n * sub):
+        t = k * dt
+        if k % ctrl_every == 0:
+            R = quat_to_rot(s[6:10])
+            w_cmd = ctrl(s[0:3], s[3:6], R, s[10:13], plan.reference(max(t, 0.0)), ctrl_every * dt)
+            if fx.turbulence:
+                a = math.exp(-ctrl_every * dt / turb_tau)
+                dyn.disturbance = a * dyn.disturbance + math.sqrt(1 - a * a) * fx.turbulence * rng.standard_normal(3)
+        if k >= 0 and k % sub == 0:
+            states[k // sub] = s
+        s = dyn.rk4(s, w_cmd, dt)
+        if not np.all(np.isfinite(s)):
+            raise RuntimeError(f"peer_sim: the flight diverged at t = {t:.3f} s")
+    t_log = np.arange(n) * log_dt
+    # the log's time stamps: the sample instants with a little jitter, still increasing
+    jitter = rng.uniform(-0.5, 0.5, n) * sens.time_jitter * log_dt
+    t_stamp = t_log + jitter
+    t_stamp[0] = 0.0
+    cols: dict[str, np.ndarray] = {"t": t_stamp}
+    w = states[:, 13:17].copy()
+    if veh.speed_quantum:
+        w = np.round(w / veh.speed_quantum) * veh.speed_quantum
+    for i in range(4):
+        cols[f"w{i + 1}"] = w[:, i]
+    eul = np.array([rot_to_euler(quat_to_rot(q)) for q in states[:, 6:10]])
+    pos = states[:, 0:3] + veh.pos_noise * rng.standard_normal((n, 3))
+    # vision: every log_rate/pos_rate-th row, some lost, stretches lost
+    keep = np.zeros(n, bool)
+    step = veh.log_rate / veh.pos_rate
+    idx = np.unique(np.round(np.arange(0, n, step)).astype(int))
+    idx = idx[idx < n]
+    keep[idx] = rng.random(idx.size) >= sens.pos_dropout
+    for start, length in sens.pos_gaps:
+        t0 = start * duration
+        keep[(t_log >= t0) & (t_log < t0 + length)] = False
+    for j, name in enumerate("xyz"):
+        cols[name] = np.where(keep, pos[:, j], np.nan)
+    att = eul + veh.att_noise * rng.standard_normal((n, 3))
+    att[:, 2] = (att[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    for j, name in enumerate(("phi", "theta", "psi")):
+        cols[name] = att[:, j]
+    bias = np.zeros(3) if fx.gyro_bias is None else np.asarray(fx.gyro_bias, float)
+    gyro = states[:, 10:13] + bias + veh.gyro_noise * rng.standard_normal((n, 3))
+    for j, name in enumerate("pqr"):
+        cols[name] = gyro[:, j]
+    if sens.accel:
+        acc = np.empty((n, 3))
+        for k in range(n):
+            a, _ = dyn.loads(states[k])
+            acc[k] = quat_to_rot(states[k, 6:10]).T @ (a - veh.gravity * E3)
+        acc += sens.accel_noise * rng.standard_normal((n, 3))
+        for j, name in enumerate(("ax", "ay", "az")):
+            cols[name] = acc[:, j]
+    truth = _truth(veh, fx, sens, seed, duration, dyn, ctrl)
+    return PeerFlight(columns=cols, truth=truth, states=states)
+
+
+def _truth(veh, fx, sens, seed, duration, dyn, ctrl) -> dict[str, Any]:
+    gains = dyn.gain
+    mean_gain = float(gains.mean())
+    eq: dict[str, Any] = {"K_T": veh.K_T * mean_gain, "b": veh.b * mean_gain,
+                          "J_r": veh.rotor_inertia}
+    if fx.body_drag is not None:
+        eq["Kd"] = [float(x) for x in fx.body_drag]
+    if fx.rotor_drag:
+        eq["k_rdh"] = fx.rotor_drag
+    if fx.ground_effect:
+        eq["k_ge"] = (veh.rotor_radius / 4.0) ** 2
+    if fx.motor_gains is not None:
+        eq["K_T_dev"] = [float(g / mean_gain - 1.0) for g in gains]
+    if fx.cog_offset is not None:
+        eq["r_cog"] = [float(x) for x in fx.cog_offset][:2]
+    if fx.wind is not None:
+        eq["wind"] = [float(x) for x in fx.wind]
+    return {"simulator": "peer_sim", "vehicle": asdict(veh), "effects": fx.active(),
+            "sensors": asdict(sens), "seed": seed, "duration": duration,
+            "greybox_equivalent": eq,
+            "controller_model": {"mass": ctrl.m, "K_T": ctrl.K_T, "b": ctrl.b}}
+
+
+# ============================================================================ files
+def airframe_text(veh: PeerVehicle, *, K_T_factor: float = 1.4, b_factor: float = 0.6,
+                  Kd: float | None = None, name: str | None = None) -> str:
+    """The airframe a user would write: true mass, inertia, rotor tables (hubs in the
+    rotor plane, height unknown) and starting guesses ``K_T * K_T_factor``,
+    ``b * b_factor``, ``Kd`` (default ``0.05 * mass`` per axis)."""
+    kd = 0.05 * veh.mass if Kd is None else Kd
+    lines = ["[airframe]", f'name = "{name or veh.name}"', f"mass = {veh.mass!r}",
+             f"inertia = [{', '.join(repr(float(x)) for x in veh.inertia)}]",
+             f"arm_length = {veh.arm!r}", f"rotor_inertia = {veh.rotor_inertia!r}",
+             f"gravity = {veh.gravity!r}", ""]
+    for pos, spin in zip(veh.rotor_positions(), veh.spins):
+        lines += ["[[rotor]]", f"position = [{float(pos[0])!r}, {float(pos[1])!r}, 0.0]", f"spin = {int(spin)}", ""]
+    lines += ["[parameters]", f"K_T = {veh.K_T * K_T_factor!r}", f"b = {veh.b * b_factor!r}",
+              f"Kd = [{kd!r}, {kd!r}, {kd!r}]", ""]
+    return "\n".join(lines)
+
+
+def write_log_csv(columns: dict[str, np.ndarray], path: str | Path) -> Path:
+    """The flight log CSV of the contract, written by this module (NaN: an empty cell)."""
+    path = Path(path)
+    names = list(columns)
+    data = np.column_stack([columns[k] for k in names])
+    with open(path, "w") as f:
+        f.write(",".join(names) + "\n")
+        for row in data:
+            f.write(",".join("" if not np.isfinite(x) else repr(float(x)) for x in row) + "\n")
+    return path
+
+
+def write_case(flight: PeerFlight, directory: str | Path, name: str = "flight",
+               **airframe_kw: Any) -> dict[str, Path]:
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    veh = PeerVehicle(**flight.truth["vehicle"])
+    out = {"log": write_log_csv(flight.columns, d / f"{name}.csv"),
+           "airframe": d / "airframe.toml", "truth": d / f"{name}_truth.json"}
+    out["airframe"].write_text(airframe_text(veh, **airframe_kw))
+    out["truth"].write_text(json.dumps(flight.truth, indent=2, default=float))
+    return out
+
+
+VEHICLES = {"crazyflie": PeerVehicle.crazyflie, "one_kg": PeerVehicle.one_kg,
+            "three_kg": PeerVehicle.three_kg}
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--vehicle", choices=sorted(VEHICLES), default="crazyflie")
+    ap.add_argument("--duration", type=float, default=20.0)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--effects", default="", help="JSON object of PeerEffects fields")
+    ap.add_argument("--no-low-hovers", action="store_true")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--name", default="flight")
+    a = ap.parse_args(argv)
+    fx = PeerEffects(**json.loads(a.effects)) if a.effects else PeerEffects()
+    fl = fly(VEHICLES[a.vehicle](), a.duration, a.seed, fx, low_hovers=not a.no_low_hovers)
+    paths = write_case(fl, a.out, a.name)
+    print(json.dumps({k: str(v) for k, v in paths.items()}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(_main())

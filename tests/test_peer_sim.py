@@ -1,0 +1,170 @@
+"""The second independent simulator (tests/peer_sim.py) and what greybox makes of its flights.
+
+The simulator's physics is checked by hand (signs, frames, conservation) before greybox is
+judged on it. Then: a log with exact time stamps and rotor speeds fits at the sensor noise in
+output error, K_T and b exact; the same flight with time stamps jittered by a tenth of a sample
+period (as a logger's are) cannot be followed by an open-loop unstable body in output error,
+and ``fit`` then solves with process noise, certified, at the noise, K_T and b within 1 %.
+"""
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel, load_airframe, load_log
+from greybox.fitting import fit
+
+from peer_sim import (PeerDynamics, PeerEffects, PeerSensors, PeerVehicle, airframe_text, fly, quat_to_rot,
+                      rot_to_euler, write_case)
+
+HERE = Path(__file__).resolve().parent
+
+
+def test_independent_of_greybox():
+    src = (HERE / "peer_sim.py").read_text()
+    assert "import greybox" not in src and "from greybox" not in src
+
+
+def _hover_state(veh, w=None):
+    s = np.zeros(17)
+    s[6] = 1.0
+    s[2] = -1.0
+    s[13:17] = veh.w_hover if w is None else w
+    return s
+
+
+def test_hover_balances_gravity_and_torques_by_hand():
+    veh = PeerVehicle.one_kg()
+    dyn = PeerDynamics(veh, PeerEffects(), np.random.default_rng(0))
+    acc, M = dyn.loads(_hover_state(veh))
+    assert np.allclose(acc, 0.0, atol=1e-12) and np.allclose(M, 0.0, atol=1e-12)
+    # front-left rotor (4, at (+a, -a)) faster by dT: roll moment +a dT (right side down, FRD),
+    # pitch moment +a dT (nose up), yaw moment spin_4 b dw^2 = +b dw^2
+    w = np.full(4, veh.w_hover)
+    w[3] *= 1.1
+    dT = veh.K_T * (w[3] ** 2 - veh.w_hover ** 2)
+    a = veh.arm / math.sqrt(2)
+    _, M = dyn.loads(_hover_state(veh, w))
+    assert M == pytest.approx([a * dT, a * dT, veh.b * (w[3] ** 2 - veh.w_hover ** 2)], rel=1e-9)
+    # more thrust accelerates up: world z (down) negative
+    acc, _ = dyn.loads(_hover_state(veh, w))
+    assert acc[2] == pytest.approx(-dT / veh.mass, rel=1e-9)
+
+
+def test_quaternion_rotation_and_euler_angles_agree_with_zyx():
+    phi, theta, psi = 0.3, -0.2, 1.1
+    cz, sz, cy, sy, cx, sx = math.cos(psi), math.sin(psi), math.cos(theta), math.sin(theta), math.cos(phi), math.sin(phi)
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    R = Rz @ Ry @ Rx
+    # the quaternion of R (Shepperd), back through quat_to_rot
+    w = 0.5 * math.sqrt(1 + np.trace(R))
+    q = np.array([w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)])
+    assert np.allclose(quat_to_rot(q), R, atol=1e-12)
+    assert rot_to_euler(R) == pytest.approx((phi, theta, psi), abs=1e-12)
+
+
+def test_free_rotation_conserves_angular_momentum_and_energy():
+    """No thrust, no gravity effects on the rotation: RK4 on the quaternion keeps the body's
+    world-frame angular momentum and its kinetic energy."""
+    veh = PeerVehicle.one_kg(rotor_inertia=0.0)
+    dyn = PeerDynamics(veh, PeerEffects(), np.random.default_rng(0))
+    s = _hover_state(veh, w=np.zeros(4))
+    s[10:13] = [1.0, 0.2, -0.7]
+    J = veh.J
+
+    def invariants(s):
+        R = quat_to_rot(s[6:10])
+        om = s[10:13]
+        return R @ (J @ om), 0.5 * om @ J @ om
+    L0, E0 = invariants(s)
+    for _ in range(2000):
+        s = dyn.rk4(s, np.zeros(4), 1e-3)
+    L1, E1 = invariants(s)
+    assert np.allclose(L1, L0, rtol=1e-7, atol=1e-12) and E1 == pytest.approx(E0, rel=1e-7)
+
+
+def test_rotor_drag_at_the_hubs_damps_yaw_rate():
+    """The peer simulator's rotor drag acts on each hub's own velocity, omega x r_i included:
+    a yawing vehicle feels a yaw moment against its rate, -k sum(w_i) |r_i|^2 r (hubs in the
+    rotor plane of the CoG)."""
+    veh = PeerVehicle.crazyflie(hub_height=0.0)
+    k = 1e-6
+    dyn = PeerDynamics(veh, PeerEffects(rotor_drag=k), np.random.default_rng(0))
+    s = _hover_state(veh)
+    s[12] = 2.0
+    _, M = dyn.loads(s)
+    assert M[2] == pytest.approx(-k * 4 * veh.w_hover * veh.arm ** 2 * 2.0, rel=1e-9)
+
+
+def test_ground_effect_is_cheeseman_bennett_per_rotor():
+    veh = PeerVehicle.one_kg(hub_height=0.0)
+    dyn = PeerDynamics(veh, PeerEffects(ground_effect=True), np.random.default_rng(0))
+    s = _hover_state(veh)
+    s[2] = -0.2                                      # 0.2 m above the floor
+    acc, _ = dyn.loads(s)
+    factor = 1 / (1 - (veh.rotor_radius / (4 * 0.2)) ** 2)
+    assert -acc[2] + veh.gravity == pytest.approx(veh.gravity * factor, rel=1e-9)
+
+
+@pytest.fixture(scope="module")
+def cf_flights(tmp_path_factory):
+    """A 30 g vehicle, 12 s at 500 Hz: once with exact time stamps, once jittered."""
+    d = tmp_path_factory.mktemp("peer")
+    out = {}
+    for label, jitter in (("exact", 0.0), ("jittered", 0.1)):
+        fl = fly(PeerVehicle.crazyflie(), duration=12.0, seed=4, sensors=PeerSensors(time_jitter=jitter))
+        out[label] = (write_case(fl, d / label), fl.truth["greybox_equivalent"])
+    return out
+
+
+def test_log_is_read_as_a_users_file(cf_flights):
+    paths, _ = cf_flights["jittered"]
+    log = load_log(paths["log"])
+    dt = np.diff(log.t)
+    assert log.input_names == ["w1", "w2", "w3", "w4"]
+    assert 0.9 * 0.002 < dt.min() < dt.max() < 1.1 * 0.002           # jittered, still increasing
+    measured = np.isfinite(log.output("x")).mean()
+    assert 0.15 < measured < 0.2            # 100 Hz of 500 Hz, 5 % lost and a 0.4 s stretch
+
+
+def test_exact_log_fits_at_the_noise_in_output_error(cf_flights):
+    paths, truth = cf_flights["exact"]
+    model = QuadrotorModel(load_airframe(paths["airframe"]))
+    est, _ = load_log(paths["log"]).split(0.8)
+    res = fit(model, est, process_noise=None)
+    assert res.converged and res.certificate.adequate, res.certificate.text()
+    assert res.value("K_T") == pytest.approx(truth["K_T"], rel=0.005)
+    assert res.value("b") == pytest.approx(truth["b"], rel=0.005)
+
+
+def test_jittered_time_stamps_make_fit_use_process_noise(cf_flights):
+    """A tenth of a sample period of jitter is a random torque impulse at every sample; the
+    body integrates it, and output error cannot follow (certified, far above the noise). The
+    default fit sees that and solves with process noise: certified, at the noise, K_T and b
+    within 1 %."""
+    paths, truth = cf_flights["jittered"]
+    model = QuadrotorModel(load_airframe(paths["airframe"]))
+    est, _ = load_log(paths["log"]).split(0.8)
+    strict = fit(model, est, process_noise=None)
+    assert not strict.certificate.adequate                 # what the default has to catch
+    res = fit(model, est)
+    assert res.process_noise is not None and res.converged
+    assert res.certificate.adequate, res.certificate.text()
+    assert any("fitted with process noise" in w for w in res.warnings)
+    assert res.value("K_T") == pytest.approx(truth["K_T"], rel=0.01)
+    assert res.value("b") == pytest.approx(truth["b"], rel=0.01)
+    assert res.init_window in (0.05, 0.1, 0.2, 0.5)
+
+
+def test_airframe_text_is_what_greybox_reads(tmp_path):
+    veh = PeerVehicle.crazyflie()
+    p = tmp_path / "a.toml"
+    p.write_text(airframe_text(veh, K_T_factor=1.0, b_factor=1.0))
+    af = load_airframe(p)
+    model = QuadrotorModel(af)
+    pd = model.parameter_dict(model.default_parameters())
+    assert pd["K_T"] == pytest.approx(veh.K_T) and pd["b"] == pytest.approx(veh.b)
+    assert af.mass == veh.mass
