@@ -146,7 +146,7 @@ def _at(he, horizons) -> dict:
 
 def markdown(rows: list[dict]) -> str:
     lines = ["| flight | verdicts (in order) | hover thrust / weight (base → final) | IMU f_z / g | "
-             "Kd x, y (fit, N s/m) | IMU drag x, y (N s/m) | 1-s nrmse total (base → final) |",
+             f"Kd x, y (fit, N s/m) | IMU drag x, y (N s/m) | {HORIZON:g}-s nrmse total (base → final) |",
              "|---|---|---|---|---|---|---|"]
     for r in rows:
         bp = r["base_parameters"]
@@ -185,7 +185,7 @@ def markdown(rows: list[dict]) -> str:
                      for c in pose]
             lines.append(f"| {r['flight']} | {h} s | " + " | ".join(cells) + " |")
     lines.append("")
-    lines.append("Per-channel 1-s nrmse (validation, last 20 %):")
+    lines.append(f"Per-channel {HORIZON:g}-s nrmse (validation, last 20 %):")
     lines.append("")
     chans = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
     lines.append("| flight | model | " + " | ".join(chans) + " |")

@@ -522,14 +522,17 @@ INIT_WINDOWS = (0.05, 0.1, 0.2, 0.5)
 """s: the start-state windows :func:`choose_init_window` tries."""
 INIT_WINDOW_HORIZON = 0.5
 """s ahead :func:`choose_init_window` predicts to compare the windows."""
+INIT_WINDOW_DATA = 8.0
+"""s at the end of each estimation flight on which :func:`choose_init_window` compares them."""
 
 
 def choose_init_window(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]",
                        logs: "FlightLog | Sequence[FlightLog]", compile: str = "auto") -> float:
     """The start-state window (s, one of :data:`INIT_WINDOWS`) with which ``model`` with
     parameters ``p`` (one vector, or one per flight) predicts ``logs`` best
-    :data:`INIT_WINDOW_HORIZON` ahead (the lowest pooled ``nrmse``; windows too long for a log
-    are skipped; the default 0.5 s when none can be scored).
+    :data:`INIT_WINDOW_HORIZON` ahead over the last :data:`INIT_WINDOW_DATA` seconds of each
+    log (the lowest pooled ``nrmse``; windows too long for a log are skipped; the default
+    0.5 s when none can be scored).
 
     Which is best depends on the data and the model together: a model that diverges open loop
     within half a second (a real Crazyflie's roll) wants a short window, whose start state is
@@ -537,10 +540,13 @@ def choose_init_window(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarr
     velocity estimated from three 60-Hz position samples is noise (a synthetic flight's true
     model predicted its own data with nrmse 1.02 from 50 ms and 0.012 from 0.5 s). Chosen on
     the estimation data, so that validation stays out of it."""
+    logs = [logs] if isinstance(logs, FlightLog) else list(logs)
+    # the last INIT_WINDOW_DATA seconds of each flight: enough windows to rank four choices
+    tails = [lg.slice(int(np.searchsorted(lg.t, lg.t[-1] - INIT_WINDOW_DATA)), len(lg)) for lg in logs]
     best, best_score = DEFAULT_INIT_WINDOW, math.inf
     for w in INIT_WINDOWS:
         try:
-            score = predict_flights(model, p, logs, horizon=INIT_WINDOW_HORIZON, init_window=w, compile=compile).total
+            score = predict_flights(model, p, tails, horizon=INIT_WINDOW_HORIZON, init_window=w, compile=compile).total
         except GreyboxInputError:
             continue
         if score < best_score:

@@ -111,11 +111,11 @@ def test_ground_effect_is_cheeseman_bennett_per_rotor():
 
 @pytest.fixture(scope="module")
 def cf_flights(tmp_path_factory):
-    """A 30 g vehicle, 12 s at 500 Hz: once with exact time stamps, once jittered."""
+    """A 30 g vehicle, 20 s at 500 Hz: once with exact time stamps, once jittered."""
     d = tmp_path_factory.mktemp("peer")
     out = {}
     for label, jitter in (("exact", 0.0), ("jittered", 0.1)):
-        fl = fly(PeerVehicle.crazyflie(), duration=12.0, seed=4, sensors=PeerSensors(time_jitter=jitter))
+        fl = fly(PeerVehicle.crazyflie(), duration=20.0, seed=1, sensors=PeerSensors(time_jitter=jitter))
         out[label] = (write_case(fl, d / label), fl.truth["greybox_equivalent"])
     return out
 

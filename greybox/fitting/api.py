@@ -52,8 +52,16 @@ def manoeuvre_advice(model: QuadrotorModel, component: str) -> str:
 
 
 
-Q_ROUNDS = 6
+CANNOT_FOLLOW = 10.0
+"""Residual RMS over sensor noise, in some channel after the first settled solve, at which
+``process_noise="if_needed"`` stops trying output error (new weights cannot bring that to the
+2x of an adequate fit)."""
+Q_ROUNDS = 4
 """Times ``process_noise="auto"`` re-estimates the process noise and solves again."""
+Q_STEP = 0.03
+"""Smallest factor by which one re-estimate lowers a state's process noise (a homotopy from
+the gaps' RMS at the start down to their random part: a fit that no longer converges keeps
+the last process noise that did)."""
 MAX_RESTARTS = 2
 """Times a fit whose end point is not certified is solved on from there."""
 TRUST_REGION = 0.5
@@ -235,18 +243,28 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     t_start = time.perf_counter()
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)     # judged here
-        oe = _fit_formulation(model, logs, process_noise=None, **kw)
-    if oe.converged and oe.certificate is not None and oe.certificate.adequate:
+        try:
+            oe = _fit_formulation(model, logs, process_noise=None, probe=True, **kw)
+        except _CannotFollow as far:
+            oe, why = None, f"its residuals are far above the sensor noise once its first solve settles ({far})"
+    if oe is not None and oe.converged and oe.certificate is not None and oe.certificate.adequate:
         return oe
-    why = (f"its end point is not certified ({oe.status})" if not oe.converged else
-           "its residuals stay far above the sensor noise (" +
-           ", ".join(f"{ch} {oe.certificate.residual_over_noise[ch]:.3g}x" for ch in oe.certificate.off_channels()) + ")")
+    if oe is not None:
+        why = (f"its end point is not certified ({oe.status})" if not oe.converged else
+               "its residuals stay far above the sensor noise (" +
+               ", ".join(f"{ch} {oe.certificate.residual_over_noise[ch]:.3g}x"
+                         for ch in oe.certificate.off_channels()) + ")")
     say(f"fit: the output-error fit cannot follow the data: {why}; solving again with process noise")
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)
         soft = _fit_formulation(model, logs, process_noise="auto", **kw)
+    if oe is None and not soft.converged:
+        # both failed: the output-error fit, solved to its end, is what is reported
+        with _warnings.catch_warnings():
+            _warnings.simplefilter("ignore", ConvergenceWarning)
+            oe = _fit_formulation(model, logs, process_noise=None, **kw)
     if soft.converged:
-        changed = _moved_parameters(oe, soft)
+        changed = _moved_parameters(oe, soft) if oe is not None else ""
         soft.warnings.insert(0, "fitted with process noise (soft continuity): the output-error fit could not "
                                 f"follow the data, {why}" + (f"; it had {changed}" if changed else "") +
                              ". Noise on the logged inputs (quantised or jittered rotor speeds) or a force the "
@@ -295,6 +313,34 @@ def _systematic_gaps(model: QuadrotorModel, ses: FitSession, X: np.ndarray, th: 
     return out
 
 
+THRUST_BALANCE = 0.2
+"""Largest relative departure of the mean rotor thrust ``K_T sum(w^2)`` over a flight from the
+weight ``m g`` that goes without a warning."""
+
+
+def _thrust_balance_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], values: dict) -> list[str]:
+    """A flight that starts and ends near rest has a mean vertical acceleration near zero, so
+    its rotors carry the weight on average (a little more when tilted): a fitted ``K_T`` whose
+    mean thrust is far from ``m g`` has the thrust standing in for something the model lacks
+    (a 1.2 kg flight with a CoG offset, fitted without it: 30 % of the weight). Logged speeds
+    only (not ``inputs="controls"``)."""
+    if model.inputs == "controls" or "K_T" not in values:
+        return []
+    n = model.airframe.n_rotors
+    w2 = np.concatenate([np.sum(lg.inputs[:, :n] ** 2, axis=1) for lg in logs])
+    weight = model.airframe.mass * model.airframe.gravity
+    ratio = values["K_T"] * float(np.mean(w2)) / weight if weight > 0 else 1.0
+    if abs(ratio - 1.0) <= THRUST_BALANCE:
+        return []
+    return [f"the fitted thrust carries {100 * ratio:.0f} % of the weight on average over the flight "
+            f"(K_T = {values['K_T']:.4g} with the logged rotor speeds and the airframe's mass): K_T is standing "
+            "in for something the model lacks, or the mass or the rotor speeds' units are wrong"]
+
+
+class _CannotFollow(Exception):
+    """An output-error probe that is far from the data after its first settled solve."""
+
+
 def _moved_parameters(oe: FitResult, soft: FitResult) -> str:
     """The output-error estimates that differ from the soft-continuity ones by more than 3 of
     the latter's std, in words (empty when none does)."""
@@ -310,9 +356,11 @@ def _moved_parameters(oe: FitResult, soft: FitResult) -> str:
 
 def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free, fixed, p0,
                      interval, noise, max_iter, tol, reweight, compile, progress, initial_states,
-                     process_noise, solver, per_flight, init_window) -> FitResult:
+                     process_noise, solver, per_flight, init_window, probe: bool = False) -> FitResult:
     """:func:`fit` in one formulation: output error (``process_noise=None``) or soft
-    continuity (``"auto"`` or ``{state: std}``)."""
+    continuity (``"auto"`` or ``{state: std}``). ``probe``: output error tried before soft
+    continuity; raises :class:`_CannotFollow` as soon as its first settled solve is
+    :data:`CANNOT_FOLLOW` times the sensor noise off in some channel."""
     t_start = time.perf_counter()
     say = progress_printer() if progress is True else (progress or (lambda _m: None))
     given = logs
@@ -385,7 +433,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
             # went 26 % off.
             # At the start, the gaps' RMS: a process noise that lets the states follow the data
             # while the parameters are still far off (robust: the solve converges). After a
-            # solve, their random part (process_noise_scale), at most a tenfold step down per
+            # solve, their random part (process_noise_scale), at most Q_STEP down per
             # round: what consecutive gaps share is then a model error that the parameters
             # should take, and a lower q makes them take it.
             if first:
@@ -399,7 +447,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
             if ses.q is not None:
                 # only downwards: grown process noise would let the states follow measurement
                 # noise, and the gaps grow with it (the degenerate end of joint Q estimation)
-                q = np.clip(q, 0.1 * ses.q, ses.q)
+                q = np.clip(q, Q_STEP * ses.q, ses.q)
             return q
 
         ses.q = estimate_q(X, th, first=True)
@@ -427,6 +475,13 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         polished = not (reweight and not soft)
         X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-3, max_iter, tol, rough=not polished)
         total_iters = iters
+        if probe and converged and not soft:
+            # output error tried first (fit's "if_needed"): residuals this far above the sensor
+            # noise once the first solve has settled are not what new weights can bring to it
+            far = residual_rms(blocks[4]) * ses.sigma / np.where(sensor > 0, sensor, np.inf)
+            if np.any((n_c > 0) & (far > CANNOT_FOLLOW)):
+                raise _CannotFollow(", ".join(f"{n} {f:.3g}x" for n, f, k in zip(OUTPUTS, far, n_c)
+                                              if k and f > CANNOT_FOLLOW))
         for _ in range(Q_ROUNDS if soft and process_noise == "auto" else 0):
             if not converged:
                 break
@@ -547,6 +602,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     values, fitted_std = model.parameter_dict(p_out), dict(zip(free_names, map(float, std)))
     for effect in model.effects:
         warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
+    warnings += _thrust_balance_warnings(model, logs, values)
     if not converged:
         warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
         _warnings.warn(f"fit did not converge: {status}", ConvergenceWarning, stacklevel=3)
