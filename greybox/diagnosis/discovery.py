@@ -421,17 +421,25 @@ def discover(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seque
     # the largest shares of what the vehicle's motion measures in their group first: the size
     # of the missing physics, not how an average over output channels happens to weigh it
     found.sort(key=lambda d: -d.share)
+    alone: dict[int, str] = {}      # id -> its best channel: confirmed there, the total worse
     for d in found[:MAX_REFITS]:
-        _refit_and_judge(d, model, res, pred, est, val, compile, pools, say)
+        best_ch = _refit_and_judge(d, model, res, pred, est, val, compile, pools, say)
+        if best_ch is not None:
+            alone[id(d)] = best_ch
     for d in found[MAX_REFITS:]:
         d.reason = f"not refitted: only the {MAX_REFITS} largest are"
+    together = _confirm_together([d for d in found if d.significant or id(d) in alone], alone, model, res,
+                                 pred, est, val, compile, pools, say)
     found.sort(key=lambda d: (not d.significant, -d.share))
     sig = [d for d in found if d.significant]
     if not sig:
         return found, {"status": "nothing", "together": None,
                        "text": "nothing significant: what the regression found is not confirmed by a refit and "
                                "the validation data"}
-    together = _refit_together(sig, model, res, pred, est, val, compile, pools, say) if len(sig) > 1 else None
+    if len(sig) > 1 and (together is None or set(together["effects"]) != {d.effect.name for d in sig}):
+        together = _refit_together(sig, model, res, pred, est, val, compile, pools, say)
+    elif len(sig) == 1:
+        together = None
     text = f"{len(sig)} significant: " + "; ".join(d.text() for d in sig)
     if together is not None:
         text += (f"; all {len(sig)} added together: nrmse {pred.total:.3f} -> {together['nrmse_after']:.3f}")
@@ -480,9 +488,10 @@ def _refit_together(sig: Sequence[Discovered], model: QuadrotorModel, res: FitRe
 
 def _refit_and_judge(d: Discovered, model: QuadrotorModel, res: FitResult, pred: Prediction,
                      est: Sequence[FlightLog], val: Sequence[FlightLog], compile: str, n_tests: int,
-                     say: Callable[[str], None]) -> None:
+                     say: Callable[[str], None]) -> str | None:
     """Add ``d`` as an effect, refit with the ordinary fitter, and judge it by the
-    candidates' rules: likelihood ratio and validation confirmation."""
+    candidates' rules: likelihood ratio and validation confirmation. Returns the channel it
+    predicts better when only the total holds it back (for :func:`_confirm_together`)."""
     t0 = time.perf_counter()
     d.effect = discovered_effect_class(d.channel, [t.feature for t in d.terms],
                                        [t.coefficient for t in d.terms], [t.scale for t in d.terms])
@@ -496,15 +505,45 @@ def _refit_and_judge(d: Discovered, model: QuadrotorModel, res: FitResult, pred:
     gain = 1 - pr.total / pred.total
     falls = {ch: 1 - pr.nrmse[ch] / pred.nrmse[ch] for ch in pred.nrmse if pred.nrmse[ch] > 0}
     best_ch = max(falls, key=falls.get)
+    confirmed_alone = None
     if d.lr_p_value >= ALPHA:
         d.reason = f"the refit does not confirm it (likelihood ratio p = {d.lr_p_value:.2g})"
     elif falls[best_ch] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS:
         d.reason = (f"significant in the refit but not confirmed on validation (best channel {best_ch} "
                     f"{-100 * falls[best_ch]:+.1f} %, total {-100 * gain:+.1f} %)")
+        if falls[best_ch] >= MIN_VALIDATION_GAIN:
+            confirmed_alone = best_ch
     else:
         d.significant = True
         d.reason = (f"p = {d.p_value:.2g} (regression), {d.lr_p_value:.2g} (refit); validation {best_ch} "
                     f"{-100 * falls[best_ch]:+.0f} %, total {-100 * gain:+.0f} %")
     say(f"  discovered {d.channel:<3} {', '.join(t.feature for t in d.terms):<24} LR {d.lr:10.1f} "
         f"nrmse {pred.total:.3f} -> {pr.total:.3f}  ({time.perf_counter() - t0:.1f} s)")
+    return confirmed_alone
+
+
+def _confirm_together(group: list[Discovered], alone: dict[int, str], model: QuadrotorModel, res: FitResult,
+                      pred: Prediction, est: Sequence[FlightLog], val: Sequence[FlightLog], compile: str,
+                      n_tests: int, say: Callable[[str], None]) -> dict | None:
+    """Combinations that predict their own channel better on validation but the total worse
+    (the other channels' missing forces, no longer absorbed, now show in a coupled open-loop
+    prediction) are judged together with the rest: all of ``group`` refitted at once, each is
+    confirmed when the joint model predicts the total better and its own channel better
+    than the baseline. The joint refit (``_refit_together``'s dict) or None."""
+    if not any(id(d) in alone for d in group) or len(group) < 2:
+        return None
+    together = _refit_together(group, model, res, pred, est, val, compile, n_tests, say)
+    gain = 1 - together["nrmse_after"] / pred.total
+    own = {id(d): 1 - together["channels_after"][ch] / pred.nrmse[ch] for d in group
+           if (ch := alone.get(id(d))) is not None}
+    if gain < MIN_VALIDATION_GAIN or min(own.values()) < MIN_VALIDATION_GAIN:
+        return None
+    for d in group:
+        if id(d) in alone:
+            others = ", ".join(o.channel for o in group if o is not d)
+            d.significant = True
+            d.reason = (f"p = {d.p_value:.2g} (regression), {d.lr_p_value:.2g} (refit); validation "
+                        f"{alone[id(d)]} {-100 * own[id(d)]:+.0f} %, total {-100 * gain:+.0f} % together with "
+                        f"{others} (alone the total {-100 * (1 - d.nrmse_after / pred.total):+.0f} %)")
+    return together
 
