@@ -186,6 +186,7 @@ def test_cli_fit_takes_several_flights(paper_model, tmp_path):
     assert r["validation"]["nrmse"] == pytest.approx(np.mean([f["nrmse"] for f in flights]))
 
 
+@pytest.mark.slow    # about a minute; the default run stays near ten minutes
 def test_cli_diagnose_takes_several_flights(tmp_path):
     """The bundled ground-effect flight cut in two flights (each with its own states, the
     parameters shared), validated on the bundled second flight: the ground effect is found."""

@@ -124,6 +124,7 @@ def test_a_process_noise_fit_of_a_model_that_diverges_starts_its_windows_at_the_
     assert loaded.predict(val).total == pytest.approx(predict(model, res.p, val, **opts).total, rel=1e-6)
 
 
+@pytest.mark.slow    # about a minute; the default run stays near ten minutes
 def test_a_held_moment_predicts_a_vehicle_whose_controller_trims_out_a_moment_the_model_lacks():
     """Another simulator's 30 g vehicle with its CoG 3 mm and 2 mm off the rotor centre: its
     controller trims out a constant roll/pitch moment the logged commands show only as a

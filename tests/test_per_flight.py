@@ -137,6 +137,7 @@ def _write_flights(windy, tmp_path, n=3):
     return tmp_path / "a.toml", paths
 
 
+@pytest.mark.slow    # about a minute; the default run stays near ten minutes
 def test_joint_fleet_fit_gives_each_flight_its_wind(windy, tmp_path):
     """``greybox batch --joint``'s joint fit (run on a worker; called here directly): with
     wind in the model, or added as the flights' own diagnoses found it (``nuisance``), one
