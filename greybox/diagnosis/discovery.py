@@ -436,10 +436,9 @@ def discover(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seque
         return found, {"status": "nothing", "together": None,
                        "text": "nothing significant: what the regression found is not confirmed by a refit and "
                                "the validation data"}
-    if len(sig) > 1 and (together is None or set(together["effects"]) != {d.effect.name for d in sig}):
+    if together is None and len(sig) > 1:
+        # (a confirmed joint refit is already of exactly the significant ones)
         together = _refit_together(sig, model, res, pred, est, val, compile, pools, say)
-    elif len(sig) == 1:
-        together = None
     text = f"{len(sig)} significant: " + "; ".join(d.text() for d in sig)
     if together is not None:
         text += (f"; all {len(sig)} added together: nrmse {pred.total:.3f} -> {together['nrmse_after']:.3f}")
