@@ -64,7 +64,7 @@ def run(name: str, work: Path) -> dict:
     truth = flights[0].truth["greybox_equivalent"]
     base = diag.baseline
     final = diag.final_fit or base
-    out = {"case": name, "expect": expect, "verdict": diag.verdict,
+    out = {"case": name, "expect": expect, "verdict": diag.verdict, "outside_catalogue": diag.outside_catalogue,
            "added": [r.verdict for r in diag.rounds if r.verdict],
            "baseline_formulation": "process noise" if base.process_noise else "output error",
            "baseline_certified": bool(base.converged),
@@ -75,7 +75,9 @@ def run(name: str, work: Path) -> dict:
            "nrmse_after": (diag.final_prediction or diag.baseline_prediction).total, "wall_s": wall,
            "final": {n: [final.value(n), float(final.std[final.free_names.index(n)])]
                      for n in final.free_names if n not in ("K_T", "b") and not n.startswith("Kd")},
-           "truth": truth, "warnings": diag.warnings}
+           "truth": truth, "warnings": diag.warnings,
+           "discovered": [{"channel": x.channel, "terms": [[t.feature, t.coefficient, t.std] for t in x.fitted or x.terms]}
+                          for x in diag.discovered if x.significant]}
     if expect is None:
         ok = diag.verdict is None and not diag.unexplained and not diag.unexplained_gaps
     elif expect == "outside":
@@ -109,6 +111,8 @@ def main() -> None:
                   f"nrmse {r['nrmse_before']:.3f} -> {r['nrmse_after']:.3f}; {r['wall_s']:.0f} s", flush=True)
             if r["final"]:
                 print("     fitted: " + ", ".join(f"{k} = {v:.4g} ± {s:.2g}" for k, (v, s) in r["final"].items()))
+            if r["outside_catalogue"]:
+                print(f"     null verdict: {r['outside_catalogue']}")
             if r["unexplained"]:
                 print(f"     unexplained: {r['unexplained']}")
     (HERE / "out").mkdir(exist_ok=True)

@@ -113,6 +113,8 @@ def _verdict_words(d: "Diagnosis") -> str:
         return d.verdict
     if not d.baseline_certified:
         return "null (cannot tell: the baseline fit is not certified)"
+    if d.outside_catalogue:
+        return "null (what is missing is outside the catalogue: see the discovered combinations)"
     if d.unexplained or d.unexplained_gaps:
         return "null (the model misses something no candidate explains)"
     return "null (nothing significant is missing)"

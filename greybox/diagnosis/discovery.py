@@ -72,7 +72,7 @@ from .ranking import ALPHA, MAX_VALIDATION_LOSS, MIN_VALIDATION_GAIN
 from .results import Discovered, DiscoveredTerm
 from .screening import lr_test
 
-__all__ = ["discover", "residual_forces", "ResidualForces", "select_terms", "weak_form_weights",
+__all__ = ["discover", "refit_with", "residual_forces", "ResidualForces", "select_terms", "weak_form_weights",
            "hac_covariance", "signal_features", "MIN_CONTRIBUTION", "WINDOW_HALF_WIDTH", "MAX_TERMS",
            "MAX_TERMS_PER_CHANNEL", "MAX_REFITS", "NOT_SIGNALS"]
 
@@ -443,6 +443,16 @@ def discover(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seque
     if together is not None:
         text += (f"; all {len(sig)} added together: nrmse {pred.total:.3f} -> {together['nrmse_after']:.3f}")
     return found, {"status": "found", "text": text, "together": together}
+
+
+def refit_with(sig: Sequence[Discovered], res: FitResult, est: Sequence[FlightLog], val: Sequence[FlightLog],
+               horizon: float, compile: str = "auto") -> tuple[FitResult, Prediction]:
+    """The fitted model ``res`` (any model: the baseline, or one with a catalogue effect
+    added) with the refitted discovered combinations ``sig`` added, refitted from ``res``'s
+    optimum; its fit and validation prediction. :func:`discover` must have refitted ``sig``
+    (their ``effect`` is set)."""
+    _, fr, pr, _, _ = _fit_with(sig, res.model, res, est, val, compile, 1, horizon)
+    return fr, pr
 
 
 def _fit_with(sig: Sequence[Discovered], model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog],

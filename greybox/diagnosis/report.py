@@ -54,7 +54,7 @@ def write_report(d: "Diagnosis", out: Path) -> Path:  # noqa: F821 - Diagnosis: 
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 8px}}img{{max-width:100%}}</style></head><body>
 <h1>greybox diagnosis</h1>
-<p>Model: {esc(', '.join(d.model.effect_names))}. Verdict: <b>{esc(d.verdict or 'null: nothing significant is missing')}</b>.</p>
+<p>Model: {esc(', '.join(d.model.effect_names))}. Verdict: <b>{esc(d.verdict_text())}</b>.</p>
 <h2>1. Compare</h2><p>Validation nrmse {b.total:.3f} on the {esc(d.validation_source)} ({esc(', '.join(f'{c} {v:.3f}' for c, v in b.nrmse.items()))}).</p>
 {img('compare_baseline')}
 <h2>2. Where it fails</h2><ul>{''.join(f'<li>{esc(f.text)}</li>' for f in d.findings) or '<li>no regime stands out</li>'}{imbalance}</ul>

@@ -204,6 +204,8 @@ class Diagnosis:
     # parameter -> (first half, std, second half, std) where the halves disagree
     discovered: list[Discovered] = field(default_factory=list)   # beyond the catalogue, best first
     discovery: dict = field(default_factory=dict)   # status, text (or why it cannot tell), together
+    # words for a null verdict whose catalogue best was set aside for a discovered combination
+    outside_catalogue: str = ""
     # error against horizon of the baseline and the final model (validation.horizon_errors_after)
     baseline_horizons: HorizonErrors | None = None
     final_horizons: HorizonErrors | None = None
@@ -233,6 +235,7 @@ class Diagnosis:
                             "horizons": (self.baseline_horizons or self.baseline_prediction.horizon_errors()).as_dict()},
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
+               "outside_catalogue": self.outside_catalogue or None,
                "findings": [f.text for f in self.findings],
                "warnings": list(self.warnings),
                "effects": self.model.effect_names,
@@ -255,6 +258,22 @@ class Diagnosis:
         out["time_s"] = self.timings.get("total")
         return out
 
+    def verdict_text(self) -> str:
+        """The verdict in words: the effect and how much it explains, or why it is null."""
+        if self.verdict:
+            top = self.ranking[0] if self.ranking else None
+            share = (f"; it removes {100 * top.explained:.0f} % of the residual above the sensor noise"
+                     if top is not None and top.explained is not None else "")
+            return f"{self.verdict}{share}"
+        if self.outside_catalogue:
+            return f"null -- {self.outside_catalogue}"
+        if self.unexplained or self.unexplained_gaps:
+            return (f"null -- the model is missing something no candidate explains: {self._far_off()}"
+                    + (f"; {self.findings[0].text}" if self.findings else ""))
+        if not self.baseline_certified:
+            return "null (cannot tell: the baseline fit is not certified)"
+        return "null (nothing significant is missing)"
+
     def summary(self) -> str:
         """Readable text of steps 1-4."""
         b = self.baseline_prediction
@@ -273,20 +292,9 @@ class Diagnosis:
         if not self.baseline_certified:
             lines.append("   (no candidate tested: the baseline fit is not at a certified optimum, and a test "
                          "statistic against it would be meaningless)")
-        if self.verdict:
-            top = self.ranking[0] if self.ranking else None
-            share = (f"; it removes {100 * top.explained:.0f} % of the residual above the sensor noise"
-                     if top is not None and top.explained is not None else "")
-            lines.append(f"   verdict: {self.verdict}{share}")
-            if self.unexplained or self.unexplained_gaps:
-                lines.append(f"   and the model still misses something no candidate explains: {self._far_off()}")
-        elif self.unexplained or self.unexplained_gaps:
-            lines.append(f"   verdict: null -- the model is missing something no candidate explains: "
-                         f"{self._far_off()}" + (f"; {self.findings[0].text}" if self.findings else ""))
-        elif not self.baseline_certified:
-            lines.append("   verdict: null (cannot tell: the baseline fit is not certified)")
-        else:
-            lines.append("   verdict: null (nothing significant is missing)")
+        lines.append(f"   verdict: {self.verdict_text()}")
+        if self.verdict and (self.unexplained or self.unexplained_gaps):
+            lines.append(f"   and the model still misses something no candidate explains: {self._far_off()}")
         lines += self._later_round_lines()
         if self.final_prediction is not None and self.final_model is not None:
             added = [e for e in self.final_model.effect_names if e not in self.model.effect_names]

@@ -17,10 +17,10 @@ from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import IF_NEEDED, fit, progress_printer
 from ..model import QuadrotorModel
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
-from .discovery import discover as discover_beyond_catalogue
+from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
 from .consistency import half_consistency
-from .ranking import N_REFIT, default_candidates, rank_round
+from .ranking import MIN_VALIDATION_GAIN, N_REFIT, default_candidates, rank_round
 from .results import Diagnosis, Round
 
 __all__ = ["diagnose", "UNEXPLAINED_RATIO", "distinguishing_manoeuvre"]
@@ -178,6 +178,21 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             win.fit, win.prediction = more, predict_after_fit(more, est, val, compile=compile, horizon=horizon)
         cur_model, cur_res, cur_pred = win.fit.model, win.fit, win.prediction
         remaining = [c for c in remaining if c != verdict]
+    discovered, discovery_note = [], {"status": "not run", "text": "not run (discover=False)", "together": None}
+    outside = ""
+    if discover:
+        # on the model as given, like the candidates (the same nrmse before): a catalogue
+        # effect added in its place may be a compensating stand-in, and the residual forces
+        # of a model bent around it are not those of the physics that is missing
+        discovered, discovery_note = discover_beyond_catalogue(model, res, pred, est, val, compile, say)
+        outside = _encompassing(rounds, cur_pred.total, discovered, discovery_note, est, val, compile, say,
+                                warnings)
+        if outside:
+            # the catalogue's best is a stand-in: what is missing is the discovered physics,
+            # and later rounds were tested against a model holding the stand-in
+            rounds[0].verdict = None
+            del rounds[1:]
+            cur_model, cur_res, cur_pred = model, res, pred
     # confusable candidates: significant alone in round 1, explained away by the winner
     first = rounds[0].ranking if rounds else []
     if len(rounds) >= 2 and rounds[0].verdict:
@@ -207,25 +222,12 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                        if cert.residual_over_noise[ch] > UNEXPLAINED_RATIO}
         unexplained_gaps = {n: cert.systematic_gaps[n] for n in cert.off_states()
                             if cert.systematic_gaps[n] > UNEXPLAINED_RATIO}
-    discovered, discovery_note = [], {"status": "not run", "text": "not run (discover=False)", "together": None}
-    if discover:
-        # on the model as given, like the candidates (the same nrmse before): a catalogue
-        # effect added in its place may be a compensating stand-in, and the residual forces
-        # of a model bent around it are not those of the physics that is missing
-        discovered, discovery_note = discover_beyond_catalogue(model, res, pred, est, val, compile, say)
-        best = next((x for x in discovered if x.significant), None)
-        if best is not None and verdict is not None and rounds and rounds[0].ranking[0].nrmse_after is not None \
-                and best.nrmse_after < rounds[0].ranking[0].nrmse_after:
-            warnings.append(f"a combination outside the catalogue explains the validation data better than the "
-                            f"verdict {verdict} (nrmse {best.nrmse_after:.3f} against "
-                            f"{rounds[0].ranking[0].nrmse_after:.3f}): {best.text()}; the missing physics may not "
-                            f"be {verdict} (see 'beyond the catalogue')")
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est[0],
                      validation_source=_validation_source(validation, split, len(est), horizon), unexplained=unexplained,
                      unexplained_gaps=unexplained_gaps,
                      inconsistent=inconsistent, command_imbalance=imbalance,
-                     discovered=discovered, discovery=discovery_note)
+                     discovered=discovered, discovery=discovery_note, outside_catalogue=outside)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile)
@@ -235,6 +237,48 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
+
+
+def _encompassing(rounds: list[Round], final_nrmse: float, discovered: list, note: dict, est: Sequence[FlightLog],
+                  val: Sequence[FlightLog], compile: str, say: Callable[[str], None], warnings: list[str]) -> str:
+    """When a combination outside the catalogue predicts the validation data clearly better
+    than the final model (``final_nrmse``: every round's verdict added), does the first
+    verdict add anything once that combination is in? Its effect and the discovered ones are
+    refitted together (an encompassing test). When the verdict adds less than
+    MIN_VALIDATION_GAIN, it was the nearest catalogue stand-in for physics the catalogue does
+    not hold: it is set aside (``significant`` False, reason in words) and the words for the
+    null verdict are returned; otherwise "" (a warning says what was found)."""
+    sig = [d for d in discovered if d.significant]
+    top = rounds[0].ranking[0] if rounds and rounds[0].verdict and rounds[0].ranking else None
+    if not sig or top is None or top.nrmse_after is None or top.fit is None or not top.fit.converged:
+        return ""
+    together = note.get("together")
+    found = together["nrmse_after"] if together and len(sig) > 1 else sig[0].nrmse_after
+    what = "; ".join(d.text() for d in sig)
+    if not found < (1 - MIN_VALIDATION_GAIN) * min(top.nrmse_after, final_nrmse):
+        # the catalogue's model predicts as well: its verdicts stand
+        return ""
+    t0 = time.perf_counter()
+    joint, jp = refit_with(sig, top.fit, est, val, top.prediction.horizon, compile)
+    adds = 1 - jp.total / found
+    say(f"diagnose: {top.effect} with what discovery found: nrmse {found:.3f} -> {jp.total:.3f} "
+        f"({-100 * adds:+.0f} %; {time.perf_counter() - t0:.1f} s)")
+    if joint.converged and adds < MIN_VALIDATION_GAIN:
+        top.significant = False
+        top.reason = (f"{top.reason}; set aside: added to the combination outside the catalogue ({what}) it "
+                      f"changes the nrmse by {-100 * adds:+.0f} %")
+        warnings.append(f"{top.effect} is significant alone (nrmse {top.nrmse_before:.3f} -> {top.nrmse_after:.3f}) "
+                        f"but a combination outside the catalogue predicts better ({found:.3f}) and {top.effect} "
+                        f"adds nothing to it ({jp.total:.3f}): {top.effect} was standing in for physics the "
+                        f"catalogue does not hold, so the verdict is null (see 'beyond the catalogue')")
+        return (f"what is missing is outside the catalogue: {what} (nrmse {top.nrmse_before:.3f} -> {found:.3f}); "
+                f"the best catalogue effect, {top.effect}, adds nothing once it is in")
+    warnings.append(f"a combination outside the catalogue explains the validation data better than the "
+                    f"diagnosis's final model (nrmse {found:.3f} against {final_nrmse:.3f}): {what}; "
+                    + (f"{top.effect} still adds {100 * adds:.0f} % once it is in (nrmse {jp.total:.3f})"
+                       if joint.converged else f"their joint refit is not certified ({joint.status})")
+                    + " (see 'beyond the catalogue')")
+    return ""
 
 
 def _validation_source(validation, split: float, n_flights: int = 1, horizon: float = DEFAULT_HORIZON) -> str:
