@@ -185,14 +185,18 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # effect added in its place may be a compensating stand-in, and the residual forces
         # of a model bent around it are not those of the physics that is missing
         discovered, discovery_note = discover_beyond_catalogue(model, res, pred, est, val, compile, say)
+        first_verdict = rounds[0].verdict if rounds else None
         outside = _encompassing(rounds, cur_pred.total, discovered, discovery_note, est, val, compile, say,
                                 warnings)
-        if outside:
-            # the catalogue's best is a stand-in: what is missing is the discovered physics,
-            # and later rounds were tested against a model holding the stand-in
-            rounds[0].verdict = None
+        top = rounds[0].ranking[0] if rounds and rounds[0].ranking else None
+        if first_verdict is not None and (top is None or top.effect != first_verdict or not top.significant):
+            # the first verdict was a stand-in for the discovered physics: later rounds were
+            # tested against a model holding it, so the final model is the next candidate that
+            # stands (its own refit), or the model as given
+            rounds[0].verdict = top.effect if top is not None and top.significant else None
             del rounds[1:]
-            cur_model, cur_res, cur_pred = model, res, pred
+            cur_model, cur_res, cur_pred = ((top.fit.model, top.fit, top.prediction) if rounds[0].verdict
+                                            else (model, res, pred))
     # confusable candidates: significant alone in round 1, explained away by the winner
     first = rounds[0].ranking if rounds else []
     if len(rounds) >= 2 and rounds[0].verdict:
@@ -241,44 +245,62 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
 
 def _encompassing(rounds: list[Round], final_nrmse: float, discovered: list, note: dict, est: Sequence[FlightLog],
                   val: Sequence[FlightLog], compile: str, say: Callable[[str], None], warnings: list[str]) -> str:
-    """When a combination outside the catalogue predicts the validation data clearly better
-    than the final model (``final_nrmse``: every round's verdict added), does the first
-    verdict add anything once that combination is in? Its effect and the discovered ones are
-    refitted together (an encompassing test). When the verdict adds less than
-    MIN_VALIDATION_GAIN, it was the nearest catalogue stand-in for physics the catalogue does
-    not hold: it is set aside (``significant`` False, reason in words) and the words for the
-    null verdict are returned; otherwise "" (a warning says what was found)."""
+    """When the combinations found outside the catalogue predict the validation data clearly
+    better than the final model (``final_nrmse``: every round's verdict added), does the
+    verdict add anything once they are in? The first round's significant candidates, best
+    first, are each refitted together with them (an encompassing test). One that improves the
+    validation nrmse by less than MIN_VALIDATION_GAIN was a catalogue stand-in for physics the
+    catalogue does not hold: it is set aside (``significant`` False, reason in words, moved
+    below the significant ones); so is one whose own refit is not certified (no test, no
+    verdict). The first that still adds (or whose joint refit is not certified: no test, no
+    demotion) stays the verdict. Returns the words for a null verdict
+    when every one was set aside, else "" (``rounds[0].ranking`` re-ordered)."""
     sig = [d for d in discovered if d.significant]
-    top = rounds[0].ranking[0] if rounds and rounds[0].verdict and rounds[0].ranking else None
-    if not sig or top is None or top.nrmse_after is None or top.fit is None or not top.fit.converged:
+    ranking = rounds[0].ranking if rounds and rounds[0].verdict else []
+    if not sig or not ranking or ranking[0].nrmse_after is None:
         return ""
     together = note.get("together")
     found = together["nrmse_after"] if together and len(sig) > 1 else sig[0].nrmse_after
     what = "; ".join(d.text() for d in sig)
-    if not found < (1 - MIN_VALIDATION_GAIN) * min(top.nrmse_after, final_nrmse):
+    if not found < (1 - MIN_VALIDATION_GAIN) * min(ranking[0].nrmse_after, final_nrmse):
         # the catalogue's model predicts as well: its verdicts stand
         return ""
-    t0 = time.perf_counter()
-    joint, jp = refit_with(sig, top.fit, est, val, top.prediction.horizon, compile)
-    adds = 1 - jp.total / found
-    say(f"diagnose: {top.effect} with what discovery found: nrmse {found:.3f} -> {jp.total:.3f} "
-        f"({-100 * adds:+.0f} %; {time.perf_counter() - t0:.1f} s)")
-    if joint.converged and adds < MIN_VALIDATION_GAIN:
-        top.significant = False
-        top.reason = (f"{top.reason}; set aside: added to the combination outside the catalogue ({what}) it "
-                      f"changes the nrmse by {-100 * adds:+.0f} %")
-        warnings.append(f"{top.effect} is significant alone (nrmse {top.nrmse_before:.3f} -> {top.nrmse_after:.3f}) "
-                        f"but a combination outside the catalogue predicts better ({found:.3f}) and {top.effect} "
-                        f"adds nothing to it ({jp.total:.3f}): {top.effect} was standing in for physics the "
-                        f"catalogue does not hold, so the verdict is null (see 'beyond the catalogue')")
-        return (f"what is missing is outside the catalogue: {what} (nrmse {top.nrmse_before:.3f} -> {found:.3f}); "
-                f"the best catalogue effect, {top.effect}, adds nothing once it is in")
-    warnings.append(f"a combination outside the catalogue explains the validation data better than the "
-                    f"diagnosis's final model (nrmse {found:.3f} against {final_nrmse:.3f}): {what}; "
-                    + (f"{top.effect} still adds {100 * adds:.0f} % once it is in (nrmse {jp.total:.3f})"
-                       if joint.converged else f"their joint refit is not certified ({joint.status})")
-                    + " (see 'beyond the catalogue')")
-    return ""
+    aside: list[str] = []
+    for c in [c for c in ranking if c.significant]:
+        if c.fit is None or not c.fit.converged:
+            # no test against an uncertified refit, and no verdict from one either
+            c.significant = False
+            c.reason = f"{c.reason}; its refit is not certified, so it is not tested against the discovered physics"
+            continue
+        t0 = time.perf_counter()
+        joint, jp = refit_with(sig, c.fit, est, val, c.prediction.horizon, compile)
+        adds = 1 - jp.total / found
+        say(f"diagnose: {c.effect} with what discovery found: nrmse {found:.3f} -> {jp.total:.3f} "
+            f"({-100 * adds:+.0f} %; {time.perf_counter() - t0:.1f} s)")
+        if not joint.converged or adds >= MIN_VALIDATION_GAIN:
+            warnings.append(f"a combination outside the catalogue explains the validation data better than the "
+                            f"diagnosis's final model (nrmse {found:.3f} against {final_nrmse:.3f}): {what}; "
+                            + (f"{c.effect} still adds {100 * adds:.0f} % once it is in (nrmse {jp.total:.3f})"
+                               if joint.converged else
+                               f"{c.effect}'s joint refit with it is not certified ({joint.status})")
+                            + " (see 'beyond the catalogue')")
+            break
+        c.significant = False
+        c.reason = (f"{c.reason}; set aside: added to the combination outside the catalogue it changes the "
+                    f"validation nrmse by {-100 * adds:+.0f} % ({found:.3f} -> {jp.total:.3f})")
+        aside.append(c.effect)
+    if not aside:
+        return ""
+    ranking.sort(key=lambda c: not c.significant)      # stable: the survivors first, in their order
+    names = ", ".join(aside)
+    warnings.append(f"{names} {'is' if len(aside) == 1 else 'are'} significant alone but a combination outside "
+                    f"the catalogue predicts better (nrmse {found:.3f}) and {'it adds' if len(aside) == 1 else 'they add'} "
+                    f"nothing to it: standing in for physics the catalogue does not hold, set aside "
+                    f"(see 'beyond the catalogue'): {what}")
+    if ranking[0].significant:
+        return ""
+    return (f"what is missing is outside the catalogue: {what} (nrmse {ranking[0].nrmse_before:.3f} -> {found:.3f}); "
+            f"the catalogue's best ({names}) add{'s' if len(aside) == 1 else ''} nothing once it is in")
 
 
 def _validation_source(validation, split: float, n_flights: int = 1, horizon: float = DEFAULT_HORIZON) -> str:
