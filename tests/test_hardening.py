@@ -533,3 +533,15 @@ def test_warnings_reach_the_terminal_as_one_line_without_source(tmp_path, capsys
     warn = [l for l in err.splitlines() if "warning" in l]
     assert warn and all(l.startswith("greybox: warning: ") for l in warn)
     assert ".py:" not in err
+
+
+def test_initial_states_of_another_model_are_named_not_a_casadi_error(short_log):
+    """Node states from a fit of the base model handed to a model with motor_lag (four more
+    states): one GreyboxInputError that says which shapes were expected, before any solve."""
+    from greybox import effects
+    from greybox.fitting import fit
+    base = QuadrotorModel(load_airframe(PAPER))
+    log = load_log(short_log)
+    lagged = base + effects.by_name("motor_lag")
+    with pytest.raises(GreyboxInputError, match=r"initial_states: .*16 states.*got \(\d+, 12\)"):
+        fit(lagged, log, initial_states=[np.zeros((31, 12))], max_iter=1)

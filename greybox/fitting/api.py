@@ -415,7 +415,15 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         f"{' (compiled once that pays)' if ses.prob.compiles_when_it_pays else ''}"
         f" ({ses.t_build:.1f} s)")
     if initial_states is not None:
-        X = np.vstack([np.array(s, dtype=float) for s in initial_states])
+        guesses = [np.array(s, dtype=float) for s in initial_states]
+        want = [(len(idx), model.nx) for idx in ses.data.node_index]
+        got = [g.shape for g in guesses]
+        if got != want:
+            # e.g. the node states of a fit of another model (motor_lag adds four states)
+            raise GreyboxInputError(f"initial_states: one array per flight of shape (nodes, states) = "
+                                    f"{', '.join(map(str, want))} for this model ({model.nx} states: "
+                                    f"{', '.join(model.state_names)}) and interval, got {', '.join(map(str, got))}")
+        X = np.vstack(guesses)
     else:
         X = ses.initial_nodes(p)
     th = ses.theta(p)
