@@ -109,15 +109,11 @@ def _added(d: "Diagnosis") -> list[str]:
 
 
 def _verdict_words(d: "Diagnosis") -> str:
-    if d.verdict:
-        return d.verdict
-    if not d.baseline_certified:
-        return "null (cannot tell: the baseline fit is not certified)"
-    if d.outside_catalogue:
-        return "null (what is missing is outside the catalogue: see the discovered combinations)"
-    if d.unexplained or d.unexplained_gaps:
-        return "null (the model misses something no candidate explains)"
-    return "null (nothing significant is missing)"
+    return d.verdict or {"uncertified": "null (cannot tell: the baseline fit is not certified)",
+                         "outside_catalogue": "null (what is missing is outside the catalogue: see the discovered "
+                                              "combinations)",
+                         "unexplained": "null (the model misses something no candidate explains)",
+                         "nothing_missing": "null (nothing significant is missing)"}[d.null_reason]
 
 
 def diagnosis_text(d: "Diagnosis") -> str:

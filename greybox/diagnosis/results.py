@@ -258,21 +258,35 @@ class Diagnosis:
         out["time_s"] = self.timings.get("total")
         return out
 
+    @property
+    def null_reason(self) -> str | None:
+        """Why the verdict is null: ``"uncertified"`` (the baseline fit is not certified, nothing
+        was tested), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
+        physics), ``"unexplained"`` (residuals far above the noise that no candidate explains)
+        or ``"nothing_missing"``; None when there is a verdict."""
+        if self.verdict:
+            return None
+        if not self.baseline_certified:
+            return "uncertified"
+        if self.outside_catalogue:
+            return "outside_catalogue"
+        if self.unexplained or self.unexplained_gaps:
+            return "unexplained"
+        return "nothing_missing"
+
     def verdict_text(self) -> str:
         """The verdict in words: the effect and how much it explains, or why it is null."""
-        if self.verdict:
+        why = self.null_reason
+        if why is None:
             top = self.ranking[0] if self.ranking else None
             share = (f"; it removes {100 * top.explained:.0f} % of the residual above the sensor noise"
                      if top is not None and top.explained is not None else "")
             return f"{self.verdict}{share}"
-        if self.outside_catalogue:
-            return f"null -- {self.outside_catalogue}"
-        if self.unexplained or self.unexplained_gaps:
-            return (f"null -- the model is missing something no candidate explains: {self._far_off()}"
-                    + (f"; {self.findings[0].text}" if self.findings else ""))
-        if not self.baseline_certified:
-            return "null (cannot tell: the baseline fit is not certified)"
-        return "null (nothing significant is missing)"
+        return {"uncertified": "null (cannot tell: the baseline fit is not certified)",
+                "outside_catalogue": f"null -- {self.outside_catalogue}",
+                "unexplained": f"null -- the model is missing something no candidate explains: {self._far_off()}"
+                               + (f"; {self.findings[0].text}" if self.findings else ""),
+                "nothing_missing": "null (nothing significant is missing)"}[why]
 
     def summary(self) -> str:
         """Readable text of steps 1-4."""

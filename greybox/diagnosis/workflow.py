@@ -188,15 +188,15 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         first_verdict = rounds[0].verdict if rounds else None
         outside = _encompassing(rounds, cur_pred.total, discovered, discovery_note, est, val, compile, say,
                                 warnings)
-        top = rounds[0].ranking[0] if rounds and rounds[0].ranking else None
-        if first_verdict is not None and (top is None or top.effect != first_verdict or not top.significant):
+        top = rounds[0].ranking[0] if first_verdict else None        # re-ordered: survivors first
+        standing = top.effect if top is not None and top.significant else None
+        if standing != first_verdict:
             # the first verdict was a stand-in for the discovered physics: later rounds were
             # tested against a model holding it, so the final model is the next candidate that
             # stands (its own refit), or the model as given
-            rounds[0].verdict = top.effect if top is not None and top.significant else None
+            rounds[0].verdict = standing
             del rounds[1:]
-            cur_model, cur_res, cur_pred = ((top.fit.model, top.fit, top.prediction) if rounds[0].verdict
-                                            else (model, res, pred))
+            cur_model, cur_res, cur_pred = (top.fit.model, top.fit, top.prediction) if standing else (model, res, pred)
     # confusable candidates: significant alone in round 1, explained away by the winner
     first = rounds[0].ranking if rounds else []
     if len(rounds) >= 2 and rounds[0].verdict:

@@ -502,7 +502,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
             # second strategy would spend most of the fit learning that again (greybox's own
             # flight without yaw_torque: 335 iterations, 38 s, then process noise in 6 s);
             # should the soft fit fail too, output error is solved to its end after all
-            gap = check(X, th, blocks)[2][2]
+            _, _, (_, _, gap, _, _) = check(X, th, blocks)
             if gap > CANNOT_FOLLOW_GAP:
                 raise _CannotFollow(f"its first solve stopped ({status}) with shooting gaps open up to "
                                     f"{gap:.3g} times the states' noise scale")
