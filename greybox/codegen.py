@@ -13,6 +13,7 @@ that build the same function share one library, and a function that differs in a
 """
 from __future__ import annotations
 
+import atexit
 import hashlib
 import os
 import shutil
@@ -28,7 +29,7 @@ import numpy as np
 from .errors import CacheWarning
 
 __all__ = ["compiled", "cached", "expected_build_seconds", "add_vm_seconds", "library_path", "precompile", "cache_dir", "compiler_available",
-           "CacheWarning"]
+           "Build", "start_build", "running_build", "queue_builds", "poll_builds", "cancel_builds", "CacheWarning"]
 
 # Seconds of C compiler time per CasADi instruction (gcc 12, one core, generated step
 # functions of 3k-120k instructions: -O1 1.9 s for 34k, 6.2 s for 96k; -O0 about half).
@@ -230,6 +231,142 @@ def _build(f: ca.Function, lib: Path, cc: str, opt: str) -> bool:
         return lib.exists()
 
 
+class Build:
+    """A library being compiled in the background (:func:`start_build`): the caller goes on
+    (on CasADi's virtual machine) and asks :meth:`result` now and then. The compiler runs in
+    its own process group and temporary folder; :func:`cancel_builds` ends every one still
+    running (the CLI does so before it exits after an interrupt; at a normal exit, too)."""
+
+    def __init__(self, f: ca.Function, lib: Path, cc: str, opt: str):
+        self.f, self.lib = f, lib
+        self._tmp = tempfile.TemporaryDirectory()
+        try:
+            src = _generate(f, self._tmp.name)
+            self._out = Path(self._tmp.name) / "lib.so"
+            self._proc: subprocess.Popen | None = _start_compiler(
+                _compile_command(cc, opt, src, self._out), Path(self._tmp.name))
+        except BaseException:
+            self._tmp.cleanup()
+            raise
+        self._result: tuple[ca.Function, str] | None = None
+
+    def done(self) -> bool:
+        """Whether the compiler has finished (successfully or not)."""
+        return self._proc is None or self._proc.poll() is not None
+
+    def result(self) -> tuple[ca.Function, str] | None:
+        """None while the compiler runs; then ``(function, how)`` as :func:`compiled` gives
+        (``how`` = ``"compiled"``, or ``"virtual machine"`` with ``f`` when the compiler or
+        the library failed, said once)."""
+        if self._result is None and self.done():
+            self._result = self._finish()
+        return self._result
+
+    def _finish(self) -> tuple[ca.Function, str]:
+        proc, self._proc = self._proc, None
+        _builds.pop(self.lib, None)
+        try:
+            ok = proc is not None and proc.returncode == 0 and self._out.exists()
+            if ok:
+                _install(self._out, self.lib)
+        finally:
+            self._tmp.cleanup()
+        g = _load_checked(self.f, self.lib) if ok and self.lib.exists() else None
+        if g is None and self.lib.parent != cache_dir():
+            return self.f, "virtual machine"    # the cache it was for has gone (GREYBOX_CACHE changed)
+        if g is None:
+            _note("the C compiler failed on a generated function; using CasADi's virtual machine"
+                  if not ok else f"compile cache: the library built for {self.f.name()} does not "
+                  "reproduce it; using CasADi's virtual machine")
+            return self.f, "virtual machine"
+        return g, "compiled"
+
+    def cancel(self) -> None:
+        """End the compiler (its whole process group) and remove its files."""
+        proc, self._proc = self._proc, None
+        _builds.pop(self.lib, None)
+        if proc is not None:
+            _kill(proc)
+        self._tmp.cleanup()
+        if self._result is None:
+            self._result = (self.f, "virtual machine")
+
+
+_builds: dict[Path, Build] = {}
+_queued: dict[Path, tuple[ca.Function, str]] = {}
+QUEUE_WORKERS = 1
+"""Background builds :func:`queue_builds` runs at a time (the fit keeps the other core)."""
+
+
+def start_build(f: ca.Function, opt: str = "-O1", lib: Path | None = None) -> Build | None:
+    """Start compiling ``f`` into the cache in the background and return at once; the build
+    already running for the same library if there is one (a queued one is started now).
+    None when there is no compiler or the cache cannot be written (the function then stays
+    on the virtual machine)."""
+    cc = compiler_available()
+    if cc is None:
+        return None
+    lib = lib if lib is not None else _lib_path(f, None, opt)
+    poll_builds()
+    if lib in _builds:
+        return _builds[lib]
+    _queued.pop(lib, None)
+    if not _writable_cache():
+        return None
+    _builds[lib] = Build(f, lib, cc, opt)
+    return _builds[lib]
+
+
+def running_build(lib: Path) -> Build | None:
+    """The background build of library ``lib`` if one is running."""
+    return _builds.get(lib)
+
+
+def queue_builds(functions: "list[ca.Function]", opt: str = "-O1") -> None:
+    """Compile ``functions`` into the cache in the background, :data:`QUEUE_WORKERS` at a time,
+    for work known to come (the next round's candidate refits): started and collected
+    whenever :func:`poll_builds` runs (every evaluation of a fit in ``"auto"`` mode), so the
+    fits meanwhile go on and find the libraries ready. Those cached or building are skipped."""
+    if compiler_available() is None:
+        return
+    for f in functions:
+        lib = _lib_path(f, None, opt)
+        if lib not in _builds and lib not in _queued and not lib.exists():
+            _queued[lib] = (f, opt)
+    poll_builds()
+
+
+def poll_builds() -> None:
+    """Collect finished background builds (into the cache) and start queued ones."""
+    for b in list(_builds.values()):
+        if b.done():
+            b.result()
+    cc = compiler_available()
+    while _queued and len(_builds) < QUEUE_WORKERS and cc is not None:
+        lib, (f, opt) = next(iter(_queued.items()))
+        del _queued[lib]
+        if lib.parent != cache_dir() or lib.exists() or not _writable_cache():
+            continue    # queued for another cache (GREYBOX_CACHE changed), or there already
+        _builds[lib] = Build(f, lib, cc, opt)
+
+
+def cancel_builds() -> None:
+    """End every background build still running (:class:`Build`) and forget the queued ones."""
+    _queued.clear()
+    for b in list(_builds.values()):
+        b.cancel()
+
+
+def _at_exit() -> None:
+    for b in list(_builds.values()):     # finished ones go into the cache
+        if b.done():
+            b.result()
+    cancel_builds()
+
+
+atexit.register(_at_exit)
+
+
 def _elf_complete(path: Path) -> bool:
     """Whether ``path`` is a whole ELF shared library: every segment to be mapped and the
     section header table lie inside the file. A truncated file would pass ``dlopen`` and
@@ -319,6 +456,7 @@ def cached(f: ca.Function, key: str | None = None, opt: str = "-O1", lib: Path |
     ``lib``: its :func:`library_path`, when known."""
     if compiler_available() is None:
         return None
+    poll_builds()
     lib = lib if lib is not None else _lib_path(f, key, opt)
     return _load_checked(f, lib) if lib.exists() else None
 

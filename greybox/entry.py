@@ -31,6 +31,10 @@ def run(argv: Sequence[str] | None = None) -> int:
         # (e.g. while CasADi was being imported) marks it "unhandled" for the interpreter,
         # which would then kill itself with SIGINT at exit although we handled it: leave now,
         # with our status (every clean-up has run: the exception went through it).
+        # os._exit runs no atexit handler: end the compilers still building in the background
+        codegen = sys.modules.get("greybox.codegen")
+        if codegen is not None:
+            codegen.cancel_builds()
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)

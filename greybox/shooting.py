@@ -47,6 +47,10 @@ def default_interval(logs: "Sequence[FlightLog]") -> int:
     return max(1, int(round(DEFAULT_INTERVAL_S / dt)))
 
 PSI = OUTPUTS.index("psi")
+BACKGROUND_BUILD_AT = 0.5
+"""In ``"auto"`` compile mode, the fraction of a step function's expected build time spent on
+CasADi's virtual machine after which it is compiled in the background (the compiler then
+shares the cores with the fit for a few seconds, but nothing waits for it)."""
 
 # ------------------------------------------------------------------------------ noise
 def estimate_noise(y: np.ndarray) -> float:
@@ -155,10 +159,11 @@ class ShootingProblem:
     - ``"auto"``: a library from the compile cache if there is one; otherwise the virtual
       machine, until the time spent evaluating it there (by every problem of the same
       structure, in this process and earlier runs: :func:`greybox.codegen.add_vm_seconds`)
-      reaches the compiler's expected time for it, then it is
-      compiled (``-O1``) and used from there on. A job that evaluates a function a few
-      times (a screening, a short refit) never waits for a compiler; a long fit, or many
-      short ones, pay at most twice what knowing the total beforehand would.
+      reaches half the compiler's expected time for it; then it is compiled (``-O1``) in the
+      background while the virtual machine goes on, and the library is used from when it
+      is ready. A job that evaluates a function a few times (a screening, a short refit)
+      never starts a compiler, and none ever waits for one: a refit that ends before its
+      library is ready has it ready in the cache for the next fit of that structure.
     - ``"always"``: compile at once (``-O1``); ``"quick"``: at once, unoptimised (``-O0``);
     - ``"never"``: the virtual machine only.
     """
@@ -219,6 +224,7 @@ class ShootingProblem:
         self._step: dict[str, ca.Function] = {}
         self._how: dict[str, str] = {}
         self._lib: dict[str, Path] = {}       # kind -> its library path in the compile cache
+        self._build: dict[str, codegen.Build] = {}   # kind -> its library being compiled
         self.version = 0            # bumped when a step function is swapped for its compiled twin
         self._interval: dict[str, ca.Function] = {}
         self._maps: dict[int, "MappedPair"] = {}
@@ -261,16 +267,43 @@ class ShootingProblem:
 
     def account(self, kind: str, seconds: float) -> None:
         """Record ``seconds`` spent evaluating ``kind`` ("blocks" or "value"); in ``"auto"``
-        mode, compile its step function once the virtual machine has cost as much as the
-        compiler is expected to."""
+        mode, start compiling its step function in the background once the virtual machine
+        has cost :data:`BACKGROUND_BUILD_AT` of what the compiler is expected to, and swap
+        the library in when it is ready."""
+        if self.compile_mode == "auto":
+            codegen.poll_builds()           # queued builds of work to come move on too
         if kind not in self._lib or self._how.get(kind) != "virtual machine":
             return
+        build = self._build.get(kind) or codegen.running_build(self._lib[kind])
         f = self._symbolic[kind]
-        if codegen.add_vm_seconds(self._lib[kind], seconds) < codegen.expected_build_seconds(f, self._opt):
-            return
-        g, how = codegen.compiled(f, opt=self._opt, lib=self._lib[kind])
+        if build is None and self._lib[kind].exists():
+            # built meanwhile (queued for this work, or by another process)
+            g = codegen.cached(f, opt=self._opt, lib=self._lib[kind])
+            if g is not None:
+                self._swap(kind, g, "cached")
+                return
+        if build is None:
+            spent = codegen.add_vm_seconds(self._lib[kind], seconds)
+            if spent < BACKGROUND_BUILD_AT * codegen.expected_build_seconds(f, self._opt):
+                return
+            build = codegen.start_build(f, opt=self._opt, lib=self._lib[kind])
+            if build is None:               # no compiler, or no cache to write: decided
+                del self._lib[kind]
+                return
+        else:
+            codegen.add_vm_seconds(self._lib[kind], seconds)
+        self._build[kind] = build
+        got = build.result()
+        if got is None:
+            return                          # still compiling: go on on the virtual machine
+        self._swap(kind, *got)
+
+    def _swap(self, kind: str, g: ca.Function, how: str) -> None:
+        """Decided: run ``kind`` as ``g`` (compiled or cached), or on the virtual machine for
+        good when the compiler failed."""
         self._how[kind] = how
-        del self._lib[kind]                 # decided: compiled, or the compiler failed (said once)
+        self._lib.pop(kind, None)
+        self._build.pop(kind, None)
         if how != "virtual machine":
             self._step[kind] = g
             self._interval.pop(kind, None)

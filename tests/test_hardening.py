@@ -396,6 +396,7 @@ def cache(tmp_path, monkeypatch):
         pytest.skip("no C compiler")
     monkeypatch.setenv("GREYBOX_CACHE", str(tmp_path / "cache"))
     codegen._warned.clear()
+    codegen.cancel_builds()        # none left over from an earlier test's fits
     return tmp_path / "cache"
 
 
@@ -456,11 +457,20 @@ def test_foreign_library_under_a_cache_name_is_never_used(cache):
     np.testing.assert_allclose(_value(g), _value(f), rtol=1e-12)
 
 
-def test_auto_compiles_only_once_the_virtual_machine_has_cost_the_build(cache, monkeypatch):
-    """compile="auto": nothing is built for a function evaluated a few times; it is compiled
-    once its evaluations have cost what the compiler is expected to, the compiled twin gives
-    the same blocks, and a second problem of the same structure loads it from the cache."""
-    from greybox.shooting import ShootingProblem
+def _until_compiled(prob, kind: str = "blocks", timeout: float = 120.0) -> None:
+    """Report tiny evaluations until the background build is swapped in (or time runs out)."""
+    deadline = time.time() + timeout
+    while prob._how[kind] == "virtual machine" and time.time() < deadline:
+        prob.account(kind, 1e-6)
+        time.sleep(0.05)
+
+
+def test_auto_compiles_in_the_background_once_the_virtual_machine_has_cost_half_the_build(cache, monkeypatch):
+    """compile="auto": nothing is built for a function evaluated a few times; once its
+    evaluations have cost half what the compiler is expected to, it is compiled in the
+    background (the fit goes on on the virtual machine meanwhile), the compiled twin gives the
+    same blocks, and a second problem of the same structure loads it from the cache."""
+    from greybox.shooting import BACKGROUND_BUILD_AT, ShootingProblem
     model = QuadrotorModel(load_airframe(resources.files("greybox") / "data" / "airframes" / "paper.toml"))
     free = [model.param_names.index("K_T")]
     prob = ShootingProblem(model, free, 5, 1, "auto")
@@ -471,28 +481,79 @@ def test_auto_compiles_only_once_the_virtual_machine_has_cost_the_build(cache, m
     args = [rng.uniform(0.5, 1.5, (f.size1_in(i), f.size2_in(i) * M)) for i in range(f.n_in())]
     pair = prob.mapped(M)
     before = [np.asarray(a) for a in pair.blocks(*args)]
-    assert prob.how == "virtual machine"         # one cheap evaluation: no compiler started
+    assert prob.how == "virtual machine" and not codegen._builds   # one cheap evaluation: no compiler
     need = codegen.expected_build_seconds(prob._symbolic["blocks"])
-    prob.account("blocks", need)                  # as if the VM had run that long
+    prob.account("blocks", BACKGROUND_BUILD_AT * need)       # as if the VM had run that long
+    assert len(codegen._builds) == 1                         # compiling, and nothing waited for it
+    during = [np.asarray(a) for a in pair.blocks(*args)]     # still evaluates meanwhile
+    _until_compiled(prob)
     assert prob.how == "compiled" and len(list(cache.glob("gb_step_blocks_*.so"))) == 1
-    after = [np.asarray(a) for a in pair.blocks(*args)]     # the map was rebuilt around C code
-    for a, b in zip(before, after):
-        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12)
+    assert not codegen._builds
+    after = [np.asarray(a) for a in pair.blocks(*args)]      # the map was rebuilt around C code
+    for a, b, c in zip(before, during, after):
+        np.testing.assert_allclose(a, b, rtol=1e-12)
+        np.testing.assert_allclose(a, c, rtol=1e-10, atol=1e-12)
     again = ShootingProblem(model, free, 5, 1, "auto")
     assert again.how == "cached"
     assert ShootingProblem(model, free, 5, 1, "never").how == "virtual machine"
     # the VM time is kept beside the cache: a short job run twice compiles on its second run
+    monkeypatch.setattr(codegen, "VM_TIME_STEP", 1e-9)    # every second written to the file
     other = [model.param_names.index("b")]
     first = ShootingProblem(model, other, 5, 1, "auto")
     need = codegen.expected_build_seconds(first._symbolic["blocks"])
-    first.account("blocks", 0.6 * need)
-    assert first.how == "virtual machine"
+    first.account("blocks", 0.6 * BACKGROUND_BUILD_AT * need)
+    assert first.how == "virtual machine" and not codegen._builds
     monkeypatch.setattr(codegen, "_vm_seconds", {})      # a new process
     monkeypatch.setattr(codegen, "_vm_unsaved", {})
     second = ShootingProblem(model, other, 5, 1, "auto")
     assert second.how == "virtual machine"
-    second.account("blocks", 0.6 * need)
+    second.account("blocks", 0.6 * BACKGROUND_BUILD_AT * need)
+    _until_compiled(second)
     assert second.how == "compiled"
+
+
+def test_a_background_build_whose_fit_ended_first_goes_into_the_cache(cache):
+    """A short refit may end before its library is ready: the build is not lost, the next
+    problem of that structure loads it from the cache; a cancelled build leaves nothing."""
+    from greybox.shooting import ShootingProblem
+    model = QuadrotorModel(load_airframe(resources.files("greybox") / "data" / "airframes" / "paper.toml"))
+    free = [model.param_names.index("K_T")]
+    prob = ShootingProblem(model, free, 5, 1, "auto")
+    build = codegen.start_build(prob._symbolic["blocks"])
+    del prob                                             # the fit that started it is over
+    deadline = time.time() + 120
+    while not build.done() and time.time() < deadline:
+        time.sleep(0.05)
+    assert ShootingProblem(model, free, 5, 1, "auto").how == "cached"
+    assert not codegen._builds
+    other = ShootingProblem(model, [model.param_names.index("b")], 5, 1, "auto")
+    codegen.start_build(other._symbolic["blocks"])
+    codegen.cancel_builds()
+    assert not codegen._builds and len(list(cache.glob("gb_step_blocks_*.so"))) == 1
+
+
+def test_queued_builds_run_one_at_a_time_and_a_fit_takes_its_library_when_ready(cache):
+    """Work known to come (a round's candidate refits) is queued: one compiler at a time,
+    moved on by every evaluation; a problem of a queued structure swaps its library in as
+    soon as it is there, without compiling it again."""
+    from greybox.shooting import ShootingProblem
+    model = QuadrotorModel(load_airframe(resources.files("greybox") / "data" / "airframes" / "paper.toml"))
+    probs = [ShootingProblem(model, [model.param_names.index(n)], 5, 1, "auto") for n in ("K_T", "b")]
+    codegen.queue_builds([p._symbolic["blocks"] for p in probs] + [_tiny_function("gb_test_q", 3.0)])
+    assert len(codegen._builds) == 1 and len(codegen._queued) == 2
+    deadline = time.time() + 180
+    while (codegen._builds or codegen._queued) and time.time() < deadline:
+        assert len(codegen._builds) <= codegen.QUEUE_WORKERS
+        probs[1].account("blocks", 1e-6)       # an evaluation of a fit moves the queue on
+        time.sleep(0.05)
+    assert len(list(cache.glob("gb_step_blocks_*.so"))) == 2 and len(list(cache.glob("gb_test_q_*.so"))) == 1
+    # both problems started before their libraries existed: each takes it at its next evaluation
+    for p in probs:       # the one evaluated while its build ran took it when it finished
+        p.account("blocks", 1e-6)
+        assert p.how in ("cached", "compiled")
+    assert len(list(cache.glob("gb_step_blocks_*.so"))) == 2      # none built twice
+    codegen.queue_builds([probs[0]._symbolic["blocks"]])      # cached: nothing queued again
+    assert not codegen._builds and not codegen._queued
 
 
 def test_unwritable_cache_falls_back_with_one_warning(tmp_path, monkeypatch):

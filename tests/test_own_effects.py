@@ -115,6 +115,7 @@ def test_effects_file_everywhere_on_the_command_line(effect_file, tmp_path, caps
     assert len(err) == 1 and str(bad) in err[0] and "line 5" in err[0]
 
 
+@pytest.mark.slow    # about a minute; the file on every command is checked in the default run
 def test_own_effect_is_ranked_first_on_a_flight_that_has_it(effect_file, tmp_path, capsys):
     """A flight with body-rate damping (the user's own effect, k_w as the file's plausible
     values): the diagnosis names it first, ahead of catalogue effects that also touch rates."""

@@ -18,7 +18,7 @@ from ..validation import Prediction
 from .analysis import estimation_residuals
 from .results import CandidateResult
 from .screening import (explained_fraction, held_on_bound, lr_test, null_on_bound, physically_implausible, physically_negligible,
-                        physically_small, precompile_refits, prediction_change, profile_log_likelihood, refit,
+                        physically_small, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
                         screen)
 
 __all__ = ["ALPHA", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "MIN_EXPLAINED", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
@@ -125,6 +125,9 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     # flight the builds took 50-120 s a round against 3-10 s of refits), except for the cold
     # refits of every candidate, which all need their blocks: built at once, quick, in parallel.
     rcompile = compile
+    if not cold and compile == "auto" and to_refit:
+        queue_refit_builds(model, res, [c.effect for c in to_refit],
+                           n_substeps(max(float(np.diff(lg.t).max()) for lg in est)))
     if cold and compile == "auto":
         t0 = time.perf_counter()
         n_sub = n_substeps(max(float(np.diff(lg.t).max()) for lg in est))

@@ -24,7 +24,7 @@ from ..shooting import ShootingProblem, free_indices
 from ..validation import DEFAULT_HORIZON, Prediction, predict_after_fit
 
 __all__ = ["NEGLIGIBLE_FRACTION", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
-           "explained_fraction", "physically_negligible", "physically_implausible", "held_on_bound", "null_on_bound", "precompile_refits"]
+           "explained_fraction", "physically_negligible", "physically_implausible", "held_on_bound", "null_on_bound", "precompile_refits", "queue_refit_builds"]
 
 
 NEGLIGIBLE_FRACTION = 0.01
@@ -431,6 +431,21 @@ def null_on_bound(ext: QuadrotorModel, name: str) -> bool:
     """Whether a parameter of effect ``name`` has its null value on its lower bound (a
     one-sided test: chi-bar-square)."""
     return any(par.effect == name and par.lower >= min(par.null, par.upper) for par in ext.parameters)
+
+
+def queue_refit_builds(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: int) -> None:
+    """Compile the refit step functions (blocks, line search, start-state estimation) of candidates ``names`` in
+    the background, one compiler at a time, in the order they will be refitted: the refits
+    go on meanwhile (the first on the virtual machine) and the later ones find their
+    libraries ready. A round's models are new structures (the last round's verdict is in
+    them), so a fresh compile cache would otherwise make each refit wait for its own."""
+    from ..codegen import queue_builds
+    functions = []
+    for name in names:
+        ext, _, free = extended_model(model, res, name)
+        functions.extend(ShootingProblem.step_functions(ext, free_indices(ext, free, None), n_sub))
+        functions.append(ShootingProblem.step_functions(ext, [], n_sub)[0])   # its predictions' start states
+    queue_builds(functions)
 
 
 def precompile_refits(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: int) -> None:

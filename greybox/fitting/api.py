@@ -187,8 +187,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         noise: channel noise standard deviations ``{"x": 0.003, ...}``; others are estimated.
         reweight: re-estimate channel noise from the residuals and solve again.
         compile: ``"auto"`` (a compiled step function from the cache, else CasADi's virtual
-            machine until evaluating there has cost what compiling is expected to, then
-            compiled to C), ``"always"`` (compile at once), ``"quick"`` (at once, without
+            machine, compiled to C in the background once evaluating there has cost half
+            what compiling is expected to, and used when ready), ``"always"`` (compile at once), ``"quick"`` (at once, without
             optimisation: faster to build, slower to run) or ``"never"``.
         progress: True to print iterations to stderr, or a callable taking a line of text.
         initial_states: per flight (M+1, nx) node state guesses (default: from the data).
