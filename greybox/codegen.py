@@ -29,7 +29,8 @@ import numpy as np
 from .errors import CacheWarning
 
 __all__ = ["compiled", "cached", "expected_build_seconds", "add_vm_seconds", "library_path", "precompile", "cache_dir", "compiler_available",
-           "Build", "start_build", "running_build", "queue_builds", "poll_builds", "cancel_builds", "CacheWarning"]
+           "Build", "start_build", "running_build", "queue_builds", "poll_builds", "cancel_builds",
+           "finish_builds_at_exit", "discard_broken", "CacheWarning"]
 
 # Seconds of C compiler time per CasADi instruction (gcc 12, one core, generated step
 # functions of 3k-120k instructions: -O1 1.9 s for 34k, 6.2 s for 96k; -O0 about half).
@@ -239,14 +240,17 @@ class Build:
 
     def __init__(self, f: ca.Function, lib: Path, cc: str, opt: str):
         self.f, self.lib = f, lib
-        self._tmp = tempfile.TemporaryDirectory()
+        self._replaces = lib.exists()     # a broken file under the name: load the new one privately
+        # a plain folder, not a TemporaryDirectory: Python's exit-time clean-up of those runs
+        # before our atexit handler and would delete a finished library before it is installed
+        self._tmp = tempfile.mkdtemp(prefix="greybox-build-")
         try:
-            src = _generate(f, self._tmp.name)
-            self._out = Path(self._tmp.name) / "lib.so"
+            src = _generate(f, self._tmp)
+            self._out = Path(self._tmp) / "lib.so"
             self._proc: subprocess.Popen | None = _start_compiler(
-                _compile_command(cc, opt, src, self._out), Path(self._tmp.name))
+                _compile_command(cc, opt, src, self._out), Path(self._tmp))
         except BaseException:
-            self._tmp.cleanup()
+            shutil.rmtree(self._tmp, ignore_errors=True)
             raise
         self._result: tuple[ca.Function, str] | None = None
 
@@ -259,43 +263,68 @@ class Build:
         (``how`` = ``"compiled"``, or ``"virtual machine"`` with ``f`` when the compiler or
         the library failed, said once)."""
         if self._result is None and self.done():
+            self._result = (self.f, "virtual machine")     # stays so if interrupted below
             self._result = self._finish()
         return self._result
 
-    def _finish(self) -> tuple[ca.Function, str]:
+    def install(self) -> bool:
+        """Put a finished library into the cache (no loading, no warning); whether it did."""
         proc, self._proc = self._proc, None
-        _builds.pop(self.lib, None)
+        self._forget()
         try:
             ok = proc is not None and proc.returncode == 0 and self._out.exists()
             if ok:
                 _install(self._out, self.lib)
+            return ok
         finally:
-            self._tmp.cleanup()
-        g = _load_checked(self.f, self.lib) if ok and self.lib.exists() else None
+            shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def _finish(self) -> tuple[ca.Function, str]:
+        if self._proc is None:
+            return self.f, "virtual machine"          # cancelled
+        built = self.install()
+        g = _load_checked(self.f, self.lib, private=self._replaces) if built and self.lib.exists() else None
         if g is None and self.lib.parent != cache_dir():
             return self.f, "virtual machine"    # the cache it was for has gone (GREYBOX_CACHE changed)
         if g is None:
             _note("the C compiler failed on a generated function; using CasADi's virtual machine"
-                  if not ok else f"compile cache: the library built for {self.f.name()} does not "
-                  "reproduce it; using CasADi's virtual machine")
+                  if not built else f"compile cache: the library built for {self.f.name()} could not be "
+                  "installed or does not reproduce it; using CasADi's virtual machine")
             return self.f, "virtual machine"
         return g, "compiled"
+
+    def _forget(self) -> None:
+        if _builds.get(self.lib) is self:
+            del _builds[self.lib]
 
     def cancel(self) -> None:
         """End the compiler (its whole process group) and remove its files."""
         proc, self._proc = self._proc, None
-        _builds.pop(self.lib, None)
-        if proc is not None:
+        self._forget()
+        if proc is not None and proc.poll() is None:
             _kill(proc)
-        self._tmp.cleanup()
+        shutil.rmtree(self._tmp, ignore_errors=True)
         if self._result is None:
             self._result = (self.f, "virtual machine")
+
+
+def _new_build(f: ca.Function, lib: Path, cc: str, opt: str) -> Build | None:
+    """A started :class:`Build`, or None (said once) when code generation or starting the
+    compiler fails: background work never breaks the fit that is running."""
+    try:
+        return Build(f, lib, cc, opt)
+    except Exception as e:       # noqa: BLE001 - any failure means: stay on the virtual machine
+        _note(f"could not start the C compiler on a generated function ({e}); using CasADi's "
+              "virtual machine")
+        return None
 
 
 _builds: dict[Path, Build] = {}
 _queued: dict[Path, tuple[ca.Function, str]] = {}
 QUEUE_WORKERS = 1
-"""Background builds :func:`queue_builds` runs at a time (the fit keeps the other core)."""
+"""Queued background builds (:func:`queue_builds`) run at most this many at a time (the fit
+keeps the other core); a build a running fit needs now (:func:`start_build`) is started
+beside them."""
 
 
 def start_build(f: ca.Function, opt: str = "-O1", lib: Path | None = None) -> Build | None:
@@ -307,14 +336,16 @@ def start_build(f: ca.Function, opt: str = "-O1", lib: Path | None = None) -> Bu
     if cc is None:
         return None
     lib = lib if lib is not None else _lib_path(f, None, opt)
+    _queued.pop(lib, None)
     poll_builds()
     if lib in _builds:
         return _builds[lib]
-    _queued.pop(lib, None)
     if not _writable_cache():
         return None
-    _builds[lib] = Build(f, lib, cc, opt)
-    return _builds[lib]
+    build = _new_build(f, lib, cc, opt)
+    if build is not None:
+        _builds[lib] = build
+    return build
 
 
 def running_build(lib: Path) -> Build | None:
@@ -347,7 +378,9 @@ def poll_builds() -> None:
         del _queued[lib]
         if lib.parent != cache_dir() or lib.exists() or not _writable_cache():
             continue    # queued for another cache (GREYBOX_CACHE changed), or there already
-        _builds[lib] = Build(f, lib, cc, opt)
+        build = _new_build(f, lib, cc, opt)
+        if build is not None:
+            _builds[lib] = build
 
 
 def cancel_builds() -> None:
@@ -357,14 +390,19 @@ def cancel_builds() -> None:
         b.cancel()
 
 
-def _at_exit() -> None:
-    for b in list(_builds.values()):     # finished ones go into the cache
-        if b.done():
-            b.result()
-    cancel_builds()
+def finish_builds_at_exit() -> None:
+    """Install the background builds that have finished (nothing loaded, nothing said) and
+    end the rest: at interpreter exit, and by the CLI before it leaves after an interrupt."""
+    _queued.clear()
+    for b in list(_builds.values()):
+        try:
+            if b.done():
+                b.install()
+        finally:
+            b.cancel()
 
 
-atexit.register(_at_exit)
+atexit.register(finish_builds_at_exit)
 
 
 def _elf_complete(path: Path) -> bool:
@@ -448,6 +486,16 @@ def _load_checked(f: ca.Function, lib: Path, private: bool = False) -> ca.Functi
             if not np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
                 return None
     return g
+
+
+def discard_broken(lib: Path) -> None:
+    """Remove a file under a cache name that :func:`cached` refused (broken, or another
+    function's), saying so once, so that it is rebuilt."""
+    _note(f"compile cache: {lib.name} was broken or not this function's; rebuilt")
+    try:
+        lib.unlink()
+    except OSError:
+        pass
 
 
 def cached(f: ca.Function, key: str | None = None, opt: str = "-O1", lib: Path | None = None

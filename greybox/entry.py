@@ -31,10 +31,16 @@ def run(argv: Sequence[str] | None = None) -> int:
         # (e.g. while CasADi was being imported) marks it "unhandled" for the interpreter,
         # which would then kill itself with SIGINT at exit although we handled it: leave now,
         # with our status (every clean-up has run: the exception went through it).
-        # os._exit runs no atexit handler: end the compilers still building in the background
+        # os._exit runs no atexit handler: keep the background builds that have finished and
+        # end the compilers still running (a second Ctrl-C meanwhile changes nothing)
         codegen = sys.modules.get("greybox.codegen")
         if codegen is not None:
-            codegen.cancel_builds()
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+                signal.signal(signal.SIGTERM, signal.SIG_IGN)
+                codegen.finish_builds_at_exit()
+            except BaseException:   # noqa: BLE001 - leaving with our status matters more
+                pass
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)

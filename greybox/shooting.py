@@ -161,9 +161,11 @@ class ShootingProblem:
       structure, in this process and earlier runs: :func:`greybox.codegen.add_vm_seconds`)
       reaches half the compiler's expected time for it; then it is compiled (``-O1``) in the
       background while the virtual machine goes on, and the library is used from when it
-      is ready. A job that evaluates a function a few times (a screening, a short refit)
-      never starts a compiler, and none ever waits for one: a refit that ends before its
-      library is ready has it ready in the cache for the next fit of that structure.
+      is ready. A job that evaluates a function a few times (a screening) starts no
+      compiler by itself (the diagnosis queues the builds of the refits it knows are coming:
+      :func:`greybox.codegen.queue_builds`), and none ever waits for one: a refit that ends
+      before its library is ready has it ready in the cache for the next fit of that
+      structure. A broken file under the cache name is removed (with a warning) and rebuilt.
     - ``"always"``: compile at once (``-O1``); ``"quick"``: at once, unoptimised (``-O0``);
     - ``"never"``: the virtual machine only.
     """
@@ -282,6 +284,7 @@ class ShootingProblem:
             if g is not None:
                 self._swap(kind, g, "cached")
                 return
+            codegen.discard_broken(self._lib[kind])     # rebuilt below, in its turn
         if build is None:
             spent = codegen.add_vm_seconds(self._lib[kind], seconds)
             if spent < BACKGROUND_BUILD_AT * codegen.expected_build_seconds(f, self._opt):

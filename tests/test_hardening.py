@@ -556,6 +556,54 @@ def test_queued_builds_run_one_at_a_time_and_a_fit_takes_its_library_when_ready(
     assert not codegen._builds and not codegen._queued
 
 
+def test_a_build_finished_when_the_process_ends_is_kept_and_a_running_one_ended(tmp_path):
+    """At exit, a background library that is done goes into the cache without a word, and a
+    compiler still running is ended with its files (Python's own clean-up of temporary
+    folders runs before ours and must not take a finished library with it)."""
+    if codegen.compiler_available() is None:
+        pytest.skip("no C compiler")
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    script = (
+        "import time, casadi as ca\n"
+        "from greybox import codegen\n"
+        "x = ca.SX.sym('x', 3)\n"
+        "quick = codegen.start_build(ca.Function('gb_exit_quick', [x], [ca.sin(x) * 2]))\n"
+        "while not quick.done(): time.sleep(0.02)\n"
+        "y = ca.SX.sym('y', 40)\n"
+        "e = y\n"
+        "for k in range(60): e = ca.sin(e) * (k + 1) + ca.cos(e * y)\n"
+        "slow = codegen.start_build(ca.Function('gb_exit_slow', [y], [ca.jacobian(e, y)]))\n"
+        "print('running' if not slow.done() else 'done')\n")
+    env = dict(os.environ, GREYBOX_CACHE=str(tmp_path / "cache"), TMPDIR=str(scratch))
+    env.pop("GREYBOX_NO_COMPILE", None)
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "warning" not in out.stderr.lower(), out.stderr
+    assert len(list((tmp_path / "cache").glob("gb_exit_quick_*.so"))) == 1
+    if out.stdout.strip() == "running":
+        assert not list((tmp_path / "cache").glob("gb_exit_slow_*.so"))
+    time.sleep(0.3)
+    assert not _processes_mentioning(str(scratch)), "a background compiler outlived the process"
+    assert not list(scratch.iterdir()), "temporary files left behind"
+
+
+def test_auto_mode_rebuilds_a_broken_library_with_one_warning(cache):
+    from greybox.shooting import ShootingProblem
+    model = QuadrotorModel(load_airframe(resources.files("greybox") / "data" / "airframes" / "paper.toml"))
+    free = [model.param_names.index("K_T")]
+    prob = ShootingProblem(model, free, 5, 1, "auto")
+    lib = prob._lib["blocks"]
+    lib.parent.mkdir(parents=True, exist_ok=True)
+    _replace(lib, b"not a library")            # another process left garbage under the name
+    with pytest.warns(CacheWarning, match="broken"):
+        prob.account("blocks", 1e-6)
+    assert not lib.exists() and prob.how == "virtual machine"
+    prob.account("blocks", codegen.expected_build_seconds(prob._symbolic["blocks"]))
+    _until_compiled(prob)
+    assert prob.how == "compiled" and lib.exists()
+
+
 def test_unwritable_cache_falls_back_with_one_warning(tmp_path, monkeypatch):
     if codegen.compiler_available() is None:
         pytest.skip("no C compiler")

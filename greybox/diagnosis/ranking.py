@@ -120,10 +120,11 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                 c.reason = f"score test not significant (p = {p:.2g}), not refitted"
             else:
                 to_refit.append(c)
-    # No candidate model is compiled beforehand (with compile="auto" a screening or a short
-    # refit runs on CasADi's virtual machine and only a long refit compiles: on a 20-s real
-    # flight the builds took 50-120 s a round against 3-10 s of refits), except for the cold
-    # refits of every candidate, which all need their blocks: built at once, quick, in parallel.
+    # The refits' step functions are built in the background, one compiler at a time, in the
+    # order of the refits, which meanwhile run on CasADi's virtual machine and take each
+    # library when it is ready (waiting for the builds took 50-120 s a round on a 20-s real
+    # flight against 3-10 s of refits); the cold refits of every candidate, which all need
+    # their blocks at once, build them first: quick, in parallel.
     rcompile = compile
     if not cold and compile == "auto" and to_refit:
         queue_refit_builds(model, res, [c.effect for c in to_refit],
