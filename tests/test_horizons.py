@@ -84,6 +84,7 @@ def test_naive_predictor_takes_its_state_from_the_measurements_not_the_model():
     assert he.naive["phi"][he.horizons.index(0.25)] == pytest.approx(0.0, abs=1e-9)
 
 
+@pytest.mark.slow    # 40 s; the naive predictor's own start is checked by hand in the default run
 def test_a_process_noise_fit_of_a_model_that_diverges_starts_its_windows_at_the_measurements(tmp_path):
     """Another simulator's vehicle with three times the roll and pitch inertia the airframe
     gives (as a real Crazyflie's torque per PWM difference is a third of the geometry's): the

@@ -33,6 +33,7 @@ def windy():
     return veh, af, model, flights
 
 
+@pytest.mark.slow    # half a minute; each flight's wind is also checked in the default run (diagnose of two flights)
 def test_each_flight_gets_its_own_wind_and_the_vehicle_its_shared_drag(windy):
     veh, _, model, flights = windy
     logs = [f.log for f in flights]
