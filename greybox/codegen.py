@@ -176,30 +176,18 @@ def precompile(functions: "list[ca.Function]", workers: int = 2, opt: str = "-O1
     todo = [(f, lib) for f, lib in todo if not lib.exists()]
     if not todo or not _writable_cache():
         return
-    running: list = []
+    running: list[Build] = []
     try:
-        with tempfile.TemporaryDirectory() as tmp:
-            jobs = []
-            for i, (f, lib) in enumerate(todo):
-                d = Path(tmp) / str(i)
-                d.mkdir()
-                jobs.append((_generate(f, str(d)), d / "lib.so", lib))
-            for src, out, lib in jobs:
-                while len(running) >= workers:
-                    _finish(running.pop(0))
-                running.append((_start_compiler(_compile_command(cc, opt, src, out), Path(tmp)), out, lib))
-            while running:
-                _finish(running.pop(0))
+        for f, lib in todo:
+            while len(running) >= workers:
+                running.pop(0).wait_and_install()
+            running.append(Build(f, lib, cc, opt))
+        while running:
+            running.pop(0).wait_and_install()
     except BaseException:
-        for proc, _, _ in running:
-            _kill(proc)
+        for build in running:
+            build.cancel()
         raise
-
-
-def _finish(job) -> None:
-    proc, out, lib = job
-    if proc.wait() == 0 and out.exists():
-        _install(out, lib)
 
 
 def _install(out: Path, lib: Path) -> None:
@@ -217,19 +205,7 @@ def _install(out: Path, lib: Path) -> None:
 
 def _build(f: ca.Function, lib: Path, cc: str, opt: str) -> bool:
     """Compile ``f`` into ``lib``; False if the compiler fails. Interrupts kill the compiler."""
-    with tempfile.TemporaryDirectory() as tmp:
-        src = _generate(f, tmp)
-        out = Path(tmp) / "lib.so"
-        proc = _start_compiler(_compile_command(cc, opt, src, out), Path(tmp))
-        try:
-            rc = proc.wait(timeout=600)
-        except BaseException:      # interrupt, SIGTERM, timeout: no orphaned cc1 left behind
-            _kill(proc)
-            raise
-        if rc != 0 or not out.exists():
-            return False
-        _install(out, lib)
-        return lib.exists()
+    return Build(f, lib, cc, opt).wait_and_install(timeout=600) and lib.exists()
 
 
 class Build:
@@ -266,6 +242,17 @@ class Build:
             self._result = (self.f, "virtual machine")     # stays so if interrupted below
             self._result = self._finish()
         return self._result
+
+    def wait_and_install(self, timeout: float | None = None) -> bool:
+        """Wait for the compiler, then :meth:`install`; an interrupt, SIGTERM or the timeout
+        ends the compiler and removes its files before it propagates."""
+        try:
+            if self._proc is not None:
+                self._proc.wait(timeout=timeout)
+        except BaseException:      # no orphaned cc1 left behind
+            self.cancel()
+            raise
+        return self.install()
 
     def install(self) -> bool:
         """Put a finished library into the cache (no loading, no warning); whether it did."""

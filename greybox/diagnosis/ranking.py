@@ -126,15 +126,15 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     # flight against 3-10 s of refits); the cold refits of every candidate, which all need
     # their blocks at once, build them first: quick, in parallel.
     rcompile = compile
-    if not cold and compile == "auto" and to_refit:
-        queue_refit_builds(model, res, [c.effect for c in to_refit],
-                           n_substeps(max(float(np.diff(lg.t).max()) for lg in est)))
-    if cold and compile == "auto":
-        t0 = time.perf_counter()
+    if compile == "auto" and to_refit:
         n_sub = n_substeps(max(float(np.diff(lg.t).max()) for lg in est))
-        precompile_refits(model, res, [c.effect for c in to_refit], n_sub)
-        rcompile = "quick"
-        say(f"  built refit models ({time.perf_counter() - t0:.1f} s)")
+        if cold:
+            t0 = time.perf_counter()
+            precompile_refits(model, res, [c.effect for c in to_refit], n_sub)
+            rcompile = "quick"
+            say(f"  built refit models ({time.perf_counter() - t0:.1f} s)")
+        else:
+            queue_refit_builds(model, res, [c.effect for c in to_refit], n_sub)
     starts: dict[str, FitResult] = {}
     if cold:
         # cold refits in two stages: a few iterations for every candidate (the right model

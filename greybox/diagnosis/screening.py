@@ -441,11 +441,20 @@ def queue_refit_builds(model: QuadrotorModel, res: FitResult, names: Sequence[st
     them), so a fresh compile cache would otherwise make each refit wait for its own."""
     from ..codegen import queue_builds
     functions = []
-    for name in names:
-        ext, _, free = extended_model(model, res, name)
-        functions.extend(ShootingProblem.step_functions(ext, free_indices(ext, free, None), n_sub))
+    for ext, free_idx in _refit_structures(model, res, names):
+        functions.extend(ShootingProblem.step_functions(ext, free_idx, n_sub))
         functions.append(ShootingProblem.step_functions(ext, [], n_sub)[0])   # its predictions' start states
     queue_builds(functions)
+
+
+def _refit_structures(model: QuadrotorModel, res: FitResult, names: Sequence[str]
+                      ) -> list[tuple[QuadrotorModel, list[int]]]:
+    """Each candidate's extended model and the free parameter indices its refit fits."""
+    out = []
+    for name in names:
+        ext, _, free = extended_model(model, res, name)
+        out.append((ext, free_indices(ext, free, None)))
+    return out
 
 
 def precompile_refits(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: int) -> None:
@@ -454,8 +463,5 @@ def precompile_refits(model: QuadrotorModel, res: FitResult, names: Sequence[str
     need its blocks (ten quick builds beat ten optimised ones, and ten builds one after the
     other: the paper demo took 105 s that way against 75 s)."""
     from ..codegen import precompile
-    functions = []
-    for name in names:
-        ext, _, free = extended_model(model, res, name)
-        functions.append(ShootingProblem.step_functions(ext, free_indices(ext, free, None), n_sub)[0])
-    precompile(functions, opt="-O0")
+    precompile([ShootingProblem.step_functions(ext, free_idx, n_sub)[0]
+                for ext, free_idx in _refit_structures(model, res, names)], opt="-O0")
