@@ -21,6 +21,7 @@ import signal
 import subprocess
 import tempfile
 import warnings
+import weakref
 from pathlib import Path
 
 import casadi as ca
@@ -97,12 +98,25 @@ def library_path(f: ca.Function, opt: str = "-O1", key: str | None = None) -> Pa
     return _lib_path(f, key, opt)
 
 
+_names: "weakref.WeakKeyDictionary[ca.Function, dict[str, str]]" = weakref.WeakKeyDictionary()
+"""Per function (held weakly) its library's file name by optimisation level: serialising a
+large function to hash it takes tens of ms, and a diagnosis asks for the same ones often."""
+
+
 def _lib_path(f: ca.Function, key: str | None, opt: str) -> Path:
     # the serialised function (20 ms for 36k instructions) is the exact key; an explicit
     # ``key`` is the caller's promise that it determines ``f``
-    text = key if key is not None else f.serialize()
+    if key is not None:
+        return cache_dir() / _file_name(f, key, opt)
+    names = _names.setdefault(f, {})
+    if opt not in names:
+        names[opt] = _file_name(f, f.serialize(), opt)
+    return cache_dir() / names[opt]
+
+
+def _file_name(f: ca.Function, text: str, opt: str) -> str:
     digest = hashlib.sha1((text + opt + ca.__version__).encode()).hexdigest()[:20]
-    return cache_dir() / f"{f.name()}_{digest}.so"
+    return f"{f.name()}_{digest}.so"
 
 
 def _generate(f: ca.Function, folder: str) -> Path:

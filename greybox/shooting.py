@@ -15,8 +15,11 @@ functions for predictions.
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import time
+import weakref
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
@@ -32,7 +35,7 @@ from .integrate import n_substeps, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import body_rates_from_euler_rates
 
-__all__ = ["ShootingProblem", "MappedPair", "ShootingData", "layout", "initial_node_states",
+__all__ = ["ShootingProblem", "MappedPair", "BufferedFunction", "ShootingData", "layout", "initial_node_states",
            "estimate_noise", "noise_levels", "sensor_noise", "free_indices", "parameter_bounds",
            "DEFAULT_INTERVAL_S", "default_interval"]
 
@@ -149,6 +152,29 @@ def _effect_states_along(model: QuadrotorModel, log: FlightLog, X: np.ndarray, p
     traj = np.column_stack([x0, traj]).T
     return traj if np.all(np.isfinite(traj)) and np.abs(traj).max() < 1e12 else None
 
+
+_STEP_FUNCTIONS: "OrderedDict[str, dict[str, ca.Function]]" = OrderedDict()
+"""Step functions by model structure, free set and sub-steps, the most recently used up to
+:data:`STEP_FUNCTIONS_KEPT` instructions. A diagnosis round builds some seventy problems of
+a few dozen structures (the screening's, each refit's solves, every prediction's state
+estimates, the start-state window's choice), from new model objects of the same effects;
+building a step function (two symbolic Jacobians) and hashing it for its compile-cache name
+cost more than a small fit spends evaluating it."""
+STEP_FUNCTIONS_KEPT = 4_000_000
+"""Instructions of the step functions kept (about 75 bytes each: some 300 MB), most of a
+diagnosis round's structures (a Crazyflie round: about 5 million)."""
+_structure: "weakref.WeakKeyDictionary[QuadrotorModel, str]" = weakref.WeakKeyDictionary()
+
+
+def _structure_key(model: QuadrotorModel) -> str:
+    """What determines a model's step functions: its dynamics and output map, serialised
+    (a few ms; the step functions' own serialisation runs to megabytes)."""
+    if model not in _structure:
+        text = model.rhs.serialize() + model.output.serialize()
+        _structure[model] = hashlib.sha1(text.encode()).hexdigest()
+    return _structure[model]
+
+
 class ShootingProblem:
     """CasADi functions for the interval blocks of a given model, free set and interval.
 
@@ -221,8 +247,15 @@ class ShootingProblem:
         self.nx, self.nth, self.nz, self.ny = nx, nth, nz, ny
         self.compile_mode = compile_mode
         self._opt = "-O0" if compile_mode == "quick" else "-O1"
-        step_blk, step_val = self.step_functions(model, free_idx, n_sub)
-        self._symbolic = {"blocks": step_blk, "value": step_val}
+        key = f"{_structure_key(model)} {tuple(free_idx)} {n_sub}"
+        if key not in _STEP_FUNCTIONS:
+            step_blk, step_val = self.step_functions(model, free_idx, n_sub)
+            _STEP_FUNCTIONS[key] = {"blocks": step_blk, "value": step_val}
+            kept = sum(f.n_instructions() for fs in _STEP_FUNCTIONS.values() for f in fs.values())
+            while len(_STEP_FUNCTIONS) > 1 and kept > STEP_FUNCTIONS_KEPT:
+                kept -= sum(f.n_instructions() for f in _STEP_FUNCTIONS.popitem(last=False)[1].values())
+        _STEP_FUNCTIONS.move_to_end(key)
+        self._symbolic = dict(_STEP_FUNCTIONS[key])
         self._step: dict[str, ca.Function] = {}
         self._how: dict[str, str] = {}
         self._lib: dict[str, Path] = {}       # kind -> its library path in the compile cache
@@ -351,6 +384,53 @@ class ShootingProblem:
         return self._maps[M]
 
 
+class BufferedFunction:
+    """A CasADi function called on numpy arrays through its :meth:`casadi.Function.buffer`:
+    the arguments are read and the results written in place, column-major, with no
+    conversion to and from ``DM`` (for the interval blocks of a fit, converting the results
+    cost a third as much as computing them). Returns a list of Fortran-ordered arrays of the
+    outputs' shapes. Arguments of another shape than the inputs' go through an ordinary
+    call, which checks them."""
+
+    def __init__(self, f: ca.Function):
+        self.f = f
+        self.shape_in = [f.size_in(i) for i in range(f.n_in())]
+        self.shape_out = [f.size_out(i) for i in range(f.n_out())]
+        dense = all(f.sparsity_in(i).is_dense() for i in range(f.n_in())) and \
+            all(f.sparsity_out(i).is_dense() for i in range(f.n_out()))
+        self._buffer = f.buffer() if dense else None
+
+    @staticmethod
+    def _column_major(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray | None:
+        """``a``'s entries in column-major order for an input of ``shape``, or None if it
+        does not fit. A column given for a mapped input of several columns is repeated, as
+        CasADi's own call does (the parameters, the same for every interval)."""
+        rows, cols = shape
+        if a.ndim == 2 and a.shape == shape:
+            return np.asfortranarray(a).ravel(order="F")
+        if a.ndim <= 1 and a.size == rows * cols and (rows == 1 or cols == 1):
+            return np.ascontiguousarray(a).ravel()
+        if a.size == rows and cols > 1 and (a.ndim == 1 or a.shape == (rows, 1)):
+            return np.tile(a.ravel(), cols)
+        return None
+
+    def __call__(self, *args) -> list[np.ndarray]:
+        flat_in = [self._column_major(np.asarray(a, dtype=float), s) for a, s in zip(args, self.shape_in)]
+        if self._buffer is None or len(args) != len(self.shape_in) or any(a is None for a in flat_in):
+            return [np.asarray(r) for r in self.f(*args)]
+        buf, run = self._buffer
+        # flat_in holds the arguments (copies or views) alive until the call returns
+        flat_out = [np.empty(r * c) for r, c in self.shape_out]
+        for i, a in enumerate(flat_in):
+            buf.set_arg(i, memoryview(a))
+        for i, r in enumerate(flat_out):
+            buf.set_res(i, memoryview(r))
+        run()
+        if buf.ret() != 0:
+            return [np.asarray(r) for r in self.f(*args)]     # CasADi's own error
+        return [r.reshape(s, order="F") for r, s in zip(flat_out, self.shape_out)]
+
+
 class MappedPair:
     """The interval functions mapped over M intervals, called like functions
     (``pair.blocks(*args)``); each call's time is reported to the problem, which may swap
@@ -358,12 +438,12 @@ class MappedPair:
 
     def __init__(self, prob: ShootingProblem, M: int):
         self.prob, self.M = prob, M
-        self._fun: dict[str, tuple[int, ca.Function]] = {}
+        self._fun: dict[str, tuple[int, BufferedFunction]] = {}
 
-    def _function(self, kind: str) -> ca.Function:
+    def _function(self, kind: str) -> "BufferedFunction":
         version, f = self._fun.get(kind, (-1, None))
         if version != self.prob.version:
-            f = parallel_map(self.prob.interval_function(kind), self.M)
+            f = BufferedFunction(parallel_map(self.prob.interval_function(kind), self.M))
             self._fun[kind] = (self.prob.version, f)
         return f
 

@@ -8,9 +8,13 @@ CasADi's IPOPT, fatrop and SQP solvers were measured 13–77 times slower):
   and the Gauss–Newton blocks ``H_j = J_j^T J_j``, ``g_j = J_j^T e_j`` of its residuals —
   formed inside the function, so only small blocks ever leave CasADi. It is ``map``-ped over
   all intervals and compiled to C (cached on disk, :mod:`greybox.codegen`).
-* The parameters are carried as constant extra states of every node (``theta_j =
-  theta_{j+1}``), which keeps the KKT system of each Gauss–Newton step banded; it is solved
-  with LAPACK's banded LU (``scipy.linalg.solve_banded``).
+* The KKT system of each Gauss–Newton step is a band in the node states and continuity
+  multipliers, bordered by the parameters (:class:`BorderedKKT`): LAPACK's banded LU
+  (``scipy.linalg.solve_banded``) eliminates the band, a small dense solve gives the
+  parameters. With soft continuity (process noise) the multipliers are eliminated too and
+  the band, then symmetric positive definite, is Cholesky-factored.
+* The interval functions are called on numpy buffers (:class:`greybox.shooting.BufferedFunction`),
+  and a model structure's step functions are built once per process.
 * Steps are damped Levenberg–Marquardt style and accepted by a backtracking line search on
   an l1 merit function (cost + weighted continuity gaps).
 
@@ -24,7 +28,7 @@ import time
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
-from scipy.linalg import solve_banded
+from scipy.linalg import cho_solve_banded, cholesky_banded, solve_banded
 
 from ..data import FlightLog
 from ..errors import SolverError
@@ -33,7 +37,7 @@ from ..model import OUTPUTS, QuadrotorModel
 from ..shooting import ShootingProblem, initial_node_states, layout, parameter_bounds
 from .certificate import DECREASE_TOLERANCE, GAP_TOLERANCE, STEP_TOLERANCE
 
-__all__ = ["Solver", "GaussNewton", "FitSession", "BandedKKT"]
+__all__ = ["Solver", "GaussNewton", "FitSession", "BorderedKKT"]
 
 
 class Solver(Protocol):
@@ -65,103 +69,226 @@ class Solver(Protocol):
               tol: float, rough: bool = False) -> tuple: ...
 
 
-class BandedKKT:
-    """Index pattern of the banded KKT system of all flights' nodes and constraints."""
+class BorderedKKT:
+    """The KKT system of a Gauss-Newton step, solved as a banded system bordered by the
+    parameters.
+
+    Unknowns: per flight the node states' steps ``dx_0 .. dx_M`` and the continuity
+    multipliers ``lam_0 .. lam_{M-1}``, ordered ``dx_0, lam_0, dx_1, ..., dx_M`` (a band of
+    half-width ``2 nx``), and the parameters' step ``dtheta``, which every interval touches
+    (the border). With ``A`` the band, ``B`` its coupling to the parameters and ``C`` their
+    own curvature::
+
+        [A   B] [u     ]   [r_u    ]
+        [B^T C] [dtheta] = [r_theta]
+
+    is solved by block elimination: ``A [Y y] = [B r_u]`` (LAPACK's banded LU, ``nth + 1``
+    right-hand sides), then the ``nth x nth`` Schur complement ``C - B^T Y`` gives
+    ``dtheta``, and ``u = y - Y dtheta``. This is the system of the parameters carried as
+    constant node states (``theta_j = theta_{j+1}``) with those equalities eliminated; the
+    band is ``nx`` wide instead of ``nx + nth`` and LU's work, which grows with its cube,
+    falls several times over. The Schur complement at zero damping is the inverse of the
+    parameters' covariance (:meth:`parameter_inverse`)."""
 
     def __init__(self, flights: list[tuple[int, int]], nx: int, nth: int):
-        nz = nx + nth
-        self.nz, self.nx, self.nth = nz, nx, nth
-        # variable ordering: per flight z_0, lam_0, z_1, lam_1, ..., z_M, [link lam], next flight
-        zoff, loff, link = [], [], []
-        pos = 0
-        for f, (_, M) in enumerate(flights):
-            zf, lf = [], []
+        self.nx, self.nth = nx, nth
+        xoff, loff, zi = [], [], []
+        pos = k = 0
+        for _, M in flights:
             for j in range(M + 1):
-                zf.append(pos)
-                pos += nz
+                xoff.append(pos)
+                pos += nx
                 if j < M:
-                    lf.append(pos)
-                    pos += nz
-            if f < len(flights) - 1:
-                link.append(pos)
-                pos += nth
-            zoff.append(np.array(zf))
-            loff.append(np.array(lf))
-        self.n = pos
-        self.zoff, self.loff, self.link = zoff, loff, link
-        self.znodes = np.concatenate(zoff)           # offsets of all nodes, flight by flight
-        self.lams = np.concatenate(loff)              # offsets of interval multipliers
-        # interval j (global) connects node zi[j] -> zi[j] + 1 (index into znodes)
-        zi, k = [], 0
-        for f, (_, M) in enumerate(flights):
+                    loff.append(pos)
+                    pos += nx
             zi += list(range(k, k + M))
             k += M + 1
-        self.zi = np.array(zi)
-        self.bw = 2 * nz
+        self.n = pos
+        self.xoff, self.loff = np.array(xoff, dtype=np.intp), np.array(loff, dtype=np.intp)
+        # interval j (global) connects node zi[j] -> zi[j] + 1 (node indices, flight by flight)
+        self.zi = np.array(zi, dtype=np.intp)
+        self.l = self.u = 2 * nx
+        ar = np.arange(nx)
+        self.rows_x = (self.xoff[:, None] + ar).ravel()     # band rows of the node states
+        self.rows_l = (self.loff[:, None] + ar).ravel()     # band rows of the multipliers
+        xfrom, xto = self.xoff[self.zi], self.xoff[self.zi + 1]
+        # flat positions in LAPACK's band storage ab[u + i - j, j] of each block's entries,
+        # computed once: filling the band is then one np.put per block kind
+        self.at_H = self._band_index(self.xoff, self.xoff)
+        self.at_S = self._band_index(self.loff, xfrom)
+        self.at_St = self._band_index(xfrom, self.loff)
+        self.at_q = ((self.u * self.n) + self.rows_l)       # multiplier diagonal
+        band = np.zeros((self.l + self.u + 1, self.n))
+        minus_I = np.broadcast_to(-np.eye(nx), (len(self.loff), nx, nx))
+        np.put(band, self._band_index(self.loff, xto), minus_I)
+        np.put(band, self._band_index(xto, self.loff), minus_I)
+        self.band = band
+        # soft continuity (every gap penalised, none held): the multipliers are eliminated
+        # too, leaving the normal equations in the node states alone, symmetric positive
+        # definite, upper half-band 2 nx - 1 (node k touches node k + 1): Cholesky
+        self.n_nodes = len(self.xoff)
+        self.us = 2 * nx - 1
+        nn = self.n_nodes * nx
+        node = np.arange(self.n_nodes) * nx
+        rows = node[:, None, None] + ar[None, :, None]
+        cols = node[:, None, None] + ar[None, None, :]
+        upper = (rows <= cols).ravel()
+        self.soft_upper = upper                                 # entries of a node block kept
+        self.soft_at_H = ((self.us + rows - cols) * nn + cols).ravel()[upper]
+        rows = node[self.zi][:, None, None] + ar[None, :, None]
+        cols = node[self.zi + 1][:, None, None] + ar[None, None, :]
+        self.soft_at_off = ((self.us + rows - cols) * nn + cols).ravel()
 
-    def solve(self, H: np.ndarray, g: np.ndarray, G: np.ndarray, c: np.ndarray, mu: float,
-              rhs_extra: np.ndarray | None = None, q2: np.ndarray | None = None) -> np.ndarray:
-        """Solve the KKT system. H: (n_nodes, nz, nz) (zero for nodes without data),
-        g: (n_nodes, nz), G: (n_int, nz, nz) interval constraint Jacobians, c: (n_int, nz)
-        gaps. ``q2`` (nz,): process-noise variances of soft continuity rows (0 = hard):
-        the penalty ``|gap|^2/(2 q^2)`` puts ``-q^2`` on the multiplier diagonal, which keeps
-        the band; ``(n_int, nz)`` for one per interval. Returns the solution vector (or matrix
-        for ``rhs_extra``)."""
-        nz, nth, nx = self.nz, self.nth, self.nx
-        l = u = self.bw
-        ab = np.zeros((l + u + 1, self.n))
-        ar = np.arange(nz)
+    def _band_index(self, r0: np.ndarray, c0: np.ndarray) -> np.ndarray:
+        nx = self.nx
+        rows = r0[:, None, None] + np.arange(nx)[None, :, None]
+        cols = c0[:, None, None] + np.arange(nx)[None, None, :]
+        return ((self.u + rows - cols) * self.n + cols).ravel()
 
-        def put(r0, c0, blk):  # blk: (k, a, b); r0, c0: (k,)
-            a, b = blk.shape[1:]
-            rows = r0[:, None, None] + np.arange(a)[None, :, None]
-            cols = c0[:, None, None] + np.arange(b)[None, None, :]
-            ab[u + rows - cols, cols] = blk
-
+    def _eliminate(self, H: np.ndarray, S: np.ndarray, mu: float, q2: np.ndarray | None,
+                   rhs_u: np.ndarray | None) -> tuple:
+        """Factor the band and eliminate it: returns (Schur complement, Y, y, B^T y) with
+        ``A [Y y] = [B rhs_u]`` (y and B^T y None without ``rhs_u``)."""
+        nx, nth = self.nx, self.nth
+        ar = np.arange(nx)
         d = np.einsum("kii->ki", H)
-        floor = 1e-10 * max(float(d.max()), 1.0)
-        Hd = H.copy()
-        Hd[:, ar, ar] += mu * d
-        # a tiny floor keeps the system regular; on the parameters (repeated at every node,
-        # tied by the continuity rows) only once, or it would sum to a prior over all nodes
-        Hd[:, ar[:nx], ar[:nx]] += floor
-        Hd[0, ar[nx:], ar[nx:]] += floor
-        put(self.znodes, self.znodes, Hd)
-        nI = G.shape[0]
-        zfrom = self.znodes[self.zi]
-        zto = self.znodes[self.zi + 1]
-        put(self.lams, zfrom, G)
-        put(zfrom, self.lams, np.transpose(G, (0, 2, 1)))
-        negI = np.broadcast_to(-np.eye(nz), (nI, nz, nz))
-        put(self.lams, zto, negI)
-        put(zto, self.lams, negI)
+        # a tiny floor keeps the system regular; on the parameters only once (it is one
+        # vector, not one per node)
+        floor = 1e-10 * max(float(d.max()) if d.size else 1.0, 1.0)
+        Hxx = H[:, :nx, :nx].copy()
+        Hxx[:, ar, ar] += mu * d[:, :nx] + floor
+        ab = self.band.copy()
+        np.put(ab, self.at_H, Hxx)
+        Sx = S[:, :, :nx]
+        np.put(ab, self.at_S, Sx)
+        np.put(ab, self.at_St, Sx.transpose(0, 2, 1))
         if q2 is not None and np.any(q2 > 0):
-            blk = np.zeros((nI, nz, nz))
-            blk[:, ar, ar] = -np.broadcast_to(q2, (nI, nz))
-            put(self.lams, self.lams, blk)
-        if self.link:
-            L = np.zeros((nth, nz))
-            L[:, nx:] = np.eye(nth)
-            lk = np.array(self.link)
-            last = np.array([zf[-1] for zf in self.zoff[:-1]])
-            first = np.array([zf[0] for zf in self.zoff[1:]])
-            k = len(lk)
-            put(lk, last, np.broadcast_to(L, (k, nth, nz)))
-            put(last, lk, np.broadcast_to(L.T, (k, nz, nth)))
-            put(lk, first, np.broadcast_to(-L, (k, nth, nz)))
-            put(first, lk, np.broadcast_to(-L.T, (k, nz, nth)))
-        if rhs_extra is not None:
-            rhs = rhs_extra
-        else:
-            rhs = np.zeros(self.n)
-            rhs[(self.znodes[:, None] + ar).ravel()] = -g.ravel()
-            rhs[(self.lams[:, None] + ar).ravel()] = -c.ravel()
+            np.put(ab, self.at_q, -np.broadcast_to(q2, (len(self.loff), nx)))
+        B = np.zeros((self.n, nth + (rhs_u is not None)))
+        B[self.rows_x, :nth] = H[:, :nx, nx:].reshape(-1, nth)
+        B[self.rows_l, :nth] = S[:, :, nx:].reshape(-1, nth)
+        if rhs_u is not None:
+            B[:, nth] = rhs_u
+        Bth = B[:, :nth].copy()
         try:
-            return solve_banded((l, u), ab, rhs, check_finite=False)
+            Y = solve_banded((self.l, self.u), ab, B, overwrite_ab=True, overwrite_b=True, check_finite=False)
         except (np.linalg.LinAlgError, ValueError) as e:
             raise SolverError(f"Gauss-Newton step: singular KKT system ({e})") from None
+        C = H[:, nx:, nx:].sum(axis=0)
+        C[np.diag_indices(nth)] += mu * d[:, nx:].sum(axis=0) + floor
+        BtY = Bth.T @ Y
+        schur = C - BtY[:, :nth]
+        if rhs_u is None:
+            return schur, Y, None, None
+        return schur, Y[:, :nth], Y[:, nth], BtY[:, nth]
 
+    def solve(self, H: np.ndarray, g: np.ndarray, S: np.ndarray, c: np.ndarray, mu: float,
+              q2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The damped Gauss-Newton step. H: (n_nodes, nz, nz) node curvature (zero for nodes
+        without data), g: (n_nodes, nz) gradients, S: (n_int, nx, nz) each interval's end
+        state's sensitivity to (its start state, the parameters), c: (n_int, nx) gaps, ``mu``
+        Levenberg-Marquardt damping (relative to the diagonal). ``q2``: process-noise
+        variances (nx,) or (n_int, nx) of soft continuity rows (None: hard); the penalty
+        ``|gap|^2/(2 q^2)`` puts ``-q^2`` on the multiplier diagonal, which keeps the band.
+        Returns (dz (n_nodes, nz): every node's state step beside the parameter step,
+        multipliers (n_int, nx))."""
+        nx, nth = self.nx, self.nth
+        if q2 is not None and np.all(q2 > 0):
+            try:
+                return self._solve_soft(H, g, S, c, mu, q2)
+            except np.linalg.LinAlgError:
+                pass        # not positive definite to rounding: the KKT system below
+        rhs_u = np.empty(self.n)
+        rhs_u[self.rows_x] = -g[:, :nx].ravel()
+        rhs_u[self.rows_l] = -c.ravel()
+        schur, Y, y, Bty = self._eliminate(H, S, mu, q2, rhs_u)
+        r_th = -g[:, nx:].sum(axis=0) - Bty
+        try:
+            dth = np.linalg.solve(schur, r_th) if nth else np.zeros(0)
+        except np.linalg.LinAlgError as e:
+            raise SolverError(f"Gauss-Newton step: singular KKT system ({e})") from None
+        u = y - Y @ dth
+        dz = np.empty((len(self.xoff), nx + nth))
+        dz[:, :nx] = u[self.rows_x].reshape(-1, nx)
+        dz[:, nx:] = dth
+        return dz, u[self.rows_l].reshape(-1, nx)
 
+    def parameter_inverse(self, H: np.ndarray, S: np.ndarray, q2: np.ndarray | None = None) -> np.ndarray:
+        """The parameter block of the inverse of the undamped KKT matrix (the inverse of the
+        Schur complement): the Gauss-Newton covariance of the parameters for unit-variance
+        weighted residuals."""
+        schur = None
+        if q2 is not None and np.all(q2 > 0):
+            try:
+                schur = self._soft_normal(H, None, S, None, 0.0, q2)[0]
+            except np.linalg.LinAlgError:
+                pass
+        if schur is None:
+            schur, *_ = self._eliminate(H, S, 0.0, q2, None)
+        try:
+            return np.linalg.inv(schur)
+        except np.linalg.LinAlgError as e:
+            raise SolverError(f"Gauss-Newton covariance: singular KKT system ({e})") from None
+
+    def _soft_normal(self, H: np.ndarray, g: np.ndarray | None, S: np.ndarray, c: np.ndarray | None,
+                     mu: float, q2: np.ndarray) -> tuple:
+        """Soft continuity: the normal equations of the cost plus ``|gap|^2 / (2 q^2)`` in the
+        node states (a band, Cholesky-factored) and the parameters (its border), eliminated
+        like :meth:`_eliminate`. Returns (Schur complement, Y, y, B^T y) (y, B^T y None
+        without ``g``). Raises LinAlgError when the band is not positive definite."""
+        nx, nth, nn = self.nx, self.nth, self.n_nodes * self.nx
+        ar = np.arange(nx)
+        zi = self.zi
+        Dq = np.broadcast_to(1.0 / q2, (len(zi), nx))              # gap weights
+        Sx, St = S[:, :, :nx], S[:, :, nx:]
+        SxD = Sx.transpose(0, 2, 1) * Dq[:, None, :]              # Sx^T D
+        d = np.einsum("kii->ki", H)
+        floor = 1e-10 * max(float(d.max()) if d.size else 1.0, 1.0)
+        Hxx = H[:, :nx, :nx].copy()
+        Hxx[:, ar, ar] += mu * d[:, :nx] + floor
+        Hxx[zi] += SxD @ Sx                                        # each node starts <= 1 interval
+        Hxx[(zi + 1)[:, None], ar, ar] += Dq                       # and ends <= 1
+        ab = np.zeros((self.us + 1, nn))
+        np.put(ab, self.soft_at_H, Hxx.reshape(-1)[self.soft_upper])
+        np.put(ab, self.soft_at_off, -SxD)
+        Hxt = H[:, :nx, nx:].copy()
+        Hxt[zi] += SxD @ St
+        Hxt[zi + 1] -= Dq[:, :, None] * St
+        cols = nth + (g is not None)
+        B = np.empty((nn, cols))
+        B[:, :nth] = Hxt.reshape(nn, nth)
+        C = H[:, nx:, nx:].sum(axis=0) + np.einsum("kai,ka,kaj->ij", St, Dq, St)
+        C[np.diag_indices(nth)] += mu * d[:, nx:].sum(axis=0) + floor
+        if g is not None:
+            rx = -g[:, :nx].copy()
+            rx[zi] -= np.einsum("kab,kb->ka", SxD, c)
+            rx[zi + 1] += Dq * c
+            B[:, nth] = rx.ravel()
+        Bth = B[:, :nth].copy()
+        chol = cholesky_banded(ab, overwrite_ab=True, lower=False, check_finite=False)
+        Y = cho_solve_banded((chol, False), B, overwrite_b=True, check_finite=False)
+        BtY = Bth.T @ Y
+        schur = C - BtY[:, :nth]
+        if g is None:
+            return schur, Y, None, None
+        r_th = -g[:, nx:].sum(axis=0) - np.einsum("kai,ka,ka->i", St, Dq, c)
+        return schur, Y[:, :nth], Y[:, nth], BtY[:, nth] - r_th
+
+    def _solve_soft(self, H, g, S, c, mu, q2) -> tuple[np.ndarray, np.ndarray]:
+        nx, nth = self.nx, self.nth
+        schur, Y, y, minus_r = self._soft_normal(H, g, S, c, mu, q2)
+        try:
+            dth = np.linalg.solve(schur, -minus_r) if nth else np.zeros(0)
+        except np.linalg.LinAlgError as e:
+            raise SolverError(f"Gauss-Newton step: singular KKT system ({e})") from None
+        dx = (y - Y @ dth).reshape(-1, nx)
+        zi = self.zi
+        # the multipliers: the linearised gaps after the step over q^2
+        lam = (np.einsum("kab,kb->ka", S[:, :, :nx], dx[zi]) + S[:, :, nx:] @ dth - dx[zi + 1] + c) / q2
+        dz = np.empty((self.n_nodes, nx + nth))
+        dz[:, :nx] = dx
+        dz[:, nx:] = dth
+        return dz, lam
 
 
 class FitSession:
@@ -218,7 +345,7 @@ class FitSession:
         self.mapped = self.prob.mapped(self.n_int)
         self.nx, self.nth = model.nx, len(self.local_of)
         self.nz = self.nx + self.nth
-        self.kkt = BandedKKT(self.data.flights, model.nx, self.nth)
+        self.kkt = BorderedKKT(self.data.flights, model.nx, self.nth)
         counts = [M for _, M in self.data.flights]
         self.interval_slices = [slice(a, a + M) for a, M in zip(np.cumsum([0] + counts[:-1]), counts)]
         # per interval, the solver's parameters its flight's copy is made of
@@ -291,11 +418,7 @@ class FitSession:
         return xe - X[self.nxt]
 
     def _q2(self) -> np.ndarray | None:
-        if self.q is None:
-            return None
-        if self.q.ndim == 2:
-            return np.concatenate([self.q ** 2, np.zeros((self.q.shape[0], self.nth))], axis=1)
-        return np.concatenate([self.q ** 2, np.zeros(self.nth)])
+        return None if self.q is None else self.q ** 2
 
     def total_cost(self, X, xe, c) -> float:
         """Measurement cost, plus the process-noise cost of the gaps when continuity is soft."""
@@ -305,40 +428,36 @@ class FitSession:
         return cost
 
     def _kkt_parts(self, X, blocks):
+        """Per node curvature and gradient (zero at each flight's last node, which has no
+        interval of its own), the intervals' sensitivities and gaps."""
         xe, S, Hb, g, _ = blocks
-        nx, nz, nth, n_int = self.nx, self.nz, self.nth, self.n_int
+        nz = self.nz
         H = np.zeros((X.shape[0], nz, nz))
         gg = np.zeros((X.shape[0], nz))
         H[~self.last_mask] = Hb
         gg[~self.last_mask] = g
-        G = np.zeros((n_int, nz, nz))
-        G[:, :nx, :] = S
-        G[:, nx:, nx:] = np.eye(nth)
-        cz = np.zeros((n_int, nz))
-        cz[:, :nx] = self.gaps(X, xe)
-        return H, gg, G, cz
+        return H, gg, S, self.gaps(X, xe)
 
     def step(self, X, th, blocks, mu):
         """Gauss-Newton step with parameters on a bound held when the step points outward."""
-        H, gg, G, cz = self._kkt_parts(X, blocks)
-        nx, nz, nth, kkt = self.nx, self.nz, self.nth, self.kkt
+        H, gg, S, cz = self._kkt_parts(X, blocks)
+        nx, nth, kkt = self.nx, self.nth, self.kkt
         frozen = np.zeros(nth, dtype=bool)
         for _ in range(nth + 1):
-            Hf, gf, Gf = H, gg, G
+            Hf, gf, Sf = H, gg, S
             if frozen.any():
                 # hold a parameter by removing it from the step: no curvature, gradient or
                 # sensitivity anywhere, a unit diagonal at the first node. (A large penalty
                 # instead cost the banded solve its accuracy: the gaps it should close stayed
                 # open, and the iteration crawled along the bound for dozens of steps.)
                 fz = nx + np.flatnonzero(frozen)
-                Hf, gf, Gf = H.copy(), gg.copy(), G.copy()
+                Hf, gf, Sf = H.copy(), gg.copy(), S.copy()
                 Hf[:, fz, :] = 0.0
                 Hf[:, :, fz] = 0.0
                 Hf[0, fz, fz] = 1.0
                 gf[:, fz] = 0.0
-                Gf[:, :nx, fz] = 0.0
-            sol = kkt.solve(Hf, gf, Gf, cz, mu, q2=self._q2())
-            dz = sol[(kkt.znodes[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
+                Sf[:, :, fz] = 0.0
+            dz, lam = kkt.solve(Hf, gf, Sf, cz, mu, q2=self._q2())
             dth = dz[0, nx:]
             out = (((th <= self.lo_s + 1e-12) & (dth < 0)) | ((th >= self.hi_s - 1e-12) & (dth > 0))) & ~frozen
             if not out.any():
@@ -347,7 +466,6 @@ class FitSession:
             frozen[np.flatnonzero(out)[np.argmax(np.abs(dth[out]))]] = True
         dz[:, nx:] = np.where(frozen, 0.0, dz[:, nx:])
         self.last_held = frozen
-        lam = sol[(kkt.lams[:, None] + np.arange(nz)).ravel()].reshape(-1, nz)
         return dz, lam, H, gg, cz
 
     def predicted_decrease(self, X, th) -> float:
@@ -373,13 +491,8 @@ class FitSession:
     def covariance(self, X, blocks) -> np.ndarray:
         """Parameter block of the inverse KKT matrix (undamped): the Gauss-Newton covariance
         of the scaled free parameters for unit-variance weighted residuals."""
-        H, _, G, _ = self._kkt_parts(X, blocks)
-        nx, nth, kkt = self.nx, self.nth, self.kkt
-        rhs = np.zeros((kkt.n, nth))
-        rhs[kkt.znodes[0] + nx + np.arange(nth), np.arange(nth)] = 1.0
-        P = kkt.solve(H, np.zeros((X.shape[0], self.nz)), G, np.zeros((self.n_int, self.nz)), 0.0, rhs_extra=rhs,
-                      q2=self._q2())
-        P = P[kkt.znodes[0] + nx + np.arange(nth)]
+        H, _, S, _ = self._kkt_parts(X, blocks)
+        P = self.kkt.parameter_inverse(H, S, q2=self._q2())
         return 0.5 * (P + P.T)
 
     def state_noise_scale(self, sensor: np.ndarray, X: np.ndarray) -> np.ndarray:
