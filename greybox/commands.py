@@ -121,6 +121,7 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
                 "certificate": res.certificate.as_dict() if res.certificate is not None else None,
                 # the formulation it ended in: the process noise per state (null: output error)
                 "process_noise": res.process_noise, "init_window": res.init_window,
+                "measured_start": res.measured_start,
                 "time_s": res.timings.get("total")})
     if getattr(res, "per_flight_", None):
         # parameters fitted per flight: "parameters" holds their mean over the flights

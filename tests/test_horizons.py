@@ -206,3 +206,31 @@ def test_a_prediction_that_is_not_finite_scores_infinite_not_the_finite_rest():
     assert he.model["z"][k] == float("inf") and he.model["phi"][k] == float("inf")
     assert np.isfinite(he.naive["phi"][k])    # from the gyro and angle samples alone
     assert pr.horizon_errors(horizons=[0.25]).model["z"][k] == float("inf")
+
+
+def test_measured_start_is_chosen_only_where_the_estimate_drifts():
+    """Another simulator's vehicle with three times the roll and pitch inertia the airframe
+    gives: over a 0.5-s start window the model's roll diverges, and its windows predict the
+    flight better from the measured attitude and body rates than from the estimated ones
+    (both scores by hand below, and ``choose_measured_start``). The vehicle's own airframe
+    predicts best from the estimate at every window, and keeps it."""
+    from foreign_sim import airframe_dict, crazyflie, simulate_flight
+    from greybox.airframe import airframe_from_dict
+    from greybox.validation import (INIT_WINDOW_HORIZON, choose_measured_start, choose_start,
+                                    predict_flights)
+
+    truth = crazyflie(inertia=(4.2e-5, 4.2e-5, 2.2e-5))
+    log = simulate_flight(truth, duration=10.0, seed=3).log
+    wrong = QuadrotorModel(airframe_from_dict(airframe_dict(crazyflie())))
+    right = QuadrotorModel(airframe_from_dict(airframe_dict(truth)))
+
+    def score(m, w, measured):
+        return predict_flights(m, m.default_parameters(), [log], horizon=INIT_WINDOW_HORIZON, init_window=w,
+                               measured_start=measured).total
+    assert score(wrong, 0.5, True) < 0.7 * score(wrong, 0.5, False)
+    assert choose_measured_start(wrong, wrong.default_parameters(), log, 0.5)
+    for w in (0.05, 0.5):
+        assert score(right, w, False) < score(right, w, True)
+        assert not choose_measured_start(right, right.default_parameters(), log, w)
+    window, measured = choose_start(right, right.default_parameters(), log)
+    assert not measured and window in (0.05, 0.1, 0.2, 0.5)

@@ -45,7 +45,8 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
             _warnings.simplefilter("ignore", ConvergenceWarning)
             fits = [fit(model, half, p0=res.p, free=res.free_names, noise=res.sigma, reweight=False,
                         compile=compile, max_iter=100, interval=res.interval, per_flight=res.per_flight_rule,
-                        process_noise=res.process_noise, init_window=res.init_window)
+                        process_noise=res.process_noise, init_window=res.init_window,
+                        measured_start=res.measured_start)
                     for half in halves]
     except GreyboxError as e:   # a half too short or too poor to fit: no verdict on consistency
         say(f"diagnose: halves not compared ({e})")

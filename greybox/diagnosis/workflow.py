@@ -118,7 +118,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             say(f"diagnose: the baseline fit is not certified ({res.status}); solving on")
             res = fit(model, est, p0=res.p, compile=compile, max_iter=200, process_noise=res.process_noise,
                       noise=res.sigma, reweight=False, initial_states=res.node_states,
-                      interval=res.interval, per_flight=per_flight, init_window=res.init_window)
+                      interval=res.interval, per_flight=per_flight, init_window=res.init_window,
+                      measured_start=res.measured_start)
     pred = predict_after_fit(res, est, val, compile=compile, horizon=horizon)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split, 1, horizon)})")
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
@@ -169,7 +170,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                 more = fit(win.fit.model, est, free=win.fit.free_names, p0=win.fit.p, noise=win.fit.sigma,
                            reweight=False, compile=compile, max_iter=200, initial_states=win.fit.node_states,
                            interval=win.fit.interval, process_noise=win.fit.process_noise,
-                           init_window=win.fit.init_window,
+                           init_window=win.fit.init_window, measured_start=win.fit.measured_start,
                            per_flight=win.fit.per_flight_rule)
             if not more.converged:
                 warnings.append(f"{verdict}'s refit did not reach a certified optimum ({more.status}): no further "

@@ -24,7 +24,7 @@ from ..fitted import FittedModel, provenance
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import fitted_trajectory, output_residuals, whiteness_fraction
 from ..shooting import default_interval, free_indices, noise_levels, sensor_noise
-from ..validation import INIT_WINDOWS, choose_init_window
+from ..validation import INIT_WINDOWS, choose_init_window, choose_start
 from .certificate import (GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE, NOISE_RATIO_COLOURED, STEP_TOLERANCE,
                           WHITENESS_ADEQUATE, Certificate)
 from .gauss_newton import FitSession, GaussNewton, Solver
@@ -127,6 +127,7 @@ class FitResult(FittedModel):
     per_flight_: dict = field(default_factory=dict)   # {component: {"value": [per flight], "std": [...]}}
     per_flight_rule: str | list[str] | None = None   # what fit(per_flight=...) was asked (refits ask the same)
     init_window: float | None = None    # s of measurements its predictions start from (None: predict's default)
+    measured_start: bool = False        # its predictions start from the measured attitude and body rates
 
     def flight_p(self, flight: int) -> np.ndarray:
         """Flight ``flight``'s parameter vector: ``p`` with its own values of the parameters
@@ -172,7 +173,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         max_iter: int = 60, tol: float = 1e-7, reweight: bool = True, compile: str = "auto",
         progress: bool | Callable[[str], None] = False, initial_states: Sequence[np.ndarray] | None = None,
         process_noise: str | Mapping[str, float] | None = IF_NEEDED, solver: Solver | None = None,
-        per_flight: str | Iterable[str] | None = None, init_window: float | None = None) -> FitResult:
+        per_flight: str | Iterable[str] | None = None, init_window: float | None = None,
+        measured_start: bool | None = None) -> FitResult:
     """Fit the free parameters of ``model`` to one or several flight logs.
 
     Args:
@@ -229,6 +231,12 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             predicts the estimation data best 0.5 s ahead (a model trusted open loop over
             50 ms may diverge within a long window; a short one estimates the velocity
             from few position samples).
+        measured_start: whether those predictions take the attitude and body rates at each
+            window's start from the measurements rather than from the estimate
+            (``FitResult.measured_start``; :func:`~greybox.validation.choose_measured_start`).
+            Default: no for an output-error fit or a given ``init_window``; for a fit with
+            process noise that chooses its window, whichever predicts the estimation data
+            better.
 
     Example::
 
@@ -240,7 +248,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     """
     kw = dict(free=free, fixed=fixed, p0=p0, interval=interval, noise=noise, max_iter=max_iter, tol=tol,
               reweight=reweight, compile=compile, progress=progress, initial_states=initial_states,
-              solver=solver, per_flight=per_flight, init_window=init_window)
+              solver=solver, per_flight=per_flight, init_window=init_window, measured_start=measured_start)
     if not (isinstance(process_noise, str) and process_noise == IF_NEEDED):
         return _fit_formulation(model, logs, process_noise=process_noise, **kw)
     say = progress_printer() if progress is True else (progress or (lambda _m: None))
@@ -360,7 +368,8 @@ def _moved_parameters(oe: FitResult, soft: FitResult) -> str:
 
 def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free, fixed, p0,
                      interval, noise, max_iter, tol, reweight, compile, progress, initial_states,
-                     process_noise, solver, per_flight, init_window, probe: bool = False) -> FitResult:
+                     process_noise, solver, per_flight, init_window, measured_start, probe: bool = False
+                     ) -> FitResult:
     """:func:`fit` in one formulation: output error (``process_noise=None``) or soft
     continuity (``"auto"`` or ``{state: std}``). ``probe``: output error tried before soft
     continuity; raises :class:`_CannotFollow` as soon as its first settled solve is
@@ -666,10 +675,15 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         {n: float(sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, reasons,
         _systematic_gaps(model, ses, X, th, sensor) if soft else {})
     if init_window is None and soft:
-        init_window = choose_init_window(model, [flight_vector(f) for f in range(n_flights)], logs,
-                                         compile=compile)
+        vectors = [flight_vector(f) for f in range(n_flights)]
+        if measured_start is None:
+            init_window, measured_start = choose_start(model, vectors, logs, compile=compile)
+        else:
+            init_window = choose_init_window(model, vectors, logs, compile=compile)
         say(f"fit: predictions start from {init_window:g} s of measurements (the best of "
-            f"{', '.join(f'{w:g}' for w in INIT_WINDOWS)} s on the estimation data)")
+            f"{', '.join(f'{w:g}' for w in INIT_WINDOWS)} s on the estimation data)"
+            + (", with the measured attitude and body rates" if measured_start else ""))
+    measured_start = bool(measured_start)
     timings = {"build": ses.t_build, "solve": t_solve, "total": time.perf_counter() - t_start}
     say(f"fit: {status} after {total_iters} iterations in {timings['total']:.2f} s")
     return FitResult(model, p_out, free_names, std, cov, corr, converged, status, total_iters, cost,
@@ -683,10 +697,11 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
                                 process_noise=process_noise if isinstance(process_noise, str) else
                                 (dict(process_noise) if process_noise else None),
                                 **({"per_flight": per_flight_out} if per_flight_out else {}),
-                                **({"init_window": init_window} if init_window is not None else {})),
+                                **({"init_window": init_window} if init_window is not None else {}),
+                                **({"measured_start": True} if measured_start else {})),
                      per_flight_out,
                      per_flight if per_flight is None or isinstance(per_flight, str) else list(per_flight),
-                     init_window)
+                     init_window, measured_start)
 
 
 def _flight_q(ses: FitSession) -> np.ndarray:
