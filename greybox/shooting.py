@@ -396,9 +396,8 @@ class BufferedFunction:
         self.f = f
         self.shape_in = [f.size_in(i) for i in range(f.n_in())]
         self.shape_out = [f.size_out(i) for i in range(f.n_out())]
-        dense = all(f.sparsity_in(i).is_dense() for i in range(f.n_in())) and \
+        self.dense = all(f.sparsity_in(i).is_dense() for i in range(f.n_in())) and \
             all(f.sparsity_out(i).is_dense() for i in range(f.n_out()))
-        self._buffer = f.buffer() if dense else None
 
     @staticmethod
     def _column_major(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray | None:
@@ -416,9 +415,12 @@ class BufferedFunction:
 
     def __call__(self, *args) -> list[np.ndarray]:
         flat_in = [self._column_major(np.asarray(a, dtype=float), s) for a, s in zip(args, self.shape_in)]
-        if self._buffer is None or len(args) != len(self.shape_in) or any(a is None for a in flat_in):
+        if not self.dense or len(args) != len(self.shape_in) or any(a is None for a in flat_in):
             return [np.asarray(r) for r in self.f(*args)]
-        buf, run = self._buffer
+        # a buffer per call: it holds the function's work memory (for the interval blocks of
+        # a long flight, the folds' intermediate results: ~100 MB), which a kept one would
+        # hold for good, beside the line search's
+        buf, run = self.f.buffer()
         # flat_in holds the arguments (copies or views) alive until the call returns
         flat_out = [np.empty(r * c) for r, c in self.shape_out]
         for i, a in enumerate(flat_in):
