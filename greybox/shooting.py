@@ -414,8 +414,9 @@ class BufferedFunction:
         return None
 
     def __call__(self, *args) -> list[np.ndarray]:
-        flat_in = [self._column_major(np.asarray(a, dtype=float), s) for a, s in zip(args, self.shape_in)]
-        if not self.dense or len(args) != len(self.shape_in) or any(a is None for a in flat_in):
+        flat_in = [self._column_major(np.asarray(a, dtype=float), s) for a, s in zip(args, self.shape_in)] \
+            if self.dense and len(args) == len(self.shape_in) else [None]
+        if any(a is None for a in flat_in):
             return [np.asarray(r) for r in self.f(*args)]
         # a buffer per call: it holds the function's work memory (for the interval blocks of
         # a long flight, the folds' intermediate results: ~100 MB), which a kept one would

@@ -145,18 +145,41 @@ class BorderedKKT:
         cols = c0[:, None, None] + np.arange(nx)[None, None, :]
         return ((self.u + rows - cols) * self.n + cols).ravel()
 
-    def _eliminate(self, H: np.ndarray, S: np.ndarray, mu: float, q2: np.ndarray | None,
-                   rhs_u: np.ndarray | None) -> tuple:
-        """Factor the band and eliminate it: returns (Schur complement, Y, y, B^T y) with
-        ``A [Y y] = [B rhs_u]`` (y and B^T y None without ``rhs_u``)."""
+    def _damped(self, H: np.ndarray, mu: float) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+        """The data curvature with the damping: (its diagonal, the floor, the node states'
+        blocks (n_nodes, nx, nx), the parameters' block). A tiny floor keeps the system
+        regular; on the parameters only once (they are one vector, not one per node)."""
         nx, nth = self.nx, self.nth
         ar = np.arange(nx)
         d = np.einsum("kii->ki", H)
-        # a tiny floor keeps the system regular; on the parameters only once (it is one
-        # vector, not one per node)
         floor = 1e-10 * max(float(d.max()) if d.size else 1.0, 1.0)
         Hxx = H[:, :nx, :nx].copy()
         Hxx[:, ar, ar] += mu * d[:, :nx] + floor
+        C = H[:, nx:, nx:].sum(axis=0)
+        C[np.diag_indices(nth)] += mu * d[:, nx:].sum(axis=0) + floor
+        return d, floor, Hxx, C
+
+    def _reduce(self, C: np.ndarray, B: np.ndarray, solve_band: Callable[[np.ndarray], np.ndarray],
+                r_th: np.ndarray | None) -> tuple:
+        """Eliminate the band: ``A [Y y] = B`` (``B``'s last column the band's right-hand side
+        when ``r_th`` is given), then the Schur complement ``C - B^T Y``. Returns (Schur
+        complement, Y, y, the parameters' reduced right-hand side ``r_th - B^T y``); y and
+        the reduced right-hand side None without ``r_th``."""
+        nth = self.nth
+        Bth = B[:, :nth].copy()
+        Y = solve_band(B)
+        BtY = Bth.T @ Y
+        schur = C - BtY[:, :nth]
+        if r_th is None:
+            return schur, Y, None, None
+        return schur, Y[:, :nth], Y[:, nth], r_th - BtY[:, nth]
+
+    def _eliminate(self, H: np.ndarray, g: np.ndarray | None, S: np.ndarray, c: np.ndarray | None,
+                   mu: float, q2: np.ndarray | None) -> tuple:
+        """The KKT band (node states and multipliers), LU-factored and eliminated
+        (:meth:`_reduce`; without ``g`` the Schur complement only)."""
+        nx, nth = self.nx, self.nth
+        d, floor, Hxx, C = self._damped(H, mu)
         ab = self.band.copy()
         np.put(ab, self.at_H, Hxx)
         Sx = S[:, :, :nx]
@@ -164,23 +187,56 @@ class BorderedKKT:
         np.put(ab, self.at_St, Sx.transpose(0, 2, 1))
         if q2 is not None and np.any(q2 > 0):
             np.put(ab, self.at_q, -np.broadcast_to(q2, (len(self.loff), nx)))
-        B = np.zeros((self.n, nth + (rhs_u is not None)))
+        B = np.zeros((self.n, nth + (g is not None)))
         B[self.rows_x, :nth] = H[:, :nx, nx:].reshape(-1, nth)
         B[self.rows_l, :nth] = S[:, :, nx:].reshape(-1, nth)
-        if rhs_u is not None:
-            B[:, nth] = rhs_u
-        Bth = B[:, :nth].copy()
-        try:
-            Y = solve_banded((self.l, self.u), ab, B, overwrite_ab=True, overwrite_b=True, check_finite=False)
-        except (np.linalg.LinAlgError, ValueError) as e:
-            raise SolverError(f"Gauss-Newton step: singular KKT system ({e})") from None
-        C = H[:, nx:, nx:].sum(axis=0)
-        C[np.diag_indices(nth)] += mu * d[:, nx:].sum(axis=0) + floor
-        BtY = Bth.T @ Y
-        schur = C - BtY[:, :nth]
-        if rhs_u is None:
-            return schur, Y, None, None
-        return schur, Y[:, :nth], Y[:, nth], BtY[:, nth]
+        r_th = None
+        if g is not None:
+            B[self.rows_x, nth] = -g[:, :nx].ravel()
+            B[self.rows_l, nth] = -c.ravel()
+            r_th = -g[:, nx:].sum(axis=0)
+
+        def lu(rhs):
+            try:
+                return solve_banded((self.l, self.u), ab, rhs, overwrite_ab=True, overwrite_b=True,
+                                    check_finite=False)
+            except (np.linalg.LinAlgError, ValueError) as e:
+                raise SolverError(f"Gauss-Newton step: singular KKT system ({e})") from None
+        return self._reduce(C, B, lu, r_th)
+
+    def _soft_normal(self, H: np.ndarray, g: np.ndarray | None, S: np.ndarray, c: np.ndarray | None,
+                     mu: float, q2: np.ndarray) -> tuple:
+        """Soft continuity: the normal equations of the cost plus ``|gap|^2 / (2 q^2)`` in the
+        node states (a band, Cholesky-factored) and the parameters (its border), eliminated
+        like :meth:`_eliminate`. Raises LinAlgError when the band is not positive definite."""
+        nx, nth, nn = self.nx, self.nth, self.n_nodes * self.nx
+        ar = np.arange(nx)
+        zi = self.zi
+        Dq = np.broadcast_to(1.0 / q2, (len(zi), nx))              # gap weights
+        Sx, St = S[:, :, :nx], S[:, :, nx:]
+        SxD = Sx.transpose(0, 2, 1) * Dq[:, None, :]              # Sx^T D
+        d, floor, Hxx, C = self._damped(H, mu)
+        Hxx[zi] += SxD @ Sx                                        # each node starts <= 1 interval
+        Hxx[(zi + 1)[:, None], ar, ar] += Dq                       # and ends <= 1
+        ab = np.zeros((self.us + 1, nn))
+        np.put(ab, self.soft_at_H, Hxx.reshape(-1)[self.soft_upper])
+        np.put(ab, self.soft_at_off, -SxD)
+        Hxt = H[:, :nx, nx:].copy()
+        Hxt[zi] += SxD @ St
+        Hxt[zi + 1] -= Dq[:, :, None] * St
+        B = np.empty((nn, nth + (g is not None)))
+        B[:, :nth] = Hxt.reshape(nn, nth)
+        C = C + np.einsum("kai,ka,kaj->ij", St, Dq, St)
+        r_th = None
+        if g is not None:
+            rx = -g[:, :nx].copy()
+            rx[zi] -= np.einsum("kab,kb->ka", SxD, c)
+            rx[zi + 1] += Dq * c
+            B[:, nth] = rx.ravel()
+            r_th = -g[:, nx:].sum(axis=0) - np.einsum("kai,ka,ka->i", St, Dq, c)
+        chol = cholesky_banded(ab, overwrite_ab=True, lower=False, check_finite=False)
+        return self._reduce(C, B, lambda rhs: cho_solve_banded((chol, False), rhs, overwrite_b=True,
+                                                               check_finite=False), r_th)
 
     def solve(self, H: np.ndarray, g: np.ndarray, S: np.ndarray, c: np.ndarray, mu: float,
               q2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -189,29 +245,33 @@ class BorderedKKT:
         state's sensitivity to (its start state, the parameters), c: (n_int, nx) gaps, ``mu``
         Levenberg-Marquardt damping (relative to the diagonal). ``q2``: process-noise
         variances (nx,) or (n_int, nx) of soft continuity rows (None: hard); the penalty
-        ``|gap|^2/(2 q^2)`` puts ``-q^2`` on the multiplier diagonal, which keeps the band.
+        ``|gap|^2/(2 q^2)`` puts ``-q^2`` on the multiplier diagonal, which keeps the band,
+        and with every gap penalised the multipliers are eliminated too (Cholesky).
         Returns (dz (n_nodes, nz): every node's state step beside the parameter step,
         multipliers (n_int, nx))."""
         nx, nth = self.nx, self.nth
+        soft = None
         if q2 is not None and np.all(q2 > 0):
             try:
-                return self._solve_soft(H, g, S, c, mu, q2)
+                soft = self._soft_normal(H, g, S, c, mu, q2)
             except np.linalg.LinAlgError:
                 pass        # not positive definite to rounding: the KKT system below
-        rhs_u = np.empty(self.n)
-        rhs_u[self.rows_x] = -g[:, :nx].ravel()
-        rhs_u[self.rows_l] = -c.ravel()
-        schur, Y, y, Bty = self._eliminate(H, S, mu, q2, rhs_u)
-        r_th = -g[:, nx:].sum(axis=0) - Bty
+        schur, Y, y, r_th = soft if soft is not None else self._eliminate(H, g, S, c, mu, q2)
         try:
             dth = np.linalg.solve(schur, r_th) if nth else np.zeros(0)
         except np.linalg.LinAlgError as e:
             raise SolverError(f"Gauss-Newton step: singular KKT system ({e})") from None
         u = y - Y @ dth
-        dz = np.empty((len(self.xoff), nx + nth))
-        dz[:, :nx] = u[self.rows_x].reshape(-1, nx)
+        dz = np.empty((self.n_nodes, nx + nth))
         dz[:, nx:] = dth
-        return dz, u[self.rows_l].reshape(-1, nx)
+        if soft is None:
+            dz[:, :nx] = u[self.rows_x].reshape(-1, nx)
+            return dz, u[self.rows_l].reshape(-1, nx)
+        dz[:, :nx] = dx = u.reshape(-1, nx)
+        zi = self.zi
+        # the multipliers: the linearised gaps after the step over q^2
+        lam = (np.einsum("kab,kb->ka", S[:, :, :nx], dx[zi]) + S[:, :, nx:] @ dth - dx[zi + 1] + c) / q2
+        return dz, lam
 
     def parameter_inverse(self, H: np.ndarray, S: np.ndarray, q2: np.ndarray | None = None) -> np.ndarray:
         """The parameter block of the inverse of the undamped KKT matrix (the inverse of the
@@ -224,71 +284,11 @@ class BorderedKKT:
             except np.linalg.LinAlgError:
                 pass
         if schur is None:
-            schur, *_ = self._eliminate(H, S, 0.0, q2, None)
+            schur = self._eliminate(H, None, S, None, 0.0, q2)[0]
         try:
             return np.linalg.inv(schur)
         except np.linalg.LinAlgError as e:
             raise SolverError(f"Gauss-Newton covariance: singular KKT system ({e})") from None
-
-    def _soft_normal(self, H: np.ndarray, g: np.ndarray | None, S: np.ndarray, c: np.ndarray | None,
-                     mu: float, q2: np.ndarray) -> tuple:
-        """Soft continuity: the normal equations of the cost plus ``|gap|^2 / (2 q^2)`` in the
-        node states (a band, Cholesky-factored) and the parameters (its border), eliminated
-        like :meth:`_eliminate`. Returns (Schur complement, Y, y, B^T y) (y, B^T y None
-        without ``g``). Raises LinAlgError when the band is not positive definite."""
-        nx, nth, nn = self.nx, self.nth, self.n_nodes * self.nx
-        ar = np.arange(nx)
-        zi = self.zi
-        Dq = np.broadcast_to(1.0 / q2, (len(zi), nx))              # gap weights
-        Sx, St = S[:, :, :nx], S[:, :, nx:]
-        SxD = Sx.transpose(0, 2, 1) * Dq[:, None, :]              # Sx^T D
-        d = np.einsum("kii->ki", H)
-        floor = 1e-10 * max(float(d.max()) if d.size else 1.0, 1.0)
-        Hxx = H[:, :nx, :nx].copy()
-        Hxx[:, ar, ar] += mu * d[:, :nx] + floor
-        Hxx[zi] += SxD @ Sx                                        # each node starts <= 1 interval
-        Hxx[(zi + 1)[:, None], ar, ar] += Dq                       # and ends <= 1
-        ab = np.zeros((self.us + 1, nn))
-        np.put(ab, self.soft_at_H, Hxx.reshape(-1)[self.soft_upper])
-        np.put(ab, self.soft_at_off, -SxD)
-        Hxt = H[:, :nx, nx:].copy()
-        Hxt[zi] += SxD @ St
-        Hxt[zi + 1] -= Dq[:, :, None] * St
-        cols = nth + (g is not None)
-        B = np.empty((nn, cols))
-        B[:, :nth] = Hxt.reshape(nn, nth)
-        C = H[:, nx:, nx:].sum(axis=0) + np.einsum("kai,ka,kaj->ij", St, Dq, St)
-        C[np.diag_indices(nth)] += mu * d[:, nx:].sum(axis=0) + floor
-        if g is not None:
-            rx = -g[:, :nx].copy()
-            rx[zi] -= np.einsum("kab,kb->ka", SxD, c)
-            rx[zi + 1] += Dq * c
-            B[:, nth] = rx.ravel()
-        Bth = B[:, :nth].copy()
-        chol = cholesky_banded(ab, overwrite_ab=True, lower=False, check_finite=False)
-        Y = cho_solve_banded((chol, False), B, overwrite_b=True, check_finite=False)
-        BtY = Bth.T @ Y
-        schur = C - BtY[:, :nth]
-        if g is None:
-            return schur, Y, None, None
-        r_th = -g[:, nx:].sum(axis=0) - np.einsum("kai,ka,ka->i", St, Dq, c)
-        return schur, Y[:, :nth], Y[:, nth], BtY[:, nth] - r_th
-
-    def _solve_soft(self, H, g, S, c, mu, q2) -> tuple[np.ndarray, np.ndarray]:
-        nx, nth = self.nx, self.nth
-        schur, Y, y, minus_r = self._soft_normal(H, g, S, c, mu, q2)
-        try:
-            dth = np.linalg.solve(schur, -minus_r) if nth else np.zeros(0)
-        except np.linalg.LinAlgError as e:
-            raise SolverError(f"Gauss-Newton step: singular KKT system ({e})") from None
-        dx = (y - Y @ dth).reshape(-1, nx)
-        zi = self.zi
-        # the multipliers: the linearised gaps after the step over q^2
-        lam = (np.einsum("kab,kb->ka", S[:, :, :nx], dx[zi]) + S[:, :, nx:] @ dth - dx[zi + 1] + c) / q2
-        dz = np.empty((self.n_nodes, nx + nth))
-        dz[:, :nx] = dx
-        dz[:, nx:] = dth
-        return dz, lam
 
 
 class FitSession:
