@@ -29,13 +29,13 @@ import numpy as np
 
 from .errors import CacheWarning
 
-__all__ = ["compiled", "cached", "expected_build_seconds", "add_vm_seconds", "library_path", "precompile", "cache_dir", "compiler_available",
+__all__ = ["compiled", "cached", "code_size", "expected_build_seconds", "add_vm_seconds", "library_path", "precompile", "cache_dir", "compiler_available",
            "Build", "start_build", "running_build", "queue_builds", "poll_builds", "cancel_builds",
            "finish_builds_at_exit", "discard_broken", "CacheWarning"]
 
-# Seconds of C compiler time per CasADi instruction (gcc 12, one core, generated step
-# functions of 3k-120k instructions: -O1 1.9 s for 34k, 6.2 s for 96k; -O0 about half).
-BUILD_SECONDS_PER_INSTRUCTION = {"-O0": 3e-5, "-O1": 6e-5}
+# Seconds of C compiler time per instruction (:func:`code_size`; gcc 12, one core, the
+# step functions of a Crazyflie's models, 8k-20k instructions: -O1 1.0-2.2 s, -O0 about a third)
+BUILD_SECONDS_PER_INSTRUCTION = {"-O0": 3.5e-5, "-O1": 1e-4}
 
 
 def cache_dir() -> Path:
@@ -49,9 +49,23 @@ def compiler_available() -> str | None:
     return shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
 
 
+def code_size(f: ca.Function) -> int:
+    """Instructions of ``f`` and, once each, of the functions its MX graph calls: what the C
+    compiler works through (an MX function's own count is that of its nodes only)."""
+    if not f.is_a("MXFunction"):
+        return f.n_instructions()
+    called: dict[str, ca.Function] = {}
+    for k in range(f.n_instructions()):
+        node = f.instruction_MX(k)
+        if node.is_call():
+            g = node.which_function()
+            called.setdefault(g.name(), g)
+    return f.n_instructions() + sum(code_size(g) for g in called.values())
+
+
 def expected_build_seconds(f: ca.Function, opt: str = "-O1") -> float:
     """About how long the C compiler takes on ``f`` (generation, compiling, linking)."""
-    return BUILD_SECONDS_PER_INSTRUCTION.get(opt, 6e-5) * f.n_instructions()
+    return BUILD_SECONDS_PER_INSTRUCTION.get(opt, 6e-5) * code_size(f)
 
 
 # Seconds each function (by its library path) has run on CasADi's virtual machine, summed

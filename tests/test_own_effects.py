@@ -159,7 +159,7 @@ def test_compile_key_follows_effect_options_and_user_source(effect_file):
 
     def lib(model):
         blk = ShootingProblem.step_functions(model, [0], 1)[0]
-        return codegen._lib_path(blk, None, "-O1")
+        return codegen.library_path(blk, "-O1")
 
     keys = [lib(QuadrotorModel(af) + fx.BatteryVoltage(v_ref=v)) for v in (4.0, 3.7)]
     assert keys[0] != keys[1]

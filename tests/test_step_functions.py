@@ -1,0 +1,81 @@
+"""The fitter's per-sample step functions against the quantities they stand for, written out
+independently: the state after one sample (RK4, ``n_sub`` sub-steps), the sensitivity
+``d x_next / d (x, theta)`` times the incoming one, and the sample's Gauss-Newton terms
+``J'J``, ``J'e`` and ``e*e`` from the Jacobian of the whole sample step taken in one piece."""
+import casadi as ca
+import numpy as np
+import pytest
+
+import greybox
+from greybox import QuadrotorModel, codegen
+from greybox import effects as fx
+from greybox.integrate import rk4_step
+from greybox.model import OUTPUTS
+from greybox.shooting import ShootingProblem
+
+PAPER = greybox.__path__[0] + "/data/airframes/paper.toml"
+
+
+def reference_blocks(model, free_idx, n_sub, args):
+    """The sample's blocks from the Jacobian of the whole RK4 step (all sub-steps in one
+    expression) and of the weighted residual, multiplied out with numpy."""
+    x, S, H, g, c, u, t, h, ym, w, th, sc, pfix = args
+    nx = model.nx
+    xs = ca.SX.sym("x", nx)
+    ts = ca.SX.sym("th", len(free_idx))
+    p = ca.SX(ca.DM(pfix))
+    for i, k in enumerate(free_idx):
+        p[k] = ts[i] * sc[i]
+    xn = rk4_step(model, n_sub)(xs, u, p, t, h)
+    d = ym - model.output(xs, u, p, t)
+    psi = OUTPUTS.index("psi")
+    d[psi] = ca.atan2(ca.sin(d[psi]), ca.cos(d[psi]))
+    e = w * d
+    z = ca.vertcat(xs, ts)
+    f = ca.Function("ref", [xs, ts], [xn, ca.jacobian(xn, z), e, ca.jacobian(e, z)])
+    xn_v, Jx, e_v, Je = (np.asarray(a) for a in f(x, th))
+    E = np.vstack([S, np.hstack([np.zeros((len(free_idx), nx)), np.eye(len(free_idx))])])
+    Sn = Jx @ E
+    Jes = Je @ E
+    return [xn_v.ravel(), Sn, H + Jes.T @ Jes, g + Jes.T @ e_v.ravel(), c + e_v.ravel() ** 2]
+
+
+@pytest.mark.parametrize("effects,n_sub", [([], 1), (["motor_lag", "drag_moment"], 3),
+                                           (["moment_gain", "battery_voltage"], 4)])
+def test_step_blocks_equal_the_jacobian_of_the_whole_step(effects, n_sub):
+    af = greybox.load_airframe(PAPER)
+    model = QuadrotorModel(af) + [fx.by_name(e) for e in effects]
+    rng = np.random.default_rng(3)
+    free_idx = sorted(rng.choice(model.n_params, size=min(5, model.n_params), replace=False).tolist())
+    nx, nth, ny = model.nx, len(free_idx), model.ny
+    nz = nx + nth
+    p = model.default_parameters()
+    sc = np.where(p[free_idx] != 0, p[free_idx], 1e-2)
+    x = np.zeros(nx)
+    x[:12] = rng.normal(size=12) * [1, 1, 1, .3, .3, 3, 1, 1, 1, 2, 2, 2]
+    x[12:] = 500.0 + rng.normal(size=nx - 12) * 20
+    u = 500.0 + rng.normal(size=model.nu) * 30
+    ym = np.zeros(ny)
+    ym[:12] = x[:12] + rng.normal(size=12) * 0.05
+    ym[5] += 2 * np.pi                   # a yaw measured one turn on: the residual is wrapped
+    J = rng.normal(size=(2 * nz, nz))
+    args = [x, rng.normal(size=(nx, nz)), J.T @ J, rng.normal(size=nz), rng.uniform(size=ny),
+            u, 0.3, 0.004, ym, rng.uniform(1, 10, size=ny), 1.0 + 0.1 * rng.normal(size=nth), sc, p]
+    blk, val = ShootingProblem.step_functions(model, free_idx, n_sub)
+    got = [np.asarray(a) for a in blk(*args)]
+    want = reference_blocks(model, free_idx, n_sub, args)
+    for a, b in zip(got, want):
+        np.testing.assert_allclose(a.reshape(np.shape(b)), b, rtol=1e-9, atol=1e-9 * np.abs(b).max())
+    assert np.array_equal(got[2], got[2].T)          # J'J assembled symmetric
+    xn_v, c_v = (np.asarray(a).ravel() for a in val(x, args[4], u, 0.3, 0.004, ym, args[9], args[10], sc, p))
+    np.testing.assert_allclose(xn_v, want[0], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(c_v, want[4], rtol=1e-12)
+
+
+def test_code_size_counts_the_functions_an_mx_graph_calls_once():
+    x = ca.SX.sym("x", 3)
+    f = ca.Function("f", [x], [ca.sin(x) * x])
+    X = ca.MX.sym("X", 3)
+    g = ca.Function("g", [X], [f(f(X)) + X])
+    assert codegen.code_size(f) == f.n_instructions()
+    assert codegen.code_size(g) == g.n_instructions() + f.n_instructions()
