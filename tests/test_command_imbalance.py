@@ -24,8 +24,25 @@ def test_a_weak_rotor_is_driven_harder_and_equal_rotors_are_not(base):
     m0, p0 = model_with_hidden_effects(base, [])
     equal = command_imbalance(base, synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log)
     assert not equal.notable and max(abs(v) for v in equal.share.values()) < 0.01
-    assert set(equal.as_dict()) == {"share", "spin", "seconds", "notable", "speed_trim"}
+    assert set(equal.as_dict()) == {"share", "spin", "seconds", "notable", "speed_trim", "at_limit"}
     assert "speed" not in equal.evidence and "steady" in weak.evidence
+    assert equal.at_limit == {} and weak.at_limit == {}
+
+
+def test_a_command_clipped_at_the_end_of_its_range_is_told(base):
+    """A rotor whose command is cut at a ceiling (a PWM of 65535) shows as a plateau at its
+    maximum; the same flight unclipped, and a rotor held constant, do not."""
+    m0, p0 = model_with_hidden_effects(base, [])
+    log = synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log
+    w4 = log.inputs[:, 3].copy()
+    ceiling = np.quantile(w4, 0.8)
+    log.inputs[:, 3] = np.minimum(w4, ceiling)
+    ci = command_imbalance(base, log)
+    assert set(ci.at_limit) == {"w4"} and ci.at_limit["w4"] == pytest.approx(0.2, abs=0.01)
+    assert ci.notable and "clipped" in ci.text() and "w4 in 20 %" in ci.text()
+    log.inputs[:, 3] = w4
+    log.inputs[:, 0] = log.inputs[:, 0].mean()       # constant: nothing to clip
+    assert command_imbalance(base, log).at_limit == {}
 
 
 def test_default_candidates_over_several_flights(base):

@@ -76,6 +76,10 @@ IMBALANCE_NOTABLE = 0.03
 """A rotor's steady-flight share of the squared commands this far from the mean (3 %) is
 worth telling: more than hover trim tolerances, less than a damaged propeller."""
 
+AT_LIMIT_NOTABLE = 0.01
+"""A rotor whose command sits at its flight maximum in this fraction of the samples (1 %) is
+clipped there, not flown: an unclipped command reaches its maximum once."""
+
 
 @dataclass
 class CommandImbalance:
@@ -100,10 +104,15 @@ class CommandImbalance:
     spin: dict[int, float]
     seconds: float                      # steady flight the averages are taken over
     speed_trim: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    at_limit: dict[str, float] = field(default_factory=dict)
+    """Per rotor, the fraction of all samples (not only steady ones) in which its command sits
+    at the flight's highest value: a command clipped at the end of its range (a PWM of 65535
+    on a Crazyflie with a sagging battery), where the controller asked for more than the rotor
+    gave. Only rotors at or above :data:`AT_LIMIT_NOTABLE` are listed."""
 
     @property
     def notable(self) -> bool:
-        return bool(self.evidence)
+        return bool(self.evidence) or bool(self.at_limit)
 
     @property
     def follows_speed(self) -> bool:
@@ -139,11 +148,16 @@ class CommandImbalance:
             lead = "" if parts else f"in {self.seconds:.1f} s of steady flight "
             parts.append(f"{lead}{moves}: a moment that follows the speed, as drag acting above the centre of "
                          "gravity gives (drag_moment)")
+        if self.at_limit:
+            rotors = ", ".join(f"{n} in {100 * v:.0f} %" for n, v in self.at_limit.items())
+            parts.append(f"commands clipped at their highest value ({rotors} of the samples): there the rotor "
+                         "was at the end of its range and the controller got less than it asked for; a model "
+                         "fed these commands is outside what it was fitted for, and its predictions there are weak")
         return ". And ".join(parts)
 
     def as_dict(self) -> dict:
         return {"share": dict(self.share), "spin": {str(k): v for k, v in self.spin.items()},
-                "seconds": self.seconds, "notable": self.notable,
+                "seconds": self.seconds, "notable": self.notable, "at_limit": dict(self.at_limit),
                 "speed_trim": {ax: {"slope": v[0], "r": v[1], "change": v[2]} for ax, v in self.speed_trim.items()}}
 
 
@@ -152,15 +166,15 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     """Per-rotor share of the squared rotor speeds in steady flight (body rates below
     ``max_rate`` rad/s, roll and pitch below ``max_tilt`` rad, angular acceleration below
     ``max_angular_acc`` rad/s²; from the smoothed measurements, no model), over one flight or
-    several, and how the roll and pitch trims follow the body speed there. None when there is
-    less than a second of it, or the inputs are not rotor speeds."""
+    several, and how the roll and pitch trims follow the body speed there; over all samples,
+    the rotors whose commands are clipped at their highest value. None when there is less than
+    a second of steady flight, or the inputs are not rotor speeds."""
     n_rot = model.airframe.n_rotors
     if model.inputs != "rotor_speeds":
         return None
     rows, vbs, seconds = [], [], 0.0
-    for lg in ([log] if isinstance(log, FlightLog) else list(log)):
-        if len(lg) < 10:
-            continue
+    logs = [lg for lg in ([log] if isinstance(log, FlightLog) else list(log)) if len(lg) >= 10]
+    for lg in logs:
         X = initial_node_states(model, lg, np.arange(len(lg)))
         rates = X[:, 9:12]
         acc = np.gradient(rates, lg.t, axis=0)
@@ -176,7 +190,19 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     share = {name: float(m / mean.mean() - 1.0) for name, m in zip(model.command_names[:n_rot], mean)}
     spins = model.airframe.spins
     spin = {int(s): float(mean[spins == s].mean() / mean.mean() - 1.0) for s in np.unique(spins)}
-    return CommandImbalance(share, spin, seconds, _speed_trim(model, W2, np.vstack(vbs)))
+    names = model.command_names[:n_rot]
+    clipped = {name: float(f) for name, f in zip(names, _at_limit(np.vstack([lg.inputs[:, :n_rot] for lg in logs])))
+               if f >= AT_LIMIT_NOTABLE}
+    return CommandImbalance(share, spin, seconds, _speed_trim(model, W2, np.vstack(vbs)), clipped)
+
+
+def _at_limit(U: np.ndarray) -> np.ndarray:
+    """Per column, the fraction of samples at its maximum, for columns that vary (more than
+    1 % below the maximum in a tenth of the samples): a constant command is not a clipped one."""
+    top = U.max(axis=0)
+    at = U >= top * (1 - 1e-12)
+    varies = np.mean(U < top * 0.99, axis=0) >= 0.1
+    return np.where(varies & (top > 0), at.mean(axis=0), 0.0)
 
 
 SPEED_TRIM_R = 0.5
