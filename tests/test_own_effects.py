@@ -49,9 +49,15 @@ RATE_DAMPING = textwrap.dedent('''
 
 @pytest.fixture
 def effect_file(tmp_path):
+    """The file of a user effect, ``rate_damping``; whatever a test registers from it is
+    forgotten after the test: the registry is process-wide, and a later test in the same
+    run (the peer simulator's rate damping, which must stay outside the catalogue) would
+    otherwise find it among the default candidates."""
     path = tmp_path / "rate_damping.py"
     path.write_text(RATE_DAMPING)
-    return path
+    yield path
+    if "rate_damping" in fx.registered_effects():
+        fx.unregister("rate_damping")
 
 
 def test_register_decorator_and_clear_errors():
