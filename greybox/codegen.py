@@ -65,7 +65,7 @@ def code_size(f: ca.Function) -> int:
 
 def expected_build_seconds(f: ca.Function, opt: str = "-O1") -> float:
     """About how long the C compiler takes on ``f`` (generation, compiling, linking)."""
-    return BUILD_SECONDS_PER_INSTRUCTION.get(opt, 6e-5) * code_size(f)
+    return BUILD_SECONDS_PER_INSTRUCTION.get(opt, BUILD_SECONDS_PER_INSTRUCTION["-O1"]) * code_size(f)
 
 
 # Seconds each function (by its library path) has run on CasADi's virtual machine, summed

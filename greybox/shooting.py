@@ -211,17 +211,15 @@ class ShootingProblem:
         nx, nu, ny, npar = model.nx, model.nu, model.ny, model.n_params
         nth = len(free_idx)
         nz = nx + nth
-        x = ca.SX.sym("x", nx)
-        S = ca.SX.sym("S", nx, nz)
-        u = ca.SX.sym("u", nu)
-        t = ca.SX.sym("t")
-        h = ca.SX.sym("h")
-        c = ca.SX.sym("c", ny)
-        ym = ca.SX.sym("ym", ny)
-        w = ca.SX.sym("w", ny)
-        th = ca.SX.sym("th", nth)          # scaled free parameters
-        sc = ca.SX.sym("scale", nth)
-        pfix = ca.SX.sym("pfix", npar)
+        # the blocks' inputs in their order, declared once: SX for the per-sample pieces, MX
+        # for the graph that calls them
+        shapes = {"x": (nx, 1), "S": (nx, nz), "H": (nz, nz), "g": (nz, 1), "c": (ny, 1), "u": (nu, 1),
+                  "t": (1, 1), "h": (1, 1), "ym": (ny, 1), "w": (ny, 1),
+                  "th": (nth, 1),            # scaled free parameters
+                  "scale": (nth, 1), "pfix": (npar, 1)}
+        x, S, H, g, c, u, t, h, ym, w, th, sc, pfix = (ca.SX.sym(k, *v) for k, v in shapes.items())
+        inputs = [ca.MX.sym(k, *v) for k, v in shapes.items()]
+        X, Sm, Hm, gm, C, U, T, Hs, Ym, Wm, Th, Sc, Pf = inputs
         p = ca.SX(pfix)
         for i, k in enumerate(free_idx):
             p[k] = th[i] * sc[i]
@@ -243,32 +241,16 @@ class ShootingProblem:
         for i in range(nz):
             for j in range(i, nz):
                 JJ[i, j] = JJ[j, i] = ca.dot(Je[:, i], Je[:, j])
-        H = ca.SX.sym("H", nz, nz)
-        g = ca.SX.sym("g", nz)
         accumulate = ca.Function("gb_sample_accumulate", [x, S, H, g, c, u, t, th, sc, pfix, ym, w],
                                  [H + JJ, g + Je.T @ e, c + e * e])
 
-        X = ca.MX.sym("x", nx)
-        Sm = ca.MX.sym("S", nx, nz)
-        Hm = ca.MX.sym("H", nz, nz)
-        gm = ca.MX.sym("g", nz)
-        C = ca.MX.sym("c", ny)
-        U = ca.MX.sym("u", nu)
-        T = ca.MX.sym("t")
-        Hs = ca.MX.sym("h")
-        Ym = ca.MX.sym("ym", ny)
-        Wm = ca.MX.sym("w", ny)
-        Th = ca.MX.sym("th", nth)
-        Sc = ca.MX.sym("scale", nth)
-        Pf = ca.MX.sym("pfix", npar)
         dt = Hs / n_sub
         xk, Sk, tk = X, Sm, T
         for _ in range(n_sub):
             xk, Sk = substep(xk, Sk, U, tk, dt, Th, Sc, Pf)
             tk = tk + dt
         Hn, gn, Cn = accumulate(X, Sm, Hm, gm, C, U, T, Th, Sc, Pf, Ym, Wm)
-        step_blk = ca.Function("gb_step_blocks", [X, Sm, Hm, gm, C, U, T, Hs, Ym, Wm, Th, Sc, Pf],
-                               [xk, Sk, Hn, gn, Cn])
+        step_blk = ca.Function("gb_step_blocks", inputs, [xk, Sk, Hn, gn, Cn])
         step = rk4_step(model, n_sub)
         step_val = ca.Function("gb_step_value", [x, c, u, t, h, ym, w, th, sc, pfix],
                                [step(x, u, p, t, h), c + e * e])
@@ -453,8 +435,8 @@ class BufferedFunction:
 
     def __call__(self, *args) -> list[np.ndarray]:
         flat_in = [self._column_major(np.asarray(a, dtype=float), s) for a, s in zip(args, self.shape_in)] \
-            if self.dense and len(args) == len(self.shape_in) else [None]
-        if any(a is None for a in flat_in):
+            if self.dense and len(args) == len(self.shape_in) else None
+        if flat_in is None or any(a is None for a in flat_in):
             return [np.asarray(r) for r in self.f(*args)]
         # a buffer per call: it holds the function's work memory (for the interval blocks of
         # a long flight, the folds' intermediate results: ~100 MB), which a kept one would

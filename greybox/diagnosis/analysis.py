@@ -187,10 +187,10 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
         return None
     W2 = np.vstack(rows)
     mean = W2.mean(axis=0)
-    share = {name: float(m / mean.mean() - 1.0) for name, m in zip(model.command_names[:n_rot], mean)}
+    names = model.command_names[:n_rot]
+    share = {name: float(m / mean.mean() - 1.0) for name, m in zip(names, mean)}
     spins = model.airframe.spins
     spin = {int(s): float(mean[spins == s].mean() / mean.mean() - 1.0) for s in np.unique(spins)}
-    names = model.command_names[:n_rot]
     clipped = {name: float(f) for name, f in zip(names, _at_limit(np.vstack([lg.inputs[:, :n_rot] for lg in logs])))
                if f >= AT_LIMIT_NOTABLE}
     return CommandImbalance(share, spin, seconds, _speed_trim(model, W2, np.vstack(vbs)), clipped)
