@@ -6,7 +6,7 @@ from .asymmetry import CogOffset, MotorAsymmetry
 from .base import Effect
 from .drag import DragMoment, HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag, Wind
 from .ground import GroundEffect
-from .power import BatteryVoltage, CommandDelay, RotorMap, ThrustDrift
+from .power import BatteryVoltage, CommandDelay, RotorMap, SampledInputs, ThrustDrift
 from .rotor import Gyroscopic, MomentGain, MotorLag, YawTorque
 from .sensors import AttitudeBias, PositionDelay
 
@@ -20,12 +20,13 @@ CATALOGUE: dict[str, type[Effect]] = {
 }
 """The catalogue of effects (README, "Effects"), by name, in the order they are applied."""
 
-SIGNAL_EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (CommandDelay, RotorMap, BatteryVoltage)}
-"""Effects beyond the catalogue, tied to what a log records (the delay of logged commands,
-a command map, the battery voltage). Applied before the catalogue's effects, since they
-change the command; the delay first, since it moves the logged command in time.
-``diagnose`` considers ``battery_voltage`` when the log has a ``vbat`` column and
-``command_delay`` when it has ``pwm1`` (rotor speeds mapped from motor commands)."""
+SIGNAL_EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (SampledInputs, CommandDelay, RotorMap, BatteryVoltage)}
+"""Effects beyond the catalogue, tied to what a log records (the timing of rotor speeds
+sampled between rows, the delay of logged commands, a command map, the battery voltage).
+Applied before the catalogue's effects, since they change the command; the timing first,
+since they move the logged command in time. ``diagnose`` considers ``sampled_inputs`` when
+the inputs are rotor speeds (``w1``), ``battery_voltage`` when the log has a ``vbat`` column
+and ``command_delay`` when it has ``pwm1`` (rotor speeds mapped from motor commands)."""
 
 APPLY_ORDER: tuple[str, ...] = tuple(SIGNAL_EFFECTS) + tuple(CATALOGUE)
 """Order in which a model applies its effects, whatever order they were composed in."""

@@ -1,6 +1,7 @@
 """What a logged command delivers: the thrust drifting as the battery sags, rotor speed
-scaling with the logged battery voltage, the offset of a command-to-speed map, and the
-delay between a logged command and the rotors' response."""
+scaling with the logged battery voltage, the offset of a command-to-speed map, the
+delay between a logged command and the rotors' response, and the timing of rotor speeds
+sampled from a signal that varies between the log's rows."""
 from __future__ import annotations
 
 import math
@@ -12,7 +13,7 @@ from ..errors import GreyboxInputError
 from ..parameters import Parameter
 from .base import Effect
 
-__all__ = ["ThrustDrift", "RotorMap", "BatteryVoltage", "CommandDelay"]
+__all__ = ["ThrustDrift", "RotorMap", "BatteryVoltage", "CommandDelay", "SampledInputs"]
 
 
 class ThrustDrift(Effect):
@@ -184,5 +185,65 @@ class CommandDelay(Effect):
         w = segment(0)
         for j in range(1, self.n_taps):
             w = ca.if_else(s >= j, segment(j), w)
+        ctx.w_command = w
+        ctx.w = w
+
+
+class SampledInputs(Effect):
+    """Logged rotor speeds that are samples of a signal varying between the log's rows, not
+    values held until the next row: the model holds each row's input over its interval
+    (zero-order hold, the contract's rule), and this effect makes that held value the blend
+    ``(1 - s_lead) w_k + s_lead w_(k+1)`` of the row and the next one.
+
+    ``s_lead = 0`` is the plain hold (a command the controller held, logged at its own rate);
+    ``0.5`` is the mean over the interval of a signal interpolated linearly between the rows
+    (measured rotor speeds, ESC telemetry, command snapshots of a faster controller). Held
+    samples of a varying signal lag it by half a sample on average: on a 30 g vehicle logged at
+    100 Hz (motor time constant 20 ms, attitude loop at 30 rad/s) that lag left residuals the
+    diagnosis took for a rotor drag at the hubs (another simulator's flight with nothing
+    missing: validation nrmse 0.045; 0.017 with the inputs averaged). At 500 Hz and faster the
+    lag is a millisecond or less.
+
+    The next row's speeds are derived from the log itself (:meth:`derived_signals`:
+    ``w1@next``); the last row's next is itself.
+    """
+
+    name = "sampled_inputs"
+    summary = "logged rotor speeds sampled from a varying signal: each interval holds (1-s) w_k + s w_k+1"
+    excited_by = "fast rotor-speed changes between the log's rows (attitude steps, aggressive turns)"
+    fit_advice = "fast roll and pitch changes with the gyro or attitude logged at the rotor speeds' rate"
+    channels = ("phi", "theta", "p", "q")
+    distinguish = {
+        "command_delay": "a delay makes the rotors act later than logged, sampled inputs earlier than held",
+        "motor_lag": "a lag rounds the response to a command step, sampled speeds already carry the motor's lag",
+    }
+    considered_when_logged = ("w1",)
+
+    def parameters(self, airframe):
+        return [Parameter("s_lead", 1, 0.0, "sample", 0.0, 1.0, 0.5, 0.0, True,
+                          "weight of the next row's rotor speeds in each interval's held value", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"s_lead": 0.5}
+
+    @staticmethod
+    def _next(command: str) -> str:
+        return f"{command}@next"
+
+    def derived_signals(self, commands):
+        if any(not c.startswith("w") for c in commands):
+            raise GreyboxInputError("sampled_inputs blends logged rotor speeds (inputs w1..wN); a model "
+                                    "with inputs='controls' has none")
+        return [self._next(c) for c in commands]
+
+    def derive_signals(self, t, commands):
+        return {self._next(c): np.append(np.asarray(v, dtype=float)[1:], np.asarray(v, dtype=float)[-1:])
+                for c, v in commands.items()}
+
+    def modify(self, ctx):
+        n = ctx.airframe.n_rotors
+        nxt = ca.vertcat(*[ctx.signals[self._next(f"w{i + 1}")] for i in range(n)])
+        s = ctx.params["s_lead"]
+        w = (1 - s) * ctx.w_command + s * nxt
         ctx.w_command = w
         ctx.w = w

@@ -1,0 +1,123 @@
+"""Rotor speeds sampled from a signal that varies between the log's rows (effect
+``sampled_inputs``): by hand, recovered from a log made at a finer rate, absent from a log of
+held commands, and settled by the diagnosis before any physical effect is judged."""
+import warnings
+
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel, effects, fit, load_airframe, simulate
+from greybox.data import FlightLog
+from greybox.diagnosis.ranking import default_candidates
+from greybox.errors import GreyboxInputError
+
+from conftest import AIRFRAMES
+
+PATTERN = np.array([1.0, 0.3, -1.0, -0.3])     # a roll and pitch moment on any X or + layout
+OUT = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
+
+
+def _airframe():
+    return load_airframe(AIRFRAMES / "x_quad.toml")
+
+
+def _speeds(t, w0):
+    return w0 + 0.08 * w0 * (np.sin(2 * np.pi * 3.0 * t) + 0.5 * np.sin(2 * np.pi * 7.3 * t + 1.0))[:, None] * PATTERN
+
+
+def test_each_interval_holds_the_blend_of_its_row_and_the_next_by_hand():
+    """Rows w_k and w_k+1: with ``s_lead = s`` the model's derivatives over interval k are the
+    base model's at ``(1 - s) w_k + s w_k+1``; at 0 the plain hold; the last row's next is
+    itself. The parameter is a fraction of a sample in [0, 1] whose null (the hold) is 0."""
+    base = QuadrotorModel(_airframe())
+    model = base + effects.SampledInputs()
+    assert model.input_names == ["w1", "w2", "w3", "w4", "w1@next", "w2@next", "w3@next", "w4@next"]
+    assert model.steady_input_names == ["w1", "w2", "w3", "w4"]
+    t = np.arange(0.0, 0.2, 0.01)
+    W = _speeds(t, 400.0)
+    log = FlightLog(t, W, ["w1", "w2", "w3", "w4"], np.full((t.size, 6), np.nan), OUT[:6])
+    prep = model.prepare_log(log)
+    assert np.array_equal(prep.inputs[:-1, 4:], W[1:]) and np.array_equal(prep.inputs[-1, 4:], W[-1])
+    x0, k = base.initial_state(), 7
+    i_s = model.param_names.index("s_lead")
+    for s in (0.0, 0.5, 0.8):
+        p = model.default_parameters()
+        p[i_s] = s
+        got = np.asarray(model.rhs(x0, prep.inputs[k], p, t[k])).ravel()
+        want = np.asarray(base.rhs(x0, (1 - s) * W[k] + s * W[k + 1], base.default_parameters(), t[k])).ravel()
+        assert abs(want[9]) > 0.1                                  # a real roll acceleration
+        assert got == pytest.approx(want, rel=1e-12, abs=1e-12), s
+    par = next(q for q in model.parameters if q.name == "s_lead")
+    assert (par.null, par.lower, par.upper) == (0.0, 0.0, 1.0)
+
+
+def test_only_for_rotor_speeds_and_a_default_candidate_there():
+    """It blends logged rotor speeds: a model driven by control inputs has none (one clear
+    error); the diagnosis considers it whenever the inputs are rotor speeds."""
+    af = _airframe()
+    model = QuadrotorModel(af, inputs="controls")
+    with pytest.raises(GreyboxInputError, match="sampled_inputs"):
+        _ = (model + effects.SampledInputs()).input_names
+    t = np.arange(0.0, 1.0, 0.01)
+    log = FlightLog(t, _speeds(t, 400.0), ["w1", "w2", "w3", "w4"], np.full((t.size, 6), np.nan), OUT[:6])
+    assert "sampled_inputs" in default_candidates(QuadrotorModel(af), [log])
+
+
+def _fine_flight(hold_at_log_rate: bool, seed: int = 3):
+    """1.5 s of an open-loop vehicle driven by rotor speeds varying at 3 and 7.3 Hz, integrated
+    at 2 kHz and logged at 100 Hz with 1 mm / 2 mrad / 5 mrad/s noise. With
+    ``hold_at_log_rate`` the speeds change only at the log's rows (a command the controller
+    held), else continuously (sampled by the log, as ESC telemetry is)."""
+    af = _airframe()
+    model = QuadrotorModel(af)
+    p = model.default_parameters()
+    w_hover = model.hover_speed(p)
+    tf = np.arange(0.0, 1.5, 5e-4)
+    every = 20
+    Wf = _speeds(np.repeat(tf[::every], every)[:tf.size] if hold_at_log_rate else tf, w_hover)
+    sim = simulate(model, tf, Wf, p, x0=np.r_[0, 0, -1.0, np.zeros(9)])
+    rows = slice(0, None, every)
+    rng = np.random.default_rng(seed)
+    Y = sim.outputs[rows][:, :9].copy()
+    sig = np.array([1e-3] * 3 + [2e-3] * 3 + [5e-3] * 3)
+    Y += sig * rng.standard_normal(Y.shape)
+    log = FlightLog(tf[rows], Wf[rows], ["w1", "w2", "w3", "w4"], Y, OUT)
+    return model, log
+
+
+@pytest.mark.parametrize("held", [False, True])
+def test_recovered_from_a_log_made_at_a_finer_rate(held):
+    """Continuously varying speeds logged at 100 Hz: the fit finds s_lead near 0.5 (a
+    signal's mean over an interval is the mean of its ends, to first order; the angle at the
+    interval's end weighs its start more, 1/3 for a ramp, so a little less) with the residuals
+    at the noise, where without the effect the roll rate is several times the noise off;
+    speeds held at the log's rows: s_lead = 0, the hold, residuals at the noise."""
+    model, log = _fine_flight(held)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with_it = fit(model + effects.SampledInputs(), log, free=["s_lead"], process_noise=None, interval=5)
+        without = fit(model, log, free=["K_T"], process_noise=None, interval=5, reweight=False,
+                      noise={"phi": 2e-3, "theta": 2e-3, "p": 5e-3, "q": 5e-3})
+    s = with_it.value("s_lead")
+    if held:
+        assert s < 0.02
+        assert without.residual_rms["p"] < 2 * 5e-3
+    else:
+        assert 0.4 < s < 0.55
+        assert with_it.residual_rms["p"] < 1.5 * 5e-3
+        assert without.residual_rms["p"] > 3 * 5e-3
+
+
+def test_diagnosis_keeps_the_hold_for_held_commands():
+    """greybox's own flights hold each row's rotor speeds until the next (the contract's
+    zero-order hold): the diagnosis's timing check keeps the model as given and says nothing
+    about it."""
+    from greybox import diagnose
+    from greybox.synth import SensorSpec, synthesize
+    model = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    flights = [synthesize(model, duration=12.0, seed=s, sensors=SensorSpec(rate=200.0, vision_rate=50.0),
+                          manoeuvres=["hover", "step_x", "yaw", "step_y"]) for s in (11, 12)]
+    d = diagnose(model, flights[0].log, validation=flights[1].log, iterate=False, discover=False)
+    assert d.model.effect_names == model.effect_names
+    assert not any("samples of a signal" in w for w in d.warnings)
+    assert "sampled_inputs" not in [c.effect for c in d.ranking]
