@@ -58,6 +58,7 @@ def test_crazyflie_with_nothing_missing_gives_a_null_verdict(cf_clean):
     assert "sampled_inputs" in d.model.effect_names
     assert d.baseline.value("s_lead") == pytest.approx(0.5, abs=0.05)
     assert any("samples of a signal that varies" in w for w in d.warnings)
+    assert d.input_timing["s_lead"] == d.baseline.value("s_lead")
     assert d.verdict is None, d.summary()
     assert not any(c.significant for c in d.ranking)
     assert not d.unexplained                      # nothing far above the noise

@@ -117,7 +117,13 @@ def test_diagnosis_keeps_the_hold_for_held_commands():
     model = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
     flights = [synthesize(model, duration=12.0, seed=s, sensors=SensorSpec(rate=200.0, vision_rate=50.0),
                           manoeuvres=["hover", "step_x", "yaw", "step_y"]) for s in (11, 12)]
-    d = diagnose(model, flights[0].log, validation=flights[1].log, iterate=False, discover=False)
+    lines: list[str] = []
+    d = diagnose(model, flights[0].log, validation=flights[1].log, iterate=False, discover=False,
+                 progress=lines.append)
+    assert any("held values, or samples" in m for m in lines)           # the check was made
+    # judged like a candidate: here its score test already says no, and nothing is refitted
+    assert any(m.strip().startswith("screen sampled_inputs") for m in lines), lines
     assert d.model.effect_names == model.effect_names
     assert not any("samples of a signal" in w for w in d.warnings)
+    assert d.input_timing is None and d.as_json()["input_timing"] is None
     assert "sampled_inputs" not in [c.effect for c in d.ranking]

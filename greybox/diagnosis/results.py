@@ -206,6 +206,9 @@ class Diagnosis:
     discovery: dict = field(default_factory=dict)   # status, text (or why it cannot tell), together
     # words for a null verdict whose catalogue best was set aside for a discovered combination
     outside_catalogue: str = ""
+    # the log's timing settled before the candidates (rotor speeds sampled between rows):
+    # effect, s_lead, s_lead_std, nrmse_before, nrmse_after, text; None when the hold stands
+    input_timing: dict | None = None
     # error against horizon of the baseline and the final model (validation.horizon_errors_after)
     baseline_horizons: HorizonErrors | None = None
     final_horizons: HorizonErrors | None = None
@@ -236,6 +239,7 @@ class Diagnosis:
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
                "outside_catalogue": self.outside_catalogue or None,
+               "input_timing": _clean(self.input_timing) if self.input_timing else None,
                "findings": [f.text for f in self.findings],
                "warnings": list(self.warnings),
                "effects": self.model.effect_names,

@@ -127,14 +127,13 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                       measured_start=res.measured_start)
     pred = predict_after_fit(res, est, val, compile=compile, horizon=horizon)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split, 1, horizon)})")
-    timing_note = ""
+    timing = None
     if timing_candidate and res.converged:
-        model, res, pred, timing_note = _input_timing(model, res, pred, est, val, timing_candidate, compile, n_refit,
-                                                      say)
+        model, res, pred, timing = _input_timing(model, res, pred, est, val, timing_candidate, compile, n_refit, say)
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
                                                             validation_is_tail=validation is None)
     rounds: list[Round] = []
-    warnings: list[str] = ([timing_note] if timing_note else []) + list(res.warnings)
+    warnings: list[str] = ([timing["text"]] if timing else []) + list(res.warnings)
     if res.certificate is not None:
         say(f"diagnose: baseline {res.certificate.text()}")
     if not res.converged:
@@ -241,7 +240,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      validation_source=_validation_source(validation, split, len(est), horizon), unexplained=unexplained,
                      unexplained_gaps=unexplained_gaps,
                      inconsistent=inconsistent, command_imbalance=imbalance,
-                     discovered=discovered, discovery=discovery_note, outside_catalogue=outside)
+                     discovered=discovered, discovery=discovery_note, outside_catalogue=outside,
+                     input_timing=timing)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile)
@@ -259,7 +259,8 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     (:class:`~greybox.effects.SampledInputs`), judged like a candidate (likelihood ratio,
     effect size, validation) against the certified fit ``res`` of ``model``. When they are,
     the diagnosis goes on from the model with it: ``(model, fit, prediction, words)``; else
-    the arguments and "".
+    the arguments and None. The words and numbers: ``{"effect", "s_lead", "s_lead_std",
+    "nrmse_before", "nrmse_after", "text"}`` (:attr:`Diagnosis.input_timing`).
 
     Held samples of a varying signal lag it by half a sample. That is the log's timing, not
     physics the vehicle lacks, and judged against a model without it a physical candidate
@@ -270,7 +271,7 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     ranking = rank_round(model, res, pred, est, val, [name], compile, say, n_refit)
     cand = ranking[0] if ranking else None
     if cand is None or not cand.significant or cand.fit is None or not cand.fit.converged:
-        return model, res, pred, ""
+        return model, res, pred, None
     fit_t = cand.fit
     s = fit_t.value("s_lead")
     std = float(fit_t.std[fit_t.free_names.index("s_lead")]) if "s_lead" in fit_t.free_names else float("nan")
@@ -280,7 +281,9 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
             f"{pred.total:.3f} -> {cand.prediction.total:.3f}. This is the log's timing, not a physical effect: the "
             f"baseline and every candidate below include it")
     say(f"diagnose: {note}")
-    return fit_t.model, fit_t, cand.prediction, note
+    timing = {"effect": name, "s_lead": s, "s_lead_std": std, "nrmse_before": pred.total,
+              "nrmse_after": cand.prediction.total, "text": note}
+    return fit_t.model, fit_t, cand.prediction, timing
 
 
 def _encompassing(rounds: list[Round], final_nrmse: float, discovered: list, note: dict, est: Sequence[FlightLog],
