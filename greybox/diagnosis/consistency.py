@@ -9,18 +9,24 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .. import effects as fx
 from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxError
 from ..fitting import FitResult, fit
 from ..model import QuadrotorModel
 from ..residuals import residual_widening
 
-__all__ = ["CONSISTENCY_Z", "half_consistency"]
+__all__ = ["CONSISTENCY_Z", "CONSISTENCY_MIN_CHANGE", "half_consistency"]
 
 
 CONSISTENCY_Z = 3.0
 """A parameter whose estimates on the two halves of the estimation data differ by more than
 this many standard deviations (of the difference) is flagged as absorbing something else."""
+CONSISTENCY_MIN_CHANGE = 0.02
+"""...and by more than this fraction of its size (the larger estimate, or a plausible size of
+its effect on the airframe when that is larger): two estimates 0.2 % apart are the same
+constant, however small their standard deviations (another simulator's 1.2 kg vehicle with a
+gyro bias: b 1.697e-7 ± 7e-11 against 1.700e-7 ± 6e-11 had been flagged)."""
 
 
 def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], E: np.ndarray,
@@ -55,15 +61,35 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
         return out
     a, b = fits
     widen = residual_widening(E, res.sigma)
+    sizes = _plausible_sizes(model, res)
     for i, n in enumerate(res.free_names):
         if n in res.per_flight_:
             continue    # a wind or battery sag of other flights: no reason to agree
         sa, sb = widen * float(a.std[i]), widen * float(b.std[i])
         if not (np.isfinite(sa) and np.isfinite(sb)) or sa + sb <= 0:
             continue
-        z = abs(a.value(n) - b.value(n)) / math.hypot(sa, sb)
-        if z > CONSISTENCY_Z:
+        diff = abs(a.value(n) - b.value(n))
+        size = max(abs(a.value(n)), abs(b.value(n)), sizes.get(n, 0.0))
+        if diff / math.hypot(sa, sb) > CONSISTENCY_Z and diff > CONSISTENCY_MIN_CHANGE * size:
             out[n] = (a.value(n), sa, b.value(n), sb)
     say("diagnose: halves of the estimation data " +
         (f"disagree on {', '.join(out)}" if out else "agree on every parameter"))
+    return out
+
+
+def _plausible_sizes(model: QuadrotorModel, res: FitResult) -> dict[str, float]:
+    """A plausible magnitude of each parameter component for the airframe (its effect's
+    :meth:`~greybox.effects.Effect.plausible_values`, about its null), where one is known."""
+    kt = res.value("K_T") if "K_T" in model.param_names else 0.0
+    out: dict[str, float] = {}
+    if not kt > 0:
+        return out
+    for par in model.parameters:
+        if not par.effect:
+            continue
+        v = fx.example_values(par.effect, model.airframe, kt).get(par.name)
+        if v is None:
+            continue
+        vals = np.resize(np.abs(np.atleast_1d(np.asarray(v, dtype=float)) - par.null), par.size)
+        out.update({c: float(x) for c, x in zip(par.component_names, vals)})
     return out

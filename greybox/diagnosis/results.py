@@ -297,6 +297,11 @@ class Diagnosis:
         b = self.baseline_prediction
         lines = [f"1. compare: validation nrmse {b.total:.3f} on the {self.validation_source}  (" +
                  ", ".join(f"{c} {v:.3f}" for c, v in b.nrmse.items()) + ")"]
+        if self.input_timing:
+            t = self.input_timing
+            lines.append(f"   with the log's timing ({t['effect']}, s_lead = {t['s_lead']:.3g} ± {t['s_lead_std']:.2g}: "
+                         f"the rotor speeds are samples of a signal varying between rows; the model as given: "
+                         f"{t['nrmse_before']:.3f})")
         lines.append("2. where it fails:")
         lines += [f"   - {f.text}" for f in self.findings] or ["   - no regime stands out"]
         if self.command_imbalance is not None and self.command_imbalance.notable:
