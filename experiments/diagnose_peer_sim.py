@@ -48,6 +48,12 @@ CASES = {
     "3kg_clean": (PeerVehicle.three_kg, PeerEffects(), 20.0, None),
     "1kg_rate_damping": (PeerVehicle.one_kg, PeerEffects(rate_damping=[0.02, 0.02, 0.01]), 20.0, "outside"),
     "1kg_flapping": (PeerVehicle.one_kg, PeerEffects(flapping=0.02), 20.0, "outside"),
+    # other log rates, and a random torque no model term holds
+    "cf_rotor_drag_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(rotor_drag=1.0e-6), 25.0,
+                            ("hub_rotor_drag", "drag_moment")),
+    "1kg_ground_200hz": (partial(PeerVehicle.one_kg, log_rate=200.0, pos_rate=30.0), PeerEffects(ground_effect=True),
+                         40.0, "ground_effect"),
+    "1kg_turbulence": (PeerVehicle.one_kg, PeerEffects(turbulence=0.02), 20.0, None),
 }
 """name: (vehicle, effects, duration s, what should be named: an effect, or a tuple of effects
 that must all be added (the first round's verdict among them), None for a null verdict,
@@ -74,6 +80,7 @@ def run(name: str, work: Path) -> dict:
            # the log's timing, settled before the candidates (README, "The log's timing first")
            "s_lead": ([base.value("s_lead"), float(base.std[base.free_names.index("s_lead")])]
                       if "s_lead" in base.free_names else None),
+           "input_timing": diag.input_timing,
            "baseline_certified": bool(base.converged),
            "baseline_adequate": bool(base.certificate and base.certificate.adequate),
            "K_T_err": base.value("K_T") / truth["K_T"] - 1, "b_err": base.value("b") / truth["b"] - 1,
@@ -117,7 +124,8 @@ def main() -> None:
                   f"(final {100 * r['final_K_T_err']:+.1f} %, {100 * r['final_b_err']:+.1f} %); "
                   f"nrmse {r['nrmse_before']:.3f} -> {r['nrmse_after']:.3f}; {r['wall_s']:.0f} s", flush=True)
             if r["s_lead"]:
-                print(f"     inputs sampled between rows: s_lead = {r['s_lead'][0]:.3f} ± {r['s_lead'][1]:.2g}")
+                print(f"     inputs sampled between rows: s_lead = {r['s_lead'][0]:.3f} ± {r['s_lead'][1]:.2g} "
+                      f"(validation nrmse {r['input_timing']['nrmse_before']:.3f} -> {r['input_timing']['nrmse_after']:.3f})")
             if r["final"]:
                 print("     fitted: " + ", ".join(f"{k} = {v:.4g} ± {s:.2g}" for k, (v, s) in r["final"].items()))
             if r["outside_catalogue"]:
