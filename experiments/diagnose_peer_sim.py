@@ -78,8 +78,6 @@ def run(name: str, work: Path) -> dict:
            "added": [r.verdict for r in diag.rounds if r.verdict],
            "baseline_formulation": "process noise" if base.process_noise else "output error",
            # the log's timing, settled before the candidates (README, "The log's timing first")
-           "s_lead": ([base.value("s_lead"), float(base.std[base.free_names.index("s_lead")])]
-                      if "s_lead" in base.free_names else None),
            "input_timing": diag.input_timing,
            "baseline_certified": bool(base.converged),
            "baseline_adequate": bool(base.certificate and base.certificate.adequate),
@@ -123,9 +121,10 @@ def main() -> None:
                   f"{r['baseline_adequate']}; K_T {100 * r['K_T_err']:+.1f} %, b {100 * r['b_err']:+.1f} % "
                   f"(final {100 * r['final_K_T_err']:+.1f} %, {100 * r['final_b_err']:+.1f} %); "
                   f"nrmse {r['nrmse_before']:.3f} -> {r['nrmse_after']:.3f}; {r['wall_s']:.0f} s", flush=True)
-            if r["s_lead"]:
-                print(f"     inputs sampled between rows: s_lead = {r['s_lead'][0]:.3f} ± {r['s_lead'][1]:.2g} "
-                      f"(validation nrmse {r['input_timing']['nrmse_before']:.3f} -> {r['input_timing']['nrmse_after']:.3f})")
+            timing = r["input_timing"]
+            if timing:
+                print(f"     inputs sampled between rows: s_lead = {timing['s_lead']:.3f} ± {timing['s_lead_std']:.2g} "
+                      f"(validation nrmse {timing['nrmse_before']:.3f} -> {timing['nrmse_after']:.3f})")
             if r["final"]:
                 print("     fitted: " + ", ".join(f"{k} = {v:.4g} ± {s:.2g}" for k, (v, s) in r["final"].items()))
             if r["outside_catalogue"]:

@@ -16,6 +16,13 @@ from .base import Effect
 __all__ = ["ThrustDrift", "RotorMap", "BatteryVoltage", "CommandDelay", "SampledInputs"]
 
 
+def _require_rotor_speeds(commands, what: str) -> None:
+    """One clear error when an effect that reworks logged rotor speeds (``what``: its name and
+    verb) is put in a model driven by control inputs, which has none."""
+    if any(not c.startswith("w") for c in commands):
+        raise GreyboxInputError(f"{what} logged rotor speeds (inputs w1..wN); a model with inputs='controls' has none")
+
+
 class ThrustDrift(Effect):
     """Thrust coefficient drifting linearly over the flight (battery sag):
     ``K_T(t) = K_T * (1 + K_T_drift * t)``, t in seconds from the log's start.
@@ -153,9 +160,7 @@ class CommandDelay(Effect):
         return {"tau_cmd": 0.03}
 
     def derived_signals(self, commands):
-        if any(not c.startswith("w") for c in commands):
-            raise GreyboxInputError("command_delay delays logged rotor speeds (inputs w1..wN); a model "
-                                    "with inputs='controls' has none")
+        _require_rotor_speeds(commands, "command_delay delays")
         return [self._name(c, j) for j in self._offsets() for c in commands]
 
     def derive_signals(self, t, commands):
@@ -231,14 +236,15 @@ class SampledInputs(Effect):
         return f"{command}@next"
 
     def derived_signals(self, commands):
-        if any(not c.startswith("w") for c in commands):
-            raise GreyboxInputError("sampled_inputs blends logged rotor speeds (inputs w1..wN); a model "
-                                    "with inputs='controls' has none")
+        _require_rotor_speeds(commands, "sampled_inputs blends")
         return [self._next(c) for c in commands]
 
     def derive_signals(self, t, commands):
-        return {self._next(c): np.append(np.asarray(v, dtype=float)[1:], np.asarray(v, dtype=float)[-1:])
-                for c, v in commands.items()}
+        out = {}
+        for c, v in commands.items():
+            v = np.asarray(v, dtype=float)
+            out[self._next(c)] = np.append(v[1:], v[-1:])
+        return out
 
     def modify(self, ctx):
         n = ctx.airframe.n_rotors
