@@ -49,12 +49,12 @@ from __future__ import annotations
 # the constants are public names of greybox.diagnosis as well
 from .analysis import IMBALANCE_NOTABLE, CommandImbalance, Finding, command_imbalance, residual_analysis
 from .consistency import CONSISTENCY_MIN_CHANGE, CONSISTENCY_Z
-from .ranking import (ALPHA, COLD_CONTINUE, COLD_SCREEN_ITER, MAX_VALIDATION_LOSS, MIN_VALIDATION_GAIN, N_REFIT,
-                      default_candidates)
+from .ranking import (ALPHA, COLD_CONTINUE, COLD_SCREEN_ITER, MAX_VALIDATION_LOSS, MIN_EXPLAINED, MIN_EXPLAINED_INADEQUATE,
+                      MIN_VALIDATION_GAIN, N_REFIT, default_candidates)
 from .results import CandidateResult, Diagnosis, Discovered, DiscoveredTerm, Round
 from .screening import NEGLIGIBLE_FRACTION
 from .workflow import UNEXPLAINED_RATIO, diagnose, distinguishing_manoeuvre
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
-           "MIN_VALIDATION_GAIN", "distinguishing_manoeuvre",
+           "MIN_VALIDATION_GAIN", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "distinguishing_manoeuvre",
            "CommandImbalance", "command_imbalance", "default_candidates", "Discovered", "DiscoveredTerm"]
