@@ -36,7 +36,7 @@ __all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "predict", "predic
            "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options", "predict_after_fit",
            "horizon_errors_after", "horizon_errors", "HORIZON_START_EVERY", "INIT_WINDOWS",
            "INIT_WINDOW_HORIZON", "choose_init_window", "choose_measured_start",
-           "choose_start"]
+           "choose_start", "STATE_PRIOR_SCALE"]
 
 DEFAULT_HORIZON = 1.0
 DEFAULT_INIT_WINDOW = 0.5
@@ -101,6 +101,12 @@ def _sigma(log: FlightLog) -> np.ndarray:
     return np.maximum(s, 1e-4)
 
 
+STATE_PRIOR_SCALE = np.array([1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 2.0, 2.0, 2.0, 5.0, 5.0, 5.0])
+"""Scale of the weak prior the moving-horizon start-state estimate puts on the rigid-body
+states about their guesses from the measurements (:func:`estimate_states`): m, rad, m/s,
+rad/s, in the state order x, y, z, phi, theta, psi, vx, vy, vz, p, q, r."""
+
+
 def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts: Sequence[int],
                     L: int, sigma: np.ndarray | None = None, iterations: int = 10,
                     compile: str = "auto", measured_start: bool = False) -> np.ndarray:
@@ -132,11 +138,24 @@ def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts
     args = (np.zeros(0), np.zeros(0), p, U, T, h, Y, W)
     X = initial_node_states(model, log, starts - L, p)
     nx = model.nx
+    # A weak prior on the rigid-body states about their guesses from the measurements
+    # (STATE_PRIOR_SCALE): where the stretch measures a state it weighs nothing beside the
+    # data; where it does not (a vision dropout over the whole stretch), the state stays at
+    # its guess. Without it a state the data do not see moves along the faint gradient a
+    # model may give it: with a ground effect, z fitted to a stretch without position went
+    # 31 m up (where the ground effect vanishes), and its window's prediction with it.
+    X0 = X.copy()
+    info = np.zeros(nx)
+    info[:12] = 1.0 / STATE_PRIOR_SCALE ** 2
+
+    def with_prior(Xc, H, g, c):
+        dev = Xc - X0
+        return H + info[None, :, None] * np.eye(nx), g + info * dev, c + (info * dev * dev).sum(axis=1)
+
     mu = np.full(nW, 1e-3)
     xe, S, H, g, c = Fb(X.T, *args)
-    H = np.asarray(H).reshape(nx, nW, nx).transpose(1, 0, 2)
-    g = np.asarray(g).T
-    cost = np.asarray(c).sum(axis=0)
+    H, g, cost = with_prior(X, np.asarray(H).reshape(nx, nW, nx).transpose(1, 0, 2), np.asarray(g).T,
+                            np.asarray(c).sum(axis=0))
     xe = np.asarray(xe).T
     for _ in range(iterations):
         d = np.einsum("kii->ki", H)
@@ -144,12 +163,12 @@ def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts
         dx = -np.linalg.solve(A, g[:, :, None])[:, :, 0]
         Xt = X + dx
         xe_t, S_t, H_t, g_t, c_t = Fb(Xt.T, *args)
-        cost_t = np.asarray(c_t).sum(axis=0)
+        H_t, g_t, cost_t = with_prior(Xt, np.asarray(H_t).reshape(nx, nW, nx).transpose(1, 0, 2), np.asarray(g_t).T,
+                                      np.asarray(c_t).sum(axis=0))
         ok = np.isfinite(cost_t) & (cost_t <= cost)
         X[ok] = Xt[ok]
         cost[ok] = cost_t[ok]
-        H_t = np.asarray(H_t).reshape(nx, nW, nx).transpose(1, 0, 2)
-        H[ok], g[ok] = H_t[ok], np.asarray(g_t).T[ok]
+        H[ok], g[ok] = H_t[ok], g_t[ok]
         xe[ok] = np.asarray(xe_t).T[ok]
         mu = np.where(ok, np.maximum(mu / 5, 1e-9), mu * 10)
     if measured_start:
