@@ -46,7 +46,8 @@ CASES = {
     "1kg_cog": (PeerVehicle.one_kg, PeerEffects(cog_offset=[0.01, -0.006]), 20.0, "cog_offset"),
     "1kg_wind": (PeerVehicle.one_kg, PeerEffects(body_drag=[0.25, 0.25, 0.3], wind=[2.0, -1.0, 0.0]), 20.0, "wind"),
     "3kg_clean": (PeerVehicle.three_kg, PeerEffects(), 20.0, None),
-    "1kg_rate_damping": (PeerVehicle.one_kg, PeerEffects(rate_damping=[0.02, 0.02, 0.01]), 20.0, "unexplained"),
+    "1kg_rate_damping": (PeerVehicle.one_kg, PeerEffects(rate_damping=[0.02, 0.02, 0.01]), 20.0,
+                         "no catalogue effect"),
     "1kg_flapping": (PeerVehicle.one_kg, PeerEffects(flapping=0.02), 20.0, "outside"),
     # other log rates, and a random torque no model term holds
     "cf_rotor_drag_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(rotor_drag=1.0e-6), 25.0,
@@ -63,8 +64,8 @@ CASES = {
 """name: (vehicle, effects, duration s, what should be named: an effect, or a tuple of effects
 that must all be added (the first round's verdict among them), None for a null verdict,
 "outside" for an effect the catalogue does not hold, "no catalogue effect" for a null verdict of
-any kind, "unexplained" for a null verdict that says what
-stays unexplained: a random torque is no function of the state that discovery could find)."""
+any kind (outside the catalogue or unexplained), "unexplained" for a null verdict that says
+what stays unexplained: a random torque is no function of the state that discovery could find)."""
 
 
 def run(name: str, work: Path) -> dict:

@@ -150,7 +150,7 @@ def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts
 
     def with_prior(Xc, H, g, c):
         dev = Xc - X0
-        return H + info[None, :, None] * np.eye(nx), g + info * dev, c + (info * dev * dev).sum(axis=1)
+        return H + np.diag(info), g + info * dev, c + (info * dev * dev).sum(axis=1)
 
     mu = np.full(nW, 1e-3)
     xe, S, H, g, c = Fb(X.T, *args)

@@ -46,7 +46,7 @@ torque (turbulence) or an aerodynamic rate damping and nothing else missing, ``m
 removed 6-7 % (k_M 0.93, validation -5 % and -9 %) and was the verdict; the first-round
 verdicts on nine real NanoBench flights removed 48-86 %, hidden catalogue effects on the
 simulators over 50 %. Later rounds share out what is left (a real flight's fourth-round
-moment gain removed 8 % and halved the attitude error 0.5 s ahead): there only
+moment gain removed 8 % and cut its 0.5-s theta nrmse by a third): there only
 :data:`MIN_EXPLAINED` applies."""
 N_REFIT = 4
 """Candidates refitted after screening (the rest keep their screening statistic)."""
@@ -142,8 +142,8 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     # flight against 3-10 s of refits); the cold refits of every candidate, which all need
     # their blocks at once, build them first: quick, in parallel.
     rcompile = compile
+    n_sub = n_substeps(max(float(np.diff(lg.t).max()) for lg in est))
     if compile == "auto" and to_refit:
-        n_sub = n_substeps(max(float(np.diff(lg.t).max()) for lg in est))
         if cold:
             t0 = time.perf_counter()
             precompile_refits(model, res, [c.effect for c in to_refit], n_sub)
@@ -270,8 +270,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             say(f"  none of the best by score stands, the model is far from the data: refitting the next "
                 f"{len(more)} ({', '.join(c.effect for c in more)})")
             if compile == "auto":
-                queue_refit_builds(model, res, [c.effect for c in more], n_substeps(max(float(np.diff(lg.t).max())
-                                                                                     for lg in est)))
+                queue_refit_builds(model, res, [c.effect for c in more], n_sub)
             refit_batch(more)
             to_refit = to_refit + more
     for c in out:

@@ -303,14 +303,12 @@ def _encompassing(rounds: list[Round], final_nrmse: float, discovered: list, not
     demotion) stays the verdict. Returns the words for a null verdict
     when every one was set aside, else "" (``rounds[0].ranking`` re-ordered)."""
     sig = [d for d in discovered if d.significant]
-    if not sig:
+    ranking = rounds[0].ranking if rounds and rounds[0].verdict else []
+    if not sig or not ranking or ranking[0].nrmse_after is None:
         return ""
     together = note.get("together")
     found = together["nrmse_after"] if together and len(sig) > 1 else sig[0].nrmse_after
     what = "; ".join(d.text() for d in sig)
-    ranking = rounds[0].ranking if rounds and rounds[0].verdict else []
-    if not ranking or ranking[0].nrmse_after is None:
-        return ""
     if not found < (1 - MIN_VALIDATION_GAIN) * min(ranking[0].nrmse_after, final_nrmse):
         # the catalogue's model predicts as well: its verdicts stand
         return ""
