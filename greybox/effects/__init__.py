@@ -38,7 +38,7 @@ from .asymmetry import CogOffset, MotorAsymmetry
 from .base import Effect, EffectLibrary, ModelContext, is_derived_signal
 from .catalogue import APPLY_ORDER, BASE_EFFECTS, CATALOGUE, SIGNAL_EFFECTS
 from .discovered import DiscoveredEffect
-from .disturbance import HeldMoment
+from .disturbance import DisturbanceTorque, HeldMoment
 from .drag import DragMoment, HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag, Wind
 from .ground import GroundEffect
 from .power import BatteryVoltage, CommandDelay, RotorMap, SampledInputs, ThrustDrift
@@ -55,5 +55,5 @@ __all__ = [
     "PositionDelay", "AttitudeBias", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
     "APPLY_ORDER", "register", "load_effects_file", "known_effects", "registered_effects",
     "effect_class", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP", "example_values", "DiscoveredEffect",
-    "unregister", "HeldMoment", "MomentGain", "CommandDelay", "SampledInputs", "is_derived_signal",
+    "unregister", "HeldMoment", "DisturbanceTorque", "MomentGain", "CommandDelay", "SampledInputs", "is_derived_signal",
 ]

@@ -81,6 +81,11 @@ class Effect:
     signals: ClassVar[tuple[str, ...]] = ()
     """Logged signals the effect reads as extra model inputs (e.g. ``vbat``), after the
     rotor speeds in the input vector; a log supplies them as extra columns."""
+    rate_of_unmodelled: ClassVar[dict[str, str]] = {}
+    """``{its state: another state}`` for a disturbance state that is the rate of change of
+    what the model leaves out of that other state (``d_p`` of ``p``). A fit with process noise
+    starts its random walk at the other state's shooting gaps per second: the base model's
+    gaps in ``p`` are the unmodelled torque over one interval."""
     per_flight: ClassVar[bool] = False
     """Whether its parameters belong to one flight rather than to the vehicle (the day's
     wind, the battery's state): a fit of several flights with ``per_flight="auto"`` gives

@@ -43,7 +43,9 @@ class YawTorque(Effect):
         s = std.get("b")
         within = (s is not None and np.isfinite(s) and s > 0 and (lo * kt - b) / s < 2 and (b - hi * kt) / s < 2)
         why = ("the data hardly constrain it (a plausible b is within 2 std)" if within else
-               "the data put it there: the yaw is explained by something the model lacks (a torque difference "
+               "the data put it there: the yaw is explained by something the model lacks (a torque the "
+               "controller cancels through the very commands the model reads, which pulls b down: fit with "
+               "a disturbance torque, model + DisturbanceTorque() with process noise; a torque difference "
                "between the two spin directions, motors whose command-to-speed maps differ), or b stands in for it")
         return [f"b/K_T = {ratio:.2g} m is outside what propellers give ({lo:g}-{hi:g} m): b is not identified "
                 f"from this flight as a rotor's reaction torque; {why}; fly yaw steps, or hold b at a measured "

@@ -498,7 +498,8 @@ class FitSession:
     def state_noise_scale(self, sensor: np.ndarray, X: np.ndarray) -> np.ndarray:
         """Per state, the size of a change the measurements could just see: the sensor noise
         of its channel (positions, angles, gyro), over one shooting interval for velocities
-        (and body rates without a gyro); 1e-3 of its spread for effect states."""
+        (and body rates without a gyro); 1e-3 of its spread for effect states, but a
+        disturbance state's random-walk step (:attr:`~greybox.effects.Effect.rate_of_unmodelled`)."""
         dt = float(np.median(self.data.Hs[self.data.Hs > 0])) if np.any(self.data.Hs > 0) else 1.0
         T = max(self.interval, 1) * dt
         sig = dict(zip(OUTPUTS, sensor))
@@ -513,6 +514,14 @@ class FitSession:
                 out[j] = sig[name] if name in measured else sig[("phi", "theta", "psi")[j - 9]] / T
             else:
                 out[j] = 1e-3 * (float(np.std(X[:, j])) + 1e-6 * (1.0 + float(np.abs(X[:, j]).max())))
+        # a disturbance state (the rate of what the model misses in another state) is a random
+        # walk: its own process noise per interval, at least the change that moves that
+        # state by its scale over one interval
+        q = None if self.q is None else np.median(np.atleast_2d(self.q), axis=0)
+        for e in self.model.effects:
+            for d, src in e.rate_of_unmodelled.items():
+                j = self.model.state_names.index(d)
+                out[j] = max(out[self.model.state_names.index(src)] / T, 0.0 if q is None else float(q[j]))
         return out
 
     def optimality(self, X, th, blocks, P: np.ndarray, s2: float, sensor: np.ndarray
