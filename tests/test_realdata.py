@@ -173,7 +173,7 @@ def test_real_fit_hover_thrust_carries_the_weight():
     assert 0.0 < res.value("Kd[0]") < 0.05 and 0.0 < res.value("Kd[1]") < 0.05
 
 
-def test_disturbance_torque_lifts_b_into_the_propeller_range_on_a_real_flight():
+def test_disturbance_torque_lifts_b_into_the_propeller_range_on_a_real_flight(tmp_path):
     """On a real Crazyflie flight the base fit's b/K_T is 0.001 m, below what propellers give
     (published Crazyflie values 0.002-0.034 m): the controller cancels a yaw torque the model
     lacks through the commands the model reads, and b shrinks to explain commands that moved
@@ -189,6 +189,14 @@ def test_disturbance_torque_lifts_b_into_the_propeller_range_on_a_real_flight():
     assert res.converged, res.certificate.text()
     assert 0.002 < res.value("b") / res.value("K_T") < 0.034
     assert res.value("K_T") * w2 == pytest.approx(af.mass * 9.81, rel=0.02)
+    # a disturbance model is no diagnosis candidate, but a saved model holding it reads back
+    from greybox.fitted import load
+    path = tmp_path / "model.json"
+    res.save(path)
+    back = load(path)
+    assert "disturbance_torque" in back.model.effect_names
+    assert "disturbance_torque" not in [c for c in effects.known_effects()]
+    assert back.value("b") == pytest.approx(res.value("b"))
 
 
 def load_airframe_text(text):

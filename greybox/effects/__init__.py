@@ -42,7 +42,7 @@ from .disturbance import DisturbanceTorque, HeldMoment
 from .drag import DragMoment, HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag, Wind
 from .ground import GroundEffect
 from .power import BatteryVoltage, CommandDelay, RotorMap, SampledInputs, ThrustDrift
-from .registry import (ENTRY_POINT_GROUP, by_name, distinguishing_manoeuvre, effect_class, example_values,
+from .registry import (DISTURBANCE_MODELS, ENTRY_POINT_GROUP, by_name, distinguishing_manoeuvre, effect_class, example_values,
                        known_effects, load_effects_file, parse_effect_names, register, registered_effects,
                        unregister)
 from .rotor import Gyroscopic, MomentGain, MotorLag, YawTorque
@@ -55,5 +55,5 @@ __all__ = [
     "PositionDelay", "AttitudeBias", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
     "APPLY_ORDER", "register", "load_effects_file", "known_effects", "registered_effects",
     "effect_class", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP", "example_values", "DiscoveredEffect",
-    "unregister", "HeldMoment", "DisturbanceTorque", "MomentGain", "CommandDelay", "SampledInputs", "is_derived_signal",
+    "unregister", "HeldMoment", "DisturbanceTorque", "DISTURBANCE_MODELS", "MomentGain", "CommandDelay", "SampledInputs", "is_derived_signal",
 ]

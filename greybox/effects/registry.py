@@ -11,6 +11,7 @@ from ..errors import GreyboxInputError
 from ..parameters import Parameter
 from .base import Effect
 from .catalogue import CATALOGUE, SIGNAL_EFFECTS
+from .disturbance import DisturbanceTorque, HeldMoment
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..airframe import Airframe
@@ -168,9 +169,15 @@ def unregister(name: str) -> None:
         table.pop(name, None)
 
 
+DISTURBANCE_MODELS: dict[str, type[Effect]] = {HeldMoment.name: HeldMoment, DisturbanceTorque.name: DisturbanceTorque}
+"""Disturbance models by name: a model may hold them (a saved one is read back), but they are
+no diagnosis candidates, since they explain any torque."""
+
+
 def effect_class(name: str) -> type[Effect]:
-    """The class of a known effect (see :func:`known_effects`)."""
-    cls = known_effects().get(name)
+    """The class of a known effect (see :func:`known_effects`) or a disturbance model
+    (:data:`DISTURBANCE_MODELS`)."""
+    cls = known_effects().get(name) or DISTURBANCE_MODELS.get(name)
     if cls is None:
         raise GreyboxInputError(f"unknown effect {name!r}; known effects: {', '.join(known_effects())} "
                                 "(effects of your own: --effects-file FILE.py or greybox.effects.register)")
