@@ -19,6 +19,7 @@ from ..model import QuadrotorModel
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
+from .closed_loop import closed_loop_yaw
 from .consistency import half_consistency
 from .ranking import MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates, rank_round
 from .results import Diagnosis, Round
@@ -237,6 +238,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                        if cert.residual_over_noise[ch] > UNEXPLAINED_RATIO}
         unexplained_gaps = {n: cert.systematic_gaps[n] for n in cert.off_states()
                             if cert.systematic_gaps[n] > UNEXPLAINED_RATIO}
+    yaw = closed_loop_yaw(cur_res, est, compile=compile, say=say)
+    if yaw:
+        warnings.append(yaw)
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est[0],
                      validation_source=_validation_source(validation, split, len(est), horizon), unexplained=unexplained,
