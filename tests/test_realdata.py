@@ -197,6 +197,8 @@ def test_disturbance_torque_lifts_b_into_the_propeller_range_on_a_real_flight(tm
     assert "disturbance_torque" in back.model.effect_names
     assert "disturbance_torque" not in [c for c in effects.known_effects()]
     assert back.value("b") == pytest.approx(res.value("b"))
+    _, val = imp.log.split(0.8)
+    assert back.predict(val).total == pytest.approx(res.predict(val).total, rel=1e-9)
 
 
 def test_diagnosis_names_the_closed_loop_bias_of_b_and_the_value_to_take(monkeypatch):
@@ -216,6 +218,20 @@ def test_diagnosis_names_the_closed_loop_bias_of_b_and_the_value_to_take(monkeyp
     assert "closed-loop bias" in words and "take this b" in words, words
     ratio = float(words.split("b/K_T = ")[2].split(" ")[0])
     assert 0.004 < ratio < 0.012
+    # a final model whose refit does not certify: the base model's refit answers, and says so
+    from types import SimpleNamespace
+    from greybox.diagnosis import closed_loop
+    real, calls = closed_loop._with_disturbance, []
+
+    def first_fails(res, logs, compile):
+        calls.append(res)
+        return SimpleNamespace(converged=False, status="maximum iterations reached") if len(calls) == 1 \
+            else real(res, logs, compile)
+    monkeypatch.setattr(closed_loop, "_with_disturbance", first_fails)
+    final = fit(QuadrotorModel(af) + effects.by_name("drag_moment"), est, process_noise="auto", max_iter=40)
+    words = closed_loop_yaw(final, [est], baseline=base)
+    assert calls == [final, base] and "the base model (the final model's refit was not certified" in words, words
+    assert 0.004 < float(words.split("b/K_T = ")[2].split(" ")[0]) < 0.012
 
 
 @needs_real

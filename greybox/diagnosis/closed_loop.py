@@ -11,6 +11,8 @@ from __future__ import annotations
 import warnings as _warnings
 from typing import Callable, Sequence
 
+import numpy as np
+
 from .. import effects as fx
 from ..data import FlightLog
 from ..errors import ConvergenceWarning
@@ -19,35 +21,60 @@ from ..fitting import FitResult, fit
 __all__ = ["closed_loop_yaw"]
 
 
-def closed_loop_yaw(res: FitResult, logs: Sequence[FlightLog], *, compile: str = "auto",
-                    say: Callable[[str], None] = lambda s: None) -> str:
+def closed_loop_yaw(res: FitResult, logs: Sequence[FlightLog], *, baseline: FitResult | None = None,
+                    compile: str = "auto", say: Callable[[str], None] = lambda s: None) -> str:
     """Words on ``b`` once the closed-loop bias is taken out, or "" when there is nothing to say.
 
     Only for a certified fit whose ``b/K_T`` lies outside what propellers give
     (:attr:`~greybox.effects.YawTorque.RATIO_RANGE`): its model is refitted with a
-    :class:`~greybox.effects.DisturbanceTorque`, with process noise, from its parameters. The
-    words give that fit's ``b/K_T`` when it is certified: inside the range, as the value to
-    take; outside, as not identified from these flights even so."""
-    model = res.model
-    names = set(model.param_names)
-    if not res.converged or not {"b", "K_T"} <= names or fx.DisturbanceTorque.name in model.effects:
+    :class:`~greybox.effects.DisturbanceTorque`, with process noise, from its parameters and
+    node states; when that refit is not certified, ``baseline``'s model is (on a real flight,
+    a final model with a motor lag did not certify in 200 iterations; the base model did in
+    a few seconds). The words give the certified refit's ``b/K_T``: inside the range, as the
+    value to take; outside, as not identified from these flights even so."""
+    if not _applies(res):
         return ""
     lo, hi = fx.YawTorque.RATIO_RANGE
     ratio = res.value("b") / res.value("K_T")
-    if lo <= ratio <= hi or "b" not in res.free_names:
+    if lo <= ratio <= hi:
         return ""
     say("diagnose: b/K_T is outside what propellers give; refitting with a disturbance torque")
-    with _warnings.catch_warnings():
-        _warnings.simplefilter("ignore", ConvergenceWarning)   # judged below
-        alt = fit(model + fx.DisturbanceTorque(), logs, p0=res.p, process_noise="auto", compile=compile,
-                  max_iter=200, free=res.free_names, interval=res.interval)
+    alt, which = _with_disturbance(res, logs, compile), "the model"
+    if not alt.converged and baseline is not None and baseline is not res and _applies(baseline):
+        say(f"diagnose: that refit is not certified ({alt.status}); the base model instead")
+        first, alt, which = alt, _with_disturbance(baseline, logs, compile), "the base model"
+        if alt.converged:
+            which += f" (the final model's refit was not certified: {first.status})"
     if not alt.converged:
         return (f"b/K_T = {ratio:.2g} m: refitted with a disturbance torque (the controller's bias taken out) the "
                 f"fit was not certified ({alt.status}), so greybox cannot tell what b is")
     r, s = alt.value("b") / alt.value("K_T"), alt.std[alt.free_names.index("b")] / alt.value("K_T")
-    head = (f"b/K_T = {ratio:.2g} m is a closed-loop bias: refitted with a disturbance torque (a random-walk "
-            f"torque the controller cancels through the commands the model reads) b = {alt.value('b'):.4g}, "
-            f"K_T = {alt.value('K_T'):.4g}, b/K_T = {r:.2g} ± {s:.1g} m")
+    head = (f"b/K_T = {ratio:.2g} m is a closed-loop bias: {which} refitted with a disturbance torque (a "
+            f"random-walk torque the controller cancels through the commands the model reads) gives "
+            f"b = {alt.value('b'):.4g}, K_T = {alt.value('K_T'):.4g}, b/K_T = {r:.2g} ± {s:.1g} m")
     if lo <= r <= hi:
         return head + ", inside what propellers give: take this b (model + DisturbanceTorque() with process noise)"
     return head + ", still outside what propellers give: b is not identified from these flights; fly yaw steps"
+
+
+def _applies(res: FitResult) -> bool:
+    """A certified fit with ``b`` and ``K_T`` free and no disturbance model already."""
+    return bool(res.converged and {"b", "K_T"} <= set(res.free_names)
+                and fx.DisturbanceTorque.name not in res.model.effects)
+
+
+def _with_disturbance(res: FitResult, logs: Sequence[FlightLog], compile: str) -> FitResult:
+    """``res``'s model with a :class:`~greybox.effects.DisturbanceTorque`, fitted with process
+    noise from ``res``'s parameters and node states (the disturbance, the last states, at
+    zero), and once more from where it stopped when it is not certified."""
+    with_d = res.model + fx.DisturbanceTorque()
+    nodes = [np.hstack([X, np.zeros((len(X), with_d.nx - res.model.nx))]) for X in res.node_states]
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", ConvergenceWarning)   # judged by the caller
+        alt = fit(with_d, logs, p0=res.p, process_noise="auto", compile=compile, max_iter=100,
+                  free=res.free_names, interval=res.interval, initial_states=nodes)
+        if not alt.converged:
+            alt = fit(with_d, logs, p0=alt.p, process_noise=alt.process_noise, noise=alt.sigma, reweight=False,
+                      compile=compile, max_iter=100, free=res.free_names, interval=res.interval,
+                      initial_states=alt.node_states)
+    return alt
