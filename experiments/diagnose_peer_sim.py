@@ -98,6 +98,9 @@ def run(name: str, work: Path) -> dict:
            "final": {n: [final.value(n), float(final.std[final.free_names.index(n)])]
                      for n in final.free_names if n not in ("K_T", "b", "s_lead") and not n.startswith("Kd")},
            "truth": truth, "warnings": diag.warnings,
+           # b with the closed-loop bias taken out, when the diagnosis's yaw check gave it
+           "closed_loop_b_err": next((float(w.split(" gives b = ")[1].split(",")[0]) / truth["b"] - 1
+                                      for w in diag.warnings if "closed-loop bias" in w and " gives b = " in w), None),
            "discovered": [{"channel": x.channel, "terms": [[t.feature, t.coefficient, t.std] for t in x.fitted or x.terms]}
                           for x in diag.discovered if x.significant]}
     if expect is None:
@@ -148,6 +151,8 @@ def main() -> None:
                 print(f"     null verdict: {r['outside_catalogue']}")
             if r["unexplained"]:
                 print(f"     unexplained: {r['unexplained']}")
+            if r["closed_loop_b_err"] is not None:
+                print(f"     b with the closed-loop bias out (the yaw check's warning): {100 * r['closed_loop_b_err']:+.1f} %")
     (HERE / "out").mkdir(exist_ok=True)
     (HERE / "out" / "diagnose_peer_sim.json").write_text(json.dumps(rows, indent=1, default=float))
 

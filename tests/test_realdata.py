@@ -213,6 +213,10 @@ def test_diagnosis_names_the_closed_loop_bias_of_b_and_the_value_to_take(monkeyp
     est, _ = imp.log.split(0.8)
     base = fit(QuadrotorModel(af), est, process_noise="auto", max_iter=40)
     assert closed_loop_yaw(base, [est]) == ""                     # 0.0010 m: inside the catalogue's range
+    # inside the range, but b differing between the halves: the refit's b is given too
+    words = closed_loop_yaw(base, [est], halves_disagree=True)
+    assert "differs between the halves" in words and "take this b" in words, words
+    assert 0.004 < float(words.split("b/K_T = ")[1].split(" ")[0]) < 0.012
     monkeypatch.setattr(effects.YawTorque, "RATIO_RANGE", (0.002, 0.034))
     words = closed_loop_yaw(base, [est])
     assert "closed-loop bias" in words and "take this b" in words, words

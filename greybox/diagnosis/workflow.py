@@ -238,7 +238,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                        if cert.residual_over_noise[ch] > UNEXPLAINED_RATIO}
         unexplained_gaps = {n: cert.systematic_gaps[n] for n in cert.off_states()
                             if cert.systematic_gaps[n] > UNEXPLAINED_RATIO}
-    yaw = closed_loop_yaw(cur_res, est, baseline=res, compile=compile, say=say)
+    yaw = closed_loop_yaw(cur_res, est, baseline=res, halves_disagree="b" in inconsistent, compile=compile, say=say)
     if yaw:
         warnings.append(yaw)
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
