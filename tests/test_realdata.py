@@ -252,6 +252,18 @@ def test_closed_loop_yaw_on_a_whole_real_flight():
     assert 0.002 < float(words.split("b/K_T = ")[2].split(" ")[0]) < 0.034, words
 
 
+def test_cli_fit_with_a_disturbance_torque(tmp_path, capsys):
+    """From the command line: ``--effects disturbance_torque --process-noise auto`` on the
+    imported real slice gives b/K_T in the published Crazyflie range (the JSON's values)."""
+    import json
+    out, af, res = tmp_path / "log.csv", tmp_path / "cf.toml", tmp_path / "fit.json"
+    assert main(["import", "nanobench", str(BUNDLED), "--out", str(out), "--airframe-out", str(af)]) == 0
+    assert main(["fit", str(out), "--airframe", str(af), "--effects", "disturbance_torque",
+                 "--process-noise", "auto", "--json", str(res)]) == 0
+    p = json.loads(res.read_text())["parameters"]
+    assert 0.002 < p["b"]["value"] / p["K_T"]["value"] < 0.034
+
+
 def load_airframe_text(text):
     import tomllib
     return airframe_from_dict(tomllib.loads(text), "crazyflie.toml")

@@ -64,7 +64,9 @@ def closed_loop_yaw(res: FitResult, logs: Sequence[FlightLog], *, baseline: FitR
                 (": take this b" if lo <= r <= hi else ", outside what propellers give: b is not identified"))
     head = f"b/K_T = {ratio:.2g} m is a closed-loop bias: {refit}"
     if lo <= r <= hi:
-        return head + ", inside what propellers give: take this b (model + DisturbanceTorque() with process noise)"
+        return head + (", inside what propellers give: take this b (model + DisturbanceTorque() with process noise; "
+                       "--effects disturbance_torque "
+                       "--process-noise auto)")
     return head + ", still outside what propellers give: b is not identified from these flights; fly yaw steps"
 
 

@@ -45,7 +45,8 @@ class YawTorque(Effect):
         why = ("the data hardly constrain it (a plausible b is within 2 std)" if within else
                "the data put it there: the yaw is explained by something the model lacks (a torque the "
                "controller cancels through the very commands the model reads, which pulls b down: fit with "
-               "a disturbance torque, model + DisturbanceTorque() with process noise; a torque difference "
+               "a disturbance torque, model + DisturbanceTorque() with process noise (--effects "
+               "disturbance_torque --process-noise auto); a torque difference "
                "between the two spin directions, motors whose command-to-speed maps differ), or b stands in for it")
         return [f"b/K_T = {ratio:.2g} m is outside what propellers give ({lo:g}-{hi:g} m): b is not identified "
                 f"from this flight as a rotor's reaction torque; {why}; fly yaw steps, or hold b at a measured "
