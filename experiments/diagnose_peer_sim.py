@@ -99,8 +99,8 @@ def run(name: str, work: Path) -> dict:
                      for n in final.free_names if n not in ("K_T", "b", "s_lead") and not n.startswith("Kd")},
            "truth": truth, "warnings": diag.warnings,
            # b with the closed-loop bias taken out, when the diagnosis's yaw check gave it
-           "closed_loop_b_err": next((float(w.split(" gives b = ")[1].split(",")[0]) / truth["b"] - 1
-                                      for w in diag.warnings if "closed-loop bias" in w and " gives b = " in w), None),
+           "closed_loop_b_err": (diag.closed_loop_fit.value("b") / truth["b"] - 1
+                                 if diag.closed_loop_fit is not None else None),
            "discovered": [{"channel": x.channel, "terms": [[t.feature, t.coefficient, t.std] for t in x.fitted or x.terms]}
                           for x in diag.discovered if x.significant]}
     if expect is None:

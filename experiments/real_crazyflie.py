@@ -118,10 +118,9 @@ def run(path: Path, out: Path) -> dict:
         "base_status": base.status,
         "b_over_K_T_base": base.value("b") / base.value("K_T"),
         "b_over_K_T_final": final.value("b") / final.value("K_T"),
-        # the final model's b/K_T with the controller's bias taken out (diagnosis.closed_loop),
-        # when the diagnosis said it: from its warning's words
-        "b_over_K_T_closed_loop": next((float(w.split("b/K_T = ")[2].split(" ")[0]) for w in diag.warnings
-                                        if "closed-loop bias" in w and w.count("b/K_T = ") > 1), None),
+        # b/K_T with the controller's bias taken out (diagnosis.closed_loop), when the diagnosis gave it
+        "b_over_K_T_closed_loop": (diag.closed_loop_fit.value("b") / diag.closed_loop_fit.value("K_T")
+                                   if diag.closed_loop_fit is not None else None),
         "horizons_final": _at(diag.final_horizons or diag.baseline_horizons, (0.25, 0.5)),
         "final_effects": (diag.final_model or model).effect_names,
         "warnings": diag.warnings,

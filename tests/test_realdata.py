@@ -212,13 +212,13 @@ def test_diagnosis_names_the_closed_loop_bias_of_b_and_the_value_to_take(monkeyp
     af = load_airframe_text(crazyflie_airframe_toml(0.030, imp.hover_rotor_speed))
     est, _ = imp.log.split(0.8)
     base = fit(QuadrotorModel(af), est, process_noise="auto", max_iter=40)
-    assert closed_loop_yaw(base, [est]) == ""                     # 0.0010 m: inside the catalogue's range
+    assert closed_loop_yaw(base, [est]).words == ""                     # 0.0010 m: inside the catalogue's range
     # inside the range, but b differing between the halves: the refit's b is given too
-    words = closed_loop_yaw(base, [est], halves_disagree=True)
+    words = closed_loop_yaw(base, [est], halves_disagree=True).words
     assert "differs between the halves" in words and "take this b" in words, words
     assert 0.004 < float(words.split("b/K_T = ")[1].split(" ")[0]) < 0.012
     monkeypatch.setattr(effects.YawTorque, "RATIO_RANGE", (0.002, 0.034))
-    words = closed_loop_yaw(base, [est])
+    words = closed_loop_yaw(base, [est]).words
     assert "closed-loop bias" in words and "take this b" in words, words
     ratio = float(words.split("b/K_T = ")[2].split(" ")[0])
     assert 0.004 < ratio < 0.012
@@ -233,7 +233,7 @@ def test_diagnosis_names_the_closed_loop_bias_of_b_and_the_value_to_take(monkeyp
             else real(res, logs, compile)
     monkeypatch.setattr(closed_loop, "_with_disturbance", first_fails)
     final = fit(QuadrotorModel(af) + effects.by_name("drag_moment"), est, process_noise="auto", max_iter=40)
-    words = closed_loop_yaw(final, [est], baseline=base)
+    words = closed_loop_yaw(final, [est], baseline=base).words
     assert calls == [final, base] and "the base model (the final model's refit was not certified" in words, words
     assert 0.004 < float(words.split("b/K_T = ")[2].split(" ")[0]) < 0.012
 
@@ -248,7 +248,7 @@ def test_closed_loop_yaw_on_a_whole_real_flight():
     est, _ = imp.log.split(0.8)
     base = fit(QuadrotorModel(af), est, process_noise="auto")
     assert base.value("b") / base.value("K_T") < 0.001
-    words = closed_loop_yaw(base, [est])
+    words = closed_loop_yaw(base, [est]).words
     assert 0.002 < float(words.split("b/K_T = ")[2].split(" ")[0]) < 0.034, words
 
 

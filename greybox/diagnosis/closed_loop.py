@@ -9,7 +9,7 @@ refitted with :class:`~greybox.effects.DisturbanceTorque` (a random-walk torque)
 from __future__ import annotations
 
 import warnings as _warnings
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -18,13 +18,24 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning
 from ..fitting import FitResult, fit
 
-__all__ = ["closed_loop_yaw"]
+__all__ = ["closed_loop_yaw", "ClosedLoopYaw"]
+
+
+class ClosedLoopYaw(NamedTuple):
+    """What :func:`closed_loop_yaw` found: the words ("" when there is nothing to say) and the
+    certified refit with the disturbance torque whose ``b`` they give (None when there is none)."""
+
+    words: str
+    fit: FitResult | None = None
+
+
+NOTHING = ClosedLoopYaw("")
 
 
 def closed_loop_yaw(res: FitResult, logs: Sequence[FlightLog], *, baseline: FitResult | None = None,
                     halves_disagree: bool = False, compile: str = "auto",
-                    say: Callable[[str], None] = lambda s: None) -> str:
-    """Words on ``b`` once the closed-loop bias is taken out, or "" when there is nothing to say.
+                    say: Callable[[str], None] = lambda s: None) -> ClosedLoopYaw:
+    """Words on ``b`` once the closed-loop bias is taken out, and the refit that gives it.
 
     Only for a certified fit whose ``b/K_T`` lies outside what propellers give
     (:attr:`~greybox.effects.YawTorque.RATIO_RANGE`), or whose ``b`` differs between the two
@@ -36,12 +47,12 @@ def closed_loop_yaw(res: FitResult, logs: Sequence[FlightLog], *, baseline: FitR
     a few seconds). The words give the certified refit's ``b/K_T``: inside the range, as the
     value to take; outside, as not identified from these flights even so."""
     if not _applies(res):
-        return ""
+        return NOTHING
     lo, hi = fx.YawTorque.RATIO_RANGE
     ratio = res.value("b") / res.value("K_T")
     outside = not lo <= ratio <= hi
     if not (outside or halves_disagree):
-        return ""
+        return NOTHING
     say(f"diagnose: {'b/K_T is outside what propellers give' if outside else 'b differs between the halves'}; "
         "refitting with a disturbance torque")
     alt, which = _with_disturbance(res, logs, compile), "the model"
@@ -51,23 +62,24 @@ def closed_loop_yaw(res: FitResult, logs: Sequence[FlightLog], *, baseline: FitR
         if alt.converged:
             which += f" (the final model's refit was not certified: {first.status})"
     if not alt.converged:
-        return (f"b/K_T = {ratio:.2g} m: refitted with a disturbance torque (the controller's bias taken out) the "
-                f"fit was not certified ({alt.status}), so greybox cannot tell what b is")
+        return ClosedLoopYaw(f"b/K_T = {ratio:.2g} m: refitted with a disturbance torque (the controller's bias "
+                             f"taken out) the fit was not certified ({alt.status}), so greybox cannot tell what b is")
     r, s = alt.value("b") / alt.value("K_T"), alt.std[alt.free_names.index("b")] / alt.value("K_T")
     refit = (f"{which} refitted with a disturbance torque (a random-walk torque the controller cancels through "
              f"the commands the model reads) gives b = {alt.value('b'):.4g}, K_T = {alt.value('K_T'):.4g}, "
              f"b/K_T = {r:.2g} ± {s:.1g} m")
     if not outside:
         shift = alt.value("b") / res.value("b") - 1
-        return (f"b = {res.value('b'):.4g} differs between the halves of the estimation data, as a closed-loop bias "
-                f"makes it: {refit} ({100 * shift:+.0f} %)" +
-                (": take this b" if lo <= r <= hi else ", outside what propellers give: b is not identified"))
-    head = f"b/K_T = {ratio:.2g} m is a closed-loop bias: {refit}"
-    if lo <= r <= hi:
-        return head + (", inside what propellers give: take this b (model + DisturbanceTorque() with process noise; "
-                       "--effects disturbance_torque "
-                       "--process-noise auto)")
-    return head + ", still outside what propellers give: b is not identified from these flights; fly yaw steps"
+        words = (f"b = {res.value('b'):.4g} differs between the halves of the estimation data, as a closed-loop bias "
+                 f"makes it: {refit} ({100 * shift:+.0f} %)" +
+                 (": take this b" if lo <= r <= hi else ", outside what propellers give: b is not identified"))
+    elif lo <= r <= hi:
+        words = (f"b/K_T = {ratio:.2g} m is a closed-loop bias: {refit}, inside what propellers give: take this b "
+                 "(model + DisturbanceTorque() with process noise; --effects disturbance_torque --process-noise auto)")
+    else:
+        words = (f"b/K_T = {ratio:.2g} m is a closed-loop bias: {refit}, still outside what propellers give: b is not "
+                 "identified from these flights; fly yaw steps")
+    return ClosedLoopYaw(words, alt)
 
 
 def _applies(res: FitResult) -> bool:

@@ -209,6 +209,9 @@ class Diagnosis:
     # the log's timing settled before the candidates (rotor speeds sampled between rows):
     # effect, s_lead, s_lead_std, nrmse_before, nrmse_after, text; None when the hold stands
     input_timing: dict | None = None
+    # the final (or base) model refitted with a disturbance torque, when the yaw check made it
+    # and it is certified: its b is the one the warning gives (diagnosis.closed_loop)
+    closed_loop_fit: FitResult | None = field(default=None, repr=False)
     # error against horizon of the baseline and the final model (validation.horizon_errors_after)
     baseline_horizons: HorizonErrors | None = None
     final_horizons: HorizonErrors | None = None

@@ -239,15 +239,15 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         unexplained_gaps = {n: cert.systematic_gaps[n] for n in cert.off_states()
                             if cert.systematic_gaps[n] > UNEXPLAINED_RATIO}
     yaw = closed_loop_yaw(cur_res, est, baseline=res, halves_disagree="b" in inconsistent, compile=compile, say=say)
-    if yaw:
-        warnings.append(yaw)
+    if yaw.words:
+        warnings.append(yaw.words)
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est[0],
                      validation_source=_validation_source(validation, split, len(est), horizon), unexplained=unexplained,
                      unexplained_gaps=unexplained_gaps,
                      inconsistent=inconsistent, command_imbalance=imbalance,
                      discovered=discovered, discovery=discovery_note, outside_catalogue=outside,
-                     input_timing=timing)
+                     input_timing=timing, closed_loop_fit=yaw.fit)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile)

@@ -445,10 +445,6 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
 
     t0 = time.perf_counter()
     if soft:
-        disturbed = {d: s for e in model.effects for d, s in e.rate_of_unmodelled.items()}
-        hs = ses.data.Hs[ses.data.Hs > 0]
-        interval_s = max(ses.interval, 1) * (float(np.median(hs)) if hs.size else 1.0)
-
         def estimate_q(X_, th_, first: bool = False) -> np.ndarray:
             xe = ses.evaluate(X_, th_, blocks=False)[0]
             gaps = ses.gaps(X_, xe)
@@ -466,8 +462,8 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
                 rms = np.vstack([np.sqrt(np.mean(gaps[sl] ** 2, axis=0)) for sl in ses.interval_slices])
                 # a disturbance state (zero at the start, so no gaps of its own) starts at what
                 # the state it drives misses per second: the rate gaps over one interval
-                for d, s in disturbed.items():
-                    rms[:, model.state_names.index(d)] = rms[:, model.state_names.index(s)] / interval_s
+                for d, src in ses.disturbance_sources.items():
+                    rms[:, d] = rms[:, src] / ses.interval_duration
             else:
                 rms = np.vstack([process_noise_scale(gaps[sl]) for sl in ses.interval_slices])
             q = np.maximum(rms, floor)

@@ -495,13 +495,26 @@ class FitSession:
         P = self.kkt.parameter_inverse(H, S, q2=self._q2())
         return 0.5 * (P + P.T)
 
+    @property
+    def interval_duration(self) -> float:
+        """One shooting interval in seconds (the median sample period times the interval)."""
+        hs = self.data.Hs[self.data.Hs > 0]
+        return max(self.interval, 1) * (float(np.median(hs)) if hs.size else 1.0)
+
+    @property
+    def disturbance_sources(self) -> dict[int, int]:
+        """``{disturbance state index: index of the state it drives}`` from the effects'
+        :attr:`~greybox.effects.Effect.rate_of_unmodelled`."""
+        names = self.model.state_names
+        return {names.index(d): names.index(src) for e in self.model.effects
+                for d, src in e.rate_of_unmodelled.items()}
+
     def state_noise_scale(self, sensor: np.ndarray, X: np.ndarray) -> np.ndarray:
         """Per state, the size of a change the measurements could just see: the sensor noise
         of its channel (positions, angles, gyro), over one shooting interval for velocities
         (and body rates without a gyro); 1e-3 of its spread for effect states, but a
         disturbance state's random-walk step (:attr:`~greybox.effects.Effect.rate_of_unmodelled`)."""
-        dt = float(np.median(self.data.Hs[self.data.Hs > 0])) if np.any(self.data.Hs > 0) else 1.0
-        T = max(self.interval, 1) * dt
+        T = self.interval_duration
         sig = dict(zip(OUTPUTS, sensor))
         measured = {n for c, n in enumerate(OUTPUTS) if self.data.mask[c].any()}
         out = np.empty(self.nx)
@@ -518,10 +531,8 @@ class FitSession:
         # walk: its own process noise per interval, at least the change that moves that
         # state by its scale over one interval
         q = None if self.q is None else np.median(np.atleast_2d(self.q), axis=0)
-        for e in self.model.effects:
-            for d, src in e.rate_of_unmodelled.items():
-                j = self.model.state_names.index(d)
-                out[j] = max(out[self.model.state_names.index(src)] / T, 0.0 if q is None else float(q[j]))
+        for j, src in self.disturbance_sources.items():
+            out[j] = max(out[src] / T, 0.0 if q is None else float(q[j]))
         return out
 
     def optimality(self, X, th, blocks, P: np.ndarray, s2: float, sensor: np.ndarray
