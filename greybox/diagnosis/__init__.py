@@ -29,6 +29,12 @@ The workflow (:func:`diagnose`):
    model refitted and the remaining candidates screened again, until nothing significant
    is missing. Candidates that were significant alone but explain nothing once the winner
    is in are reported as confusable, with the manoeuvre that would tell them apart.
+   When nothing stands in the first round and the body rates stay far off (a random torque,
+   turbulence, that no candidate holds, hiding any other effect in the process noise), the
+   candidates are judged again from a baseline holding that torque as a disturbance
+   (:func:`~greybox.diagnosis.closed_loop.disturbance_baseline`: a random-walk torque, process
+   noise on it alone); what stands there is the verdict, and the final model keeps the
+   disturbance.
 5. **Beyond the catalogue.** The baseline's residual generalised forces (body-frame
    force per unit mass ``fx, fy, fz`` and angular acceleration ``mx, my, mz``) on the
    estimation data, explained by a sparse combination of named features (body air velocity,
@@ -43,7 +49,8 @@ from __future__ import annotations
 # The package's modules, along the workflow's steps: ``analysis`` (where the model fails:
 # residuals, regimes, command imbalance), ``screening`` (a candidate's score statistic and
 # refit, and the statistics a refit is judged by), ``ranking`` (one round over the
-# candidates), ``consistency`` (the baseline on the two halves of the data), ``discovery``
+# candidates), ``closed_loop`` (a torque taken as a disturbance: b's closed-loop bias, the
+# baseline under turbulence), ``consistency`` (the baseline on the two halves of the data), ``discovery``
 # (residual forces beyond the catalogue, step 5), ``results`` (Diagnosis, its JSON and
 # summary), ``report`` (the HTML report) and ``workflow`` (:func:`diagnose`).
 # the constants are public names of greybox.diagnosis as well

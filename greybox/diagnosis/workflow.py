@@ -19,7 +19,7 @@ from ..model import QuadrotorModel
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
-from .closed_loop import closed_loop_yaw
+from .closed_loop import closed_loop_yaw, disturbance_baseline, misses_a_torque
 from .consistency import half_consistency
 from .ranking import MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates, rank_round
 from .results import Diagnosis, Round
@@ -133,7 +133,6 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         model, res, pred, timing = _input_timing(model, res, pred, est, val, timing_candidate, compile, n_refit, say)
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
                                                             validation_is_tail=validation is None)
-    rounds: list[Round] = []
     warnings: list[str] = ([timing["text"]] if timing else []) + list(res.warnings)
     if res.certificate is not None:
         say(f"diagnose: baseline {res.certificate.text()}")
@@ -154,42 +153,86 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         if not np.isclose(res.value(n), par.null, rtol=1e-6, atol=1e-15):
             warnings.append(f"{n} = {res.value(n):.4g} sits on its bound: it is compensating for something the "
                             "model lacks, and its value is not a property of the vehicle")
-    cur_model, cur_res, cur_pred = model, res, pred
     remaining = list(candidates) if res.converged else []
     imbalance = command_imbalance(model, est)
     # effects the logged commands point at (data only, no model) are refitted whatever their score
     evidence = imbalance.evidence if imbalance is not None else set()
     nominated = [n for n in remaining if evidence & set(getattr(fx.known_effects().get(n), "trim_evidence", ()))]
-    for r in range(max_rounds if iterate else 1):
-        if not remaining:
-            break
-        say(f"diagnose: round {r + 1}: screening {len(remaining)} candidates")
-        # the sliver rule judges what is missing from the model as given (round 1); later
-        # rounds share out what is left, and a real effect may then remove a small part of it
-        ranking = rank_round(cur_model, cur_res, cur_pred, est, val, remaining, compile, say, n_refit,
-                             nominated=nominated, min_explained_inadequate=MIN_EXPLAINED_INADEQUATE if r == 0 else 0.0)
-        verdict = ranking[0].effect if ranking and ranking[0].significant else None
-        rounds.append(Round(cur_model, cur_res, cur_pred, ranking, verdict))
-        if verdict is None:
-            break
-        win = ranking[0]
-        if not win.fit.converged:
-            # the next round's statistics are taken at the winner's fit: it must be an optimum
-            say(f"diagnose: {verdict}'s refit is not certified ({win.fit.status}); solving on")
-            with _warnings.catch_warnings():
-                _warnings.simplefilter("ignore", ConvergenceWarning)
-                more = fit(win.fit.model, est, free=win.fit.free_names, p0=win.fit.p, noise=win.fit.sigma,
-                           reweight=False, compile=compile, max_iter=200, initial_states=win.fit.node_states,
-                           interval=win.fit.interval, process_noise=win.fit.process_noise,
-                           init_window=win.fit.init_window, measured_start=win.fit.measured_start,
-                           per_flight=win.fit.per_flight_rule)
-            if not more.converged:
-                warnings.append(f"{verdict}'s refit did not reach a certified optimum ({more.status}): no further "
-                                "candidate was tested against it")
+
+    def run_rounds(m, fr, pr, remaining, label=""):
+        """Rank the candidates round after round from the certified fit ``fr`` of ``m``, adding
+        each round's verdict; returns the rounds and the final model, fit and prediction."""
+        out: list[Round] = []
+        for r in range(max_rounds if iterate else 1):
+            if not remaining:
                 break
-            win.fit, win.prediction = more, predict_after_fit(more, est, val, compile=compile, horizon=horizon)
-        cur_model, cur_res, cur_pred = win.fit.model, win.fit, win.prediction
-        remaining = [c for c in remaining if c != verdict]
+            say(f"diagnose: round {r + 1}{label}: screening {len(remaining)} candidates")
+            # the sliver rule judges what is missing from the model as given (round 1); later
+            # rounds share out what is left, and a real effect may then remove a small part of it
+            ranking = rank_round(m, fr, pr, est, val, remaining, compile, say, n_refit, nominated=nominated,
+                                 min_explained_inadequate=MIN_EXPLAINED_INADEQUATE if r == 0 else 0.0)
+            verdict = ranking[0].effect if ranking and ranking[0].significant else None
+            out.append(Round(m, fr, pr, ranking, verdict))
+            if verdict is None:
+                break
+            win = ranking[0]
+            if not win.fit.converged:
+                # the next round's statistics are taken at the winner's fit: it must be an optimum
+                say(f"diagnose: {verdict}'s refit is not certified ({win.fit.status}); solving on")
+                with _warnings.catch_warnings():
+                    _warnings.simplefilter("ignore", ConvergenceWarning)
+                    more = fit(win.fit.model, est, free=win.fit.free_names, p0=win.fit.p, noise=win.fit.sigma,
+                               reweight=False, compile=compile, max_iter=200, initial_states=win.fit.node_states,
+                               interval=win.fit.interval, process_noise=win.fit.process_noise,
+                               init_window=win.fit.init_window, measured_start=win.fit.measured_start,
+                               per_flight=win.fit.per_flight_rule)
+                if not more.converged:
+                    warnings.append(f"{verdict}'s refit did not reach a certified optimum ({more.status}): no "
+                                    "further candidate was tested against it")
+                    break
+                win.fit, win.prediction = more, predict_after_fit(more, est, val, compile=compile, horizon=horizon)
+            m, fr, pr = win.fit.model, win.fit, win.prediction
+            remaining = [c for c in remaining if c != verdict]
+        return out, m, fr, pr
+
+    rounds, cur_model, cur_res, cur_pred = run_rounds(model, res, pred, remaining)
+    rates = misses_a_torque(res, UNEXPLAINED_RATIO) if rounds and rounds[0].verdict is None else []
+    if rates:
+        # A random torque no catalogue effect holds (turbulence) leaves the rates far off, and a
+        # candidate fed by the commands explains a sliver of it, so none stands; an effect that
+        # is there too hides in the process noise. Judged again with the torque as a disturbance.
+        say(f"diagnose: nothing stands and {', '.join(rates)} stay far off: a torque no candidate holds; "
+            "judging the candidates again with it as a disturbance")
+        base_d = disturbance_baseline(res, est, compile)
+        if not base_d.converged:
+            warnings.append(f"{', '.join(rates)} stay far off with every candidate (a torque the catalogue does not "
+                            f"hold); with that torque as a disturbance the fit was not certified ({base_d.status}), "
+                            "so the candidates were not judged against it")
+        else:
+            pred_d = predict_after_fit(base_d, est, val, compile=compile, horizon=horizon)
+            d_rounds, m_d, res_d, pred_d_final = run_rounds(base_d.model, base_d, pred_d, list(candidates),
+                                                           label=" (with a disturbance torque)")
+            if d_rounds and d_rounds[0].verdict:
+                found = [r.verdict for r in d_rounds if r.verdict]
+                warnings.append(
+                    f"{', '.join(rates)} stay far off with every candidate alone: a torque no catalogue effect holds "
+                    "(turbulence, or physics outside the catalogue) hid the rest; with it as a disturbance (a "
+                    "random-walk torque, DisturbanceTorque(), process noise on it alone) "
+                    f"{', '.join(found)} {'is' if len(found) == 1 else 'are'} found, and the final model holds the "
+                    "disturbance")
+                rounds, cur_model, cur_res, cur_pred = d_rounds, m_d, res_d, pred_d_final
+            else:
+                say("diagnose: with the torque as a disturbance no candidate stands either")
+                cert = base_d.certificate
+                level = ", ".join(f"{ch} {cert.residual_over_noise[ch]:.1f}" for ch in ("p", "q", "r")
+                                  if ch in cert.residual_over_noise)
+                warnings.append(
+                    f"{', '.join(rates)} stay far off with every candidate; with that torque as a disturbance (a "
+                    "random-walk torque, DisturbanceTorque(), process noise on it alone) the rates' residuals are "
+                    f"{level} times their noise and still no candidate stands: "
+                    + ("what is missing acts as a random torque (turbulence), or as a torque the catalogue does not "
+                       "hold" if cert.adequate else
+                       f"the model is still off ({', '.join(cert.off_channels() or cert.off_states())}) with it"))
     discovered, discovery_note = [], {"status": "not run", "text": "not run (discover=False)", "together": None}
     outside = ""
     if discover:
