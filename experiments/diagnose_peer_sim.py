@@ -54,7 +54,7 @@ CASES = {
                             ("hub_rotor_drag", "drag_moment")),
     "1kg_ground_200hz": (partial(PeerVehicle.one_kg, log_rate=200.0, pos_rate=30.0), PeerEffects(ground_effect=True),
                          40.0, "ground_effect"),
-    "1kg_turbulence": (PeerVehicle.one_kg, PeerEffects(turbulence=0.02), 20.0, "unexplained"),
+    "1kg_turbulence": (PeerVehicle.one_kg, PeerEffects(turbulence=0.02), 20.0, "random torque"),
     # a catalogue effect under the random torque: the sliver rule must not hide it
     "1kg_ground_turbulence": (PeerVehicle.one_kg, PeerEffects(ground_effect=True, turbulence=0.02), 40.0,
                               "ground_effect"),
@@ -64,8 +64,9 @@ CASES = {
 """name: (vehicle, effects, duration s, what should be named: an effect, or a tuple of effects
 that must all be added (the first round's verdict among them), None for a null verdict,
 "outside" for an effect the catalogue does not hold, "no catalogue effect" for a null verdict of
-any kind (outside the catalogue or unexplained), "unexplained" for a null verdict that says
-what stays unexplained: a random torque is no function of the state that discovery could find)."""
+any kind (outside the catalogue or unexplained), "random torque" for a null verdict that says
+what is missing acts as a random torque, which the final model holds as a disturbance (a random
+torque is no function of the state that discovery could find)."""
 
 
 def run(name: str, work: Path) -> dict:
@@ -107,8 +108,8 @@ def run(name: str, work: Path) -> dict:
         ok = diag.verdict is None and not diag.unexplained and not diag.unexplained_gaps
     elif expect == "no catalogue effect":
         ok = diag.verdict is None
-    elif expect == "unexplained":
-        ok = diag.verdict is None and diag.null_reason == "unexplained"
+    elif expect == "random torque":
+        ok = diag.verdict is None and diag.null_reason == "random_torque"
     elif expect == "outside":
         ok = diag.verdict not in ("cog_offset", "motor_asymmetry")
     elif isinstance(expect, tuple):

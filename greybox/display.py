@@ -112,6 +112,8 @@ def _verdict_words(d: "Diagnosis") -> str:
     return d.verdict or {"uncertified": "null (cannot tell: the baseline fit is not certified)",
                          "outside_catalogue": "null (what is missing is outside the catalogue: see the discovered "
                                               "combinations)",
+                         "random_torque": "null (what is missing acts as a random torque: the final model holds "
+                                          "it as a disturbance)",
                          "unexplained": "null (the model misses something no candidate explains)",
                          "nothing_missing": "null (nothing significant is missing)"}[d.null_reason]
 

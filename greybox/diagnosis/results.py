@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import effects as fx
 from ..data import FlightLog
 from ..effects.discovered import CHANNEL_UNITS, DiscoveredEffect, discovered_effect_class, effect_file_text
 from ..fitting import FitResult
@@ -269,17 +270,33 @@ class Diagnosis:
     def null_reason(self) -> str | None:
         """Why the verdict is null: ``"uncertified"`` (the baseline fit is not certified, nothing
         was tested), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
-        physics), ``"unexplained"`` (residuals far above the noise that no candidate explains)
-        or ``"nothing_missing"``; None when there is a verdict."""
+        physics), ``"random_torque"`` (what is missing acts as a random torque, turbulence, which
+        the final model holds as a disturbance), ``"unexplained"`` (residuals far above the noise
+        that no candidate explains) or ``"nothing_missing"``; None when there is a verdict."""
         if self.verdict:
             return None
         if not self.baseline_certified:
             return "uncertified"
         if self.outside_catalogue:
             return "outside_catalogue"
+        if self.added_disturbance:
+            return "random_torque"
         if self.unexplained or self.unexplained_gaps:
             return "unexplained"
         return "nothing_missing"
+
+    @property
+    def added_disturbance(self) -> bool:
+        """Whether the diagnosis added a disturbance torque to the final model (a random torque
+        no catalogue effect holds: :func:`~greybox.diagnosis.closed_loop.disturbance_baseline`)."""
+        name = fx.DisturbanceTorque.name
+        return bool(self.final_model is not None and name in self.final_model.effect_names
+                    and name not in self.model.effect_names)
+
+    def _rates_without_disturbance(self) -> str:
+        cert = self.baseline.certificate
+        r = cert.residual_over_noise if cert is not None else {}
+        return ", ".join(f"{ch} {r[ch]:.1f}" for ch in ("p", "q", "r") if ch in r)
 
     def verdict_text(self) -> str:
         """The verdict in words: the effect and how much it explains, or why it is null."""
@@ -291,6 +308,9 @@ class Diagnosis:
             return f"{self.verdict}{share}"
         return {"uncertified": "null (cannot tell: the baseline fit is not certified)",
                 "outside_catalogue": f"null -- {self.outside_catalogue}",
+                "random_torque": "null -- what the model misses acts as a random torque (turbulence), which no "
+                                 "catalogue effect holds: the final model holds it as a disturbance (without it the "
+                                 f"rates' residuals are {self._rates_without_disturbance()} times their noise)",
                 "unexplained": f"null -- the model is missing something no candidate explains: {self._far_off()}"
                                + (f"; {self.findings[0].text}" if self.findings else ""),
                 "nothing_missing": "null (nothing significant is missing)"}[why]

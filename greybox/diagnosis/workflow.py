@@ -231,8 +231,12 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                     "random-walk torque, DisturbanceTorque(), process noise on it alone) the rates' residuals are "
                     f"{level} times their noise and still no candidate stands: "
                     + ("what is missing acts as a random torque (turbulence), or as a torque the catalogue does not "
-                       "hold" if cert.adequate else
+                       "hold: the final model holds it as a disturbance" if cert.adequate else
                        f"the model is still off ({', '.join(cert.off_channels() or cert.off_states())}) with it"))
+                if cert.adequate:
+                    # the model that follows the data: its K_T and b are free of the closed-loop bias
+                    # the baseline's carry (b 30 % low under the second simulator's turbulence)
+                    cur_model, cur_res, cur_pred = base_d.model, base_d, pred_d
     discovered, discovery_note = [], {"status": "not run", "text": "not run (discover=False)", "together": None}
     outside = ""
     if discover:
