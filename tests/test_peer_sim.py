@@ -349,3 +349,23 @@ def test_disturbance_baseline_takes_a_random_torque_out_of_the_rates(tmp_path):
     assert d.value("b") == pytest.approx(truth["b"], rel=0.05)
     calm, _, _ = base(PeerEffects(), "calm")
     assert calm.converged and misses_a_torque(calm, 3.0) == []
+
+
+@pytest.mark.slow
+def test_disturbance_look_names_no_stand_in_when_the_missing_effect_is_not_a_candidate(tmp_path):
+    """The ground effect under turbulence, as above, with the ground effect left out of the
+    candidates: nothing stands against the base fit, nor against the disturbance baseline
+    (thrust_drift's LR there is in the hundred thousands, but it does not stand), and the words
+    say that the model with the disturbance is still off: null, no disturbance in the final
+    model."""
+    veh = PeerVehicle.one_kg()
+    fx = PeerEffects(ground_effect=True, turbulence=0.02)
+    flights = [fly(veh, duration=40.0, seed=s, effects=fx, low_hovers=True) for s in (1, 2)]
+    paths = [write_case(f, tmp_path, name=f"seed{s}") for s, f in zip((1, 2), flights)]
+    model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
+    d = diagnose(model, load_log(paths[0]["log"]), validation=load_log(paths[1]["log"]),
+                 candidates=["thrust_drift", "wind", "quadratic_drag", "moment_gain", "cog_offset"])
+    assert d.baseline_certified
+    assert d.verdict is None and not d.added_disturbance, d.summary()
+    words = next(w for w in d.warnings if "as a disturbance" in w)
+    assert "still off" in words and "z" in words.split("still off")[1], words
