@@ -308,6 +308,7 @@ def test_ground_effect_under_turbulence_is_found_with_the_torque_as_a_disturbanc
     d = diagnose(model, load_log(paths[0]["log"]), validation=load_log(paths[1]["log"]))
     assert d.baseline_certified
     assert d.verdict == "ground_effect", d.summary()
+    assert d.judged_with_disturbance and d.as_json()["judged_with_disturbance"] is True
     final = d.final_fit
     assert final.converged and "disturbance_torque" in final.model.effect_names
     truth = flights[0].truth["greybox_equivalent"]
@@ -322,11 +323,11 @@ def test_disturbance_baseline_takes_a_random_torque_out_of_the_rates(tmp_path):
     """The baseline the diagnosis judges candidates against under turbulence
     (``closed_loop.disturbance_baseline``: a random-walk torque, the only process noise), on
     12 s of the 1.2 kg vehicle logged at 200 Hz under a random torque: the fit with process
-    noise on every state leaves p, q, r 2.6-4.3x their noise (``misses_a_torque`` names them)
+    noise on every state leaves p, q, r 2.6-4.3x their noise (``rates_missing_a_torque`` names them)
     and b 18 % low; with the disturbance the fit is certified and adequate, the rates are at
     their noise and K_T and b are within 5 %. Without turbulence no rate is missed, so the
     diagnosis never builds it."""
-    from greybox.diagnosis.closed_loop import disturbance_baseline, misses_a_torque
+    from greybox.diagnosis.closed_loop import can_hold_disturbance, disturbance_baseline, rates_missing_a_torque
 
     veh = PeerVehicle.one_kg(log_rate=200.0)
 
@@ -339,7 +340,7 @@ def test_disturbance_baseline_takes_a_random_torque_out_of_the_rates(tmp_path):
 
     res, log, truth = base(PeerEffects(turbulence=0.02), "turbulent")
     assert res.converged
-    assert set(misses_a_torque(res, 3.0)) >= {"p", "q"}
+    assert set(rates_missing_a_torque(res, 3.0)) >= {"p", "q"}
     assert res.value("b") / truth["b"] - 1 < -0.10
     d = disturbance_baseline(res, [log])
     assert d.converged and d.certificate.adequate, d.certificate.text()
@@ -348,7 +349,11 @@ def test_disturbance_baseline_takes_a_random_torque_out_of_the_rates(tmp_path):
     assert d.value("K_T") == pytest.approx(truth["K_T"], rel=0.05)
     assert d.value("b") == pytest.approx(truth["b"], rel=0.05)
     calm, _, _ = base(PeerEffects(), "calm")
-    assert calm.converged and misses_a_torque(calm, 3.0) == []
+    assert calm.converged and rates_missing_a_torque(calm, 3.0) == []
+    # a model that already holds a disturbance model gets no second one (its states would clash)
+    from greybox.effects import HeldMoment
+    assert can_hold_disturbance(res.model) and not can_hold_disturbance(d.model)
+    assert not can_hold_disturbance(res.model + HeldMoment())
 
 
 @pytest.mark.slow

@@ -55,6 +55,7 @@ from __future__ import annotations
 # summary), ``report`` (the HTML report) and ``workflow`` (:func:`diagnose`).
 # the constants are public names of greybox.diagnosis as well
 from .analysis import IMBALANCE_NOTABLE, CommandImbalance, Finding, command_imbalance, residual_analysis
+from .closed_loop import TIGHT_PROCESS_NOISE
 from .consistency import CONSISTENCY_MIN_CHANGE, CONSISTENCY_Z
 from .ranking import (ALPHA, COLD_CONTINUE, COLD_SCREEN_ITER, MAX_VALIDATION_LOSS, MIN_EXPLAINED, MIN_EXPLAINED_INADEQUATE,
                       MIN_VALIDATION_GAIN, N_REFIT, default_candidates)

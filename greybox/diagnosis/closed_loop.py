@@ -21,7 +21,8 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning
 from ..fitting import FitResult, fit
 
-__all__ = ["closed_loop_yaw", "ClosedLoopYaw", "disturbance_baseline", "misses_a_torque", "TIGHT_PROCESS_NOISE"]
+__all__ = ["closed_loop_yaw", "ClosedLoopYaw", "disturbance_baseline", "can_hold_disturbance", "rates_missing_a_torque",
+           "rate_levels", "TIGHT_PROCESS_NOISE", "RATE_STATES"]
 
 
 class ClosedLoopYaw(NamedTuple):
@@ -114,9 +115,10 @@ fraction of the state's largest magnitude in the flight: the rigid body (and any
 state) follows the model between the nodes; only the torque wanders."""
 
 RATE_STATES = ("p", "q", "r")
+"""The body-rate channels (and states) where a torque the model lacks shows first."""
 
 
-def misses_a_torque(res: FitResult, ratio: float) -> list[str]:
+def rates_missing_a_torque(res: FitResult, ratio: float) -> list[str]:
     """The body-rate channels (or, with process noise, rate states) that the certified fit
     ``res`` misses by more than ``ratio`` times their noise: residuals, or shooting gaps that
     are mostly systematic. A torque the model lacks shows there first."""
@@ -126,6 +128,25 @@ def misses_a_torque(res: FitResult, ratio: float) -> list[str]:
     off = [ch for ch in cert.off_channels() if ch in RATE_STATES and cert.residual_over_noise[ch] > ratio]
     off += [s for s in cert.off_states() if s in RATE_STATES and cert.systematic_gaps[s] > ratio and s not in off]
     return off
+
+
+def rate_levels(res: FitResult) -> str:
+    """The body rates' residual RMS over their noise in words (``"p 1.1, q 1.1, r 1.0"``); the
+    shooting gaps over their random part where the rates are not measured."""
+    cert = res.certificate
+    if cert is None:
+        return "unknown"
+    levels = [f"{ch} {cert.residual_over_noise[ch]:.1f}" for ch in RATE_STATES if ch in cert.residual_over_noise]
+    levels += [f"{ch} (gaps) {cert.systematic_gaps[ch]:.1f}" for ch in RATE_STATES
+               if ch not in cert.residual_over_noise and ch in cert.systematic_gaps]
+    return ", ".join(levels) or "unknown"
+
+
+def can_hold_disturbance(model) -> bool:
+    """Whether a :class:`~greybox.effects.DisturbanceTorque` can be added to ``model``: it holds
+    no disturbance model already (whose states would clash: ``held_moment``'s ``d_p, d_q``)."""
+    own = fx.DisturbanceTorque().state_names(model.airframe)
+    return fx.DisturbanceTorque.name not in model.effects and not set(own) & set(model.state_names)
 
 
 def disturbance_baseline(res: FitResult, logs: Sequence[FlightLog], compile: str = "auto") -> FitResult:

@@ -16,6 +16,7 @@ from ..fitting import FitResult
 from ..model import QuadrotorModel
 from ..validation import HorizonErrors, Prediction
 from .analysis import CommandImbalance, Finding
+from .closed_loop import rate_levels
 
 __all__ = ["CandidateResult", "Round", "Diagnosis", "Discovered", "DiscoveredTerm"]
 
@@ -242,6 +243,7 @@ class Diagnosis:
                             "horizons": (self.baseline_horizons or self.baseline_prediction.horizon_errors()).as_dict()},
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
+               "judged_with_disturbance": self.judged_with_disturbance,
                "outside_catalogue": self.outside_catalogue or None,
                "input_timing": _clean(self.input_timing) if self.input_timing else None,
                "findings": [f.text for f in self.findings],
@@ -293,10 +295,13 @@ class Diagnosis:
         return bool(self.final_model is not None and name in self.final_model.effect_names
                     and name not in self.model.effect_names)
 
-    def _rates_without_disturbance(self) -> str:
-        cert = self.baseline.certificate
-        r = cert.residual_over_noise if cert is not None else {}
-        return ", ".join(f"{ch} {r[ch]:.1f}" for ch in ("p", "q", "r") if ch in r)
+    @property
+    def judged_with_disturbance(self) -> bool:
+        """Whether the candidates of the ranking were judged against the model as given plus a
+        disturbance torque (a random torque no candidate held hid the rest) rather than against
+        the baseline: their ``nrmse_before`` and ``explained`` then refer to that model."""
+        return bool(self.rounds) and fx.DisturbanceTorque.name in self.rounds[0].model.effects \
+            and fx.DisturbanceTorque.name not in self.model.effects
 
     def verdict_text(self) -> str:
         """The verdict in words: the effect and how much it explains, or why it is null."""
@@ -310,7 +315,7 @@ class Diagnosis:
                 "outside_catalogue": f"null -- {self.outside_catalogue}",
                 "random_torque": "null -- what the model misses acts as a random torque (turbulence), which no "
                                  "catalogue effect holds: the final model holds it as a disturbance (without it the "
-                                 f"rates' residuals are {self._rates_without_disturbance()} times their noise)",
+                                 f"rates are {rate_levels(self.baseline)} times their noise)",
                 "unexplained": f"null -- the model is missing something no candidate explains: {self._far_off()}"
                                + (f"; {self.findings[0].text}" if self.findings else ""),
                 "nothing_missing": "null (nothing significant is missing)"}[why]
@@ -329,7 +334,9 @@ class Diagnosis:
         lines += [f"   - {f.text}" for f in self.findings] or ["   - no regime stands out"]
         if self.command_imbalance is not None and self.command_imbalance.notable:
             lines.append(f"   - {self.command_imbalance.text()}")
-        lines.append("3. candidates (best first):")
+        lines.append("3. candidates (best first" + (", judged against the model with a disturbance torque: a random "
+                                                   "torque no candidate held hid the rest" if self.judged_with_disturbance
+                                                   else "") + "):")
         for c in self.ranking:
             after = f"{c.nrmse_after:.3f}" if c.nrmse_after is not None else "  -  "
             lr = f"LR {c.lr:10.1f} p={c.p_value:.1e}" if c.lr is not None else f"score {c.score:10.1f}        "

@@ -19,7 +19,7 @@ from ..model import QuadrotorModel
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
-from .closed_loop import closed_loop_yaw, disturbance_baseline, misses_a_torque
+from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency
 from .ranking import MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates, rank_round
 from .results import Diagnosis, Round
@@ -196,24 +196,28 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         return out, m, fr, pr
 
     rounds, cur_model, cur_res, cur_pred = run_rounds(model, res, pred, remaining)
-    rates = misses_a_torque(res, UNEXPLAINED_RATIO) if rounds and rounds[0].verdict is None else []
+    rates = (rates_missing_a_torque(res, UNEXPLAINED_RATIO)
+             if rounds and rounds[0].verdict is None and can_hold_disturbance(res.model) else [])
     if rates:
         # A random torque no catalogue effect holds (turbulence) leaves the rates far off, and a
         # candidate fed by the commands explains a sliver of it, so none stands; an effect that
         # is there too hides in the process noise. Judged again with the torque as a disturbance.
         say(f"diagnose: nothing stands and {', '.join(rates)} stay far off: a torque no candidate holds; "
             "judging the candidates again with it as a disturbance")
-        base_d = disturbance_baseline(res, est, compile)
-        if not base_d.converged:
+        dist_fit = disturbance_baseline(res, est, compile)
+        if not dist_fit.converged:
             warnings.append(f"{', '.join(rates)} stay far off with every candidate (a torque the catalogue does not "
-                            f"hold); with that torque as a disturbance the fit was not certified ({base_d.status}), "
+                            f"hold); with that torque as a disturbance the fit was not certified ({dist_fit.status}), "
                             "so the candidates were not judged against it")
         else:
-            pred_d = predict_after_fit(base_d, est, val, compile=compile, horizon=horizon)
-            d_rounds, m_d, res_d, pred_d_final = run_rounds(base_d.model, base_d, pred_d, list(candidates),
-                                                           label=" (with a disturbance torque)")
-            found = [r.verdict for r in d_rounds if r.verdict]
-            still_off = _far_off(res_d) if found else []
+            dist_pred = predict_after_fit(dist_fit, est, val, compile=compile, horizon=horizon)
+            dist_rounds, dist_model, dist_final, dist_final_pred = run_rounds(
+                dist_fit.model, dist_fit, dist_pred, [c for c in candidates if c not in dist_fit.model.effects],
+                label=" (with a disturbance torque)")
+            found = [r.verdict for r in dist_rounds if r.verdict]
+            # a verdict whose refit could not be certified was not adopted: the final fit lacks it
+            adopted = all(v in dist_final.model.effects for v in found)
+            still_off = (_far_off(dist_final) if adopted else ["its refit not certified"]) if found else []
             if found and still_off:
                 # with the torque taken out, what is missing should leave nothing else: a verdict
                 # that leaves the model far off may stand in for part of it (on a real Crazyflie
@@ -229,23 +233,21 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                     "random-walk torque, DisturbanceTorque(), process noise on it alone) "
                     f"{', '.join(found)} {'is' if len(found) == 1 else 'are'} found, and the final model holds the "
                     "disturbance")
-                rounds, cur_model, cur_res, cur_pred = d_rounds, m_d, res_d, pred_d_final
+                rounds, cur_model, cur_res, cur_pred = dist_rounds, dist_model, dist_final, dist_final_pred
             else:
                 say("diagnose: with the torque as a disturbance no candidate stands either")
-                cert = base_d.certificate
-                level = ", ".join(f"{ch} {cert.residual_over_noise[ch]:.1f}" for ch in ("p", "q", "r")
-                                  if ch in cert.residual_over_noise)
+                follows = not _far_off(dist_fit)
                 warnings.append(
                     f"{', '.join(rates)} stay far off with every candidate; with that torque as a disturbance (a "
-                    "random-walk torque, DisturbanceTorque(), process noise on it alone) the rates' residuals are "
-                    f"{level} times their noise and still no candidate stands: "
+                    "random-walk torque, DisturbanceTorque(), process noise on it alone) the rates are "
+                    f"{rate_levels(dist_fit)} times their noise and still no candidate stands: "
                     + ("what is missing acts as a random torque (turbulence), or as a torque the catalogue does not "
-                       "hold: the final model holds it as a disturbance" if cert.adequate else
-                       f"the model is still off ({', '.join(cert.off_channels() or cert.off_states())}) with it"))
-                if cert.adequate:
+                       "hold: the final model holds it as a disturbance" if follows else
+                       f"the model is still off ({', '.join(_far_off(dist_fit))}) with it"))
+                if follows:
                     # the model that follows the data: its K_T and b are free of the closed-loop bias
                     # the baseline's carry (b 30 % low under the second simulator's turbulence)
-                    cur_model, cur_res, cur_pred = base_d.model, base_d, pred_d
+                    cur_model, cur_res, cur_pred = dist_fit.model, dist_fit, dist_pred
     discovered, discovery_note = [], {"status": "not run", "text": "not run (discover=False)", "together": None}
     outside = ""
     if discover:
@@ -264,7 +266,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             # stands (its own refit), or the model as given
             rounds[0].verdict = standing
             del rounds[1:]
-            cur_model, cur_res, cur_pred = (top.fit.model, top.fit, top.prediction) if standing else (model, res, pred)
+            cur_model, cur_res, cur_pred = ((top.fit.model, top.fit, top.prediction) if standing else
+                                          (rounds[0].model, rounds[0].fit, rounds[0].prediction))
     # confusable candidates: significant alone in round 1, explained away by the winner
     first = rounds[0].ranking if rounds else []
     if len(rounds) >= 2 and rounds[0].verdict:
