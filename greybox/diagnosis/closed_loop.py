@@ -87,25 +87,24 @@ def closed_loop_yaw(res: FitResult, logs: Sequence[FlightLog], *, baseline: FitR
 
 
 def _applies(res: FitResult) -> bool:
-    """A certified fit with ``b`` and ``K_T`` free and no disturbance model already."""
-    return bool(res.converged and {"b", "K_T"} <= set(res.free_names)
-                and fx.DisturbanceTorque.name not in res.model.effects)
+    """A certified fit with ``b`` and ``K_T`` free whose model can take a disturbance torque."""
+    return bool(res.converged and {"b", "K_T"} <= set(res.free_names) and can_hold_disturbance(res.model))
 
 
-def _with_disturbance(res: FitResult, logs: Sequence[FlightLog], compile: str) -> FitResult:
-    """``res``'s model with a :class:`~greybox.effects.DisturbanceTorque`, fitted with process
-    noise from ``res``'s parameters and node states (the disturbance, the last states, at
-    zero), and once more from where it stopped when it is not certified."""
+def _with_disturbance(res: FitResult, logs: Sequence[FlightLog], compile: str,
+                      process_noise: "str | dict[str, float]" = "auto", per_flight=None) -> FitResult:
+    """``res``'s model with a :class:`~greybox.effects.DisturbanceTorque`, fitted with
+    ``process_noise`` from ``res``'s parameters and node states (the disturbance, the last
+    states, at zero), and once more from where it stopped when it is not certified."""
     with_d = res.model + fx.DisturbanceTorque()
     nodes = [np.hstack([X, np.zeros((len(X), with_d.nx - res.model.nx))]) for X in res.node_states]
+    kw = dict(compile=compile, max_iter=100, free=res.free_names, interval=res.interval, per_flight=per_flight)
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # judged by the caller
-        alt = fit(with_d, logs, p0=res.p, process_noise="auto", compile=compile, max_iter=100,
-                  free=res.free_names, interval=res.interval, initial_states=nodes)
+        alt = fit(with_d, logs, p0=res.p, process_noise=process_noise, initial_states=nodes, **kw)
         if not alt.converged:
             alt = fit(with_d, logs, p0=alt.p, process_noise=alt.process_noise, noise=alt.sigma, reweight=False,
-                      compile=compile, max_iter=100, free=res.free_names, interval=res.interval,
-                      initial_states=alt.node_states)
+                      initial_states=alt.node_states, **kw)
     return alt
 
 
@@ -122,12 +121,11 @@ def rates_missing_a_torque(res: FitResult, ratio: float) -> list[str]:
     """The body-rate channels (or, with process noise, rate states) that the certified fit
     ``res`` misses by more than ``ratio`` times their noise: residuals, or shooting gaps that
     are mostly systematic. A torque the model lacks shows there first."""
-    cert = res.certificate
-    if cert is None or not res.converged:
+    if res.certificate is None or not res.converged:
         return []
-    off = [ch for ch in cert.off_channels() if ch in RATE_STATES and cert.residual_over_noise[ch] > ratio]
-    off += [s for s in cert.off_states() if s in RATE_STATES and cert.systematic_gaps[s] > ratio and s not in off]
-    return off
+    channels, gaps = res.certificate.far_off(ratio)
+    off = [ch for ch in channels if ch in RATE_STATES]
+    return off + [s for s in gaps if s in RATE_STATES and s not in off]
 
 
 def rate_levels(res: FitResult) -> str:
@@ -162,16 +160,8 @@ def disturbance_baseline(res: FitResult, logs: Sequence[FlightLog], compile: str
     the rigid body follows the model between the nodes: the ground effect's absence then shows
     in the height (residuals 91 times the noise, 1.75 with it), and K_T and b came out within
     1 % of the truth. Started from ``res``'s parameters and node states (disturbance zero)."""
-    with_d = res.model + fx.DisturbanceTorque()
-    nodes = [np.hstack([X, np.zeros((len(X), with_d.nx - res.model.nx))]) for X in res.node_states]
-    scale = np.max([np.abs(X).max(axis=0) for X in nodes], axis=0) + 1e-3
-    own = set(fx.DisturbanceTorque().state_names(res.model.airframe))
-    q = {s: TIGHT_PROCESS_NOISE * float(scale[j]) for j, s in enumerate(with_d.state_names) if s not in own}
-    kw = dict(compile=compile, max_iter=100, free=res.free_names, interval=res.interval, per_flight=res.per_flight_rule)
-    with _warnings.catch_warnings():
-        _warnings.simplefilter("ignore", ConvergenceWarning)   # judged by the caller
-        alt = fit(with_d, logs, p0=res.p, process_noise=q, initial_states=nodes, **kw)
-        if not alt.converged:
-            alt = fit(with_d, logs, p0=alt.p, process_noise=alt.process_noise, noise=alt.sigma, reweight=False,
-                      initial_states=alt.node_states, **kw)
-    return alt
+    # every state of the model as given tight; the disturbance's, left out, starts at the rate
+    # gaps per second (fit's estimate for a disturbance state)
+    scale = np.max([np.abs(X).max(axis=0) for X in res.node_states], axis=0) + 1e-3
+    q = {s: TIGHT_PROCESS_NOISE * float(scale[j]) for j, s in enumerate(res.model.state_names)}
+    return _with_disturbance(res, logs, compile, process_noise=q, per_flight=res.per_flight_rule)

@@ -350,10 +350,7 @@ def _unexplained(fr) -> tuple[dict[str, float], dict[str, float]]:
     :data:`UNEXPLAINED_RATIO` times their noise; empty when ``fr`` is not certified."""
     if not fr.converged or fr.certificate is None:
         return {}, {}
-    cert = fr.certificate
-    return ({ch: cert.residual_over_noise[ch] for ch in cert.off_channels()
-             if cert.residual_over_noise[ch] > UNEXPLAINED_RATIO},
-            {n: cert.systematic_gaps[n] for n in cert.off_states() if cert.systematic_gaps[n] > UNEXPLAINED_RATIO})
+    return fr.certificate.far_off(UNEXPLAINED_RATIO)
 
 
 def _far_off(fr) -> list[str]:

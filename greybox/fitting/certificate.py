@@ -66,6 +66,14 @@ class Certificate:
         state's shooting gaps (with process noise) are mostly systematic."""
         return not self.off_channels() and not self.off_states()
 
+    def far_off(self, ratio: float) -> tuple[dict[str, float], dict[str, float]]:
+        """What the fit misses by more than ``ratio`` times the noise: ``({channel: residual
+        RMS / sensor noise}, {state: gap RMS / its random part})`` among :meth:`off_channels`
+        and :meth:`off_states`."""
+        return ({ch: self.residual_over_noise[ch] for ch in self.off_channels()
+                 if self.residual_over_noise[ch] > ratio},
+                {n: self.systematic_gaps[n] for n in self.off_states() if self.systematic_gaps[n] > ratio})
+
     def off_states(self) -> list[str]:
         """States whose shooting gaps (with process noise) are more than
         :data:`NOISE_RATIO_ADEQUATE` times their random part: what the states were let do
