@@ -402,6 +402,7 @@ class PeerSensors:
     time_jitter: float = 0.1             # of a sample period, uniform
     accel: bool = False
     accel_noise: float = 0.05
+    accel_bias: Sequence[float] | None = None   # m/s^2, added to the logged ax, ay, az
 
 
 @dataclass
@@ -486,6 +487,8 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
             a, _ = dyn.loads(states[k])
             acc[k] = quat_to_rot(states[k, 6:10]).T @ (a - veh.gravity * E3)
         acc += sens.accel_noise * rng.standard_normal((n, 3))
+        if sens.accel_bias is not None:
+            acc += np.asarray(sens.accel_bias, float)
         for j, name in enumerate(("ax", "ay", "az")):
             cols[name] = acc[:, j]
     truth = _truth(veh, fx, sens, seed, duration, dyn, ctrl)
@@ -509,6 +512,8 @@ def _truth(veh, fx, sens, seed, duration, dyn, ctrl) -> dict[str, Any]:
         eq["r_cog"] = [float(x) for x in fx.cog_offset][:2]
     if fx.wind is not None:
         eq["wind"] = [float(x) for x in fx.wind]
+    if sens.accel and sens.accel_bias is not None:
+        eq["acc_bias"] = [float(x) for x in sens.accel_bias]
     return {"simulator": "peer_sim", "vehicle": asdict(veh), "effects": fx.active(),
             "sensors": asdict(sens), "seed": seed, "duration": duration,
             "greybox_equivalent": eq,

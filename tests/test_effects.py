@@ -296,3 +296,28 @@ def test_parameter_vector_by_name_and_component(base):
         base.parameter_vector({"k_ge": 1.0})
     with pytest.raises(GreyboxInputError, match="needs 3 values"):
         base.parameter_vector({"Kd": [1, 2]})
+
+
+def test_accel_bias_adds_to_the_specific_force_only(base):
+    """By hand: hovering level at rest the accelerometer reads R^T(0 - g e3) = (0, 0, -g); the
+    bias adds to that and to nothing else (it does not move the vehicle)."""
+    m = base + effects.by_name("accel_bias")
+    bias = [0.1, -0.2, 0.3]
+    p1 = m.parameter_vector({"acc_bias": bias})
+    p0 = m.parameter_vector({"acc_bias": [0.0, 0.0, 0.0]})
+    u = np.full(4, m.hover_speed())
+    y0 = np.asarray(m.output(hover_state(), u, p0, 0.0)).ravel()
+    y1 = np.asarray(m.output(hover_state(), u, p1, 0.0)).ravel()
+    g = m.airframe.gravity
+    ax = m.output_names.index("ax")
+    np.testing.assert_allclose(y0[ax:ax + 3], [0.0, 0.0, -g], atol=1e-9)
+    np.testing.assert_allclose(y1[ax:ax + 3], [0.1, -0.2, 0.3 - g], atol=1e-9)
+    np.testing.assert_allclose(np.delete(y1 - y0, [ax, ax + 1, ax + 2]), 0.0, atol=1e-12)
+    # at a rolled, moving state the difference is the bias all the same
+    x = hover_state()
+    x[3], x[6], x[10] = 0.4, 2.0, 0.3
+    d = np.asarray(m.output(x, u, p1, 0.0)).ravel() - np.asarray(m.output(x, u, p0, 0.0)).ravel()
+    np.testing.assert_allclose(d[ax:ax + 3], bias, atol=1e-12)
+    np.testing.assert_allclose(rhs(m, x, u, p1), rhs(m, x, u, p0), atol=1e-12)
+    assert effects.confusable("accel_bias", "wind") and effects.confusable("wind", "accel_bias")
+    assert not effects.confusable("accel_bias", "ground_effect")

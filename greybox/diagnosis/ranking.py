@@ -22,7 +22,7 @@ from .screening import (explained_fraction, held_on_bound, lr_test, null_on_boun
                         screen)
 
 __all__ = ["ALPHA", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
-           "rank_round", "default_candidates", "far_channels"]
+           "rank_round", "order_refitted", "default_candidates", "far_channels"]
 
 ALPHA = 0.01
 """Family-wise significance level of the likelihood-ratio tests (Bonferroni over candidates)."""
@@ -273,6 +273,19 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                 queue_refit_builds(model, res, [c.effect for c in more], n_sub)
             refit_batch(more)
             to_refit = to_refit + more
+    # An effect known to explain the same data as the round's best (Effect.distinguish) is
+    # refitted too, whatever its score: on a real Crazyflie flight a wind won a round on the
+    # accelerometer while the accelerometer's bias, a hair lower by score, was never refitted
+    lead = _best(to_refit)
+    if lead is not None:
+        partners = [c for c in out if c.lr is None and c not in to_refit and fx.confusable(lead.effect, c.effect)
+                    and c.score > 0 and score_p(c) < ALPHA]
+        if partners:
+            say(f"  refitting what explains the same as {lead.effect}: {', '.join(c.effect for c in partners)}")
+            if compile == "auto":
+                queue_refit_builds(model, res, [c.effect for c in partners], n_sub)
+            refit_batch(partners)
+            to_refit = to_refit + partners
     for c in out:
         if c.lr is None and not c.reason:
             c.reason = f"screened only: the {n_refit} best by score are refitted (the next {n_refit} when none of them stands)"
@@ -288,9 +301,55 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     # model at the baseline while certified CoG-offset and asymmetry refits were there);
     # among them the largest validation improvement (the out-of-sample evidence), then the
     # likelihood ratio
-    refitted.sort(key=lambda c: (not c.significant, not (c.significant and c.fit is not None and c.fit.converged),
-                                 (c.nrmse_after or 0.0) if c.significant else 0.0, -(c.lr or 0.0)))
-    return refitted + rest
+    return order_refitted(refitted) + rest
+
+
+def order_refitted(refitted: Sequence[CandidateResult]) -> list[CandidateResult]:
+    """Refitted candidates best first: significant, certified, the lowest validation
+    nrmse, the largest likelihood ratio; then, among certified significant candidates known
+    to explain the same data as the first (``Effect.distinguish``) whose validation nrmse is
+    within :data:`MIN_VALIDATION_GAIN` of its own, the validation cannot tell them apart and
+    the one the estimation data support better (likelihood ratio less twice its parameters,
+    as Akaike's criterion) goes first, its reason saying so."""
+    out = sorted(refitted, key=_order)
+    _break_tie(out)
+    return out
+
+
+def _order(c: CandidateResult) -> tuple:
+    """Sort key of refitted candidates, best first: significant, certified, the lowest
+    validation nrmse, the largest likelihood ratio."""
+    return (not c.significant, not (c.significant and c.fit is not None and c.fit.converged),
+            (c.nrmse_after or 0.0) if c.significant else 0.0, -(c.lr or 0.0))
+
+
+def _best(refitted: Sequence[CandidateResult]) -> CandidateResult | None:
+    """The best significant refitted candidate by :func:`_order`, or None."""
+    sig = [c for c in refitted if c.significant]
+    return min(sig, key=_order) if sig else None
+
+
+def _break_tie(ranking: list[CandidateResult]) -> None:
+    """:func:`order_refitted`'s tie rule on ``ranking`` sorted by :func:`_order`, in place."""
+    if not ranking or not ranking[0].significant:
+        return
+    first = ranking[0]
+    if first.fit is None or not first.fit.converged:
+        return
+    ties = [c for c in ranking if c.significant and c.fit is not None and c.fit.converged
+            and (c is first or (fx.confusable(first.effect, c.effect)
+                                and c.nrmse_after <= (1 + MIN_VALIDATION_GAIN) * first.nrmse_after))]
+    if len(ties) < 2:
+        return
+    pick = max(ties, key=lambda c: (c.lr or 0.0) - 2 * c.df)
+    if pick is first:
+        return
+    pick.reason += (f"; predicts the validation data as well as {first.effect} (nrmse {pick.nrmse_after:.3f} against "
+                    f"{first.nrmse_after:.3f}: within {100 * MIN_VALIDATION_GAIN:.0f} %, which cannot tell them "
+                    f"apart) and the estimation data better (LR {pick.lr:.1f} against {first.lr:.1f}), so it "
+                    f"goes first")
+    ranking.remove(pick)
+    ranking.insert(0, pick)
 
 
 def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list[str]:
@@ -300,5 +359,6 @@ def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list
     when every flight has it."""
     return [n for n, cls in fx.known_effects().items() if n not in model.effects
             and (n in fx.CATALOGUE or n in fx.registered_effects() or cls.signals or cls.considered_when_logged)
-            and all(all(s in lg.extras or s in lg.input_names for lg in logs)
-                    for s in cls.signals + cls.considered_when_logged)]
+            and all(all(s in lg.extras or s in lg.input_names for lg in logs) for s in cls.signals)
+            and all(all(s in lg.extras or s in lg.input_names or s in lg.output_names for lg in logs)
+                    for s in cls.considered_when_logged)]

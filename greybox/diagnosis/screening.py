@@ -49,7 +49,8 @@ def effect_accelerations(fr: FitResult, effect: str, logs: Sequence[FlightLog]
     angular acceleration it adds, RMS translational acceleration, RMS angular acceleration
     of the model), m/s^2 and rad/s^2, comparing the effect at its fitted values with the
     effect at its null values. A roll/pitch measurement offset counts as the horizontal
-    acceleration ``g * offset`` a model must otherwise explain. None when the effect cannot be
+    acceleration ``g * offset`` a model must otherwise explain, an accelerometer offset as
+    itself. None when the effect cannot be
     switched off this way (its own states, a parameter whose null is outside its bounds) or
     when, without a force, it changes other measurements (a position delay)."""
     model = fr.model
@@ -81,7 +82,8 @@ def effect_accelerations(fr: FitResult, effect: str, logs: Sequence[FlightLog]
             return None
         # a force moves the measurements through the state; only a pure measurement effect
         # is judged by what it does to them
-        tilt = 0.0 if force else g * np.hypot(dy[OUTPUTS.index("phi")], dy[OUTPUTS.index("theta")])
+        tilt = 0.0 if force else (g * np.hypot(dy[OUTPUTS.index("phi")], dy[OUTPUTS.index("theta")])
+                                  + np.linalg.norm(dy[[OUTPUTS.index(c) for c in ("ax", "ay", "az")]], axis=0))
         da.append(np.linalg.norm(xd1[6:9] - xd0[6:9], axis=0) + tilt)
         dw.append(np.linalg.norm(xd1[9:12] - xd0[9:12], axis=0))
         a_all.append(np.sum(xd1[6:9] ** 2, axis=0))

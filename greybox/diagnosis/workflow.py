@@ -281,6 +281,16 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             and first[1].lr > 0.5 * first[0].lr:
         warnings.append(f"{first[0].effect} and {first[1].effect} both explain the data well; to tell them apart: "
                         f"{distinguishing_manoeuvre(first[0].effect, first[1].effect)}")
+    for k, rd in enumerate(rounds[1:], start=2):
+        # a later round's verdict with a confusable runner-up that validates as well
+        top = rd.ranking[0] if rd.verdict and rd.ranking else None
+        for c in (rd.ranking[1:] if top is not None and top.nrmse_after is not None else []):
+            if c.significant and c.nrmse_after is not None and fx.confusable(top.effect, c.effect) \
+                    and c.nrmse_after <= (1 + MIN_VALIDATION_GAIN) * top.nrmse_after:
+                warnings.append(f"round {k}: {top.effect} and {c.effect} predict the validation data alike (nrmse "
+                                f"{top.nrmse_after:.3f} and {c.nrmse_after:.3f}); {top.effect} is taken as it fits "
+                                f"the estimation data better; to tell them apart: "
+                                f"{distinguishing_manoeuvre(top.effect, c.effect)}")
     verdict = rounds[0].verdict if rounds else None
     for c in (rounds[0].ranking if rounds and verdict is None else []):
         if c.unconfirmable:

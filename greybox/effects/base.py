@@ -91,9 +91,10 @@ class Effect:
     wind, the battery's state): a fit of several flights with ``per_flight="auto"`` gives
     each flight its own copy of them and shares the rest."""
     considered_when_logged: ClassVar[tuple[str, ...]] = ()
-    """Log columns whose presence in every flight makes :func:`~greybox.diagnose` try this
-    effect although it reads no logged signal (``command_delay``: ``pwm1``, the rotor speeds
-    are mapped from logged motor commands)."""
+    """Log columns (inputs, extra signals or measured outputs) whose presence in every flight
+    makes :func:`~greybox.diagnose` try this effect although it reads no logged signal
+    (``command_delay``: ``pwm1``, the rotor speeds are mapped from logged motor commands;
+    ``accel_bias``: ``ax``, the accelerometer is measured)."""
 
     def parameters(self, airframe: "Airframe") -> list[Parameter]:
         return []

@@ -8,7 +8,7 @@ from .drag import DragMoment, HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag
 from .ground import GroundEffect
 from .power import BatteryVoltage, CommandDelay, RotorMap, SampledInputs, ThrustDrift
 from .rotor import Gyroscopic, MomentGain, MotorLag, YawTorque
-from .sensors import AttitudeBias, PositionDelay
+from .sensors import AccelBias, AttitudeBias, PositionDelay
 
 __all__ = ["CATALOGUE", "SIGNAL_EFFECTS", "APPLY_ORDER", "BASE_EFFECTS"]
 
@@ -20,13 +20,16 @@ CATALOGUE: dict[str, type[Effect]] = {
 }
 """The catalogue of effects (README, "Effects"), by name, in the order they are applied."""
 
-SIGNAL_EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (SampledInputs, CommandDelay, RotorMap, BatteryVoltage)}
+SIGNAL_EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (SampledInputs, CommandDelay, RotorMap, BatteryVoltage,
+                                                                     AccelBias)}
 """Effects beyond the catalogue, tied to what a log records (the timing of rotor speeds
-sampled between rows, the delay of logged commands, a command map, the battery voltage).
+sampled between rows, the delay of logged commands, a command map, the battery voltage, the
+accelerometer's bias).
 Applied before the catalogue's effects, since they change the command; the timing first,
 since they move the logged command in time. ``diagnose`` considers ``sampled_inputs`` when
 the inputs are rotor speeds (``w1``), ``battery_voltage`` when the log has a ``vbat`` column
-and ``command_delay`` when it has ``pwm1`` (rotor speeds mapped from motor commands)."""
+``command_delay`` when it has ``pwm1`` (rotor speeds mapped from motor commands) and
+``accel_bias`` when it measures the specific force (``ax``)."""
 
 APPLY_ORDER: tuple[str, ...] = tuple(SIGNAL_EFFECTS) + tuple(CATALOGUE)
 """Order in which a model applies its effects, whatever order they were composed in."""

@@ -17,7 +17,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..airframe import Airframe
 
 __all__ = ["register", "unregister", "load_effects_file", "known_effects", "registered_effects", "effect_class",
-           "by_name", "distinguishing_manoeuvre", "parse_effect_names", "example_values", "ENTRY_POINT_GROUP"]
+           "by_name", "confusable", "distinguishing_manoeuvre", "parse_effect_names", "example_values", "ENTRY_POINT_GROUP"]
 
 
 _REGISTERED: dict[str, type[Effect]] = {}     # user effects: register(), files, entry points
@@ -187,6 +187,14 @@ def effect_class(name: str) -> type[Effect]:
 def by_name(name: str) -> Effect:
     """A new effect object from its name (catalogue or registered)."""
     return effect_class(name)()
+
+
+def confusable(a: str, b: str) -> bool:
+    """Whether effects ``a`` and ``b`` are known to explain the same data (either names the
+    other in its ``distinguish``)."""
+    known = known_effects()
+    ca_, cb = known.get(a), known.get(b)
+    return bool((ca_ is not None and b in ca_.distinguish) or (cb is not None and a in cb.distinguish))
 
 
 def distinguishing_manoeuvre(a: str, b: str) -> str:

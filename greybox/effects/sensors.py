@@ -1,11 +1,11 @@
 """What the sensors report: latency of the position measurement, offsets of the measured
-roll and pitch."""
+roll and pitch, the accelerometer's bias."""
 from __future__ import annotations
 
 from ..parameters import Parameter
 from .base import Effect
 
-__all__ = ["PositionDelay", "AttitudeBias"]
+__all__ = ["PositionDelay", "AttitudeBias", "AccelBias"]
 
 
 class PositionDelay(Effect):
@@ -55,3 +55,34 @@ class AttitudeBias(Effect):
     def modify_measurement(self, ctx, y):
         y["phi"] = y["phi"] + ctx.params["att_bias"][0]
         y["theta"] = y["theta"] + ctx.params["att_bias"][1]
+
+
+class AccelBias(Effect):
+    """Constant biases of the accelerometer (a MEMS IMU's offset, tens to hundreds of mm/s²):
+    ``a_meas = R^T(a - g e3) + acc_bias`` per body axis (m/s², FRD). It changes what the
+    accelerometer reports, not how the vehicle moves: without it, a bias in ``ax`` or ``ay``
+    is taken for a force that is not there (a wind indoors on a real Crazyflie flight).
+    Considered by the diagnosis when the log measures the specific force (``ax``).
+    """
+
+    name = "accel_bias"
+    summary = "constant accelerometer biases (body x, y, z)"
+    excited_by = 'any flight with the accelerometer logged (a bias does not move the vehicle)'
+    fit_advice = 'hover and translations in several directions'
+    channels = ('ax', 'ay', 'az')
+    considered_when_logged = ('ax',)
+    distinguish = {'wind': 'fly in several directions: a wind moves the vehicle, a bias only the accelerometer',
+                   'attitude_bias': 'hover at several headings with the position logged'}
+
+    def parameters(self, airframe):
+        return [Parameter("acc_bias", 3, 0.0, "m/s^2", -3.0, 3.0, 0.1, 0.0, True,
+                          "accelerometer biases, body x, y, z", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"acc_bias": [0.1, -0.1, 0.1]}
+
+    def modify_measurement(self, ctx, y):
+        b = ctx.params["acc_bias"]
+        for i, ch in enumerate(("ax", "ay", "az")):
+            if ch in y:
+                y[ch] = y[ch] + b[i]
