@@ -21,11 +21,15 @@ from .screening import (explained_fraction, held_on_bound, lr_test, null_on_boun
                         physically_small, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
                         screen)
 
-__all__ = ["ALPHA", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
+__all__ = ["ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
            "rank_round", "order_refitted", "default_candidates", "far_channels"]
 
 ALPHA = 0.01
 """Family-wise significance level of the likelihood-ratio tests (Bonferroni over candidates)."""
+PARTNER_SCORE_SHARE = 0.1
+"""An effect known to explain the same data as a round's best (``Effect.distinguish``) that
+was not among the best by score is refitted beside it when its score is at least this
+share of the best's (a cost bound: 5-15 s a refit on a real 35-s flight)."""
 MIN_VALIDATION_GAIN = 0.05
 """Relative fall of some channel's validation nrmse that confirms a candidate out of sample
 (while the total nrmse may not rise by more than :data:`MAX_VALIDATION_LOSS`)."""
@@ -274,12 +278,13 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             refit_batch(more)
             to_refit = to_refit + more
     # An effect known to explain the same data as the round's best (Effect.distinguish) is
-    # refitted too, whatever its score: on a real Crazyflie flight a wind won a round on the
-    # accelerometer while the accelerometer's bias, a hair lower by score, was never refitted
+    # refitted too when its score is of the same order: on a real Crazyflie flight a wind won
+    # a round on the accelerometer while the accelerometer's bias, 80 % of its score, was
+    # never refitted
     lead = _best(to_refit)
     if lead is not None:
         partners = [c for c in out if c.lr is None and c not in to_refit and fx.confusable(lead.effect, c.effect)
-                    and c.score > 0 and score_p(c) < ALPHA]
+                    and c.score >= PARTNER_SCORE_SHARE * lead.score and score_p(c) < ALPHA]
         if partners:
             say(f"  refitting what explains the same as {lead.effect}: {', '.join(c.effect for c in partners)}")
             if compile == "auto":

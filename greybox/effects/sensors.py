@@ -81,6 +81,10 @@ class AccelBias(Effect):
     def plausible_values(self, airframe, K_T):
         return {"acc_bias": [0.1, -0.1, 0.1]}
 
+    def plausible_limits(self, airframe):
+        # consumer MEMS accelerometers' zero-g offsets: within about 20-80 mg after mounting
+        return {"acc_bias": 0.8}
+
     def modify_measurement(self, ctx, y):
         b = ctx.params["acc_bias"]
         for i, ch in enumerate(("ax", "ay", "az")):
