@@ -287,10 +287,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         for c in (rd.ranking[1:] if top is not None and top.nrmse_after is not None else []):
             if c.significant and c.nrmse_after is not None and fx.confusable(top.effect, c.effect) \
                     and c.nrmse_after <= (1 + MIN_VALIDATION_GAIN) * top.nrmse_after:
+                why = ("it fits the estimation data better" if (top.lr or 0.0) - 2 * top.df >= (c.lr or 0.0) - 2 * c.df
+                       else "it validates better")
                 warnings.append(f"round {k}: {top.effect} and {c.effect} predict the validation data alike (nrmse "
-                                f"{top.nrmse_after:.3f} and {c.nrmse_after:.3f}); {top.effect} is taken as it fits "
-                                f"the estimation data better; to tell them apart: "
-                                f"{distinguishing_manoeuvre(top.effect, c.effect)}")
+                                f"{top.nrmse_after:.3f} and {c.nrmse_after:.3f}); {top.effect} is taken as {why}; "
+                                f"to tell them apart: {distinguishing_manoeuvre(top.effect, c.effect)}")
     verdict = rounds[0].verdict if rounds else None
     for c in (rounds[0].ranking if rounds and verdict is None else []):
         if c.unconfirmable:

@@ -46,13 +46,13 @@ from .registry import (DISTURBANCE_MODELS, ENTRY_POINT_GROUP, by_name, confusabl
                        effect_class, example_values, known_effects, load_effects_file, parse_effect_names, register,
                        registered_effects, unregister)
 from .rotor import Gyroscopic, MomentGain, MotorLag, YawTorque
-from .sensors import AttitudeBias, PositionDelay
+from .sensors import AccelBias, AttitudeBias, PositionDelay
 
 __all__ = [
     "Effect", "EffectLibrary", "ModelContext", "CATALOGUE", "BASE_EFFECTS", "by_name",
     "parse_effect_names", "YawTorque", "LinearDrag", "Gyroscopic", "QuadraticDrag", "RotorDrag",
     "HubRotorDrag", "DragMoment", "GroundEffect", "MotorLag", "CogOffset", "MotorAsymmetry", "Wind", "ThrustDrift",
-    "PositionDelay", "AttitudeBias", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
+    "PositionDelay", "AttitudeBias", "AccelBias", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
     "APPLY_ORDER", "register", "load_effects_file", "known_effects", "registered_effects",
     "effect_class", "confusable", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP", "example_values", "DiscoveredEffect",
     "unregister", "HeldMoment", "DisturbanceTorque", "DISTURBANCE_MODELS", "MomentGain", "CommandDelay", "SampledInputs", "is_derived_signal",

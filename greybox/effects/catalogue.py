@@ -27,7 +27,7 @@ sampled between rows, the delay of logged commands, a command map, the battery v
 accelerometer's bias).
 Applied before the catalogue's effects, since they change the command; the timing first,
 since they move the logged command in time. ``diagnose`` considers ``sampled_inputs`` when
-the inputs are rotor speeds (``w1``), ``battery_voltage`` when the log has a ``vbat`` column
+the inputs are rotor speeds (``w1``), ``battery_voltage`` when the log has a ``vbat`` column,
 ``command_delay`` when it has ``pwm1`` (rotor speeds mapped from motor commands) and
 ``accel_bias`` when it measures the specific force (``ax``)."""
 
