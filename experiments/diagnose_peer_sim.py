@@ -46,6 +46,12 @@ CASES = {
     "1kg_cog": (PeerVehicle.one_kg, PeerEffects(cog_offset=[0.01, -0.006]), 20.0, "cog_offset"),
     "1kg_wind": (PeerVehicle.one_kg, PeerEffects(body_drag=[0.25, 0.25, 0.3], wind=[2.0, -1.0, 0.0]), 20.0, "wind"),
     "3kg_clean": (PeerVehicle.three_kg, PeerEffects(), 20.0, None),
+    # the heavy end of the scale with something to find (400 Hz log, 60 ms motors)
+    "3kg_weak_rotor": (PeerVehicle.three_kg, PeerEffects(motor_gains=[1.0, 0.92, 1.0, 1.0]), 20.0, "motor_asymmetry"),
+    "3kg_ground": (PeerVehicle.three_kg, PeerEffects(ground_effect=True), 40.0, "ground_effect"),
+    # the same with the airframe giving the hubs' height (5 cm above the CoG): k_ge is then the truth's
+    "3kg_ground_hubs": (PeerVehicle.three_kg, PeerEffects(ground_effect=True), 40.0, "ground_effect",
+                        {"hub_heights": True}),
     "1kg_rate_damping": (PeerVehicle.one_kg, PeerEffects(rate_damping=[0.02, 0.02, 0.01]), 20.0,
                          "no catalogue effect"),
     "1kg_flapping": (PeerVehicle.one_kg, PeerEffects(flapping=0.02), 20.0, "outside"),
@@ -61,7 +67,8 @@ CASES = {
     # thrust falling with the climb rate (inflow), outside the catalogue
     "1kg_inflow": (PeerVehicle.one_kg, PeerEffects(inflow=0.2), 20.0, "no catalogue effect"),
 }
-"""name: (vehicle, effects, duration s, what should be named: an effect, or a tuple of effects
+"""name: (vehicle, effects, duration s, what should be named[, airframe options of
+``peer_sim.airframe_text``]); what should be named: an effect, or a tuple of effects
 that must all be added (the first round's verdict among them), None for a null verdict,
 "outside" for an effect the catalogue does not hold, "no catalogue effect" for a null verdict of
 any kind (outside the catalogue or unexplained), "random torque" for a null verdict that says
@@ -70,11 +77,12 @@ torque is no function of the state that discovery could find)."""
 
 
 def run(name: str, work: Path) -> dict:
-    make, fx, duration, expect = CASES[name]
+    make, fx, duration, expect, *options = CASES[name]
+    airframe_options = options[0] if options else {}
     veh = make()
     flights = [fly(veh, duration=duration, seed=s, effects=fx, low_hovers=True) for s in (1, 2)]
     d = work / name
-    paths = [write_case(f, d, name=f"seed{i + 1}") for i, f in enumerate(flights)]
+    paths = [write_case(f, d, name=f"seed{i + 1}", **airframe_options) for i, f in enumerate(flights)]
     model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
     est, val = load_log(paths[0]["log"]), load_log(paths[1]["log"])
     t0 = time.perf_counter()

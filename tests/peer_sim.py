@@ -522,17 +522,19 @@ def _truth(veh, fx, sens, seed, duration, dyn, ctrl) -> dict[str, Any]:
 
 # ============================================================================ files
 def airframe_text(veh: PeerVehicle, *, K_T_factor: float = 1.4, b_factor: float = 0.6,
-                  Kd: float | None = None, name: str | None = None) -> str:
+                  Kd: float | None = None, name: str | None = None, hub_heights: bool = False) -> str:
     """The airframe a user would write: true mass, inertia, rotor tables (hubs in the
-    rotor plane, height unknown) and starting guesses ``K_T * K_T_factor``,
+    rotor plane, height unknown; ``hub_heights``: at their measured height above the centre
+    of gravity, body z = -hub_height) and starting guesses ``K_T * K_T_factor``,
     ``b * b_factor``, ``Kd`` (default ``0.05 * mass`` per axis)."""
     kd = 0.05 * veh.mass if Kd is None else Kd
+    hub_z = -veh.hub_height if hub_heights else 0.0
     lines = ["[airframe]", f'name = "{name or veh.name}"', f"mass = {veh.mass!r}",
              f"inertia = [{', '.join(repr(float(x)) for x in veh.inertia)}]",
              f"arm_length = {veh.arm!r}", f"rotor_inertia = {veh.rotor_inertia!r}",
              f"gravity = {veh.gravity!r}", ""]
     for pos, spin in zip(veh.rotor_positions(), veh.spins):
-        lines += ["[[rotor]]", f"position = [{float(pos[0])!r}, {float(pos[1])!r}, 0.0]", f"spin = {int(spin)}", ""]
+        lines += ["[[rotor]]", f"position = [{float(pos[0])!r}, {float(pos[1])!r}, {hub_z!r}]", f"spin = {int(spin)}", ""]
     lines += ["[parameters]", f"K_T = {veh.K_T * K_T_factor!r}", f"b = {veh.b * b_factor!r}",
               f"Kd = [{kd!r}, {kd!r}, {kd!r}]", ""]
     return "\n".join(lines)

@@ -436,3 +436,49 @@ def test_accelerometer_bias_and_wind_are_told_apart(tmp_path, hidden):
     for i in range(2):
         assert final.value(f"{name}[{i}]") == pytest.approx(truth_value[i], rel=0.05, abs=0.01)
     assert final.value("K_T") == pytest.approx(truth["K_T"], rel=0.02)
+
+
+def _three_kg_case(tmp_path, effects, duration, **airframe_kw):
+    """The heavy end of the scale: the simulator's 3 kg vehicle (15-inch propellers, 60 ms
+    motors, a 12 Hz attitude loop, a 400 Hz log with vision at 50 Hz), an estimation and a
+    validation flight with low hovers."""
+    flights = [fly(PeerVehicle.three_kg(), duration=duration, seed=s, effects=effects) for s in (1, 2)]
+    paths = [write_case(f, tmp_path, name=f"seed{s}", **airframe_kw) for s, f in zip((1, 2), flights)]
+    model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
+    return model, [load_log(p["log"]) for p in paths], flights[0].truth["greybox_equivalent"]
+
+
+@pytest.mark.slow
+def test_three_kg_weak_rotor_is_named_and_its_deviations_recovered(tmp_path):
+    """3 kg, rotor 2 at 92 % of thrust and torque, starting values 40 % off: the baseline is
+    certified, ``motor_asymmetry`` is the verdict, its deviations (relative to the rotors'
+    mean, as the catalogue's effect has them) are the truth's within 3 std, and the final
+    model's K_T and b are within 5 % (the scale check of issue 13: 30 g to 3 kg)."""
+    model, (est, val), truth = _three_kg_case(tmp_path, PeerEffects(motor_gains=[1.0, 0.92, 1.0, 1.0]), 20.0)
+    d = diagnose(model, est, validation=val)
+    assert d.baseline_certified
+    assert d.verdict == "motor_asymmetry", d.summary()
+    final = d.final_fit
+    for i in range(3):
+        std = final.std[final.free_names.index(f"K_T_dev[{i}]")]
+        assert abs(final.value(f"K_T_dev[{i}]") - truth["K_T_dev"][i]) < 3 * std, (i, final.value(f"K_T_dev[{i}]"), std)
+    assert final.value("K_T") == pytest.approx(truth["K_T"], rel=0.05)
+    assert final.value("b") == pytest.approx(truth["b"], rel=0.05)
+
+
+@pytest.mark.slow
+def test_three_kg_ground_effect_is_named_and_k_ge_is_the_truths_at_the_hubs(tmp_path):
+    """3 kg, Cheeseman-Bennett ground effect per rotor at hubs 5 cm above the centre of
+    gravity, two dips to 0.2 m: with the airframe giving the hubs' height, the verdict is
+    ``ground_effect`` and ``k_ge`` is the truth's ``(R/4)^2`` within 3 std. (With the rotors
+    put in the CoG's plane, as ``airframe_text`` writes them by default, the same flights give
+    k_ge 0.0013 against 0.0023: the parameter is the effect seen from where the airframe puts
+    the rotors, 5 cm nearer the ground, which needs a smaller k_ge for the same thrust.)"""
+    model, (est, val), truth = _three_kg_case(tmp_path, PeerEffects(ground_effect=True), 40.0, hub_heights=True)
+    d = diagnose(model, est, validation=val)
+    assert d.baseline_certified
+    assert d.verdict == "ground_effect", d.summary()
+    final = d.final_fit
+    std = final.std[final.free_names.index("k_ge")]
+    assert abs(final.value("k_ge") - truth["k_ge"]) < 3 * std, (final.value("k_ge"), std, truth["k_ge"])
+    assert final.value("K_T") == pytest.approx(truth["K_T"], rel=0.05)
