@@ -49,6 +49,12 @@ CASES = {
     # the heavy end of the scale with something to find (400 Hz log, 60 ms motors)
     "3kg_weak_rotor": (PeerVehicle.three_kg, PeerEffects(motor_gains=[1.0, 0.92, 1.0, 1.0]), 20.0, "motor_asymmetry"),
     "3kg_ground": (PeerVehicle.three_kg, PeerEffects(ground_effect=True), 40.0, "ground_effect"),
+    # a real log's rate on the heavy vehicle; starting values 50 % off the other way
+    "3kg_clean_100hz": (partial(PeerVehicle.three_kg, log_rate=100.0), PeerEffects(), 20.0, None),
+    "3kg_cog_100hz": (partial(PeerVehicle.three_kg, log_rate=100.0), PeerEffects(cog_offset=[0.015, -0.01]), 20.0,
+                      "cog_offset", {"K_T_factor": 0.5, "b_factor": 1.5}),
+    "cf_weak_rotor": (PeerVehicle.crazyflie, PeerEffects(motor_gains=[1.0, 1.0, 1.0, 0.9]), 20.0, "motor_asymmetry",
+                      {"K_T_factor": 1.5, "b_factor": 0.5}),
     # the same with the airframe giving the hubs' height (5 cm above the CoG): k_ge is then the truth's
     "3kg_ground_hubs": (PeerVehicle.three_kg, PeerEffects(ground_effect=True), 40.0, "ground_effect",
                         {"hub_heights": True}),
