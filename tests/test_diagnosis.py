@@ -222,8 +222,7 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
     parameters goes first, and says why. Beyond 5 %, or for effects not known to be
     confusable, the validation nrmse orders them as before."""
     from types import SimpleNamespace
-    from greybox.diagnosis.ranking import order_refitted
-    from greybox.diagnosis.results import CandidateResult
+    from greybox.diagnosis import CandidateResult, order_refitted, validation_ties
 
     ok = SimpleNamespace(converged=True)
 
@@ -233,7 +232,10 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
 
     tied = order_refitted([cand("wind", 2, 0.839, 4000.0), cand("accel_bias", 3, 0.846, 12000.0)])
     assert [c.effect for c in tied] == ["accel_bias", "wind"]
-    assert "cannot tell them apart" in tied[0].reason and "LR 12000" in tied[0].reason
+    # the reason quotes the criterion that decided: LR - 2 df, 11994 against 3996
+    assert "cannot tell them apart" in tied[0].reason and "11994.0 against 3996.0" in tied[0].reason
+    assert order_refitted(tied)[0].reason == tied[0].reason          # ordering again adds nothing
+    assert [c.effect for c in validation_ties(tied)] == ["wind"]
     apart = order_refitted([cand("wind", 2, 0.70, 4000.0), cand("accel_bias", 3, 0.846, 12000.0)])
     assert [c.effect for c in apart] == ["wind", "accel_bias"]
     # AIC: one more parameter costs 2
@@ -244,3 +246,8 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
     uncertified = cand("accel_bias", 3, 0.846, 12000.0)
     uncertified.fit = SimpleNamespace(converged=False)
     assert order_refitted([cand("wind", 2, 0.839, 4000.0), uncertified])[0].effect == "wind"
+    assert validation_ties(order_refitted([cand("wind", 2, 0.839, 4000.0), uncertified])) == []
+    # a validation nrmse that is not a number sorts last whatever the input order
+    nan = cand("cog_offset", 2, float("nan"), 9e9)
+    for order in ([nan, cand("wind", 2, 0.9, 1.0)], [cand("wind", 2, 0.9, 1.0), nan]):
+        assert [c.effect for c in order_refitted(order)] == ["wind", "cog_offset"]

@@ -57,12 +57,15 @@ from __future__ import annotations
 from .analysis import IMBALANCE_NOTABLE, CommandImbalance, Finding, command_imbalance, residual_analysis
 from .closed_loop import TIGHT_PROCESS_NOISE
 from .consistency import CONSISTENCY_MIN_CHANGE, CONSISTENCY_Z
+from .discovery import MAX_THRUST_SHIFT
 from .ranking import (ALPHA, COLD_CONTINUE, COLD_SCREEN_ITER, MAX_VALIDATION_LOSS, MIN_EXPLAINED, MIN_EXPLAINED_INADEQUATE,
-                      MIN_VALIDATION_GAIN, N_REFIT, default_candidates)
+                      MIN_VALIDATION_GAIN, N_REFIT, PARTNER_SCORE_SHARE, default_candidates, order_refitted,
+                      validation_ties)
 from .results import CandidateResult, Diagnosis, Discovered, DiscoveredTerm, Round
 from .screening import NEGLIGIBLE_FRACTION
 from .workflow import UNEXPLAINED_RATIO, diagnose, distinguishing_manoeuvre
 
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
            "MIN_VALIDATION_GAIN", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "distinguishing_manoeuvre",
-           "CommandImbalance", "command_imbalance", "default_candidates", "Discovered", "DiscoveredTerm"]
+           "CommandImbalance", "command_imbalance", "default_candidates", "Discovered", "DiscoveredTerm",
+           "order_refitted", "validation_ties", "PARTNER_SCORE_SHARE", "MAX_THRUST_SHIFT"]

@@ -3,6 +3,8 @@ candidate, refit the best few (or all of them from cold when the baseline is a c
 solution), test and confirm each on the validation data, and order them best first."""
 from __future__ import annotations
 
+import math
+
 import time
 from typing import Callable, Sequence
 
@@ -311,21 +313,40 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
 
 def order_refitted(refitted: Sequence[CandidateResult]) -> list[CandidateResult]:
     """Refitted candidates best first: significant, certified, the lowest validation
-    nrmse, the largest likelihood ratio; then, among certified significant candidates known
-    to explain the same data as the first (``Effect.distinguish``) whose validation nrmse is
-    within :data:`MIN_VALIDATION_GAIN` of its own, the validation cannot tell them apart and
-    the one the estimation data support better (likelihood ratio less twice its parameters,
-    as Akaike's criterion) goes first, its reason saying so."""
+    nrmse, the largest likelihood ratio; then, among the first and its
+    :func:`validation_ties`, the validation cannot tell them apart and the one the
+    estimation data support better (likelihood ratio less twice its parameters, as Akaike's
+    criterion) goes first, its reason saying so. Calling it again on its own output changes
+    nothing."""
     out = sorted(refitted, key=_order)
     _break_tie(out)
     return out
 
 
+def validation_ties(ranking: Sequence[CandidateResult]) -> list[CandidateResult]:
+    """The candidates of ``ranking`` (best first) that its validation data cannot tell from
+    the first: like it, significant with a certified refit, known to explain the same data
+    (``Effect.distinguish``), and with a validation nrmse within :data:`MIN_VALIDATION_GAIN`
+    of its own (either way). Empty when the first is not significant and certified."""
+    if not ranking or not _certified_significant(ranking[0]):
+        return []
+    first = ranking[0]
+    return [c for c in ranking[1:] if _certified_significant(c) and fx.confusable(first.effect, c.effect)
+            and max(c.nrmse_after, first.nrmse_after) <= (1 + MIN_VALIDATION_GAIN) * min(c.nrmse_after, first.nrmse_after)]
+
+
+def _certified_significant(c: CandidateResult) -> bool:
+    """Significant, its refit certified, and a finite validation nrmse to compare."""
+    return bool(c.significant and c.fit is not None and c.fit.converged and c.nrmse_after is not None
+                and math.isfinite(c.nrmse_after))
+
+
 def _order(c: CandidateResult) -> tuple:
     """Sort key of refitted candidates, best first: significant, certified, the lowest
-    validation nrmse, the largest likelihood ratio."""
+    validation nrmse (a non-finite one last), the largest likelihood ratio."""
+    nrmse = c.nrmse_after if c.nrmse_after is not None else 0.0
     return (not c.significant, not (c.significant and c.fit is not None and c.fit.converged),
-            (c.nrmse_after or 0.0) if c.significant else 0.0, -(c.lr or 0.0))
+            (nrmse if math.isfinite(nrmse) else math.inf) if c.significant else 0.0, -(c.lr or 0.0))
 
 
 def _best(refitted: Sequence[CandidateResult]) -> CandidateResult | None:
@@ -334,25 +355,27 @@ def _best(refitted: Sequence[CandidateResult]) -> CandidateResult | None:
     return min(sig, key=_order) if sig else None
 
 
+def aic_gain(c: CandidateResult) -> float:
+    """What the estimation data say for a refitted candidate, as Akaike's criterion: its
+    likelihood ratio less twice its number of parameters."""
+    return (c.lr or 0.0) - 2 * c.df
+
+
 def _break_tie(ranking: list[CandidateResult]) -> None:
     """:func:`order_refitted`'s tie rule on ``ranking`` sorted by :func:`_order`, in place."""
-    if not ranking or not ranking[0].significant:
+    ties = validation_ties(ranking)
+    if not ties:
         return
     first = ranking[0]
-    if first.fit is None or not first.fit.converged:
-        return
-    ties = [c for c in ranking if c.significant and c.fit is not None and c.fit.converged
-            and (c is first or (fx.confusable(first.effect, c.effect)
-                                and c.nrmse_after <= (1 + MIN_VALIDATION_GAIN) * first.nrmse_after))]
-    if len(ties) < 2:
-        return
-    pick = max(ties, key=lambda c: (c.lr or 0.0) - 2 * c.df)
+    pick = max([first] + ties, key=aic_gain)
     if pick is first:
         return
-    pick.reason += (f"; predicts the validation data as well as {first.effect} (nrmse {pick.nrmse_after:.3f} against "
-                    f"{first.nrmse_after:.3f}: within {100 * MIN_VALIDATION_GAIN:.0f} %, which cannot tell them "
-                    f"apart) and the estimation data better (LR {pick.lr:.1f} against {first.lr:.1f}), so it "
-                    f"goes first")
+    note = (f"; predicts the validation data as well as {first.effect} (nrmse {pick.nrmse_after:.3f} against "
+            f"{first.nrmse_after:.3f}: within {100 * MIN_VALIDATION_GAIN:.0f} %, which cannot tell them apart) and "
+            f"the estimation data better (LR less twice the parameters {aic_gain(pick):.1f} against "
+            f"{aic_gain(first):.1f}), so it goes first")
+    if note not in pick.reason:
+        pick.reason += note
     ranking.remove(pick)
     ranking.insert(0, pick)
 

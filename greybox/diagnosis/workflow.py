@@ -21,7 +21,8 @@ from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency
-from .ranking import MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates, rank_round
+from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, aic_gain, default_candidates,
+                      rank_round, validation_ties)
 from .results import Diagnosis, Round
 
 __all__ = ["diagnose", "UNEXPLAINED_RATIO", "distinguishing_manoeuvre"]
@@ -281,17 +282,15 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             and first[1].lr > 0.5 * first[0].lr:
         warnings.append(f"{first[0].effect} and {first[1].effect} both explain the data well; to tell them apart: "
                         f"{distinguishing_manoeuvre(first[0].effect, first[1].effect)}")
-    for k, rd in enumerate(rounds[1:], start=2):
-        # a later round's verdict with a confusable runner-up that validates as well
+    for k, rd in enumerate(rounds, start=1):
+        # a verdict with a confusable runner-up that validates as well (the tie rule's set)
         top = rd.ranking[0] if rd.verdict and rd.ranking else None
-        for c in (rd.ranking[1:] if top is not None and top.nrmse_after is not None else []):
-            if c.significant and c.nrmse_after is not None and fx.confusable(top.effect, c.effect) \
-                    and c.nrmse_after <= (1 + MIN_VALIDATION_GAIN) * top.nrmse_after:
-                why = ("it fits the estimation data better" if (top.lr or 0.0) - 2 * top.df >= (c.lr or 0.0) - 2 * c.df
-                       else "it validates better")
-                warnings.append(f"round {k}: {top.effect} and {c.effect} predict the validation data alike (nrmse "
-                                f"{top.nrmse_after:.3f} and {c.nrmse_after:.3f}); {top.effect} is taken as {why}; "
-                                f"to tell them apart: {distinguishing_manoeuvre(top.effect, c.effect)}")
+        for c in (validation_ties(rd.ranking) if top is not None else []):
+            why = ("it fits the estimation data better" if aic_gain(top) >= aic_gain(c)
+                   else "it validates better")
+            warnings.append(f"round {k}: {top.effect} and {c.effect} predict the validation data alike (nrmse "
+                            f"{top.nrmse_after:.3f} and {c.nrmse_after:.3f}); {top.effect} is taken as {why}; "
+                            f"to tell them apart: {distinguishing_manoeuvre(top.effect, c.effect)}")
     verdict = rounds[0].verdict if rounds else None
     for c in (rounds[0].ranking if rounds and verdict is None else []):
         if c.unconfirmable:

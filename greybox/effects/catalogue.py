@@ -25,8 +25,9 @@ SIGNAL_EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (SampledInpu
 """Effects beyond the catalogue, tied to what a log records (the timing of rotor speeds
 sampled between rows, the delay of logged commands, a command map, the battery voltage, the
 accelerometer's bias).
-Applied before the catalogue's effects, since they change the command; the timing first,
-since they move the logged command in time. ``diagnose`` considers ``sampled_inputs`` when
+Applied before the catalogue's effects, since those that act on the command change it
+for them (the timing first, since it moves the logged command in time; the accelerometer's
+bias acts on the measurement alone, so its place does not matter). ``diagnose`` considers ``sampled_inputs`` when
 the inputs are rotor speeds (``w1``), ``battery_voltage`` when the log has a ``vbat`` column,
 ``command_delay`` when it has ``pwm1`` (rotor speeds mapped from motor commands) and
 ``accel_bias`` when it measures the specific force (``ax``)."""

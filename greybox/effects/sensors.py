@@ -62,7 +62,9 @@ class AccelBias(Effect):
     ``a_meas = R^T(a - g e3) + acc_bias`` per body axis (m/s², FRD). It changes what the
     accelerometer reports, not how the vehicle moves: without it, a bias in ``ax`` or ``ay``
     is taken for a force that is not there (a wind indoors on a real Crazyflie flight).
-    Considered by the diagnosis when the log measures the specific force (``ax``).
+    Considered by the diagnosis when the log measures the specific force (``ax``). Shared
+    by the flights of a joint fit (one sensor; a bias that changes between power-ups calls
+    for separate fits).
     """
 
     name = "accel_bias"
@@ -72,7 +74,9 @@ class AccelBias(Effect):
     channels = ('ax', 'ay', 'az')
     considered_when_logged = ('ax',)
     distinguish = {'wind': 'fly in several directions: a wind moves the vehicle, a bias only the accelerometer',
-                   'attitude_bias': 'hover at several headings with the position logged'}
+                   'attitude_bias': 'hover with the position logged: an attitude bias tilts the thrust the vehicle '
+                                    'flies with (it drifts until the controller trims), an accelerometer bias moves '
+                                    'nothing'}
 
     def parameters(self, airframe):
         return [Parameter("acc_bias", 3, 0.0, "m/s^2", -3.0, 3.0, 0.1, 0.0, True,
@@ -87,6 +91,5 @@ class AccelBias(Effect):
 
     def modify_measurement(self, ctx, y):
         b = ctx.params["acc_bias"]
-        for i, ch in enumerate(("ax", "ay", "az")):
-            if ch in y:
-                y[ch] = y[ch] + b[i]
+        for i, ch in enumerate(("ax", "ay", "az")):     # the model's outputs always hold all three
+            y[ch] = y[ch] + b[i]
