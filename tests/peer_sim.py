@@ -80,7 +80,9 @@ class PeerVehicle:
     # flight envelope and flight plan scale
     distance: float = 1.0             # m, step size
     speed: float = 2.0                # m/s, figure-eight top speed
-    low_hover: float = 0.085          # m, hub height above the floor in the low hovers
+    # m, the low passes' reference: the CoG's at low_hover + hub_height above the floor (meant as
+    # the hubs' height; the vehicle stays above the reference in the 1.5-s hold)
+    low_hover: float = 0.085
     cruise_height: float = 1.0        # m
     # sensors
     log_rate: float = 1000.0
@@ -286,7 +288,7 @@ class FlightPlan:
     def __init__(self, veh: PeerVehicle, duration: float, rng: np.random.Generator,
                  low_hovers: bool):
         d, H = veh.distance, veh.cruise_height
-        low_z = -(veh.low_hover + veh.hub_height)          # CoG z of a low hover
+        low_z = -(veh.low_hover + veh.hub_height)          # CoG z of a low pass's reference
         sx, sy = rng.choice([-1.0, 1.0], size=2)
         # (duration of the move, target x, y, z, psi), each followed by a hold
         legs: list[tuple[float, float, float, float, float, float]] = []

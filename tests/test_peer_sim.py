@@ -469,7 +469,7 @@ def test_three_kg_weak_rotor_is_named_and_its_deviations_recovered(tmp_path):
 @pytest.mark.slow
 def test_three_kg_ground_effect_is_named_and_k_ge_is_the_truths_at_the_hubs(tmp_path):
     """3 kg, Cheeseman-Bennett ground effect per rotor at hubs 5 cm above the centre of
-    gravity, two dips to 0.2 m: with the airframe giving the hubs' height, the verdict is
+    gravity, two low passes (the CoG down to 0.22 m): with the airframe giving the hubs' height, the verdict is
     ``ground_effect`` and ``k_ge`` is the truth's ``(R/4)^2`` within 3 std. (With the rotors
     put in the CoG's plane, as ``airframe_text`` writes them by default, the same flights give
     k_ge 0.0013 against 0.0023: the parameter is the effect seen from where the airframe puts
