@@ -293,18 +293,19 @@ def test_disturbance_torque_state_removes_the_closed_loop_bias_of_b(tmp_path):
 
 @pytest.mark.slow
 def test_ground_effect_under_turbulence_is_found_with_the_torque_as_a_disturbance(tmp_path):
-    """A per-rotor ground effect (two low hovers at 8.5 cm) and a random torque (0.02 N m RMS,
+    """A per-rotor ground effect (two low passes, hubs down to 15 cm) and a random torque (0.02 N m RMS,
     1-s correlation) on the 1.2 kg vehicle. Against a baseline with process noise on every
     state the ground effect hides in the vertical process noise (its refit removed 0.0 % of
     the excess, all of which is in the rates) and the verdict was null. With nothing standing
     and the rates far off, the diagnosis judges the candidates again with the torque as a
     random-walk disturbance (process noise on it alone): the ground effect is named, k_ge is
-    the truth's at the hubs (6.25e-4) within 5 %, and the final model's K_T and b are within
-    5 % (b was 32 % low: the closed-loop bias)."""
+    the truth's ((R/4)^2 = 9e-4; the airframe gives the hubs' height, 3 cm above the CoG) within
+    5 %, and the final model's K_T and b are within 5 % (b was 32 % low: the closed-loop
+    bias)."""
     veh = PeerVehicle.one_kg()
     fx = PeerEffects(ground_effect=True, turbulence=0.02)
     flights = [fly(veh, duration=40.0, seed=s, effects=fx, low_hovers=True) for s in (1, 2)]
-    paths = [write_case(f, tmp_path, name=f"seed{s}") for s, f in zip((1, 2), flights)]
+    paths = [write_case(f, tmp_path, name=f"seed{s}", hub_heights=True) for s, f in zip((1, 2), flights)]
     model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
     d = diagnose(model, load_log(paths[0]["log"]), validation=load_log(paths[1]["log"]))
     assert d.baseline_certified
@@ -315,7 +316,7 @@ def test_ground_effect_under_turbulence_is_found_with_the_torque_as_a_disturbanc
     truth = flights[0].truth["greybox_equivalent"]
     assert final.value("K_T") == pytest.approx(truth["K_T"], rel=0.05)
     assert final.value("b") == pytest.approx(truth["b"], rel=0.05)
-    assert final.value("k_ge") == pytest.approx(6.25e-4, rel=0.05)
+    assert final.value("k_ge") == pytest.approx(truth["k_ge"], rel=0.05)
     assert any("as a disturbance" in w and "ground_effect is found" in w for w in d.warnings), d.warnings
     assert not d.unexplained
 
