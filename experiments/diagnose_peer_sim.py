@@ -26,7 +26,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 
-from peer_sim import PeerEffects, PeerVehicle, fly, write_case  # noqa: E402
+from peer_sim import PeerEffects, PeerSensors, PeerVehicle, fly, write_case  # noqa: E402
 
 from greybox import QuadrotorModel, load_airframe, load_log  # noqa: E402
 from greybox.diagnosis import diagnose  # noqa: E402
@@ -72,9 +72,13 @@ CASES = {
                               "ground_effect"),
     # thrust falling with the climb rate (inflow), outside the catalogue
     "1kg_inflow": (PeerVehicle.one_kg, PeerEffects(inflow=0.2), 20.0, "no catalogue effect"),
+    # what a real Crazyflie logs: the motor commands (PWM), not the speeds; the 20 ms motors in between
+    "cf_commands_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(), 25.0, "motor_lag",
+                          {"sensors": PeerSensors(log_commands=True)}),
+    "1kg_commands": (PeerVehicle.one_kg, PeerEffects(), 20.0, "motor_lag", {"sensors": PeerSensors(log_commands=True)}),
 }
-"""name: (vehicle, effects, duration s, what should be named[, airframe options of
-``peer_sim.airframe_text``]); what should be named: an effect, or a tuple of effects
+"""name: (vehicle, effects, duration s, what should be named[, options: those of
+``peer_sim.airframe_text``, and ``sensors``, a ``PeerSensors``]); what should be named: an effect, or a tuple of effects
 that must all be added (the first round's verdict among them), None for a null verdict,
 "outside" for an effect the catalogue does not hold, "no catalogue effect" for a null verdict of
 any kind (outside the catalogue or unexplained), "random torque" for a null verdict that says
@@ -84,9 +88,10 @@ torque is no function of the state that discovery could find)."""
 
 def run(name: str, work: Path) -> dict:
     make, fx, duration, expect, *options = CASES[name]
-    airframe_options = options[0] if options else {}
+    airframe_options = dict(options[0]) if options else {}
+    sensors = airframe_options.pop("sensors", None)
     veh = make()
-    flights = [fly(veh, duration=duration, seed=s, effects=fx, low_hovers=True) for s in (1, 2)]
+    flights = [fly(veh, duration=duration, seed=s, effects=fx, sensors=sensors, low_hovers=True) for s in (1, 2)]
     d = work / name
     paths = [write_case(f, d, name=f"seed{i + 1}", **airframe_options) for i, f in enumerate(flights)]
     model = QuadrotorModel(load_airframe(paths[0]["airframe"]))

@@ -405,6 +405,7 @@ class PeerSensors:
     accel: bool = False
     accel_noise: float = 0.05
     accel_bias: Sequence[float] | None = None   # m/s^2, added to the logged ax, ay, az
+    log_commands: bool = False           # log the controller's speed commands (as a PWM log does), not the ESCs' speeds
 
 
 @dataclass
@@ -436,6 +437,7 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
     n_warm = int(round(warm / dt))
     n = int(round(duration / log_dt))
     states = np.empty((n, 17))
+    commands = np.empty((n, 4))                  # the command the motors are receiving at each logged row
     w_cmd = np.full(4, veh.w_hover)
     turb_tau = 1.0
     for k in range(-n_warm, n * sub):
@@ -448,6 +450,7 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
                 dyn.disturbance = a * dyn.disturbance + math.sqrt(1 - a * a) * fx.turbulence * rng.standard_normal(3)
         if k >= 0 and k % sub == 0:
             states[k // sub] = s
+            commands[k // sub] = w_cmd
         s = dyn.rk4(s, w_cmd, dt)
         if not np.all(np.isfinite(s)):
             raise RuntimeError(f"peer_sim: the flight diverged at t = {t:.3f} s")
@@ -457,8 +460,8 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
     t_stamp = t_log + jitter
     t_stamp[0] = 0.0
     cols: dict[str, np.ndarray] = {"t": t_stamp}
-    w = states[:, 13:17].copy()
-    if veh.speed_quantum:
+    w = commands.copy() if sens.log_commands else states[:, 13:17].copy()
+    if veh.speed_quantum and not sens.log_commands:
         w = np.round(w / veh.speed_quantum) * veh.speed_quantum
     for i in range(4):
         cols[f"w{i + 1}"] = w[:, i]
@@ -514,6 +517,8 @@ def _truth(veh, fx, sens, seed, duration, dyn, ctrl) -> dict[str, Any]:
         eq["r_cog"] = [float(x) for x in fx.cog_offset][:2]
     if fx.wind is not None:
         eq["wind"] = [float(x) for x in fx.wind]
+    if sens.log_commands:
+        eq["tau_m"] = veh.tau_motor
     if sens.accel and sens.accel_bias is not None:
         eq["acc_bias"] = [float(x) for x in sens.accel_bias]
     return {"simulator": "peer_sim", "vehicle": asdict(veh), "effects": fx.active(),

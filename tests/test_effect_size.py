@@ -79,3 +79,24 @@ def test_a_log_prepared_for_a_model_with_more_inputs_is_read_with_this_models_in
     assert prepared.inputs.shape[1] == 5
     assert effect_accelerations(res, "wind", [prepared]) == pytest.approx(
         effect_accelerations(res, "wind", [log]))
+
+
+def test_an_input_timing_behind_a_motor_lag_is_not_judged_at_one_instant():
+    """``sampled_inputs`` changes what the motors are driven towards; with ``motor_lag`` the
+    thrust comes from the lag's own states, so at any one instant its force is exactly zero
+    (another simulator's 100 Hz command log had the timing set aside as 'physically
+    negligible: 0 m/s^2' while it moved tau_m by 20 %). Its size is then not judged this way;
+    without the lag the same timing acts on the thrust at once and is measured."""
+    base = QuadrotorModel(load_airframe(PAPER))
+    with_lag = base + effects.by_name("motor_lag")
+    log = synthesize(with_lag, with_lag.parameter_vector({"tau_m": 0.03}), duration=4.0, seed=3).log
+    lagged = with_lag + effects.by_name("sampled_inputs")
+    p = lagged.parameter_vector({"tau_m": 0.03, "s_lead": 0.5})
+    res = fit(lagged, log, p0=p, free=["K_T"])
+    assert effect_accelerations(res, "sampled_inputs", [log]) is None
+    assert physically_small(res, "sampled_inputs", [log]) == ""
+    held = base + effects.by_name("sampled_inputs")
+    q = held.parameter_vector({"s_lead": 0.5})
+    res2 = fit(held, log, p0=q, free=["K_T"])
+    da, dw, _, _ = effect_accelerations(res2, "sampled_inputs", [log])
+    assert dw > 0

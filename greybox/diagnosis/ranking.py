@@ -78,14 +78,15 @@ def far_channels(res: FitResult) -> list[str]:
 def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Sequence[FlightLog],
                val: Sequence[FlightLog],
                candidates: Sequence[str], compile: str, say: Callable[[str], None], n_refit: int,
-               nominated: Sequence[str] = (), min_explained_inadequate: float = MIN_EXPLAINED_INADEQUATE
-               ) -> list[CandidateResult]:
+               nominated: Sequence[str] = (), min_explained_inadequate: float = MIN_EXPLAINED_INADEQUATE,
+               min_explained: float = MIN_EXPLAINED) -> list[CandidateResult]:
     """Screen ``candidates`` against the fitted model ``res`` (validation prediction
     ``pred``), refit the ``n_refit`` best (or all, from cold, when the baseline has a
     parameter on a bound) and the ``nominated`` ones (effects the logged commands point at),
-    test and confirm each; the candidates best first. ``min_explained_inadequate``: the
-    share of what is missing a candidate must remove when the model stays far from the data
-    with it (:data:`MIN_EXPLAINED_INADEQUATE`)."""
+    test and confirm each; the candidates best first. ``min_explained``: the share of what is
+    missing a candidate must remove (:data:`MIN_EXPLAINED`); ``min_explained_inadequate``: the
+    share when the model stays far from the data with it (:data:`MIN_EXPLAINED_INADEQUATE`);
+    ``-inf`` for neither rule (the log's timing, which is no physics the model lacks)."""
     sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
     out: list[CandidateResult] = []
     for name in candidates:
@@ -200,7 +201,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         elif on_bound:
             cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but held on a bound: {on_bound}; "
                            "it stands in for something the model lacks")
-        elif cand.explained is not None and cand.explained < MIN_EXPLAINED:
+        elif cand.explained is not None and cand.explained < min_explained:
             cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but it removes only "
                            f"{100 * cand.explained:.1f} % of what the model misses above the sensor noise: it is "
                            "not what is missing")
