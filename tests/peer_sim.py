@@ -7,7 +7,8 @@ integrator (not ``solve_ivp``), a geometric SE(3) tracking controller (Lee, Leok
 McClamroch 2010) with integral action and a deliberately mismatched internal model (not a
 cascaded PID), explicit rotor tables in the Crazyflie firmware's order, an IMU-rate log with
 vision at 60 Hz that loses samples and whole stretches, timestamps with jitter, quantised
-ESC speed telemetry, and its own forms of the effects:
+ESC speed telemetry (or, ``PeerSensors(log_commands=True)``, the controller's speed commands
+as a PWM log has them, the motors' lag in between), and its own forms of the effects:
 
 * rotor drag at every hub on the hub's own air velocity ``R^T (v - wind) + omega x r_i``
   (so it also damps the body rates), ``F_i = -k_rd w_i P (...)`` with ``P = diag(1, 1, 0)``;
