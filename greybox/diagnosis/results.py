@@ -327,7 +327,7 @@ class Diagnosis:
                  ", ".join(f"{c} {v:.3f}" for c, v in b.nrmse.items()) + ")"]
         if self.input_timing:
             t = self.input_timing
-            with_ = t.get("judged_with") or []
+            with_ = t["judged_with"]
             lines.append(f"   with the log's timing ({t['effect']}, s_lead = {t['s_lead']:.3g} ± {t['s_lead_std']:.2g}: "
                          f"the rotor speeds are samples of a signal varying between rows; "
                          + (f"the model as given: {t['nrmse_before']:.3f})" if not with_ else

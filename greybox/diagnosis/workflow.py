@@ -297,8 +297,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             warnings.append(f"{c.effect} is significant in the fit (p = {c.p_value:.2g}) but the validation data do "
                             f"not exercise it, so it could not be confirmed: validate on a flight that does "
                             f"(validation=, --validation LOG2)")
-    if timing_candidate and timing is None and cur_res is not res and cur_res.converged \
-            and timing_candidate not in cur_model.effects:
+    if timing_candidate and timing is None and cur_res is not res and cur_res.converged:
         # Judged against a baseline far off (a missing effect dominating), the log's timing is
         # not significant; against the model with the verdicts it may be. Left out, its half
         # sample of lag goes into what the verdicts fit (another simulator's 30 g vehicle, motor
