@@ -84,14 +84,22 @@ def run(path: Path, out: Path) -> dict:
     diag = diagnose(model, imp.log, process_noise="auto", progress=True, horizon=HORIZON)
     base, final = diag.baseline, diag.final_fit or diag.baseline
     est, _ = imp.log.split(0.8)
-    w2 = (est.inputs[:, :4] ** 2).sum(axis=1)
+    w2 = est.inputs[:, :4] ** 2
 
     def hover(res):
-        kt = res.value("K_T")
-        scale = 1.0
-        if "K_vbat" in res.model.param_names:
-            scale = (1 + res.value("K_vbat") * (est.extras["vbat"] - 4.0)) ** 2
-        thrust = kt * np.mean(w2 * scale)
+        """The model's mean rotor thrust over the estimation data / the weight, with every
+        thrust factor the model has: battery voltage, a drift in time (K_T is its value at the
+        log's start), per-rotor deviations."""
+        names = res.model.param_names
+        scale = np.ones_like(w2)
+        if "K_vbat" in names:
+            scale *= ((1 + res.value("K_vbat") * (est.extras["vbat"] - 4.0)) ** 2)[:, None]
+        if "K_T_drift" in names:
+            scale *= (1 + res.value("K_T_drift") * est.t)[:, None]
+        if "K_T_dev[0]" in names:
+            dev = [res.value(f"K_T_dev[{i}]") for i in range(3)]
+            scale *= 1 + np.array(dev + [-sum(dev)])
+        thrust = res.value("K_T") * np.mean((w2 * scale).sum(axis=1))
         return float(thrust / (af.mass * af.gravity))
 
     drag = imu_drag(est, out / f"imu_drag_{name}.png", name)

@@ -358,7 +358,8 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
                     iterate=opts.iterate, p0=p0, process_noise=opts.process_noise, progress=False,
                     discover=opts.discover)
     base = diag.baseline
-    files["fit.json"] = _json_bytes(fit_json(model, base, [diag.baseline_prediction], [flight.path]))
+    files["fit.json"] = _json_bytes(fit_json(model, base, [diag.baseline_prediction], [flight.path],
+                                                  horizons=diag.baseline_horizons))
     files["diagnose.json"] = _json_bytes(diag.as_json())
     files["model.json"] = _json_bytes(diag.fitted_model.to_dict())
     # what the fleet comparison reads: the final model's parameters, their std widened by the
@@ -416,7 +417,7 @@ def run_fleet(flights: Sequence[Flight], opts: Options, nuisance: Sequence[str] 
                   per_flight=list(opts.per_flight) if isinstance(opts.per_flight, tuple) else opts.per_flight)
     preds = [predict(model, res.flight_p(i), val, **prediction_options(res)) for i, (_, val) in enumerate(parts)]
     from .residuals import std_widening
-    fitj = fit_json(model, res, preds, [f.path for f in flights])
+    fitj = fit_json(model, res, preds, [f.path for f in flights], est=[est for est, _ in parts])
     fitj["std_factor"] = std_widening(res, [est for est, _ in parts])
     return {"fit": fitj, "model": res.to_dict(),
             "converged": bool(res.converged), "status": res.status, "wall_s": round(time.perf_counter() - t0, 3)}

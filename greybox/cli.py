@@ -399,7 +399,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
               "  ".join(f"{c}={v:.3f}" for c, v in pred.nrmse.items()))
     # the error-against-horizon report predicts the validation part again from many starts:
     # only when a file shows it
-    he = horizon_errors_after(res, preds, [res.flight_p(i) for i in range(len(preds))]) \
+    he = horizon_errors_after(res, preds, [res.flight_p(i) for i in range(len(preds))], est=[e for e, _ in parts]) \
         if args.json or args.plots else None
     if len(logs) > 1:
         print(f"validation, mean over {len(logs)} flights: nrmse {float(np.mean([pr.total for pr in preds])):.4f}")

@@ -145,14 +145,15 @@ def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str)
     return log
 
 
-def fit_json(model: QuadrotorModel, res, preds, sources, horizons=None) -> dict:
+def fit_json(model: QuadrotorModel, res, preds, sources, horizons=None, est=None) -> dict:
     """The whole ``greybox fit --json`` document of a fit validated by ``preds`` (one
     prediction per flight, named by ``sources``): parameters, validation, horizons (``horizons``,
-    a :class:`~greybox.validation.HorizonErrors`, when already computed) and the extra keys
-    (also written by ``greybox batch``)."""
+    a :class:`~greybox.validation.HorizonErrors`, when already computed; else computed, with
+    the fit's estimation flights ``est`` when given) and the extra keys (also written by
+    ``greybox batch``)."""
     from .validation import horizon_errors_after
     if horizons is None:
-        horizons = horizon_errors_after(res, preds, [res.flight_p(i) for i in range(len(preds))])
+        horizons = horizon_errors_after(res, preds, [res.flight_p(i) for i in range(len(preds))], est=est)
     return {**fit_result_json(model, res, _combined_validation(preds, sources)), "horizons": horizons.as_dict()}
 
 

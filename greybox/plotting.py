@@ -259,8 +259,9 @@ def horizons(he: "HorizonErrors | Prediction", ax: "Axes | None" = None, path: s
     nrows = int(math.ceil(len(chans) / ncols))
     fig_, axs, _ = _grid(ax, axes, fig, nrows, ncols, (4 * ncols, 2.6 * nrows + 0.6))
     flat = list(axs.ravel())
+    label = "model, moment held" if getattr(he, "predictor", {}).get("held_moment") else "model"
     for a, ch in zip(flat, chans):
-        a.loglog(he.horizons, he.model[ch], "o-", color="C0", label="model")
+        a.loglog(he.horizons, he.model[ch], "o-", color="C0", label=label)
         a.loglog(he.horizons, he.naive[ch], "s--", color="C3", label="naive")
         a.set_title(ch, fontsize=9)
         a.set_xlabel("horizon (s)")

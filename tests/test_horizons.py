@@ -131,8 +131,9 @@ def test_a_held_moment_predicts_a_vehicle_whose_controller_trims_out_a_moment_th
     controller trims out a constant roll/pitch moment the logged commands show only as a
     difference, and the model (without ``cog_offset``) lacks it. After a process-noise fit,
     holding the moment estimated at each window's start brings roll and pitch at 0.25 s below
-    the predictions without it. It is an option: the fit's horizons report goes without it
-    (on real flights it made roll and pitch worse)."""
+    the predictions without it. The fit's horizons report takes it when it predicts the
+    estimation flight better (validation.choose_horizon_predictor), and only then: on real
+    flights whose model predicts attitude well it made roll and pitch worse."""
     from foreign_sim import airframe_dict, crazyflie, simulate_flight
     from greybox import fit
     from greybox.airframe import airframe_from_dict
@@ -150,9 +151,20 @@ def test_a_held_moment_predicts_a_vehicle_whose_controller_trims_out_a_moment_th
         assert held.model[ch][k] < 0.7 * plain.model[ch][k], ch
     opts = prediction_options(res)
     assert opts["init_window"] == 0.05
-    # the fit's report goes without the held moment, from the start the fit chose
-    report = horizon_errors_after(res, [predict(model, res.p, val, **opts)], [res.p])
+    # without its estimation flights the fit's report goes without the held moment, from the
+    # start the fit chose
+    pred = predict(model, res.p, val, **opts)
+    report = horizon_errors_after(res, [pred], [res.p])
     assert report.model["phi"] == pytest.approx(horizon_errors(model, res.p, val, **opts).model["phi"])
+    assert report.predictor == {"init_window": 0.05, "measured_start": opts.get("measured_start", False),
+                                "held_moment": False}
+    # with them, it takes the held moment, chosen on the estimation data, and predicts the
+    # validation flight's roll and pitch better 0.25 s ahead
+    chosen = horizon_errors_after(res, [pred], [res.p], est=[est])
+    assert chosen.predictor["held_moment"] is True
+    assert set(chosen.as_dict()) == {"horizons", "model", "naive"}      # the contract's keys
+    for ch in ("phi", "theta"):
+        assert chosen.model[ch][k] < 0.7 * report.model[ch][k], ch
 
 
 def test_overlapping_windows_score_many_more_starts_and_reduce_to_the_consecutive_ones():
@@ -218,8 +230,8 @@ def test_measured_start_is_chosen_only_where_the_estimate_drifts():
     predicts best from the estimate at every window, and keeps it."""
     from foreign_sim import airframe_dict, crazyflie, simulate_flight
     from greybox.airframe import airframe_from_dict
-    from greybox.validation import (INIT_WINDOW_HORIZON, choose_measured_start, choose_start,
-                                    predict_flights)
+    from greybox.validation import (INIT_WINDOW_HORIZON, choose_horizon_predictor, choose_measured_start,
+                                    choose_start, predict_flights)
 
     truth = crazyflie(inertia=(4.2e-5, 4.2e-5, 2.2e-5))
     log = simulate_flight(truth, duration=10.0, seed=3).log
@@ -236,6 +248,10 @@ def test_measured_start_is_chosen_only_where_the_estimate_drifts():
         assert not choose_measured_start(right, right.default_parameters(), log, w)
     window, measured = choose_start(right, right.default_parameters(), log)
     assert not measured and window in (0.05, 0.1, 0.2, 0.5)
+    # nor does the right model's horizon report hold a moment: estimated from a few samples it
+    # would only add their noise
+    opts = {"init_window": window, "measured_start": measured}
+    assert choose_horizon_predictor(right, right.default_parameters(), log, opts) == opts
 
 
 def test_a_start_state_the_stretch_does_not_measure_stays_at_its_guess():

@@ -13,7 +13,7 @@ from .. import effects as fx
 from ..data import FlightLog
 from ..effects.discovered import CHANNEL_UNITS, DiscoveredEffect, discovered_effect_class, effect_file_text
 from ..fitting import FitResult
-from ..model import QuadrotorModel
+from ..model import OUTPUTS, QuadrotorModel
 from ..validation import HorizonErrors, Prediction
 from .analysis import CommandImbalance, Finding
 from .closed_loop import rate_levels
@@ -367,9 +367,29 @@ class Diagnosis:
         lines.append("   final model: " + ", ".join(
             f"{n} = {fm.value(n):.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "")
             for n, s in zip(fm.free_names, fm.std)))
+        lines += self._horizon_lines()
         lines += self._discovery_lines()
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
+
+    def _horizon_lines(self) -> list[str]:
+        """The final model against the naive predictor at 0.25 and 0.5 s, and how its windows
+        started when a moment was held (validation.choose_horizon_predictor)."""
+        he = self.final_horizons
+        if he is None:
+            return []
+        beats = []
+        for h in (0.25, 0.5):
+            if not any(abs(x - h) < 1e-9 for x in he.horizons):
+                continue
+            chans = [ch for ch in he.model if ch in OUTPUTS[:6] and he.beats_naive(ch, h)]   # positions, angles
+            beats.append(f"{h:g} s: {', '.join(chans) or 'none'}")
+        if not beats:
+            return []
+        held = he.predictor.get("held_moment")
+        return ["   beats the naive predictor (constant velocity and body rates) on " + "; ".join(beats) +
+                (f" (its windows hold a roll and pitch moment estimated with the start state over "
+                 f"{he.predictor['init_window']:g} s: it predicts the estimation data better so)" if held else "")]
 
     @property
     def best_discovery(self) -> Discovered | None:

@@ -321,10 +321,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      input_timing=timing, closed_loop_fit=yaw.fit)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
-                                                  compile=compile)
+                                                  compile=compile, est=est)
     diag.final_horizons = diag.baseline_horizons if cur_res is res else \
         horizon_errors_after(cur_res, cur_pred.parts or [cur_pred], validation_vectors(cur_res, est, val),
-                             compile=compile)
+                             compile=compile, est=est)
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
