@@ -218,9 +218,10 @@ def test_explained_fraction_is_the_share_of_the_residual_above_the_noise_removed
 def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_data():
     """Two certified, significant candidates that explain the same (wind and an accelerometer
     bias: each names the other in ``distinguish``) and validate within 5 % of each other: the
-    validation cannot tell them apart, so the larger likelihood ratio less twice the
-    parameters goes first, and says why. Beyond 5 %, or for effects not known to be
-    confusable, the validation nrmse orders them as before."""
+    validation cannot tell them apart, so one that changes only what a sensor reports goes
+    before one that moves the vehicle, and between two of a kind the larger likelihood ratio
+    less twice the parameters goes first; each says why. Beyond 5 %, or for effects not known
+    to be confusable, the validation nrmse orders them as before."""
     from types import SimpleNamespace
     from greybox.diagnosis import CandidateResult, order_refitted, validation_ties
 
@@ -238,9 +239,18 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
     assert [c.effect for c in validation_ties(tied)] == ["wind"]
     apart = order_refitted([cand("wind", 2, 0.70, 4000.0), cand("accel_bias", 3, 0.846, 12000.0)])
     assert [c.effect for c in apart] == ["wind", "accel_bias"]
-    # AIC: one more parameter costs 2
-    close = order_refitted([cand("wind", 2, 0.839, 4000.0), cand("accel_bias", 3, 0.846, 4001.0)])
-    assert [c.effect for c in close] == ["wind", "accel_bias"]
+    # the sensor's offset goes first though the wind fits the estimation data better (a real
+    # Crazyflie flight indoors: LR 12317 against 4254)
+    sensor = order_refitted([cand("wind", 2, 0.839, 12317.0), cand("accel_bias", 3, 0.846, 4254.0)])
+    assert [c.effect for c in sensor] == ["accel_bias", "wind"]
+    assert "changes only what a sensor reports where wind moves the vehicle" in sensor[0].reason
+    assert order_refitted(sensor)[0].reason == sensor[0].reason
+    # two that move the vehicle (a CoG offset and a weak rotor): AIC, one more parameter costs 2
+    close = order_refitted([cand("cog_offset", 2, 0.839, 4000.0), cand("motor_asymmetry", 3, 0.846, 4001.0)])
+    assert [c.effect for c in close] == ["cog_offset", "motor_asymmetry"]
+    swapped = order_refitted([cand("cog_offset", 2, 0.839, 4000.0), cand("motor_asymmetry", 3, 0.846, 4010.0)])
+    assert [c.effect for c in swapped] == ["motor_asymmetry", "cog_offset"]
+    assert "the estimation data better" in swapped[0].reason
     unrelated = order_refitted([cand("wind", 2, 0.839, 4000.0), cand("ground_effect", 1, 0.846, 12000.0)])
     assert [c.effect for c in unrelated] == ["wind", "ground_effect"]
     uncertified = cand("accel_bias", 3, 0.846, 12000.0)

@@ -321,3 +321,33 @@ def test_accel_bias_adds_to_the_specific_force_only(base):
     np.testing.assert_allclose(rhs(m, x, u, p1), rhs(m, x, u, p0), atol=1e-12)
     assert effects.confusable("accel_bias", "wind") and effects.confusable("wind", "accel_bias")
     assert not effects.confusable("accel_bias", "ground_effect")
+
+
+def test_measurement_only_effects_change_what_a_sensor_reports_not_the_motion():
+    """What the diagnosis's tie rule reads: the sensor effects change the output map alone (the
+    same trajectory, other readings); a wind or a CoG offset changes the motion."""
+    import casadi as ca
+    from greybox.effects import Effect, measurement_only
+    assert [n for n in ("accel_bias", "attitude_bias", "position_delay", "wind", "cog_offset", "motor_lag")
+            if measurement_only(n)] == ["accel_bias", "attitude_bias", "position_delay"]
+    assert not measurement_only("no_such_effect")
+
+    class Reading(Effect):
+        name = "reading_offset"
+
+        def modify_measurement(self, ctx, y):
+            y["z"] = y["z"] + 0.1
+
+    class Push(Reading):
+        name = "push"
+
+        def add_forces(self, ctx):
+            ctx.force_world += ca.vertcat(0.1, 0, 0)
+    assert Reading.measurement_only() and not Push.measurement_only()
+    # by the model: a measurement-only effect leaves the state derivative as it was
+    m = QuadrotorModel(make_airframe("plus"))
+    x, u = np.zeros(12), np.full(4, 400.0)
+    for name in ("accel_bias", "attitude_bias"):
+        ext = m + effects.by_name(name)
+        p = ext.parameter_vector({k: 0.05 for k in ext.parameter_dict(ext.default_parameters()) if "bias" in k})
+        assert np.allclose(np.asarray(ext.rhs(x, u, p, 0.0)).ravel()[:12], np.asarray(m.rhs(x, u, m.default_parameters(), 0.0)).ravel())

@@ -130,6 +130,15 @@ class Effect:
     def modify_measurement(self, ctx: ModelContext, y: dict[str, ca.SX]) -> None:
         pass
 
+    @classmethod
+    def measurement_only(cls) -> bool:
+        """Whether the effect changes only what a sensor reports, not how the vehicle moves: it
+        overrides :meth:`modify_measurement` and none of :meth:`modify`, :meth:`add_forces`,
+        :meth:`state_derivative` (``accel_bias``, ``attitude_bias``)."""
+        motion = ("modify", "add_forces", "state_derivative")
+        return (cls.modify_measurement is not Effect.modify_measurement
+                and all(getattr(cls, hook) is getattr(Effect, hook) for hook in motion))
+
     def plausible_limits(self, airframe: "Airframe") -> dict[str, float]:
         """The largest magnitude ``|value - null|`` each parameter can physically have on this
         airframe (``{name: limit}``); a fit beyond it has the parameter standing in for

@@ -17,7 +17,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..airframe import Airframe
 
 __all__ = ["register", "unregister", "load_effects_file", "known_effects", "registered_effects", "effect_class",
-           "by_name", "confusable", "distinguishing_manoeuvre", "parse_effect_names", "example_values", "ENTRY_POINT_GROUP"]
+           "by_name", "confusable", "measurement_only", "distinguishing_manoeuvre", "parse_effect_names", "example_values", "ENTRY_POINT_GROUP"]
 
 
 _REGISTERED: dict[str, type[Effect]] = {}     # user effects: register(), files, entry points
@@ -195,6 +195,13 @@ def confusable(a: str, b: str) -> bool:
     known = known_effects()
     ca_, cb = known.get(a), known.get(b)
     return bool((ca_ is not None and b in ca_.distinguish) or (cb is not None and a in cb.distinguish))
+
+
+def measurement_only(name: str) -> bool:
+    """Whether the known effect ``name`` changes only what a sensor reports
+    (:meth:`~greybox.effects.Effect.measurement_only`); False for an unknown name."""
+    cls = known_effects().get(name)
+    return bool(cls is not None and cls.measurement_only())
 
 
 def distinguishing_manoeuvre(a: str, b: str) -> str:
