@@ -219,8 +219,8 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
     """Two certified, significant candidates that explain the same (wind and an accelerometer
     bias: each names the other in ``distinguish``) and validate within 5 % of each other: the
     validation cannot tell them apart, so one that changes only what a sensor reports goes
-    before one that moves the vehicle, and between two of a kind the larger likelihood ratio
-    less twice the parameters goes first; each says why. Beyond 5 %, or for effects not known
+    before a condition of the flight (a wind), and otherwise the larger likelihood ratio less
+    twice the parameters goes first; each says why. Beyond 5 %, or for effects not known
     to be confusable, the validation nrmse orders them as before."""
     from types import SimpleNamespace
     from greybox.diagnosis import CandidateResult, order_refitted, validation_ties
@@ -243,9 +243,13 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
     # Crazyflie flight indoors: LR 12317 against 4254)
     sensor = order_refitted([cand("wind", 2, 0.839, 12317.0), cand("accel_bias", 3, 0.846, 4254.0)])
     assert [c.effect for c in sensor] == ["accel_bias", "wind"]
-    assert "changes only what a sensor reports where wind moves the vehicle" in sensor[0].reason
+    assert "where wind is a condition of this flight" in sensor[0].reason
+    assert "accel_bias, an offset of a sensor on every flight, explains as much" in sensor[0].reason
     assert order_refitted(sensor)[0].reason == sensor[0].reason
-    # two that move the vehicle (a CoG offset and a weak rotor): AIC, one more parameter costs 2
+    # a sensor and a property of the vehicle, both on every flight (an attitude bias and a CoG
+    # offset), or two properties (a CoG offset and a weak rotor): AIC, one more parameter costs 2
+    sensor_vehicle = order_refitted([cand("cog_offset", 2, 0.839, 4000.0), cand("attitude_bias", 2, 0.846, 3000.0)])
+    assert [c.effect for c in sensor_vehicle] == ["cog_offset", "attitude_bias"]
     close = order_refitted([cand("cog_offset", 2, 0.839, 4000.0), cand("motor_asymmetry", 3, 0.846, 4001.0)])
     assert [c.effect for c in close] == ["cog_offset", "motor_asymmetry"]
     swapped = order_refitted([cand("cog_offset", 2, 0.839, 4000.0), cand("motor_asymmetry", 3, 0.846, 4010.0)])

@@ -317,10 +317,11 @@ def order_refitted(refitted: Sequence[CandidateResult]) -> list[CandidateResult]
     nrmse, the largest likelihood ratio; then, among the first and its
     :func:`validation_ties`, the validation cannot tell them apart: an effect that changes
     only what a sensor reports (:meth:`Effect.measurement_only
-    <greybox.effects.Effect.measurement_only>`) goes before those that move the vehicle, and
-    among the rest the one the estimation data support better (likelihood ratio less twice
-    its parameters, as Akaike's criterion) goes first, its reason saying so. Calling it again
-    on its own output changes nothing."""
+    <greybox.effects.Effect.measurement_only>`) goes before one that is a condition of the
+    flight (:attr:`Effect.per_flight <greybox.effects.Effect.per_flight>`: a wind), and
+    otherwise the one the estimation data support better (likelihood ratio less twice its
+    parameters, as Akaike's criterion) goes first, its reason saying so. Calling it again on
+    its own output changes nothing."""
     out = sorted(refitted, key=_order)
     _break_tie(out)
     return out
@@ -371,24 +372,26 @@ def _break_tie(ranking: list[CandidateResult]) -> None:
         return
     first = ranking[0]
     group = [first] + ties
-    # The smaller claim first: that the vehicle flew as the model says and one instrument reads
-    # off (a MEMS accelerometer's zero-g offset, 20-80 mg, is on every vehicle) rather than that
-    # a force acted which must come from somewhere. On a real Crazyflie flight indoors a wind
-    # and an accelerometer bias tied on validation, and the wind won on the estimation data by
-    # what it moved through other effects (drag on the air-relative speed); refitted on the
-    # round's model fitted afresh (its own noise levels) the bias fitted better: the estimation
-    # data do not settle it.
-    sensors = [c for c in group if fx.measurement_only(c.effect)]
-    by_sensor = bool(sensors) and len(sensors) < len(group)
-    pick = max(sensors if by_sensor else group, key=aic_gain)
+    # A sensor's offset before the day's conditions: the offset is the vehicle's and on every
+    # flight (a MEMS accelerometer's zero-g offset is 20-80 mg), a wind is a claim about that
+    # flight's air, which indoors is still. On a real Crazyflie flight indoors a wind and an
+    # accelerometer bias tied on validation; the wind won on the estimation data by what it moved
+    # through other effects (drag on the air-relative speed), and refitted on the round's model
+    # fitted afresh (its own noise levels) the bias fitted better: the estimation data do not
+    # settle it. Between a sensor and a vehicle property (a CoG offset, a motor lag), both on
+    # every flight, they still decide.
+    sensor = next((c for c in group if fx.measurement_only(c.effect)), None)
+    by_sensor = sensor is not None and any(fx.per_flight(c.effect) for c in group)
+    pick = max([c for c in group if not fx.per_flight(c.effect)] if by_sensor else group, key=aic_gain)
     if pick is first:
         return
     tie = (f"; predicts the validation data as well as {first.effect} (nrmse {pick.nrmse_after:.3f} against "
            f"{first.nrmse_after:.3f}: within {100 * MIN_VALIDATION_GAIN:.0f} %, which cannot tell them apart)")
-    if by_sensor:
-        note = (f"{tie} and changes only what a sensor reports where {first.effect} moves the vehicle: the smaller "
-                f"claim (an instrument's offset is on every vehicle, a force must come from somewhere), so it goes "
-                f"first (LR less twice the parameters {aic_gain(pick):.1f} against {aic_gain(first):.1f})")
+    if by_sensor and fx.per_flight(first.effect):
+        note = (f"{tie}, where {first.effect} is a condition of this flight (the air's, which indoors is still) and "
+                f"{sensor.effect}, an offset of a sensor on every flight, explains as much: the condition is not "
+                f"taken, so it goes first (LR less twice the parameters {aic_gain(pick):.1f} against "
+                f"{aic_gain(first):.1f})")
     else:
         note = (f"{tie} and the estimation data better (LR less twice the parameters {aic_gain(pick):.1f} against "
                 f"{aic_gain(first):.1f}), so it goes first")

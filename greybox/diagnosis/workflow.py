@@ -286,8 +286,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # a verdict with a confusable runner-up that validates as well (the tie rule's set)
         top = rd.ranking[0] if rd.verdict and rd.ranking else None
         for c in (validation_ties(rd.ranking) if top is not None else []):
-            why = (f"it changes only what a sensor reports, where {c.effect} moves the vehicle (the smaller claim)"
-                   if fx.measurement_only(top.effect) and not fx.measurement_only(c.effect)
+            why = (f"it is an offset of a sensor, on every flight, where {c.effect} is a condition of this flight"
+                   if fx.measurement_only(top.effect) and fx.per_flight(c.effect)
                    else "it fits the estimation data better" if aic_gain(top) >= aic_gain(c) else "it validates better")
             warnings.append(f"round {k}: {top.effect} and {c.effect} predict the validation data alike (nrmse "
                             f"{top.nrmse_after:.3f} and {c.nrmse_after:.3f}); {top.effect} is taken as {why}; "

@@ -17,7 +17,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..airframe import Airframe
 
 __all__ = ["register", "unregister", "load_effects_file", "known_effects", "registered_effects", "effect_class",
-           "by_name", "confusable", "measurement_only", "distinguishing_manoeuvre", "parse_effect_names", "example_values", "ENTRY_POINT_GROUP"]
+           "by_name", "confusable", "measurement_only", "per_flight", "distinguishing_manoeuvre", "parse_effect_names", "example_values", "ENTRY_POINT_GROUP"]
 
 
 _REGISTERED: dict[str, type[Effect]] = {}     # user effects: register(), files, entry points
@@ -202,6 +202,13 @@ def measurement_only(name: str) -> bool:
     (:meth:`~greybox.effects.Effect.measurement_only`); False for an unknown name."""
     cls = known_effects().get(name)
     return bool(cls is not None and cls.measurement_only())
+
+
+def per_flight(name: str) -> bool:
+    """Whether the known effect ``name`` is a condition of one flight rather than the vehicle's
+    (:attr:`~greybox.effects.Effect.per_flight`: the day's wind); False for an unknown name."""
+    cls = known_effects().get(name)
+    return bool(cls is not None and cls.per_flight)
 
 
 def distinguishing_manoeuvre(a: str, b: str) -> str:
