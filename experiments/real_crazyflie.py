@@ -87,9 +87,9 @@ def run(path: Path, out: Path) -> dict:
     w2 = est.inputs[:, :4] ** 2
 
     def hover(res):
-        """The model's mean rotor thrust over the estimation data / the weight, with every
-        thrust factor the model has: battery voltage, a drift in time (K_T is its value at the
-        log's start), per-rotor deviations."""
+        """The model's mean rotor thrust over the estimation data / the weight, with the thrust
+        factors of battery_voltage, thrust_drift (K_T is its value at the log's start) and
+        motor_asymmetry (per-rotor deviations); not a ground effect's or a rotor map's."""
         names = res.model.param_names
         scale = np.ones_like(w2)
         if "K_vbat" in names:

@@ -154,7 +154,8 @@ def fit_json(model: QuadrotorModel, res, preds, sources, horizons=None, est=None
     from .validation import horizon_errors_after
     if horizons is None:
         horizons = horizon_errors_after(res, preds, [res.flight_p(i) for i in range(len(preds))], est=est)
-    return {**fit_result_json(model, res, _combined_validation(preds, sources)), "horizons": horizons.as_dict()}
+    return {**fit_result_json(model, res, _combined_validation(preds, sources)), "horizons": horizons.as_dict(),
+            "horizons_predictor": dict(horizons.predictor)}
 
 
 def _combined_validation(preds, sources) -> dict:

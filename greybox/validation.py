@@ -219,7 +219,8 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
     the commands do not show, and hold it over the window (:class:`~greybox.effects.HeldMoment`,
     a disturbance model; ``p`` is unchanged: it has no parameters). It helps where a constant
     moment is missing from the model (a simulated CoG offset); on real Crazyflie flights it made
-    roll and pitch worse, and greybox's own reports do not use it.
+    roll and pitch worse; greybox's horizon reports use it only where it predicts the estimation
+    data better (:func:`choose_horizon_predictor`).
 
     ``measured_start``: each window starts from the measured attitude and body rates (the
     rest from the estimate; see :func:`estimate_states`).
@@ -658,7 +659,7 @@ def horizon_errors_after(res, preds: "Sequence[Prediction]", ps: "Sequence[np.nd
     them better (:func:`choose_horizon_predictor`)."""
     options = prediction_options(res)
     if est is not None:
-        est = list(est)
+        est = [est] if isinstance(est, FlightLog) else list(est)
         flight_p = getattr(res, "flight_p", None)
         est_ps = [flight_p(i) for i in range(len(est))] if flight_p is not None else [res.p] * len(est)
         options = choose_horizon_predictor(res.model, est_ps, est, options, compile=compile)
@@ -708,7 +709,8 @@ def choose_horizon_predictor(model: QuadrotorModel, p: "np.ndarray | Sequence[np
         held = {"init_window": w, "measured_start": measured, "held_moment": True}
         try:
             score = predict_flights(model, p, tails, horizon=INIT_WINDOW_HORIZON, compile=compile, **held).total
-        except GreyboxInputError:
+        except (GreyboxInputError, ValueError, np.linalg.LinAlgError, RuntimeError):
+            # an option of the report only: where it cannot be scored, the fit's own start stands
             continue
         if score < best:
             best, chosen = score, held

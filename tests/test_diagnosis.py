@@ -70,6 +70,7 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert set(r["baseline"]) == {"nrmse", "channels", "horizon", "horizons"} and "psi" in r["baseline"]["channels"]
     assert r["baseline"]["horizon"] == 0.5              # the validation that confirms: 0.5 s ahead
     assert set(r["baseline"]["horizons"]) == {"horizons", "model", "naive"}
+    assert set(r["horizons_predictor"]["baseline"]) == {"init_window", "measured_start", "held_moment"}
     assert r["verdict"] == "yaw_torque"
     first = r["ranking"][0]
     assert first["effect"] == "yaw_torque" and first["significant"] is True
@@ -243,8 +244,14 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
     # Crazyflie flight indoors: LR 12317 against 4254)
     sensor = order_refitted([cand("wind", 2, 0.839, 12317.0), cand("accel_bias", 3, 0.846, 4254.0)])
     assert [c.effect for c in sensor] == ["accel_bias", "wind"]
-    assert "where wind is a condition of this flight" in sensor[0].reason
-    assert "accel_bias, an offset of a sensor on every flight, explains as much" in sensor[0].reason
+    assert ("wind is a condition of this flight where accel_bias, which changes only what a sensor reports and is "
+            "there on every flight, explains as much") in sensor[0].reason
+    # a sensor that ties with the wind though not with the first (a rotor drag, which it cannot
+    # stand in for): the wind is still not taken
+    chain = order_refitted([cand("rotor_drag", 1, 0.800, 100.0), cand("wind", 2, 0.820, 12317.0),
+                            cand("accel_bias", 3, 0.835, 4254.0)])
+    assert chain[0].effect == "accel_bias", [c.effect for c in chain]
+    assert order_refitted(chain)[0].effect == "accel_bias"
     assert order_refitted(sensor)[0].reason == sensor[0].reason
     # a sensor and a property of the vehicle, both on every flight (an attitude bias and a CoG
     # offset), or two properties (a CoG offset and a weak rotor): AIC, one more parameter costs 2
@@ -254,7 +261,7 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
     assert [c.effect for c in close] == ["cog_offset", "motor_asymmetry"]
     swapped = order_refitted([cand("cog_offset", 2, 0.839, 4000.0), cand("motor_asymmetry", 3, 0.846, 4010.0)])
     assert [c.effect for c in swapped] == ["motor_asymmetry", "cog_offset"]
-    assert "the estimation data better" in swapped[0].reason
+    assert "it fits the estimation data better" in swapped[0].reason
     unrelated = order_refitted([cand("wind", 2, 0.839, 4000.0), cand("ground_effect", 1, 0.846, 12000.0)])
     assert [c.effect for c in unrelated] == ["wind", "ground_effect"]
     uncertified = cand("accel_bias", 3, 0.846, 12000.0)

@@ -21,7 +21,12 @@ def test_a_right_model_beats_the_naive_predictor_and_the_json_says_so(tmp_path):
     save_log(log, tmp_path / "f.csv")
     assert main(["fit", str(tmp_path / "f.csv"), "--airframe", str(AIRFRAMES / "paper.toml"), "--quiet",
                  "--json", str(tmp_path / "r.json"), "--plots", str(tmp_path / "plots")]) == 0
-    h = json.loads((tmp_path / "r.json").read_text())["horizons"]
+    doc = json.loads((tmp_path / "r.json").read_text())
+    h = doc["horizons"]
+    assert set(h) == {"horizons", "model", "naive"}                 # the contract's keys
+    # the model is right: its report holds no moment (one estimated from a few samples would
+    # only add their noise), and the key beside the horizons says so
+    assert doc["horizons_predictor"]["held_moment"] is False
     assert 0.25 in h["horizons"] and 0.5 in h["horizons"] and h["horizons"][0] == pytest.approx(0.005)
     i25, i50 = h["horizons"].index(0.25), h["horizons"].index(0.5)
     for ch in ("z", "phi", "theta", "p", "q"):

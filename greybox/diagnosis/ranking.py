@@ -372,33 +372,60 @@ def _break_tie(ranking: list[CandidateResult]) -> None:
         return
     first = ranking[0]
     group = [first] + ties
-    # A sensor's offset before the day's conditions: the offset is the vehicle's and on every
-    # flight (a MEMS accelerometer's zero-g offset is 20-80 mg), a wind is a claim about that
-    # flight's air, which indoors is still. On a real Crazyflie flight indoors a wind and an
-    # accelerometer bias tied on validation; the wind won on the estimation data by what it moved
-    # through other effects (drag on the air-relative speed), and refitted on the round's model
-    # fitted afresh (its own noise levels) the bias fitted better: the estimation data do not
-    # settle it. Between a sensor and a vehicle property (a CoG offset, a motor lag), both on
-    # every flight, they still decide.
-    sensor = next((c for c in group if fx.measurement_only(c.effect)), None)
-    by_sensor = sensor is not None and any(fx.per_flight(c.effect) for c in group)
-    pick = max([c for c in group if not fx.per_flight(c.effect)] if by_sensor else group, key=aic_gain)
+    pick = _tie_pick(group)
+    if fx.per_flight(pick.effect):
+        # a sensor's offset that ties with the pick itself, though not with the first
+        rest = [c for c in ranking if c is not pick]
+        more = [c for c in validation_ties([pick] + rest) if c not in group and fx.measurement_only(c.effect)]
+        if more:
+            group += more
+            pick = _tie_pick(group)
     if pick is first:
         return
-    tie = (f"; predicts the validation data as well as {first.effect} (nrmse {pick.nrmse_after:.3f} against "
-           f"{first.nrmse_after:.3f}: within {100 * MIN_VALIDATION_GAIN:.0f} %, which cannot tell them apart)")
-    if by_sensor and fx.per_flight(first.effect):
-        note = (f"{tie}, where {first.effect} is a condition of this flight (the air's, which indoors is still) and "
-                f"{sensor.effect}, an offset of a sensor on every flight, explains as much: the condition is not "
-                f"taken, so it goes first (LR less twice the parameters {aic_gain(pick):.1f} against "
-                f"{aic_gain(first):.1f})")
-    else:
-        note = (f"{tie} and the estimation data better (LR less twice the parameters {aic_gain(pick):.1f} against "
-                f"{aic_gain(first):.1f}), so it goes first")
+    note = (f"; predicts the validation data as well as {first.effect} (nrmse {pick.nrmse_after:.3f} against "
+            f"{first.nrmse_after:.3f}: within {100 * MIN_VALIDATION_GAIN:.0f} %, which cannot tell them apart), and "
+            f"{tie_explanation(pick, first, group)}, so it goes first")
     if note not in pick.reason:
         pick.reason += note
     ranking.remove(pick)
     ranking.insert(0, pick)
+
+
+def _sensor_before_condition(group: Sequence[CandidateResult]) -> bool:
+    """Whether the tie rule sets the group's conditions of the flight aside: a sensor's offset
+    ties with them. The offset is the vehicle's and on every flight (a MEMS accelerometer's
+    zero-g offset is 20-80 mg), a wind is a claim about that flight's air, which indoors is
+    still. On a real Crazyflie flight indoors a wind and an accelerometer bias tied on
+    validation; the wind won on the estimation data by what it moved through other effects
+    (drag on the air-relative speed), and refitted on the round's model fitted afresh (its own
+    noise levels) the bias fitted better: the estimation data do not settle it. Between a
+    sensor and a vehicle property (a CoG offset, a motor lag), both on every flight, they
+    still decide."""
+    return any(fx.measurement_only(c.effect) for c in group) and any(fx.per_flight(c.effect) for c in group)
+
+
+def _tie_pick(group: Sequence[CandidateResult]) -> CandidateResult:
+    """The tie rule's choice in ``group``: the largest :func:`aic_gain`, conditions of the
+    flight set aside when a sensor's offset ties with them."""
+    pool = [c for c in group if not fx.per_flight(c.effect)] if _sensor_before_condition(group) else list(group)
+    return max(pool, key=aic_gain)
+
+
+def tie_explanation(taken: CandidateResult, other: CandidateResult, group: Sequence[CandidateResult]) -> str:
+    """Why the tie rule took ``taken`` over ``other``, both of the tied ``group``, in words."""
+    if _sensor_before_condition(group) and fx.per_flight(other.effect) and not fx.per_flight(taken.effect):
+        sensor = taken if fx.measurement_only(taken.effect) else next(c for c in group if fx.measurement_only(c.effect))
+        why = (f"{other.effect} is a condition of this flight where {sensor.effect}, which changes only what a sensor "
+               f"reports and is there on every flight, explains as much")
+        if sensor is not taken:
+            why += f"; of the rest {taken.effect} fits the estimation data best"
+        return why + f" (LR less twice the parameters {aic_gain(taken):.1f} against {aic_gain(other):.1f})"
+    if aic_gain(taken) >= aic_gain(other):
+        return (f"it fits the estimation data better (LR less twice the parameters {aic_gain(taken):.1f} against "
+                f"{aic_gain(other):.1f})")
+    if taken.nrmse_after <= other.nrmse_after:
+        return f"it validates better (nrmse {taken.nrmse_after:.3f} against {other.nrmse_after:.3f})"
+    return f"it is taken by the tie rule over the group ({', '.join(c.effect for c in group)})"
 
 
 def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list[str]:

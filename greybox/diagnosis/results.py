@@ -261,6 +261,11 @@ class Diagnosis:
             out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
                             "channels": dict(self.final_prediction.nrmse),
                             "horizons": (self.final_horizons or self.final_prediction.horizon_errors()).as_dict()}
+        # how each horizon report's windows started (validation.choose_horizon_predictor): the
+        # baseline's and the final model's may differ, a held moment in one and not the other
+        out["horizons_predictor"] = {k: dict(he.predictor) for k, he in
+                                     (("baseline", self.baseline_horizons), ("final", self.final_horizons))
+                                     if he is not None and he.predictor}
         out["model"] = {"effects": self.fitted_model.model.effect_names, "parameters": self.parameter_table(),
                         "certified": bool(self.fitted_model.converged)}
         out["discovered"] = [d.as_dict() for d in self.discovered]

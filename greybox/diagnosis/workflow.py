@@ -21,8 +21,8 @@ from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency
-from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, aic_gain, default_candidates,
-                      rank_round, validation_ties)
+from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
+                      rank_round, tie_explanation, validation_ties)
 from .results import Diagnosis, Round
 
 __all__ = ["diagnose", "UNEXPLAINED_RATIO", "distinguishing_manoeuvre"]
@@ -283,14 +283,13 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         warnings.append(f"{first[0].effect} and {first[1].effect} both explain the data well; to tell them apart: "
                         f"{distinguishing_manoeuvre(first[0].effect, first[1].effect)}")
     for k, rd in enumerate(rounds, start=1):
-        # a verdict with a confusable runner-up that validates as well (the tie rule's set)
+        # a verdict with a confusable runner-up that validates as well (the ties around the verdict)
         top = rd.ranking[0] if rd.verdict and rd.ranking else None
-        for c in (validation_ties(rd.ranking) if top is not None else []):
-            why = (f"it is an offset of a sensor, on every flight, where {c.effect} is a condition of this flight"
-                   if fx.measurement_only(top.effect) and fx.per_flight(c.effect)
-                   else "it fits the estimation data better" if aic_gain(top) >= aic_gain(c) else "it validates better")
+        tied = validation_ties(rd.ranking) if top is not None else []
+        for c in tied:
             warnings.append(f"round {k}: {top.effect} and {c.effect} predict the validation data alike (nrmse "
-                            f"{top.nrmse_after:.3f} and {c.nrmse_after:.3f}); {top.effect} is taken as {why}; "
+                            f"{top.nrmse_after:.3f} and {c.nrmse_after:.3f}); {top.effect} is taken as "
+                            f"{tie_explanation(top, c, [top] + tied)}; "
                             f"to tell them apart: {distinguishing_manoeuvre(top.effect, c.effect)}")
     verdict = rounds[0].verdict if rounds else None
     for c in (rounds[0].ranking if rounds and verdict is None else []):
