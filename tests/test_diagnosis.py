@@ -59,7 +59,7 @@ def test_nothing_missing_gives_a_null_verdict(paper, normal_flight):
     assert "null" in d.summary()
 
 
-def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airframe_path):
+def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airframe_path, capsys):
     save_log(normal_flight.log, tmp_path / "f.csv")
     rc = main(["diagnose", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--without", "yaw_torque",
                "--candidates", "yaw_torque,attitude_bias", "--no-iterate", "--quiet", "--horizon", "0.5",
@@ -78,6 +78,15 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert {c["effect"] for c in r["ranking"]} == {"yaw_torque", "attitude_bias"}
     html = (tmp_path / "rep" / "report.html").read_text()
     assert "data:image/png;base64," in html and "yaw_torque" in html and "0.5 s ahead" in html
+    # the summary names the positions and angles where the final model beats the naive
+    # predictor, as the JSON's final horizons have them
+    h = r["final"]["horizons"]
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "beats the naive predictor" in ln)
+    for ahead in (0.25, 0.5):
+        i = h["horizons"].index(ahead)
+        beats = [ch for ch in ("x", "y", "z", "phi", "theta", "psi") if ch in h["model"]
+                 and h["model"][ch][i] < h["naive"][ch][i]]
+        assert f"{ahead:g} s: {', '.join(beats) or 'none'}" in line, (line, beats)
 
 
 def test_diagnose_cli_bad_candidate(tmp_path, normal_flight, paper_airframe_path, capsys):
