@@ -692,8 +692,8 @@ def choose_horizon_predictor(model: QuadrotorModel, p: "np.ndarray | Sequence[np
     moment from the commands is off by a slowly varying amount rolls away open loop. On real
     Crazyflie flights it is taken where the model's attitude predictions are poor (the slow
     B10_lissajous and B6_linear_ramp: 0.5-s nrmse on the estimation data 1.54 -> 1.23 and 14.1
-    -> 6.3) and left where they are good (B3_figure8_fast 0.62 against 0.79 with it, B9 0.70
-    against 0.83): a moment estimated from a few gyro samples is noise there. Only the horizon
+    -> 6.3) and left where they are good (B3_figure8_fast 0.62 against 0.79 with it, B9 0.72
+    against 0.82): a moment estimated from a few gyro samples is noise there. Only the horizon
     report uses it; validation (``nrmse``) and the diagnosis judge the model as it is."""
     options = dict(options or {})
     if not can_hold_moment(model):
