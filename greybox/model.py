@@ -88,6 +88,12 @@ class QuadrotorModel:
     def __add__(self, other: fx.Effect | fx.EffectLibrary | Iterable[fx.Effect]) -> "QuadrotorModel":
         return QuadrotorModel(self.airframe, list(self.effects + other), self.inputs)
 
+    def accepts(self, effect: fx.Effect) -> bool:
+        """Whether ``effect`` can be added: the model has neither it nor a state of one of its
+        state names (a disturbance torque's ``d_p, d_q`` clash with a held moment's)."""
+        own = effect.state_names(self.airframe)
+        return effect.name not in self.effects and not set(own) & set(self.state_names)
+
     def without(self, *names: str) -> "QuadrotorModel":
         """The same model with the named effects removed."""
         for n in names:

@@ -35,7 +35,7 @@ from .rotations import euler_rates_from_body_rates
 __all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
            "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options", "predict_after_fit",
            "horizon_errors_after", "horizon_errors", "HORIZON_START_EVERY", "INIT_WINDOWS",
-           "choose_horizon_predictor", "can_hold_moment", "HELD_MOMENT_WINDOWS",
+           "choose_horizon_predictor", "HELD_MOMENT_WINDOWS",
            "INIT_WINDOW_HORIZON", "choose_init_window", "choose_measured_start",
            "choose_start", "STATE_PRIOR_SCALE"]
 
@@ -670,13 +670,6 @@ HELD_MOMENT_WINDOWS = (0.05, 0.1, 0.2)
 """s: the start-state windows :func:`choose_horizon_predictor` tries with a held moment."""
 
 
-def can_hold_moment(model: QuadrotorModel) -> bool:
-    """Whether :class:`~greybox.effects.HeldMoment` can be added to ``model`` (it has neither
-    it nor states of that name: a disturbance torque's ``d_p, d_q``)."""
-    own = fx.HeldMoment().state_names(model.airframe)
-    return fx.HeldMoment.name not in model.effects and not set(own) & set(model.state_names)
-
-
 def choose_horizon_predictor(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]",
                              logs: "FlightLog | Sequence[FlightLog]", options: dict | None = None,
                              compile: str = "auto") -> dict:
@@ -696,7 +689,7 @@ def choose_horizon_predictor(model: QuadrotorModel, p: "np.ndarray | Sequence[np
     against 0.82): a moment estimated from a few gyro samples is noise there. Only the horizon
     report uses it; validation (``nrmse``) and the diagnosis judge the model as it is."""
     options = dict(options or {})
-    if not can_hold_moment(model):
+    if not model.accepts(fx.HeldMoment()):
         return options
     tails = _tails(logs)
     try:

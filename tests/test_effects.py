@@ -351,3 +351,14 @@ def test_measurement_only_effects_change_what_a_sensor_reports_not_the_motion():
         ext = m + effects.by_name(name)
         p = ext.parameter_vector({k: 0.05 for k in ext.parameter_dict(ext.default_parameters()) if "bias" in k})
         assert np.allclose(np.asarray(ext.rhs(x, u, p, 0.0)).ravel()[:12], np.asarray(m.rhs(x, u, m.default_parameters(), 0.0)).ravel())
+
+
+def test_a_model_accepts_an_effect_it_has_not_and_whose_states_do_not_clash():
+    """``QuadrotorModel.accepts``: not an effect already in, not one whose states share a name
+    with the model's (the held moment's and the disturbance torque's ``d_p, d_q``)."""
+    m = QuadrotorModel(make_airframe("plus"))
+    assert m.accepts(effects.HeldMoment()) and m.accepts(effects.DisturbanceTorque())
+    assert not (m + effects.HeldMoment()).accepts(effects.HeldMoment())
+    assert not (m + effects.HeldMoment()).accepts(effects.DisturbanceTorque())
+    assert not (m + effects.DisturbanceTorque()).accepts(effects.HeldMoment())
+    assert not m.accepts(effects.by_name("linear_drag")) and m.accepts(effects.by_name("wind"))

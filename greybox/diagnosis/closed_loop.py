@@ -143,8 +143,7 @@ def rate_levels(res: FitResult) -> str:
 def can_hold_disturbance(model) -> bool:
     """Whether a :class:`~greybox.effects.DisturbanceTorque` can be added to ``model``: it holds
     no disturbance model already (whose states would clash: ``held_moment``'s ``d_p, d_q``)."""
-    own = fx.DisturbanceTorque().state_names(model.airframe)
-    return fx.DisturbanceTorque.name not in model.effects and not set(own) & set(model.state_names)
+    return model.accepts(fx.DisturbanceTorque())
 
 
 def disturbance_baseline(res: FitResult, logs: Sequence[FlightLog], compile: str = "auto") -> FitResult:

@@ -43,8 +43,8 @@ from .drag import DragMoment, HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag
 from .ground import GroundEffect
 from .power import BatteryVoltage, CommandDelay, RotorMap, SampledInputs, ThrustDrift
 from .registry import (DISTURBANCE_MODELS, ENTRY_POINT_GROUP, by_name, confusable, distinguishing_manoeuvre,
-                       measurement_only, per_flight, effect_class, example_values, known_effects, load_effects_file, parse_effect_names, register,
-                       registered_effects, unregister)
+                       effect_class, example_values, known_effects, load_effects_file, measurement_only,
+                       parse_effect_names, per_flight, register, registered_effects, unregister)
 from .rotor import Gyroscopic, MomentGain, MotorLag, YawTorque
 from .sensors import AccelBias, AttitudeBias, PositionDelay
 
@@ -54,6 +54,7 @@ __all__ = [
     "HubRotorDrag", "DragMoment", "GroundEffect", "MotorLag", "CogOffset", "MotorAsymmetry", "Wind", "ThrustDrift",
     "PositionDelay", "AttitudeBias", "AccelBias", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
     "APPLY_ORDER", "register", "load_effects_file", "known_effects", "registered_effects",
-    "effect_class", "confusable", "measurement_only", "per_flight", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP", "example_values", "DiscoveredEffect",
+    "effect_class", "confusable", "measurement_only", "per_flight", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP",
+    "example_values", "DiscoveredEffect",
     "unregister", "HeldMoment", "DisturbanceTorque", "DISTURBANCE_MODELS", "MomentGain", "CommandDelay", "SampledInputs", "is_derived_signal",
 ]

@@ -17,7 +17,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..airframe import Airframe
 
 __all__ = ["register", "unregister", "load_effects_file", "known_effects", "registered_effects", "effect_class",
-           "by_name", "confusable", "measurement_only", "per_flight", "distinguishing_manoeuvre", "parse_effect_names", "example_values", "ENTRY_POINT_GROUP"]
+           "by_name", "confusable", "measurement_only", "per_flight", "distinguishing_manoeuvre", "parse_effect_names",
+           "example_values", "ENTRY_POINT_GROUP"]
 
 
 _REGISTERED: dict[str, type[Effect]] = {}     # user effects: register(), files, entry points
