@@ -267,7 +267,8 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
         if c == PSI:
             ref = np.unwrap(ref)
         spread = float(np.sqrt(np.mean((ref - ref.mean()) ** 2)))
-        rms = float(np.sqrt(np.mean(err[k, c] ** 2)))
+        with np.errstate(over="ignore"):   # a prediction that blew up to 1e200 scores inf
+            rms = float(np.sqrt(np.mean(err[k, c] ** 2)))
         scores[name] = rms / spread if spread > 0 else float("inf")
         channels.append(name)
     if not scores:
@@ -439,7 +440,8 @@ class _HorizonSums:
                 en = y - naive.get(ch, meas[a + ks[0], c])
                 if c == PSI:
                     en = math.atan2(math.sin(en), math.cos(en))
-                em = errors[j, c] if np.isfinite(errors[j, c]) else np.inf
+                # a Python float: a prediction that blew up squares to inf without a warning
+                em = float(errors[j, c]) if np.isfinite(errors[j, c]) else math.inf
                 self.sq_m[ch][i] += em * em
                 self.sq_n[ch][i] += en * en
                 self.cnt[ch][i] += 1
@@ -535,7 +537,8 @@ def pool_predictions(preds: Sequence[Prediction]) -> Prediction:
             continue
         e, r = np.concatenate(errs), np.concatenate(refs)
         spread = float(np.sqrt(np.mean((r - r.mean()) ** 2)))
-        scores[name] = float(np.sqrt(np.mean(e ** 2))) / spread if spread > 0 else float("inf")
+        with np.errstate(over="ignore"):
+            scores[name] = float(np.sqrt(np.mean(e ** 2))) / spread if spread > 0 else float("inf")
         channels.append(name)
     offset, windows = 0, []
     for p in preds:

@@ -227,6 +227,31 @@ def test_a_prediction_that_is_not_finite_scores_infinite_not_the_finite_rest():
     assert pr.horizon_errors(horizons=[0.25]).model["z"][k] == float("inf")
 
 
+def test_a_prediction_that_blows_up_to_huge_finite_values_scores_inf_without_a_warning():
+    """A diverging prediction that stays finite (1e194 m: a negative vertical drag makes v
+    grow as e^(300 t)) squares past the float range: the scores are inf, and no overflow
+    warning reaches the user (a discovered term's refit on a real flight printed two)."""
+    import warnings
+    from greybox.diagnosis.screening import prediction_change
+    from greybox.validation import horizon_errors, pool_predictions, predict
+    base = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    log = synthesize(base, base.default_parameters(), 6.0, SensorSpec(rate=100.0), seed=1).log
+    p = base.default_parameters()
+    bad = p.copy()
+    bad[base.param_names.index("Kd[2]")] = -300.0 * base.airframe.mass
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        good = predict(base, p, log)
+        pr = predict(base, bad, log)
+        assert np.nanmax(np.abs(pr.predicted[:, 2])) > 1e160          # finite, but its square is not
+        assert pr.nrmse["z"] == float("inf") and pr.total == float("inf")
+        assert pool_predictions([good, pr]).nrmse["z"] == float("inf")
+        assert prediction_change(good, pr)["z"] == float("inf")
+        he = horizon_errors(base, bad, log, horizons=[0.25, 1.0])
+    k = he.horizons.index(1.0)
+    assert he.model["z"][k] == float("inf") and np.isfinite(he.naive["z"][k])
+
+
 def test_measured_start_is_chosen_only_where_the_estimate_drifts():
     """Another simulator's vehicle with three times the roll and pitch inertia the airframe
     gives: over a 0.5-s start window the model's roll diverges, and its windows predict the

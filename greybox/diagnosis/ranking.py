@@ -246,9 +246,16 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         # went to a weaker candidate.
         certified_best = min((c.nrmse_after for c in batch if c.fit is not None and c.fit.converged),
                              default=pred.total)
+        # One whose capped values are already beyond what the effect physically does is not:
+        # it could be the verdict only by travelling back (a real flight's moment gain, capped
+        # at k_M 0.02 after being refused at 0.024 in the round before, took 40 s of a 285-s
+        # diagnosis to be refused again).
         for cand in sorted(batch, key=lambda c: c.nrmse_after):
             if cand.fit is None or cand.fit.converged or \
                     not cand.nrmse_after < (1 - MIN_VALIDATION_GAIN) * min(pred.total, certified_best):
+                continue
+            if physically_implausible(cand.fit, cand.effect):
+                cand.reason += f" (its refit stopped short: {cand.fit.status}; not solved on)"
                 continue
             t0 = time.perf_counter()
             ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, compile, start=cand.fit, max_iter=200,

@@ -318,8 +318,9 @@ def prediction_change(before: Prediction, after: Prediction) -> dict[str, float]
             d = np.arctan2(np.sin(d), np.cos(d))
         e = before.errors[:, c]
         k = np.isfinite(d) & np.isfinite(e)
-        err = float(np.sqrt(np.mean(e[k] ** 2))) if k.any() else 0.0
-        out[ch] = float(np.sqrt(np.mean(d[k] ** 2))) / err if err > 0 else 0.0
+        with np.errstate(over="ignore", invalid="ignore"):   # a prediction that blew up moves it by inf
+            err = float(np.sqrt(np.mean(e[k] ** 2))) if k.any() else 0.0
+            out[ch] = float(np.sqrt(np.mean(d[k] ** 2))) / err if err > 0 else 0.0
     return out
 
 
