@@ -36,7 +36,7 @@ def test_a_drifting_thrust_coefficient_is_flagged(paper):
     assert "K_T" in d.inconsistent, d.warnings
     a, sa, b, sb = d.inconsistent["K_T"]
     assert b / a - 1 == pytest.approx(0.04, abs=0.015)
-    assert any(w.startswith("K_T differs between the two halves") for w in d.warnings)
+    assert any(w.startswith("baseline fit: K_T differs between the two halves") for w in d.warnings)
     assert "K_T" in d.as_json()["inconsistent_parameters"]
 
 

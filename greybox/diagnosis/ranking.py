@@ -236,8 +236,10 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                                  start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if cold else None,
                                  restart=bool(far_off) or bent_soft, horizon=pred.horizon)
             judge(cand, ext, fr, pr)
+            # a refit short of its optimum (capped) has an LR that is a lower bound (0 while still on its way past the baseline)
+            capped = "" if fr.converged else ", short of its optimum: LR a lower bound"
             say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
-                f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s)")
+                f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s{capped})")
         # A capped refit's statistic is a lower bound only when it has got past the baseline; one
         # stopped on its way there (open shooting gaps, a likelihood below the baseline's) says
         # nothing yet. When such a refit already predicts the validation data better than every

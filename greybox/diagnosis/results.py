@@ -18,7 +18,12 @@ from ..validation import HorizonErrors, Prediction
 from .analysis import CommandImbalance, Finding
 from .closed_loop import rate_levels
 
-__all__ = ["CandidateResult", "Round", "Diagnosis", "Discovered", "DiscoveredTerm"]
+UNEXPLAINED_RATIO = 3.0
+"""With a null verdict, channels whose residual RMS stays above this multiple of the sensor
+noise (and coloured) are reported as what the model misses beyond every candidate; below
+it, a misfit the certificate still finds (``small_misfit``) is too small to tell what it is."""
+
+__all__ = ["CandidateResult", "Round", "Diagnosis", "Discovered", "DiscoveredTerm", "UNEXPLAINED_RATIO"]
 
 
 @dataclass
@@ -279,7 +284,9 @@ class Diagnosis:
         was tested), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
         physics), ``"random_torque"`` (what is missing acts as a random torque, turbulence, which
         the final model holds as a disturbance), ``"unexplained"`` (residuals far above the noise
-        that no candidate explains) or ``"nothing_missing"``; None when there is a verdict."""
+        that no candidate explains), ``"small_misfit"`` (the final fit is not at the noise, but
+        within a few times it: too little to say what it is) or ``"nothing_missing"``; None when
+        there is a verdict."""
         if self.verdict:
             return None
         if not self.baseline_certified:
@@ -290,7 +297,19 @@ class Diagnosis:
             return "random_torque"
         if self.unexplained or self.unexplained_gaps:
             return "unexplained"
+        if self.misfit():
+            return "small_misfit"
         return "nothing_missing"
+
+    def misfit(self) -> list[str]:
+        """Words for what the final fit (or the baseline) misses above the noise, below what
+        counts as unexplained: channels and states its certificate finds not adequate."""
+        fr = self.fitted_model
+        cert = fr.certificate if fr is not None else None
+        if cert is None:
+            return []
+        return ([f"{ch} ({cert.residual_over_noise[ch]:.2g}x the noise)" for ch in cert.off_channels()] +
+                [f"{n}'s gaps ({cert.systematic_gaps[n]:.2g}x their random part)" for n in cert.off_states()])
 
     @property
     def added_disturbance(self) -> bool:
@@ -323,6 +342,9 @@ class Diagnosis:
                                  f"rates are {rate_levels(self.baseline)} times their noise)",
                 "unexplained": f"null -- the model is missing something no candidate explains: {self._far_off()}"
                                + (f"; {self.findings[0].text}" if self.findings else ""),
+                "small_misfit": "null -- no catalogue effect is significant, and the model is not at the noise "
+                                f"in {', '.join(self.misfit())}: too small a misfit to tell what it is (below "
+                                f"{UNEXPLAINED_RATIO:g}x the noise)",
                 "nothing_missing": "null (nothing significant is missing)"}[why]
 
     def summary(self) -> str:
