@@ -59,13 +59,8 @@ def closed_loop_yaw(res: FitResult, logs: Sequence[FlightLog], *, baseline: FitR
         return NOTHING
     say(f"diagnose: {'b/K_T is outside what propellers give' if outside else 'b differs between the halves'}; "
         "refitting with a disturbance torque")
-    # the model's refit gets one solve when the base model can answer instead: where it
-    # certifies it does so in a few seconds; on real flights where it did not (a motor lag's
-    # states crawling), 100 more iterations did not either (37 s of a 250-s diagnosis), and
-    # the base model answered in 6 s
-    fallback = baseline is not None and baseline is not res and _applies(baseline)
-    alt, which = _with_disturbance(res, logs, compile, retry=not fallback), "the model"
-    if not alt.converged and fallback:
+    alt, which = _with_disturbance(res, logs, compile), "the model"
+    if not alt.converged and baseline is not None and baseline is not res and _applies(baseline):
         say(f"diagnose: that refit is not certified ({alt.status}); the base model instead")
         first, alt, which = alt, _with_disturbance(baseline, logs, compile), "the base model"
         if alt.converged:
@@ -97,18 +92,17 @@ def _applies(res: FitResult) -> bool:
 
 
 def _with_disturbance(res: FitResult, logs: Sequence[FlightLog], compile: str,
-                      process_noise: "str | dict[str, float]" = "auto", per_flight=None,
-                      retry: bool = True) -> FitResult:
+                      process_noise: "str | dict[str, float]" = "auto", per_flight=None) -> FitResult:
     """``res``'s model with a :class:`~greybox.effects.DisturbanceTorque`, fitted with
     ``process_noise`` from ``res``'s parameters and node states (the disturbance, the last
-    states, at zero), and (``retry``) once more from where it stopped when it is not certified."""
+    states, at zero), and once more from where it stopped when it is not certified."""
     with_d = res.model + fx.DisturbanceTorque()
     nodes = [np.hstack([X, np.zeros((len(X), with_d.nx - res.model.nx))]) for X in res.node_states]
     kw = dict(compile=compile, max_iter=100, free=res.free_names, interval=res.interval, per_flight=per_flight)
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # judged by the caller
         alt = fit(with_d, logs, p0=res.p, process_noise=process_noise, initial_states=nodes, **kw)
-        if retry and not alt.converged:
+        if not alt.converged:
             alt = fit(with_d, logs, p0=alt.p, process_noise=alt.process_noise, noise=alt.sigma, reweight=False,
                       initial_states=alt.node_states, **kw)
     return alt
