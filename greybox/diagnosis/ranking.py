@@ -19,8 +19,8 @@ from ..model import OUTPUTS, QuadrotorModel
 from ..validation import Prediction
 from .analysis import estimation_residuals
 from .results import CandidateResult
-from .screening import (explained_fraction, held_on_bound, lr_test, null_on_bound, physically_implausible, physically_negligible,
-                        physically_small, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
+from .screening import (explained_fraction, held_on_bound, lr_test, negligible_effect, null_on_bound,
+                        physically_implausible, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
                         screen)
 
 __all__ = ["ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
@@ -189,7 +189,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         falls = {ch: 1 - pr.nrmse[ch] / pred.nrmse[ch] for ch in pred.nrmse if pred.nrmse[ch] > 0}
         best_ch = max(falls, key=falls.get)
         cand.explained = explained_fraction(res, fr)
-        negligible = physically_negligible(fr, cand.effect) or physically_small(fr, cand.effect, est)
+        negligible = negligible_effect(fr, cand.effect, est)
         implausible = physically_implausible(fr, cand.effect)
         on_bound = held_on_bound(fr, cand.effect)
         if cand.p_value >= ALPHA:
@@ -236,7 +236,8 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                                  start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if cold else None,
                                  restart=bool(far_off) or bent_soft, horizon=pred.horizon)
             judge(cand, ext, fr, pr)
-            # a refit short of its optimum (capped) has an LR that is a lower bound (0 while still on its way past the baseline)
+            # a refit short of its optimum (capped) has an LR that is a lower bound (0 while still
+            # on its way past the baseline)
             capped = "" if fr.converged else ", short of its optimum: LR a lower bound"
             say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
                 f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s{capped})")

@@ -23,7 +23,7 @@ from ..residuals import long_run_factor
 from ..shooting import ShootingProblem, free_indices
 from ..validation import DEFAULT_HORIZON, Prediction, predict_after_fit
 
-__all__ = ["NEGLIGIBLE_FRACTION", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
+__all__ = ["NEGLIGIBLE_FRACTION", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "negligible_effect", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
            "explained_fraction", "physically_negligible", "physically_implausible", "held_on_bound", "null_on_bound", "precompile_refits", "queue_refit_builds"]
 
 
@@ -399,6 +399,12 @@ def physically_negligible(fr: FitResult, effect: str) -> str:
     if not parts:
         return ""
     return f"{', '.join(parts)} (below {100 * NEGLIGIBLE_FRACTION:.0f} % of a plausible size for this airframe)"
+
+
+def negligible_effect(fr: FitResult, effect: str, logs: Sequence[FlightLog]) -> str:
+    """Words saying that ``effect`` is physically negligible in the fit ``fr``, in its parameters
+    (:func:`physically_negligible`) or in force terms (:func:`physically_small`), or ""."""
+    return physically_negligible(fr, effect) or physically_small(fr, effect, logs)
 
 
 def physically_implausible(fr: FitResult, effect: str) -> str:

@@ -21,14 +21,12 @@ from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency
-from .screening import physically_negligible, physically_small
+from .screening import negligible_effect
 from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
                       rank_round, tie_explanation, validation_ties)
 from .results import UNEXPLAINED_RATIO, Diagnosis, Round
 
 __all__ = ["diagnose", "UNEXPLAINED_RATIO", "distinguishing_manoeuvre"]
-
-
 
 
 # What the diagnosis knows about each effect (the manoeuvre that excites it, the channels it
@@ -147,8 +145,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                            "(above), try shorter intervals, or process_noise='auto' (--process-noise auto)")
     inconsistent = half_consistency(model, res, est, E, compile, say) if res.converged else {}
     for n, (a, sa, b, sb) in inconsistent.items():
-        warnings.append(f"baseline fit: {n} differs between the two halves of the estimation data ({a:.4g} ± {sa:.2g} vs "
-                        f"{b:.4g} ± {sb:.2g}): it is absorbing something the model lacks, not a constant of the vehicle")
+        warnings.append(f"baseline fit: {n} differs between the two halves of the estimation data ({a:.4g} ± {sa:.2g} "
+                        f"vs {b:.4g} ± {sb:.2g}): it is absorbing something the model lacks, not a constant of the "
+                        "vehicle")
     for n in (res.certificate.held if res.certificate else []):
         par = next(par for par in model.parameters if n in par.component_names)
         if not np.isclose(res.value(n), par.null, rtol=1e-6, atol=1e-15):
@@ -339,8 +338,8 @@ def _drop_stand_ins(model: QuadrotorModel, res, pred, added: Sequence[str], est:
     timing is in it (they stood in for the timing: a hub rotor drag of 1.6e-8, 0.04 % of a
     rotor's, on another simulator's 0.4 kg vehicle), refitted; unchanged when there are none,
     when one carries states, or when the refit is not certified."""
-    stale = [e for e in added if e in model.effect_names and (physically_negligible(res, e) or
-                                                               physically_small(res, e, est))]
+    why = {e: negligible_effect(res, e, est) for e in added if e in model.effect_names}
+    stale = [e for e, words in why.items() if words]
     if not stale:
         return model, res, pred
     reduced = model.without(*stale)
@@ -355,7 +354,7 @@ def _drop_stand_ins(model: QuadrotorModel, res, pred, added: Sequence[str], est:
                     measured_start=res.measured_start, per_flight=res.per_flight_rule)
     if not refit.converged:
         return model, res, pred
-    words = "; ".join(physically_negligible(res, e) or physically_small(res, e, est) for e in stale)
+    words = "; ".join(why[e] for e in stale)
     say(f"diagnose: {', '.join(stale)} negligible once the log's timing is in the model ({words}): left out")
     warnings.append(f"{', '.join(stale)}, a verdict of the rounds, {'is' if len(stale) == 1 else 'are'} physically "
                     f"negligible once the log's timing is in the model ({words}): {'it' if len(stale) == 1 else 'they'} "

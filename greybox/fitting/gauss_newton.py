@@ -668,7 +668,8 @@ class GaussNewton:
             cost = new_cost
             # soft continuity: the smoother's states settle slowly once the parameters have
             # stopped moving, so a looser cost test
-            closed = gap < 1e-6 * (1 + float(np.abs(X).max()))
+            x_scale = 1 + float(np.abs(X).max())
+            closed = gap < 1e-6 * x_scale
             if step_size < tol and ((soft and rel < 1e-4) or (rel < 1e-6 and closed)):
                 converged, status = True, "converged"
                 break
@@ -684,7 +685,7 @@ class GaussNewton:
                     converged, status = True, "converged (the cost decrease left is negligible)"
                     break
             last_decrease = decrease if alpha == 1.0 else np.inf
-            if rough and not soft and rel < 1e-3 and gap < 1e-4 * (1 + float(np.abs(X).max())):
+            if rough and not soft and rel < 1e-3 and gap < 1e-4 * x_scale:
                 # the weights from these residuals change by < 0.1 %: more iterations would be
                 # spent on a problem about to be re-weighted (a large-residual start can creep
                 # at a linear rate for dozens of iterations)
