@@ -238,3 +238,31 @@ def test_a_creeping_fit_stops_when_the_cost_has_nothing_left_to_give():
     assert short.cost == pytest.approx(long.cost, abs=0.01)
     assert short.free_names == long.free_names
     assert all(abs(short.value(n) - long.value(n)) <= 0.01 * s for n, s in zip(long.free_names, long.std))
+
+
+def test_a_fit_goes_on_from_where_it_stopped_with_its_own_settings():
+    """``FitResult.settings()`` continues a fit in its own formulation (weights, process
+    noise, interval, prediction start, node states): a fit stopped after two iterations,
+    continued, reaches the optimum a fit of that same problem reaches from the start."""
+    from pathlib import Path
+    import tomllib
+    from greybox.airframe import airframe_from_dict
+    from greybox.errors import ConvergenceWarning
+    from greybox.importers import crazyflie_airframe_toml, import_nanobench
+    imp = import_nanobench(Path(__file__).resolve().parent / "data" / "nanobench_B2_slice.csv")
+    model = QuadrotorModel(airframe_from_dict(tomllib.loads(crazyflie_airframe_toml(0.030, imp.hover_rotor_speed)),
+                                              "Crazyflie"))
+    est, _ = imp.log.split(0.8)
+    with pytest.warns(ConvergenceWarning, match="maximum iterations"):
+        stopped = fit(model, est, process_noise="auto", max_iter=2)
+    assert not stopped.converged
+    kw = stopped.settings()
+    assert kw["reweight"] is False and kw["initial_states"] is stopped.node_states
+    assert "initial_states" not in stopped.settings(states=False)
+    on = fit(model, est, p0=stopped.p, max_iter=200, **kw)
+    assert on.converged and on.cost < stopped.cost
+    assert on.sigma == stopped.sigma and on.process_noise == stopped.process_noise
+    assert (on.interval, on.init_window, on.measured_start) == (stopped.interval, stopped.init_window,
+                                                               stopped.measured_start)
+    direct = fit(model, est, max_iter=200, **stopped.settings(states=False))
+    assert direct.converged and on.cost == pytest.approx(direct.cost, abs=0.01)

@@ -98,13 +98,13 @@ def _with_disturbance(res: FitResult, logs: Sequence[FlightLog], compile: str,
     states, at zero), and once more from where it stopped when it is not certified."""
     with_d = res.model + fx.DisturbanceTorque()
     nodes = [np.hstack([X, np.zeros((len(X), with_d.nx - res.model.nx))]) for X in res.node_states]
-    kw = dict(compile=compile, max_iter=100, free=res.free_names, interval=res.interval, per_flight=per_flight)
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # judged by the caller
-        alt = fit(with_d, logs, p0=res.p, process_noise=process_noise, initial_states=nodes, **kw)
+        alt = fit(with_d, logs, p0=res.p, process_noise=process_noise, initial_states=nodes, compile=compile,
+                  max_iter=100, free=res.free_names, interval=res.interval, per_flight=per_flight)
         if not alt.converged:
-            alt = fit(with_d, logs, p0=alt.p, process_noise=alt.process_noise, noise=alt.sigma, reweight=False,
-                      initial_states=alt.node_states, **kw)
+            alt = fit(with_d, logs, p0=alt.p, compile=compile, max_iter=100, free=res.free_names,
+                      **alt.settings())
     return alt
 
 

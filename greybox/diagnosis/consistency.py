@@ -49,10 +49,8 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
     try:
         with _warnings.catch_warnings():
             _warnings.simplefilter("ignore", ConvergenceWarning)
-            fits = [fit(model, half, p0=res.p, free=res.free_names, noise=res.sigma, reweight=False,
-                        compile=compile, max_iter=100, interval=res.interval, per_flight=res.per_flight_rule,
-                        process_noise=res.process_noise, init_window=res.init_window,
-                        measured_start=res.measured_start)
+            fits = [fit(model, half, p0=res.p, free=res.free_names, compile=compile, max_iter=100,
+                        **res.settings(states=False))
                     for half in halves]
     except GreyboxError as e:   # a half too short or too poor to fit: no verdict on consistency
         say(f"diagnose: halves not compared ({e})")

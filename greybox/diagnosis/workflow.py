@@ -119,10 +119,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         if not res.converged:
             # one more go from where it stopped, in its formulation, with the weights it reached
             say(f"diagnose: the baseline fit is not certified ({res.status}); solving on")
-            res = fit(model, est, p0=res.p, compile=compile, max_iter=200, process_noise=res.process_noise,
-                      noise=res.sigma, reweight=False, initial_states=res.node_states,
-                      interval=res.interval, per_flight=per_flight, init_window=res.init_window,
-                      measured_start=res.measured_start)
+            res = fit(model, est, p0=res.p, compile=compile, max_iter=200, **res.settings())
     pred = predict_after_fit(res, est, val, compile=compile, horizon=horizon)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split, 1, horizon)})")
     timing = None
@@ -181,11 +178,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                 say(f"diagnose: {verdict}'s refit is not certified ({win.fit.status}); solving on")
                 with _warnings.catch_warnings():
                     _warnings.simplefilter("ignore", ConvergenceWarning)
-                    more = fit(win.fit.model, est, free=win.fit.free_names, p0=win.fit.p, noise=win.fit.sigma,
-                               reweight=False, compile=compile, max_iter=200, initial_states=win.fit.node_states,
-                               interval=win.fit.interval, process_noise=win.fit.process_noise,
-                               init_window=win.fit.init_window, measured_start=win.fit.measured_start,
-                               per_flight=win.fit.per_flight_rule)
+                    more = fit(win.fit.model, est, free=win.fit.free_names, p0=win.fit.p, compile=compile,
+                               max_iter=200, **win.fit.settings())
                 if not more.converged:
                     warnings.append(f"{verdict}'s refit did not reach a certified optimum ({more.status}): no "
                                     "further candidate was tested against it")
@@ -348,10 +342,8 @@ def _drop_stand_ins(model: QuadrotorModel, res, pred, added: Sequence[str], est:
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)
         refit = fit(reduced, est, free=[n for n in res.free_names if n in reduced.param_names],
-                    p0=np.array([res.value(n) for n in reduced.param_names]), noise=res.sigma, reweight=False,
-                    compile=compile, max_iter=100, initial_states=res.node_states, interval=res.interval,
-                    process_noise=res.process_noise, init_window=res.init_window,
-                    measured_start=res.measured_start, per_flight=res.per_flight_rule)
+                    p0=np.array([res.value(n) for n in reduced.param_names]), compile=compile, max_iter=100,
+                    **res.settings())
     if not refit.converged:
         return model, res, pred
     words = "; ".join(why[e] for e in stale)

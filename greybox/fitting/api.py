@@ -14,7 +14,7 @@ import sys
 import time
 import warnings as _warnings
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -128,6 +128,23 @@ class FitResult(FittedModel):
     per_flight_rule: str | list[str] | None = None   # what fit(per_flight=...) was asked (refits ask the same)
     init_window: float | None = None    # s of measurements its predictions start from (None: predict's default)
     measured_start: bool = False        # its predictions start from the measured attitude and body rates
+
+    def settings(self, *, states: bool = True) -> dict[str, Any]:
+        """The keyword arguments of :func:`fit` that go on from this fit in its own
+        formulation: its channel weights (``noise``, not re-estimated), shooting interval,
+        process noise, per-flight rule, prediction start and, with ``states``, its node
+        states (leave them out for other logs, e.g. a half of the flight).
+
+        Example::
+
+            more = fit(res.model, logs, p0=res.p, free=res.free_names, **res.settings())
+        """
+        kw: dict[str, Any] = dict(noise=dict(self.sigma), reweight=False, interval=self.interval,
+                                  process_noise=self.process_noise, per_flight=self.per_flight_rule,
+                                  init_window=self.init_window, measured_start=self.measured_start)
+        if states:
+            kw["initial_states"] = self.node_states
+        return kw
 
     def flight_p(self, flight: int) -> np.ndarray:
         """Flight ``flight``'s parameter vector: ``p`` with its own values of the parameters
