@@ -247,6 +247,7 @@ def test_turbulence_alone_is_not_named_after_a_command_fed_sliver(tmp_path):
     mg = next(c for c in d.ranking if c.effect == "moment_gain")
     assert mg.p_value < 0.01 and mg.explained < 0.1 and "cannot tell" in mg.reason
     assert d.null_reason == "random_torque" and d.added_disturbance, d.summary()
+    assert d.as_json()["null_reason"] == "random_torque"
     assert "random torque" in d.verdict_text()
     final = d.final_fit
     assert final.converged and final.certificate.adequate
@@ -485,6 +486,36 @@ def test_three_kg_ground_effect_is_named_and_k_ge_is_the_truths_at_the_hubs(tmp_
     assert final.value("K_T") == pytest.approx(truth["K_T"], rel=0.05)
 
 
+@pytest.mark.parametrize("commands", [True, False])
+def test_motor_lags_screening_statistic_is_its_refits_likelihood_ratio_not_its_floors(tmp_path, commands):
+    """A motor lag cannot vanish (``tau_m`` >= 2 ms, the integrators' floor): its screening
+    statistic is the decrease from the baseline's cost to the Gauss-Newton optimum predicted
+    from the floor or from a plausible lag. With the controller's commands logged (a 20-ms
+    lag behind them) it is the refit's cost decrease within a factor 1.5; with the motors'
+    own speeds logged (nothing to lag) it is 0 and the refit ends on the floor. (Integrated
+    node to node with the node's input held, the candidate's speeds missed the logged ones
+    and the statistic was 1e9-1e10 on every flight; taken at the floor alone, it understated
+    a real flight's 70-ms lag 15-fold.)"""
+    from greybox.diagnosis.screening import refit, screen
+    from greybox.model import OUTPUTS
+    flight = fly(PeerVehicle.crazyflie(log_rate=100.0), duration=8.0, seed=1,
+                 sensors=PeerSensors(log_commands=commands))
+    paths = write_case(flight, tmp_path, name="s1")
+    model, log = QuadrotorModel(load_airframe(paths["airframe"])), load_log(paths["log"])
+    res = fit(model, log, process_noise="auto", max_iter=200)
+    assert res.converged and res.process_noise is not None
+    score, df = screen(model, res, [log], "motor_lag", np.array([res.sigma.get(c, 1.0) for c in OUTPUTS]), "auto")
+    _, lagged, _ = refit(model, res, [log], None, "motor_lag", res.sigma, "auto")
+    decrease = 2 * (res.cost - lagged.cost)
+    assert df == 1
+    if commands:
+        assert decrease > 1000 and decrease / 1.5 < score < 1.5 * decrease, (score, decrease)
+        assert 0.01 < lagged.value("tau_m") < 0.03
+    else:
+        assert score == 0.0 and decrease < 0, (score, decrease)
+        assert lagged.value("tau_m") == pytest.approx(2e-3)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("vehicle", ["crazyflie_100hz", "one_kg"])
 def test_motor_lag_is_named_when_the_log_holds_the_motor_commands(tmp_path, vehicle):
@@ -571,6 +602,7 @@ def test_a_null_verdict_over_a_small_misfit_does_not_say_nothing_is_missing(tmp_
     assert d.baseline_certified and d.verdict is None, d.summary()
     assert not d.baseline.certificate.adequate and not d.unexplained
     assert d.null_reason == "small_misfit", d.summary()
+    assert d.as_json()["null_reason"] == "small_misfit"
     words = d.verdict_text()
     assert "nothing significant is missing" not in words and "p (" in words and "q (" in words
 
