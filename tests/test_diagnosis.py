@@ -71,7 +71,7 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert r["baseline"]["horizon"] == 0.5              # the validation that confirms: 0.5 s ahead
     assert set(r["baseline"]["horizons"]) == {"horizons", "model", "naive"}
     assert set(r["horizons_predictor"]["baseline"]) == {"init_window", "measured_start", "held_moment"}
-    assert r["verdict"] == "yaw_torque"
+    assert r["verdict"] == "yaw_torque" and r["null_reason"] is None
     first = r["ranking"][0]
     assert first["effect"] == "yaw_torque" and first["significant"] is True
     assert first["nrmse_after"] < first["nrmse_before"]

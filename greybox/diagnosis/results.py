@@ -248,6 +248,7 @@ class Diagnosis:
                             "horizons": (self.baseline_horizons or self.baseline_prediction.horizon_errors()).as_dict()},
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
+               "null_reason": self.null_reason,
                "judged_with_disturbance": self.judged_with_disturbance,
                "outside_catalogue": self.outside_catalogue or None,
                "input_timing": _clean(self.input_timing) if self.input_timing else None,
