@@ -222,7 +222,14 @@ def test_rate_damping_is_discovered_refitted_and_written(paper, damped, tmp_path
     entry = js["discovered"][0]
     assert set(entry) >= {"channel", "terms", "significant", "nrmse_before", "nrmse_after"}
     assert set(entry["terms"][0]) == {"feature", "coefficient", "std"} and entry["significant"] is True
-    assert "5. beyond the catalogue" in d.summary()
+    assert "5. beyond the catalogue" in d.summary() and "what the verdict holds" not in d.summary()
+    # beside a verdict whose final model predicts better, the section says whose terms they are
+    from dataclasses import replace
+    from types import SimpleNamespace
+    beside = replace(d, verdict="drag_moment", outside_catalogue="", final_prediction=SimpleNamespace(total=0.001))
+    assert "predicts better, nrmse 0.001" in "\n".join(beside._discovery_lines())
+    worse = replace(beside, final_prediction=SimpleNamespace(total=d.baseline_prediction.total))
+    assert "what the verdict holds" not in "\n".join(worse._discovery_lines())
     # --write-effect's file, fitted by `greybox fit --effects-file`
     path = tmp_path / "found.py"
     path.write_text(d.best_discovery.effect_file("test"))
