@@ -9,6 +9,7 @@ file, the row (1-based line number in the file) and the column.
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import math
 import os
@@ -555,7 +556,12 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
     extra_names = [h for h in header if h not in used]
     extras = {h: data[:, col[h]].copy() for h in extra_names}
     if extra_names:
-        notes.append(f"{where}: ignored extra column(s) {', '.join(extra_names)} (kept as extras)")
+        # a misspelled optional column is ignored like any extra one: say what it may have meant
+        # (an audit's "qq" left the fit without its pitch gyro, with only this note)
+        absent = [n for n in OPTIONAL_OUTPUTS if n not in col]
+        meant = {h: m[0] for h in extra_names if (m := difflib.get_close_matches(h, absent, n=1, cutoff=0.6))}
+        notes.append(f"{where}: ignored extra column(s) {', '.join(extra_names)} (kept as extras)"
+                     + "".join(f"; did you mean {m!r} for {h!r}?" for h, m in meant.items()))
     return FlightLog(t.copy(), U, in_names, Y, out_names, extras, notes, source).fill_gaps()
 
 

@@ -434,12 +434,18 @@ class QuadrotorModel:
         typical = float(per_rotor[j])
         if typical > self.ROTOR_SPEED_PLAUSIBLE_FACTOR * hover:
             ratio = typical / hover
+            # an airframe without a K_T guess gets the parameter's default, sized for another
+            # vehicle: then the mistake is more likely there than in the log's units
+            given = "K_T" in self.airframe.parameters
             raise GreyboxInputError(
                 f"{where}: column {self.command_names[j]}: the rotor speeds are "
                 f"typically {typical:.4g}, {ratio:.1f} times the hover speed {hover:.4g} rad/s that "
                 f"mass {self.airframe.mass:g} kg and K_T {p[self.param_names.index('K_T')]:.3g} imply "
-                f"(thrust {ratio ** 2:.0f} times the weight): are they RPM? rad/s = RPM * pi/30 "
-                "(or is K_T too large?)")
+                f"(thrust {ratio ** 2:.0f} times the weight): "
+                + ("are they RPM? rad/s = RPM * pi/30 (or is K_T too large?)" if given else
+                   "the airframe gives no K_T, so that is greybox's default "
+                   "guess: give one under [parameters] (thrust per rotor / w^2 at hover, N s^2; "
+                   "m g / (n w_hover^2)); or are the speeds RPM? rad/s = RPM * pi/30"))
 
     def hover_speed(self, p: np.ndarray | None = None) -> float:
         """Equal rotor speed that balances gravity with the nominal ``K_T`` (level, no effects)."""

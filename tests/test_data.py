@@ -27,6 +27,15 @@ def test_multirate_log_loads(tmp_path):
     assert np.isfinite(log.output("x")).sum() == 10 and np.isfinite(log.output("phi")).all()
     assert "vbat" in log.extras and "ignored extra column" in log.notes[0]
     assert log.rate("x") == pytest.approx(100.0)
+    assert "did you mean" not in log.notes[0]
+
+
+def test_a_misspelled_optional_column_is_named_with_what_it_may_mean(tmp_path):
+    """An optional column misspelled is an extra column, ignored; the note asks whether the
+    column it resembles was meant (the fit otherwise runs without that gyro axis)."""
+    log = load_log(write(tmp_path, [HEADER + ",p,qq,r,vbat"] + [r + ",0.1,0.2,0.3,4.1" for r in good_rows()]))
+    assert log.output_names[-2:] == ["p", "r"] and "qq" in log.extras
+    assert "did you mean 'q' for 'qq'?" in log.notes[0] and "for 'vbat'" not in log.notes[0]
 
 
 def test_any_column_order_and_nan_text(tmp_path):

@@ -189,6 +189,23 @@ def test_rpm_below_the_absolute_limit_is_caught_against_the_airframe(tmp_path, c
     assert not (tmp_path / "s.csv").exists()
 
 
+def test_an_airframe_without_K_T_is_named_when_the_speeds_look_wrong(tmp_path, capsys):
+    """Speeds in rad/s, but the airframe gives no K_T: the default guess (sized for another
+    vehicle) puts the hover speed far below them. The error says the airframe gives no K_T,
+    not only "are they RPM?" (a blind audit's 0.42 kg airframe without it)."""
+    import tomllib
+    text = Path(PAPER).read_text()
+    assert "K_T" in tomllib.loads(text)["parameters"]
+    no_kt = "\n".join(line for line in text.splitlines() if not line.strip().startswith("K_T"))
+    assert "K_T" not in tomllib.loads(no_kt)["parameters"]
+    (tmp_path / "a.toml").write_text(no_kt)
+    log = load_log(DEMO).slice(0, 600)
+    log.inputs = log.inputs * 6.0                   # a vehicle six times faster-spinning
+    save_log(log, tmp_path / "f.csv")
+    rc, err = _cli(capsys, "fit", str(tmp_path / "f.csv"), "--airframe", str(tmp_path / "a.toml"), "--quiet")
+    assert rc == 2 and "the airframe gives no K_T" in _one_error(err) and "[parameters]" in err
+
+
 def test_one_rotor_column_in_rpm_is_named(tmp_path, capsys):
     log = load_log(DEMO).slice(0, 600)
     log.inputs[:, 2] *= 30 / np.pi
