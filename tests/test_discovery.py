@@ -230,6 +230,12 @@ def test_rate_damping_is_discovered_refitted_and_written(paper, damped, tmp_path
     assert "predicts better, nrmse 0.001" in "\n".join(beside._discovery_lines())
     worse = replace(beside, final_prediction=SimpleNamespace(total=d.baseline_prediction.total))
     assert "what the verdict holds" not in "\n".join(worse._discovery_lines())
+    # between the best single term and the combination of all: the combination predicts better
+    single = min(x.nrmse_after for x in d.discovered if x.significant)
+    together = d.discovery["together"]["nrmse_after"]
+    assert together < single
+    between = replace(beside, final_prediction=SimpleNamespace(total=0.5 * (together + single)))
+    assert "what the verdict holds" not in "\n".join(between._discovery_lines())
     # --write-effect's file, fitted by `greybox fit --effects-file`
     path = tmp_path / "found.py"
     path.write_text(d.best_discovery.effect_file("test"))

@@ -199,3 +199,9 @@ def test_soft_fit_of_several_flights_gives_each_its_own_process_noise(tmp_path):
     assert isinstance(q_p, list) and q_p[1] > 10 * q_p[0], q_p
     assert "p" in both.certificate.off_states() and "mostly systematic" in both.certificate.text()
     assert both.value("K_T") == pytest.approx(alone.value("K_T"), rel=0.03)     # 2.2 % measured
+    # one of its flights refitted in its formulation (diagnose's halves of a 2-flight fit): that
+    # flight's own process noise and node states (the 2-flight lists were refused: no halves)
+    kw = both.settings(flights=[1])
+    assert kw["process_noise"]["p"] == q_p[1] and len(kw["initial_states"]) == 1
+    weak_alone = fit(model, weak, p0=both.p, free=both.free_names, max_iter=100, **kw)
+    assert weak_alone.converged and weak_alone.process_noise["p"] == q_p[1]

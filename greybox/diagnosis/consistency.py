@@ -42,16 +42,19 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
     variance factor of the channels."""
     if len(est) == 1:
         halves = [[h] for h in est[0].split(0.5)]
+        flights = [[0], [0]]
     else:   # several flights: the first half of the flights against the second
         k = len(est) // 2
         halves = [list(est[:k]), list(est[k:])]
+        flights = [list(range(k)), list(range(k, len(est)))]
     out: dict[str, tuple[float, float, float, float]] = {}
     try:
         with _warnings.catch_warnings():
             _warnings.simplefilter("ignore", ConvergenceWarning)
+            # each half with its own flights' process noise (a 2-flight baseline's is given per flight)
             fits = [fit(model, half, p0=res.p, free=res.free_names, compile=compile, max_iter=100,
-                        **res.settings(states=False))
-                    for half in halves]
+                        **res.settings(states=False, flights=f))
+                    for half, f in zip(halves, flights)]
     except GreyboxError as e:   # a half too short or too poor to fit: no verdict on consistency
         say(f"diagnose: halves not compared ({e})")
         return out

@@ -434,6 +434,9 @@ class Diagnosis:
             lines.append(f"   {'*' if d.significant else ' '} {d.text()}  nrmse {d.nrmse_before:.3f} -> {after}  "
                          f"{d.reason}")
         found = [d.nrmse_after for d in self.discovered if d.significant and d.nrmse_after is not None]
+        together = (self.discovery or {}).get("together") or {}
+        if found and together.get("nrmse_after") is not None:
+            found.append(together["nrmse_after"])
         if found and self.verdict and not self.outside_catalogue and self.final_prediction is not None \
                 and self.final_prediction.total < min(found):
             # read beside a verdict, a "significant" residual force looked like a second finding

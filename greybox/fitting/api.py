@@ -129,21 +129,28 @@ class FitResult(FittedModel):
     init_window: float | None = None    # s of measurements its predictions start from (None: predict's default)
     measured_start: bool = False        # its predictions start from the measured attitude and body rates
 
-    def settings(self, *, states: bool = True) -> dict[str, Any]:
+    def settings(self, *, states: bool = True, flights: Sequence[int] | None = None) -> dict[str, Any]:
         """The keyword arguments of :func:`fit` that go on from this fit in its own
         formulation: its channel weights (``noise``, not re-estimated), shooting interval,
         process noise, per-flight rule, prediction start and, with ``states``, its node
-        states (leave them out for other logs, e.g. a half of the flight).
+        states (leave them out for other logs, e.g. a half of the flight). ``flights``: for a
+        fit of some of its flights only (their indices), with their own process noise.
 
         Example::
 
             more = fit(res.model, logs, p0=res.p, free=res.free_names, **res.settings())
         """
+        q = self.process_noise
+        if flights is not None and q is not None:
+            # a process noise given per flight is a list over the fit's flights
+            q = {s: ([v[i] for i in flights] if len(flights) > 1 else v[flights[0]])
+                 if isinstance(v, (list, tuple)) else v for s, v in q.items()}
         kw: dict[str, Any] = dict(noise=dict(self.sigma), reweight=False, interval=self.interval,
-                                  process_noise=self.process_noise, per_flight=self.per_flight_rule,
+                                  process_noise=q, per_flight=self.per_flight_rule,
                                   init_window=self.init_window, measured_start=self.measured_start)
         if states:
-            kw["initial_states"] = self.node_states
+            kw["initial_states"] = (self.node_states if flights is None else
+                                    [self.node_states[i] for i in flights])
         return kw
 
     def flight_p(self, flight: int) -> np.ndarray:
