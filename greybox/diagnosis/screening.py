@@ -216,7 +216,7 @@ def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], nam
     # costs 7x the baseline's cost there). Its statistic is the decrease from the baseline's
     # cost to the Gauss-Newton optimum predicted from the floor or, better where the floor's
     # linearisation is poor, from a plausible value: an approximate likelihood ratio (B10's
-    # 70-ms lag: 1.0e6 where its refit's is 4.2e6; the floor's own step said 2.8e5).
+    # 70-ms lag: 1.1e6 where its refit's is 4.2e6, a lower bound; the floor's own step said 2.8e5).
     reached = []
     for q in (p, off):
         Xq = np.vstack(_extend_nodes(ext, res, logs, q))
