@@ -349,11 +349,18 @@ def _process_noise(args) -> str | None:
     return None if args.process_noise == "none" else args.process_noise
 
 
-def _per_flight(text: str | None) -> str | list[str] | None:
-    """``--per-flight``: 'auto' (default), 'none' or a comma list of effects / parameters."""
+def _per_flight(text: str | None, model: QuadrotorModel | None = None) -> str | list[str] | None:
+    """``--per-flight``: 'auto' (default), 'none' or a comma list of effects / parameters of
+    ``model``, checked against it (when given) before any fitting starts."""
+    from .fitting import per_flight_positions
     if text is None or text == "auto":
         return "auto"
-    return None if text == "none" else _names(text)
+    if text == "none":
+        return None
+    names = _names(text)
+    if model is not None:
+        per_flight_positions(model, model.param_names, names, option="--per-flight")
+    return names
 
 
 def _fit_imu_only(args: argparse.Namespace, model: QuadrotorModel, logs) -> int:
@@ -386,7 +393,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         # several flights: shared parameters, each flight its own states
         res = fit(model, [est for est, _ in parts], free=_names(args.free), fixed=_names(args.fixed), p0=p0,
                   interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
-                  process_noise=_process_noise(args), per_flight=_per_flight(args.per_flight))
+                  process_noise=_process_noise(args), per_flight=_per_flight(args.per_flight, model))
     if not res.converged:
         raise GreyboxError(f"fit did not converge: {res.status}")
     # each flight validated with its own values of the per-flight parameters (wind, battery sag)
@@ -455,11 +462,12 @@ def write_outputs(outputs: Sequence[tuple[Path, str | bytes]]) -> None:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, p0, logs = _load_fit_inputs(args)
+    per_flight = _per_flight(args.per_flight, model)
     validation = [_load_model_log(model, v, p0) for v in args.validation] if args.validation else None
     diag = diagnose(model, logs, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=p0, progress=not args.quiet,
                     process_noise=_process_noise(args), validation=validation,
-                    discover=not args.no_discover or bool(args.write_effect), per_flight=_per_flight(args.per_flight),
+                    discover=not args.no_discover or bool(args.write_effect), per_flight=per_flight,
                     horizon=args.horizon)
     print(diag.summary())
     outputs: list[tuple[Path, str | bytes]] = []

@@ -82,7 +82,12 @@ def test_fit_cli_per_flight_json_and_a_bad_name(windy, tmp_path, capsys):
                "--per-flight", "gust"])
     assert rc == 2
     err = capsys.readouterr().err
-    assert "gust" in err and "Traceback" not in err
+    assert "--per-flight: 'gust' is neither" in err and "Traceback" not in err
+    # named by its option, before any fitting starts (no progress line: --quiet left out)
+    rc = main(["diagnose", *logs, "--airframe", str(tmp_path / "a.toml"), "--per-flight", "windd"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "--per-flight: 'windd' is neither" in err and "diagnose: fitting" not in err and "Traceback" not in err
 
 
 def test_fleet_comparison_leaves_a_flights_wind_out_and_needs_four_flights():

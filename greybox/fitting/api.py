@@ -753,8 +753,9 @@ def _q_text(model: QuadrotorModel, ses: FitSession) -> str:
 
 
 def per_flight_positions(model: QuadrotorModel, free_names: list[str],
-                         per_flight: "str | Iterable[str] | None") -> list[int]:
-    """Positions in ``free_names`` of the parameters fitted per flight (see :func:`fit`)."""
+                         per_flight: "str | Iterable[str] | None", option: str = "per_flight") -> list[int]:
+    """Positions in ``free_names`` of the parameters fitted per flight (see :func:`fit`);
+    ``option``: what an error calls the setting (the CLI's ``--per-flight``)."""
     if per_flight is None:
         return []
     if isinstance(per_flight, str):
@@ -768,7 +769,7 @@ def per_flight_positions(model: QuadrotorModel, free_names: list[str],
         comps = [c for par in model.parameters if item in (par.name, par.effect) for c in par.component_names]
         comps += [item] if item in model.param_names else []
         if not comps:
-            raise GreyboxInputError(f"per_flight: {item!r} is neither an effect of the model nor one of its "
+            raise GreyboxInputError(f"{option}: {item!r} is neither an effect of the model nor one of its "
                                     f"parameters (effects: {', '.join(model.effect_names)})")
         chosen.update(comps)
     return [j for j, n in enumerate(free_names) if n in chosen]
