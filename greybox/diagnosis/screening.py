@@ -217,12 +217,10 @@ def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], nam
     # cost to the Gauss-Newton optimum predicted from the floor or, better where the floor's
     # linearisation is poor, from a plausible value: an approximate likelihood ratio (B10's
     # 70-ms lag: 1.1e6 where its refit's is 4.2e6, a lower bound; the floor's own step said 2.8e5).
-    reached = []
-    for q in (p, off):
-        Xq = np.vstack(_extend_nodes(ext, res, logs, q))
-        thq = ses.theta(flight_vectors(ext, q, res, len(logs)))
-        reached.append(ses.total_cost(Xq, *ses.evaluate(Xq, thq, blocks=False)) - ses.predicted_decrease(Xq, thq))
-    return 2.0 * max(res.cost - min(reached), 0.0), df
+    Xo = np.vstack(_extend_nodes(ext, res, logs, off))
+    tho = ses.theta(flight_vectors(ext, off, res, len(logs)))
+    reached = min(ses.predicted_optimum(X, th), ses.predicted_optimum(Xo, tho))
+    return 2.0 * max(res.cost - reached, 0.0), df
 
 
 def _plausible_start(ext: QuadrotorModel, res: FitResult, name: str, p: np.ndarray) -> np.ndarray | None:

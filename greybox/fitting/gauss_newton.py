@@ -476,6 +476,12 @@ class FitSession:
         blocks = self.evaluate(X, th)
         return self._decrease(*self.step(X, th, blocks, 0.0))
 
+    def predicted_optimum(self, X, th) -> float:
+        """The cost at (X, th) less :meth:`predicted_decrease`: the cost one undamped
+        Gauss-Newton step predicts it reaches (one evaluation for both)."""
+        blocks = self.evaluate(X, th)
+        return self.total_cost(X, blocks[0], blocks[4]) - self._decrease(*self.step(X, th, blocks, 0.0))
+
     def _decrease(self, dz, lam, H, gg, cz) -> float:
         """The cost decrease the Gauss-Newton step ``dz`` (with multipliers ``lam``) predicts."""
         d = float(-(gg * dz).sum() - 0.5 * np.einsum("ki,kij,kj->", dz, H, dz))
