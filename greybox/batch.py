@@ -362,12 +362,9 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
                                                   horizons=diag.baseline_horizons))
     files["diagnose.json"] = _json_bytes(diag.as_json())
     files["model.json"] = _json_bytes(diag.fitted_model.to_dict())
-    # what the fleet comparison reads: the final model's parameters, their std widened by the
-    # colour of its residuals (a flight's fit std assume white residuals)
-    from .residuals import std_widening
-    est = model_log(diag.fitted_model.model, log, diag.fitted_model.p, flight.path).split(0.8)[0]
-    files["compare.json"] = _json_bytes({**comparable_fit(diag.fitted_model.to_dict()),
-                                         "std_factor": std_widening(diag.fitted_model, [est])})
+    # what the fleet comparison reads: the final model's parameters and std (which count the
+    # colour of its residuals)
+    files["compare.json"] = _json_bytes(comparable_fit(diag.fitted_model.to_dict()))
     with tempfile.TemporaryDirectory(prefix="greybox-report-") as tmp:
         diag.report(tmp)
         for p in sorted(Path(tmp).rglob("*")):
@@ -416,9 +413,7 @@ def run_fleet(flights: Sequence[Flight], opts: Options, nuisance: Sequence[str] 
         res = fit(model, [est for est, _ in parts], p0=p0, max_iter=200, process_noise=opts.process_noise,
                   per_flight=list(opts.per_flight) if isinstance(opts.per_flight, tuple) else opts.per_flight)
     preds = [predict(model, res.flight_p(i), val, **prediction_options(res)) for i, (_, val) in enumerate(parts)]
-    from .residuals import std_widening
     fitj = fit_json(model, res, preds, [f.path for f in flights], est=[est for est, _ in parts])
-    fitj["std_factor"] = std_widening(res, [est for est, _ in parts])
     return {"fit": fitj, "model": res.to_dict(),
             "converged": bool(res.converged), "status": res.status, "wall_s": round(time.perf_counter() - t0, 3)}
 
@@ -500,7 +495,8 @@ def fleet_comparison(flight_fits: Mapping[str, dict], fleet_fit: dict | None, n_
     The fleet's value is the joint fit's (``fleet_fit``, a fit JSON) or, without one, the
     median of the flights' own values (a robust screen: one odd flight does not move it).
     ``z = (value - fleet) / sqrt(std^2 + fleet_std^2 + tau^2)`` (each std times its fit's
-    ``std_factor`` when it has one: :func:`greybox.residuals.std_widening`), ``tau`` being the
+    ``std_factor`` when it has one: results of greybox before 2026-11-29, whose fit std did not
+    count the colour of the residuals, were widened by it), ``tau`` being the
     flight-to-flight scatter beyond the fits' own std (robust, from the median absolute
     deviation; 0 with fewer than 4 flights): battery state, wind and the like make real
     flights differ by more than one fit's std says. Beyond ``threshold`` a flight is named in
@@ -1058,8 +1054,8 @@ def _fleet(engine: _Engine | None, scheduler, workers, flights: Sequence[Flight]
             continue
         try:
             # each flight by its final model (a flight flown in wind, fitted without it, has its
-            # drag bent by the wind; its diagnosis added the wind to get it straight), std
-            # widened by its residuals' colour; results of an older greybox: fit.json
+            # drag bent by the wind; its diagnosis added the wind to get it straight); results of
+            # an older greybox: fit.json
             fits[f.name] = json.loads((out / f.name / "compare.json").read_text(encoding="utf-8"))
             good.append(f)
         except (OSError, ValueError):

@@ -15,7 +15,7 @@ from .integrate import n_substeps, parallel_map, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 
 __all__ = ["fitted_trajectory", "output_residuals", "whiteness_fraction", "long_run_factor",
-           "std_widening", "residual_widening", "WHITENESS_LAGS"]
+           "WHITENESS_LAGS"]
 
 WHITENESS_LAGS = 30
 """Autocorrelation lags (in measured samples) examined by :func:`whiteness_fraction`."""
@@ -89,20 +89,3 @@ def long_run_factor(e: np.ndarray, lags: int = 50) -> float:
         rho = float(e[k:] @ e[:-k]) / e.size / v
         acc += (1 - k / (lags + 1)) * rho
     return max(1.0, 1.0 + 2.0 * acc)
-
-
-def std_widening(res: Any, logs: "list[FlightLog]") -> float:
-    """How much wider a fit's parameter std are when its residuals are coloured: the square
-    root of the median long-run variance factor (:func:`long_run_factor`) of its measured
-    channels' residuals on its estimation flights ``logs``, >= 1. The fit's own std assume
-    white residuals; a model that is not exact leaves residuals correlated over dozens of
-    samples, and each sample then carries less information than the std count."""
-    E = np.vstack([output_residuals(lg, fitted_trajectory(res.model, res, lg, i)[1]) for i, lg in enumerate(logs)])
-    return residual_widening(E, res.sigma)
-
-
-def residual_widening(E: np.ndarray, channels) -> float:
-    """The square root of the median :func:`long_run_factor` of the residual columns of ``E``
-    (n, ny; ``OUTPUTS`` order) whose channel is in ``channels``; 1 without any."""
-    facs = [long_run_factor(E[:, c]) for c, ch in enumerate(OUTPUTS) if ch in channels]
-    return math.sqrt(float(np.median(facs))) if facs else 1.0

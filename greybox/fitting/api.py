@@ -5,7 +5,8 @@ The problem is described in :mod:`greybox.shooting`, solved by a :class:`Solver`
 certified (:class:`~greybox.fitting.certificate.Certificate`). Channel noise levels are
 estimated from the data (robust second differences) and re-estimated from the residuals
 after a first solve; uncertainty is the Gauss–Newton covariance of the constrained problem
-scaled by the residual variance.
+scaled by the residual variance, widened where the residuals are coloured by the long-run
+covariance of each interval's share of the estimate (:mod:`greybox.fitting.robust`).
 """
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ from ..validation import INIT_WINDOWS, choose_init_window, choose_start
 from .certificate import (GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE, NOISE_RATIO_COLOURED, STEP_TOLERANCE,
                           WHITENESS_ADEQUATE, Certificate)
 from .gauss_newton import FitSession, GaussNewton, Solver
+from .robust import long_run_covariance, upper_covariance
 
 __all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS",
            "TRUST_REGION", "IF_NEEDED"]
@@ -631,6 +633,13 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     # (``T`` averages its copies; a linear map, so the covariance follows exactly), each
     # flight's own value and std in ``per_flight_``.
     cov_all = s2 * P * np.outer(scale, scale)
+    # what coloured residuals leave of that: the long-run covariance of the intervals' shares
+    # of the estimate (a sandwich), never below the noise's own
+    try:
+        shares = ses.influence(X, blocks)
+        cov_all = upper_covariance(cov_all, long_run_covariance(shares, ses.interval_slices) * np.outer(scale, scale))
+    except SolverError:
+        pass    # a singular system: the Gauss-Newton covariance (and its warning) stand
     n_flights = len(logs)
     T = np.zeros((len(free_idx), nth))
     for f in range(n_flights):

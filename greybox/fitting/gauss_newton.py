@@ -274,6 +274,41 @@ class BorderedKKT:
         lam = (np.einsum("kab,kb->ka", S[:, :, :nx], dx[zi]) + S[:, :, nx:] @ dth - dx[zi + 1] + c) / q2
         return dz, lam
 
+    def influence(self, H: np.ndarray, g: np.ndarray, S: np.ndarray, c: np.ndarray,
+                  q2: np.ndarray | None = None) -> np.ndarray:
+        """Each interval's share of the undamped step in the parameters, (n_int, nth): the
+        step is linear in the right-hand side (the gradients ``g`` and gaps ``c``), and the
+        rows of one interval are its residuals' and its gap's. The shares sum to the step's
+        parameter part; at an optimum their spread over the intervals is what the estimate's
+        scatter is made of (a sandwich covariance, :func:`greybox.fitting.robust.long_run_covariance`)."""
+        nx, nth = self.nx, self.nth
+        zi = self.zi
+        soft = None
+        if q2 is not None and np.all(q2 > 0):
+            try:
+                soft = self._soft_normal(H, None, S, None, 0.0, q2)
+            except np.linalg.LinAlgError:
+                pass
+        gx, gth = g[zi, :nx], g[zi, nx:]
+        if soft is not None:
+            schur, Y = soft[0], soft[1].reshape(self.n_nodes, nx, nth)
+            Dq = np.broadcast_to(1.0 / q2, (len(zi), nx))
+            Dc = Dq * c
+            Sx, St = S[:, :, :nx], S[:, :, nx:]
+            # the band's right-hand side of interval k: -g_x at its node, -Sx^T D c there and
+            # +D c at the next node; the parameters': -g_th - St^T D c
+            r = (-gth - np.einsum("kai,ka->ki", St, Dc)
+                 + np.einsum("kai,ka->ki", Y[zi], gx + np.einsum("kab,ka->kb", Sx, Dc))
+                 - np.einsum("kai,ka->ki", Y[zi + 1], Dc))
+        else:
+            schur, Y = self._eliminate(H, None, S, None, 0.0, q2)[:2]
+            Yx, Yl = Y[self.rows_x].reshape(self.n_nodes, nx, nth), Y[self.rows_l].reshape(-1, nx, nth)
+            r = -gth + np.einsum("kai,ka->ki", Yx[zi], gx) + np.einsum("kai,ka->ki", Yl, c)
+        try:
+            return np.linalg.solve(schur, r.T).T
+        except np.linalg.LinAlgError as e:
+            raise SolverError(f"Gauss-Newton influence: singular KKT system ({e})") from None
+
     def parameter_inverse(self, H: np.ndarray, S: np.ndarray, q2: np.ndarray | None = None) -> np.ndarray:
         """The parameter block of the inverse of the undamped KKT matrix (the inverse of the
         Schur complement): the Gauss-Newton covariance of the parameters for unit-variance
@@ -501,6 +536,12 @@ class FitSession:
         H, _, S, _ = self._kkt_parts(X, blocks)
         P = self.kkt.parameter_inverse(H, S, q2=self._q2())
         return 0.5 * (P + P.T)
+
+    def influence(self, X, blocks) -> np.ndarray:
+        """Each interval's share of the undamped Gauss-Newton step in the scaled free
+        parameters, (n_int, nth) (:meth:`BorderedKKT.influence`)."""
+        H, gg, S, cz = self._kkt_parts(X, blocks)
+        return self.kkt.influence(H, gg, S, cz, q2=self._q2())
 
     @property
     def interval_duration(self) -> float:
