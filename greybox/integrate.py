@@ -21,7 +21,7 @@ from .errors import GreyboxInputError, SolverError
 from .model import QuadrotorModel
 
 __all__ = ["MAX_STEP", "rk4_step", "rk4_step_with_output", "n_substeps", "simulate", "Simulation", "threads",
-           "parallel_map"]
+           "parallel_map", "integrate_states_along"]
 
 MAX_STEP = 2.5e-3
 """Largest RK4 step (s). Logs sampled more slowly are integrated with sub-steps; with the
@@ -68,6 +68,34 @@ def rk4_step(model: QuadrotorModel, n_sub: int = 1) -> ca.Function:
         xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         tk = tk + dt
     return ca.Function("rk4", [x, u, p, t, h], [xk], ["x", "u", "p", "t", "h"], ["x_next"])
+
+
+def integrate_states_along(model: QuadrotorModel, t: np.ndarray, inputs: np.ndarray, states: "list[int]",
+                           x0: np.ndarray, held: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Some of the model's states, ``states`` (indices), integrated sample by sample over the
+    times ``t`` (n,) with each sample's input ``inputs`` (n, nu), as the shooting intervals do;
+    the other states held at ``held`` (n - 1, nx: sample j's values over the step from t[j]).
+    Returns (n, len(states)), ``x0`` first; not checked for finiteness. One ``mapaccum``, no
+    Python loop over samples: how an effect's own states (a motor lag's effective speeds)
+    get node guesses that follow the logged inputs, where inputs held over a whole interval
+    missed them by the inputs' change."""
+    h = np.diff(t)
+    step = rk4_step(model, n_substeps(float(max(h.max(), 1e-6))))
+    xa = ca.SX.sym("xa", len(states))
+    xo = ca.SX.sym("xo", model.nx)
+    u = ca.SX.sym("u", model.nu)
+    pp = ca.SX.sym("p", model.n_params)
+    ts = ca.SX.sym("t")
+    hs = ca.SX.sym("h")
+    x = ca.SX(xo)
+    for i, c in enumerate(states):
+        x[c] = xa[i]
+    f = ca.Function("states_along", [xa, xo, u, pp, ts, hs], [step(x, u, pp, ts, hs)[states]])
+    n = len(t) - 1
+    seq = np.asarray(f.mapaccum("states_along_acc", n)(
+        np.asarray(x0, dtype=float), held.T, inputs[:-1].T, np.repeat(np.asarray(p, dtype=float)[:, None], n, axis=1),
+        t[None, :-1], h[None, :]))
+    return np.vstack([np.asarray(x0, dtype=float)[None, :], seq.T])
 
 
 def rk4_step_with_output(model: QuadrotorModel, n_sub: int = 1) -> ca.Function:

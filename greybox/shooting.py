@@ -31,7 +31,7 @@ from scipy.signal import savgol_filter
 from . import codegen
 from .data import FlightLog
 from .errors import GreyboxInputError
-from .integrate import n_substeps, parallel_map, rk4_step
+from .integrate import integrate_states_along, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import body_rates_from_euler_rates
 
@@ -134,22 +134,11 @@ def _effect_states_along(model: QuadrotorModel, log: FlightLog, X: np.ndarray, p
     10^3 noise levels, and a fit started at the true parameters left for a basin with every
     drag on its bound. None when the integration does not stay finite (an effect whose own
     states are unstable without the rest of the model)."""
-    n = len(log.t)
-    h = np.diff(log.t)
-    step = rk4_step(model, n_substeps(float(h.max())))
-    xe = ca.SX.sym("xe", model.nx - 12)
-    xb = ca.SX.sym("xb", 12)
-    u = ca.SX.sym("u", model.nu)
-    pp = ca.SX.sym("p", model.n_params)
-    tk = ca.SX.sym("t")
-    hk = ca.SX.sym("h")
-    nxt = step(ca.vertcat(xb, xe), u, pp, tk, hk)[12:]
-    fold = ca.Function("effect_states", [xe, ca.vertcat(xb, u, tk, hk), pp], [nxt]).mapaccum(n - 1)
-    data = np.column_stack([X[:-1], log.inputs[:-1], log.t[:-1], h]).T
+    held = np.zeros((len(log.t) - 1, model.nx))
+    held[:, :12] = X[:-1]
     x0 = model.initial_state(X[0], log.inputs[0], p)[12:]
     with np.errstate(all="ignore"):
-        traj = np.asarray(fold(x0, data, p))
-    traj = np.column_stack([x0, traj]).T
+        traj = integrate_states_along(model, log.t, log.inputs, list(range(12, model.nx)), x0, held, p)
     return traj if np.all(np.isfinite(traj)) and np.abs(traj).max() < 1e12 else None
 
 

@@ -3,7 +3,7 @@ import pytest
 
 from greybox import QuadrotorModel, effects, simulate
 from greybox.errors import GreyboxInputError
-from greybox.integrate import n_substeps, rk4_step
+from greybox.integrate import integrate_states_along, n_substeps, rk4_step
 
 
 def test_rk4_agrees_with_cvodes_on_a_rich_model(plus_airframe):
@@ -44,3 +44,21 @@ def test_simulate_argument_errors(plus_airframe):
         simulate(m, [0, 0], np.ones((2, 4)))
     with pytest.raises(GreyboxInputError, match="unknown integration method"):
         simulate(m, [0, 1], np.ones((2, 4)), method="euler")
+
+
+def test_a_motor_lags_speeds_integrated_along_a_log_follow_its_step_response(plus_airframe):
+    """Logged speeds stepping from 400 to 500 rad/s at t = 0.5 s through a 30-ms lag, the base
+    states held: w_eff = 500 - 100 exp(-(t - 0.5)/tau) after the step (RK4 at 1 kHz: 1e-8 of it).
+    One sample's step uses that sample's input, so the response starts at the step's row."""
+    model = QuadrotorModel(plus_airframe) + effects.MotorLag()
+    p = model.parameter_vector({"tau_m": 0.03})
+    t = np.arange(0.0, 1.0 + 1e-9, 1e-3)
+    w = np.where(t < 0.5 - 1e-9, 400.0, 500.0)
+    inputs = np.repeat(w[:, None], 4, axis=1)
+    states = list(range(12, model.nx))
+    held = np.zeros((t.size - 1, model.nx))
+    traj = integrate_states_along(model, t, inputs, states, np.full(4, 400.0), held, p)
+    assert traj.shape == (t.size, 4) and np.all(traj[0] == 400.0)
+    after = t >= 0.5 - 1e-9
+    expected = np.where(after, 500.0 - 100.0 * np.exp(-(t - 0.5) / 0.03), 400.0)
+    assert np.allclose(traj, expected[:, None], rtol=0, atol=1e-5)

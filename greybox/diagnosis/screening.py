@@ -9,7 +9,6 @@ from __future__ import annotations
 import warnings as _warnings
 from typing import Sequence
 
-import casadi as ca
 import numpy as np
 from scipy import stats
 
@@ -17,7 +16,7 @@ from .. import effects as fx
 from ..data import FlightLog
 from ..errors import ConvergenceWarning
 from ..fitting import FitResult, FitSession, fit, per_flight_positions
-from ..integrate import n_substeps, rk4_step
+from ..integrate import integrate_states_along
 from ..model import BASE_STATES, OUTPUTS, QuadrotorModel
 from ..residuals import long_run_factor
 from ..shooting import ShootingProblem, free_indices
@@ -161,31 +160,16 @@ def _propagate_new_states(ext: QuadrotorModel, new: list[int], full: np.ndarray,
                           idx: np.ndarray, p: np.ndarray) -> np.ndarray:
     """The states ``new`` at the nodes ``idx``, integrated sample by sample with each sample's
     input, as the shooting intervals do, by the extended model; the other states held at
-    their node's value ``full`` over its interval (one ``mapaccum``, no Python loop over
-    samples). Held at the node's input over a whole interval instead, a 2-ms motor lag's
-    speeds missed the logged ones at the next node by the input's change over the interval,
-    gaps a tight process noise turned into a screening statistic of 1e9."""
+    their node's value ``full`` over its interval. Held at the node's input over a whole
+    interval instead, a 2-ms motor lag's speeds missed the logged ones at the next node by
+    the input's change over the interval, gaps a tight process noise turned into a screening
+    statistic of 1e9."""
     k = np.asarray(idx)
     j = np.arange(k[0], k[-1])
-    t = log.t
-    h = np.diff(t[k[0]:k[-1] + 1])
-    step = rk4_step(ext, n_substeps(float(max(h.max(), 1e-6))))
-    xa = ca.SX.sym("xa", len(new))
-    xo = ca.SX.sym("xo", ext.nx)
-    u = ca.SX.sym("u", ext.nu)
-    pp = ca.SX.sym("p", ext.n_params)
-    ts = ca.SX.sym("t")
-    hs = ca.SX.sym("h")
-    x = ca.SX(xo)
-    for i, c in enumerate(new):
-        x[c] = xa[i]
-    xn = step(x, u, pp, ts, hs)
-    f = ca.Function("propagate_new", [xa, xo, u, pp, ts, hs], [xn[new]])
     node_of_sample = np.searchsorted(k, j, side="right") - 1
-    F = f.mapaccum("propagate_acc", len(j))
-    seq = np.asarray(F(full[0, new], full[node_of_sample].T, log.inputs[j].T, np.repeat(p[:, None], len(j), axis=1),
-                       t[None, j], h[None, :])).T
-    return np.vstack([full[0, new], seq[k[1:] - k[0] - 1]])
+    seq = integrate_states_along(ext, log.t[k[0]:k[-1] + 1], log.inputs[k[0]:k[-1] + 1], new, full[0, new],
+                                 full[node_of_sample], p)
+    return seq[k - k[0]]
 
 
 def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], name: str, sigma: np.ndarray,

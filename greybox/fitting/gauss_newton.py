@@ -283,6 +283,8 @@ class BorderedKKT:
         scatter is made of (a sandwich covariance, :func:`greybox.fitting.robust.long_run_covariance`)."""
         nx, nth = self.nx, self.nth
         zi = self.zi
+        if not nth:
+            return np.zeros((len(zi), 0))
         soft = None
         if q2 is not None and np.all(q2 > 0):
             try:
