@@ -24,8 +24,6 @@ import os
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-import dataclasses  # noqa: E402
-
 import numpy as np  # noqa: E402
 
 import greybox.fitting.api as fit_api  # noqa: E402
@@ -35,18 +33,6 @@ from greybox.synth import SensorSpec, synthesize  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 START = {"K_T": 2.395e-5 * 1.35, "b": 6.8429e-7 * 0.65, "Kd": [0.135, 0.065, 0.20]}
-NOISE = {"x": .003, "y": .003, "z": .003, "phi": .003, "theta": .003, "psi": .003, "p": .005, "q": .005, "r": .005}
-
-
-def ar1(t: np.ndarray, tau: float, rng: np.random.Generator) -> np.ndarray:
-    """Unit-variance noise on times ``t`` correlated as exp(-dt / tau)."""
-    rho = np.exp(-np.diff(t, prepend=t[0]) / tau)
-    w = rng.standard_normal(t.size)
-    e = np.empty(t.size)
-    e[0] = w[0]
-    for k in range(1, t.size):
-        e[k] = rho[k] * e[k - 1] + np.sqrt(1 - rho[k] ** 2) * w[k]
-    return e
 
 
 class GaussNewtonStd:
@@ -78,18 +64,9 @@ def main() -> None:
     model = QuadrotorModel(load_airframe(HERE.parent / "greybox" / "data" / "airframes" / "paper.toml"))
     est, std, gn_std, names = [], [], [], None
     for k in range(a.runs):
-        if a.correlation_time > 0:
-            tiny = SensorSpec(pos_noise=1e-7, att_noise=1e-7, gyro_noise=1e-7)
-            r = synthesize(model, duration=a.duration, seed=a.seed, noise_seed=1000 + k, sensors=tiny)
-            rng = np.random.default_rng(1000 + k)
-            Y = r.log.outputs.copy()
-            for c, name in enumerate(r.log.output_names):
-                ok = np.isfinite(Y[:, c])
-                Y[ok, c] += NOISE[name] * ar1(r.log.t[ok], a.correlation_time, rng)
-            log = dataclasses.replace(r.log, outputs=Y)
-        else:
-            r = synthesize(model, duration=a.duration, seed=a.seed, noise_seed=1000 + k)
-            log = r.log
+        r = synthesize(model, duration=a.duration, seed=a.seed, noise_seed=1000 + k,
+                       sensors=SensorSpec(noise_correlation=a.correlation_time))
+        log = r.log
         e, _ = log.split()
         with GaussNewtonStd() as gn:
             res = fit(model, e, p0=START, process_noise=None if a.process_noise == "none" else "if_needed")

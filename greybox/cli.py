@@ -364,16 +364,15 @@ def _per_flight(text: str | None, model: QuadrotorModel | None = None) -> str | 
 
 
 def _fit_imu_only(args: argparse.Namespace, model: QuadrotorModel, logs) -> int:
-    """``greybox fit`` on a log with gyro and accelerometer but no position or attitude: the
+    """``greybox fit`` on a log with gyro and accelerometer but no position: the
     equation-error identification of :mod:`greybox.fitting.imu`."""
     from .fitting.imu import fit_imu
     if len(logs) > 1:
-        raise GreyboxInputError(f"{logs[0].source}: an IMU-only log (no position, no attitude) is fitted on its "
-                                "own; give one log")
+        raise GreyboxInputError(f"{logs[0].source}: an IMU-only log (gyro and accelerometer, no position) is "
+                                "fitted on its own; give one log")
     res = fit_imu(model, logs[0])
     print(res.summary())
     out = res.as_dict()
-    out["effects"] = model.effect_names + [e for e in ("motor_lag",) if e not in model.effect_names]
     if args.json:
         write_outputs([(Path(args.json), _json_text(out))])
     return 0

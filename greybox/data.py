@@ -294,6 +294,15 @@ class FlightLog:
             raise GreyboxInputError(f"{where}: log too short to fit: {len(self)} samples, need at "
                                     f"least {min_samples}")
         for name in REQUIRED_OUTPUTS:
+            if name in ("x", "y", "z") and not np.isfinite(self.output(name)).any():
+                imu = [c for c in ("p", "q", "r", "az")
+                       if c not in self.output_names or not np.isfinite(self.output(c)).any()]
+                need = f"{where}: column {name!r} is empty: fitting the full model needs position (vision, motion capture)"
+                raise GreyboxInputError(
+                    need + "; this log has gyro and accelerometer, so `greybox fit` (greybox.fitting.fit_imu) "
+                    "identifies what its IMU alone can: K_T, b, tau_m (README, 'Fitting an IMU-only log')" if not imu
+                    else need + "; a log without position is fitted from its IMU alone when it has the gyro p, q, r "
+                    f"and the accelerometer az (missing here: {', '.join(imu)})")
             est, _ = self.split()
             n = int(np.isfinite(est.output(name)).sum())
             if n < 5:
@@ -523,7 +532,9 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
     optional = set(optional)
     for name in REQUIRED_OUTPUTS:
         if name not in col and name not in optional:
-            raise GreyboxInputError(f"{where}: missing required column {name!r}")
+            raise GreyboxInputError(f"{where}: missing required column {name!r}" +
+                                    (" (a log without position keeps the columns x, y, z, left empty)"
+                                     if name in ("x", "y", "z") else ""))
     out_names = REQUIRED_OUTPUTS + [n for n in OPTIONAL_OUTPUTS if n in col]
 
     if data.shape[0] == 0:

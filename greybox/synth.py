@@ -16,6 +16,7 @@ from typing import Iterable, Mapping, Sequence
 
 import casadi as ca
 import numpy as np
+from scipy.signal import lfilter
 
 from . import effects as fx
 from .data import FlightLog
@@ -45,6 +46,18 @@ class SensorSpec:
     input_noise: float = 0.0        # rad/s, on the logged rotor speeds
     dropout: float = 0.05           # probability a vision frame is missing
     burst_dropouts: float = 1.0     # expected vision outages (0.1-0.4 s) per 10 s
+    noise_correlation: float = 0.0  # s; > 0: every sensor's noise is AR(1), correlated over
+                                    # this time with the same RMS (a filtered vision or IMU)
+
+
+def _coloured(w: np.ndarray, tau: float, t: np.ndarray) -> np.ndarray:
+    """White unit noise ``w`` (n, k) on the uniform times ``t`` made AR(1), correlated as
+    exp(-dt / tau), with unit variance from the first sample on; unchanged for ``tau <= 0``."""
+    if tau <= 0 or len(t) < 2:
+        return w
+    rho = math.exp(-float(t[1] - t[0]) / tau)
+    b = math.sqrt(1.0 - rho ** 2)
+    return lfilter([b], [1.0, -rho], w, axis=0, zi=((1.0 - b) * w[:1]))[0]
 
 
 def _min_jerk(s: np.ndarray) -> np.ndarray:
@@ -286,9 +299,9 @@ def synthesize(model: QuadrotorModel, parameters: np.ndarray | None = None, dura
     if noise_seed is not None:
         rng = np.random.default_rng([seed, noise_seed])
     Ymeas = Y.copy()
-    Ymeas[:, 0:3] += sensors.pos_noise * rng.standard_normal((n, 3))
-    Ymeas[:, 3:6] += sensors.att_noise * rng.standard_normal((n, 3))
-    Ymeas[:, 6:9] += max(sensors.gyro_noise, 0) * rng.standard_normal((n, 3))
+    Ymeas[:, 0:3] += sensors.pos_noise * _coloured(rng.standard_normal((n, 3)), sensors.noise_correlation, t)
+    Ymeas[:, 3:6] += sensors.att_noise * _coloured(rng.standard_normal((n, 3)), sensors.noise_correlation, t)
+    Ymeas[:, 6:9] += max(sensors.gyro_noise, 0) * _coloured(rng.standard_normal((n, 3)), sensors.noise_correlation, t)
     every = max(1, int(round(sensors.rate / sensors.vision_rate)))
     vis = np.zeros(n, dtype=bool)
     vis[::every] = True
@@ -304,7 +317,7 @@ def synthesize(model: QuadrotorModel, parameters: np.ndarray | None = None, dura
         keep += [6, 7, 8]
     if sensors.accel_noise > 0:
         # drawn last, so that flights without an accelerometer stay what they were
-        Ymeas[:, 9:12] += sensors.accel_noise * rng.standard_normal((n, 3))
+        Ymeas[:, 9:12] += sensors.accel_noise * _coloured(rng.standard_normal((n, 3)), sensors.noise_correlation, t)
         keep += [9, 10, 11]
     Ymeas, out_names = Ymeas[:, keep], [OUTPUTS[c] for c in keep]
     W_log = W + sensors.input_noise * rng.standard_normal(W.shape) if sensors.input_noise > 0 else W

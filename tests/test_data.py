@@ -142,3 +142,17 @@ def test_save_is_atomic(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         save_log(log, target)
     assert not target.exists() and not list(tmp_path.glob(".out.csv*"))
+
+
+def test_a_log_without_position_says_what_fits_it(tmp_path):
+    """x, y, z left empty: the full model cannot be fitted; the error says what an IMU-only
+    fit needs and which of it the log lacks (here the accelerometer's az: a misspelled
+    column makes the same log fall here). Absent position columns are named as such."""
+    rows = [r.replace("0.1,0.2,-1.0", ",,") + ",0.1,0.2,0.3" for r in good_rows(400)]
+    log = load_log(write(tmp_path, [HEADER + ",p,q,r"] + rows))
+    with pytest.raises(GreyboxInputError, match=r"column 'x' is empty: fitting the full model needs position "
+                                                r".*accelerometer az \(missing here: az\)"):
+        log.check_fittable()
+    with pytest.raises(GreyboxInputError, match=r"missing required column 'x' \(a log without position keeps "
+                                                r"the columns x, y, z, left empty\)"):
+        load_log(write(tmp_path, ["t,w1,w2,w3,w4,phi,theta,psi", "0,1,1,1,1,0,0,0"]))

@@ -102,3 +102,33 @@ def test_real_crazyflie_usd_log_gives_a_motor_lag_and_a_propeller_torque_ratio(t
     h = res.horizons
     i = h.horizons.index(0.05)
     assert all(h.model[ch][i] < h.naive[ch][i] for ch in ("p", "q", "r"))
+
+
+def test_a_3_kg_vehicles_imu_log_with_attitude_measured_speeds_and_heavy_rotors(tmp_path, capsys):
+    """The peer simulator's 3 kg vehicle (15-inch rotors of 3e-4 kg m^2), accelerometer and
+    gyro at 400 Hz, the ESCs' measured speeds, the attitude logged but no position: it is an
+    IMU-only log (the attitude is said to be unused; it used to fall to "log too short to fit"),
+    the rotors' gyroscopic torque is the model's, not the fit's (left in the fitted torques,
+    the roll and pitch gains were 0.975 and 1.128 with the geometry exact), and with no lag
+    to find (tau_m = 0, the end of its profile: no std) the JSON says null, not NaN (it
+    could not be written)."""
+    from peer_sim import PeerSensors, PeerVehicle, fly, write_case
+    veh = PeerVehicle.three_kg()
+    fl = fly(veh, duration=20.0, seed=3, sensors=PeerSensors(accel=True))
+    for k in ("x", "y", "z"):
+        fl.columns[k] = np.full(len(fl.columns["t"]), np.nan)
+    case = write_case(fl, tmp_path, name="imu")
+    out = tmp_path / "r.json"
+    assert main(["fit", str(case["log"]), "--airframe", str(case["airframe"]), "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "the logged attitude is not used" in text and "tau_m  = 0 (at the end of its profile: no std)" in text
+    r = json.loads(out.read_text())
+    par = r["parameters"]
+    assert par["g_x"]["value"] == pytest.approx(1.0, abs=0.01) and par["g_y"]["value"] == pytest.approx(1.0, abs=0.01)
+    assert par["K_T"]["value"] == pytest.approx(veh.K_T, rel=0.005) and par["b"]["value"] == pytest.approx(veh.b, rel=0.01)
+    assert par["tau_m"] == {"value": 0.0, "std": None}
+    assert "gyroscopic" in r["effects"] and "linear_drag" not in r["effects"]
+    # diagnose needs position: one line saying what this log can give instead
+    assert main(["diagnose", str(case["log"]), "--airframe", str(case["airframe"])]) == 2
+    err = capsys.readouterr().err
+    assert "column 'x' is empty" in err and "greybox fit" in err and "Traceback" not in err

@@ -202,9 +202,11 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but held on a bound: {on_bound}; "
                            "it stands in for something the model lacks")
         elif cand.explained is not None and cand.explained < min_explained:
-            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but it removes only "
-                           f"{100 * cand.explained:.1f} % of what the model misses above the sensor noise: it is "
-                           "not what is missing")
+            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but " +
+                           (f"it removes only {100 * cand.explained:.1f} % of what the model misses above the "
+                            "sensor noise" if cand.explained > 0 else
+                            f"with it the model misses {-100 * cand.explained:.1f} % more above the sensor "
+                            "noise") + ": it is not what is missing")
         elif cand.explained is not None and cand.explained < min_explained_inadequate and \
                 fr.certificate is not None and not fr.certificate.adequate:
             off = fr.certificate.off_channels() or fr.certificate.off_states()

@@ -1,4 +1,4 @@
-"""What a log of the IMU and the rotor commands alone identifies (no position, no attitude).
+"""What a log of the IMU and the rotor commands alone identifies (no position).
 
 A Crazyflie's uSD log, a bench log, a flight without motion capture: gyro, accelerometer
 and rotor speeds (or commands mapped to speeds). Without position the translational states
@@ -13,6 +13,10 @@ quadrotors with motor delays does):
   are right; ``c_x`` a constant trim: a centre-of-gravity offset, unequal rotors), and the
   same for pitch with ``x_i``;
 * yaw: ``(J omega_dot + omega x J omega)_z = b sum_i spin_i w_eff_i^2 + c_z``;
+* the torques of the model's effects that depend on nothing but the body rates and rotor
+  speeds (:data:`KNOWN_TORQUE_EFFECTS`: the rotors' gyroscopic torque) are known and taken
+  off the left side, computed by the model itself (left in, a 2.5 kg vehicle's roll and
+  pitch gains came out 0.957 and 1.030 where its geometry was exact);
 * the rotors' first-order lag ``w_eff' = (w - w_eff)/tau_m``, chosen by profiling the
   equations' joint fit over ``tau_m``.
 
@@ -21,7 +25,8 @@ torque gains ``g_x, g_y`` (a check of arm and inertia). Not identified: drag (it
 velocity), the absolute inertia (only torque over inertia is seen), the position and
 attitude of anything. Both sides are smoothed by the same Savitzky-Golay filter, so the
 filtering does not bias the coefficients; the commands are regressors, not noisy
-measurements. In closed loop the controller answers every disturbance torque, which can
+measurements. A logged attitude is not used (without position the velocity, and so the
+translational equations, are not determined by it). In closed loop the controller answers every disturbance torque, which can
 pull the torque coefficients towards zero: read ``g_x, g_y`` far below 1 that way.
 """
 from __future__ import annotations
@@ -29,6 +34,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import casadi as ca
 import numpy as np
 from scipy.signal import lfilter, savgol_filter
 
@@ -38,7 +44,12 @@ from ..model import QuadrotorModel
 from ..residuals import long_run_factor
 from ..validation import DEFAULT_HORIZONS, HorizonErrors
 
-__all__ = ["ImuFit", "fit_imu", "is_imu_only", "IMU_EQUATIONS", "TAU_GRID", "HORIZON_CHANNELS"]
+__all__ = ["ImuFit", "fit_imu", "is_imu_only", "imu_only_gaps", "IMU_EQUATIONS", "TAU_GRID", "HORIZON_CHANNELS",
+           "KNOWN_TORQUE_EFFECTS"]
+
+KNOWN_TORQUE_EFFECTS = ("gyroscopic",)
+"""Effects whose torque depends on the body rates and rotor speeds alone, with parameters the
+IMU-only equations do not fit: known from what an IMU log measures."""
 
 IMU_EQUATIONS = ("az", "p_dot", "q_dot", "r_dot")
 """The equations fitted: specific force along the rotor axis, angular accelerations."""
@@ -56,12 +67,21 @@ WINDOW_SPACING_S = 0.05
 """s between the starts of the prediction windows of an IMU-only fit's ``horizons``."""
 
 
+def _measured(log: FlightLog, ch: str) -> bool:
+    return ch in log.output_names and bool(np.isfinite(log.output(ch)).any())
+
+
 def is_imu_only(log: FlightLog) -> bool:
-    """Whether ``log`` has gyro and accelerometer but neither position nor attitude."""
-    def measured(ch):
-        return ch in log.output_names and np.isfinite(log.output(ch)).any()
-    return (not any(measured(c) for c in ("x", "y", "z", "phi", "theta", "psi"))
-            and all(measured(c) for c in ("p", "q", "r", "az")))
+    """Whether ``log`` has gyro and accelerometer but no position (an attitude, if logged, is
+    not used: :func:`fit_imu`)."""
+    return (not any(_measured(log, c) for c in ("x", "y", "z"))
+            and all(_measured(log, c) for c in ("p", "q", "r", "az")))
+
+
+def imu_only_gaps(log: FlightLog) -> list[str]:
+    """The channels an IMU-only fit needs (gyro ``p, q, r`` and accelerometer ``az``) that
+    ``log`` does not measure."""
+    return [c for c in ("p", "q", "r", "az") if not _measured(log, c)]
 
 
 @dataclass
@@ -80,6 +100,7 @@ class ImuFit:
     samples: int
     notes: list[str] = field(default_factory=list)
     horizons: "HorizonErrors | None" = None
+    effects: list[str] = field(default_factory=list)
 
     @property
     def total(self) -> float:
@@ -91,7 +112,8 @@ class ImuFit:
     def summary(self) -> str:
         lines = [f"IMU-only identification ({self.samples} samples; mass {self.mass:g} kg as given):"]
         for n, (v, s) in self.parameters.items():
-            lines.append(f"  {n:<6} = {v:.5g} ± {s:.2g}")
+            lines.append(f"  {n:<6} = {v:.5g}" + (f" ± {s:.2g}" if math.isfinite(s) else
+                                                   " (at the end of its profile: no std)"))
         lines.append("  validation nrmse (equation error, last 20 %): " +
                      ", ".join(f"{k} {v:.3f}" for k, v in self.nrmse.items()))
         if self.horizons is not None:
@@ -107,13 +129,38 @@ class ImuFit:
         return "\n".join(lines)
 
     def as_dict(self) -> dict:
-        return {"parameters": {n: {"value": v, "std": s} for n, (v, s) in self.parameters.items()},
-                "validation": {"nrmse": self.total, "channels": dict(self.nrmse),
+        def num(x: float) -> float | None:      # JSON has no NaN: an unknown std is null
+            return float(x) if math.isfinite(x) else None
+        return {"parameters": {n: {"value": num(v), "std": num(s)} for n, (v, s) in self.parameters.items()},
+                "effects": list(self.effects),
+                "validation": {"nrmse": num(self.total), "channels": {k: num(v) for k, v in self.nrmse.items()},
                                "yardstick": "equation error: specific force and angular acceleration"},
                 **({"horizons": self.horizons.as_dict()} if self.horizons is not None else {}),
                 "imu_only": True, "tau_profile": [[t, c] for t, c in self.tau_profile],
                 "not_identified": ["Kd", "inertia (absolute)", "position", "attitude"],
                 "notes": list(self.notes)}
+
+
+def _known_torque(model: QuadrotorModel) -> "ca.Function | None":
+    """``F(omega (3, n), w (rotors, n)) -> torque (3, n)`` of the model's
+    :data:`KNOWN_TORQUE_EFFECTS` at its default parameters: ``J (omega_dot with them -
+    omega_dot without)`` from the models' own right-hand sides, so what the torque is stays on
+    the effect. None when the model has none of them."""
+    names = [e for e in model.effect_names if e in KNOWN_TORQUE_EFFECTS]
+    if not names or model.inputs != "rotor_speeds":
+        return None
+    af = model.airframe
+    given = model.parameter_dict(model.default_parameters())
+    om = ca.SX.sym("omega", 3)
+    w = ca.SX.sym("w", af.n_rotors)
+    acc = []
+    for m in (QuadrotorModel(af, names), QuadrotorModel(af, [])):
+        p = m.parameter_vector({n: given[n] for n in m.param_names if n in given})
+        # (such effects carry no states of their own: the 12 base states are the whole state)
+        acc.append(m.rhs(ca.vertcat(ca.SX.zeros(9), om), w, p, 0)[9:12])
+    J = ca.DM(np.asarray(af.inertia, dtype=float))
+    f = ca.Function("known_torque", [om, w], [J @ (acc[0] - acc[1])])
+    return f
 
 
 def _lagged(w: np.ndarray, tau: float, dt: float) -> np.ndarray:
@@ -134,20 +181,21 @@ def _regressors(w2: np.ndarray, P: np.ndarray, spins: np.ndarray) -> dict[str, n
             "r_dot": np.column_stack([w2 @ spins, ones])}
 
 
-def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, w2: np.ndarray, coef: dict,
+def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, w_eff: np.ndarray, coef: dict,
                     geometry: tuple[np.ndarray, np.ndarray, np.ndarray, float], first: int,
-                    horizons: "tuple[float, ...]") -> HorizonErrors:
+                    horizons: "tuple[float, ...]", known: "ca.Function | None" = None) -> HorizonErrors:
     """Open-loop prediction of the body rates and the specific force from the samples
     ``first``.. on: windows start every :data:`WINDOW_SPACING_S` at a measured gyro sample
     (the naive predictor's and the model's start alike: no smoothing reaches into the
     window), the rates integrated by Heun's rule through ``J omega_dot = tau(w_eff) - omega
-    x J omega`` with the fitted torque coefficients and trims; the specific force is the
+    x J omega`` with the fitted torque coefficients and trims (and the ``known`` torques:
+    :func:`_known_torque`); the specific force is the
     output map ``-K_T sum w_eff^2 / m`` (no state). The naive predictor holds the start's
     rates and specific force."""
     J, P, spins, m = geometry
     dt = float(grid[1] - grid[0])
     Jinv = np.linalg.inv(J)
-    X = _regressors(w2, P, spins)
+    X = _regressors(w_eff ** 2, P, spins)
     torque = np.column_stack([X[eq] @ coef[eq] for eq in ("p_dot", "q_dot", "r_dot")])
     az_model = -(X["az"] @ coef["az"]) / m
     hs = sorted({round(dt, 9), *horizons})
@@ -162,7 +210,10 @@ def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, w2: np.nda
     if starts.size:
         def rate(o, k):      # omega_dot of every window at step k of its own
             idx = np.minimum(starts + k, len(grid) - 1)
-            return (torque[idx] - np.cross(o, o @ J.T)) @ Jinv.T
+            tq = torque[idx] - np.cross(o, o @ J.T)
+            if known is not None:
+                tq = tq + np.asarray(known(o.T, w_eff[idx].T)).T
+            return tq @ Jinv.T
         o = om[starts].copy()
         pred = {0: o.copy()}
         for k in range(longest):
@@ -242,20 +293,25 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     val = use & (np.arange(n) >= cut)
     if est.sum() < 50 or val.sum() < 20:
         raise GreyboxInputError(f"{where}: too few usable IMU samples for an IMU-only fit")
-    y_eq = {"az": -m * smooth(az), "p_dot": lhs[:, 0], "q_dot": lhs[:, 1], "r_dot": lhs[:, 2]}
+    known = _known_torque(model)
 
-    def regressors(tau):
-        return _regressors(smooth(_lagged(w, tau, dt) ** 2), P, spins)
+    def equations(tau):
+        """The equations' left sides (with the known torques taken off: they move with the
+        lagged speeds) and regressors at the motor time constant ``tau``."""
+        w_eff = _lagged(w, tau, dt)
+        rot = lhs if known is None else lhs - smooth(np.asarray(known(om_s.T, w_eff.T)).T)
+        return ({"az": -m * smooth(az), "p_dot": rot[:, 0], "q_dot": rot[:, 1], "r_dot": rot[:, 2]},
+                _regressors(smooth(w_eff ** 2), P, spins))
 
     def solve(tau):
-        X = regressors(tau)
+        y_eq, X = equations(tau)
         coef, cost = {}, 0.0
         for eq, y in y_eq.items():
             c, *_ = np.linalg.lstsq(X[eq][est], y[est], rcond=None)
             r = y[est] - X[eq][est] @ c
             coef[eq] = c
             cost += float(r @ r) / max(float(np.var(y[est])) * est.sum(), 1e-300)
-        return coef, cost, X
+        return coef, cost, X, y_eq
 
     grid_tau = tuple(tau_grid) if tau_grid is not None else TAU_GRID
     profile = [(tau, solve(tau)[1]) for tau in grid_tau]
@@ -263,7 +319,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     tau = grid_tau[k]
     # the profile's curvature at its minimum gives tau's std (cost is a sum of normalised
     # squares: 2 / curvature per unit of normalised variance, scaled by the residual level)
-    coef, cost, X = solve(tau)
+    coef, cost, X, y_eq = solve(tau)
     if 0 < k < len(grid_tau) - 1:
         (t0, c0), (t1, c1), (t2, c2) = profile[k - 1], profile[k], profile[k + 1]
         curv = 2 * ((c2 - c1) / (t2 - t1) - (c1 - c0) / (t1 - t0)) / (t2 - t0)
@@ -307,7 +363,11 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     # the measured samples, not the smoothed ones, start and score the predictions
     om_raw = np.where(gaps[:, None], np.nan, om)
     az_raw = np.where(gaps, np.nan, az)
-    horizons = _horizon_errors(grid, om_raw, az_raw, _lagged(w, tau, dt) ** 2, coef, (J, P, spins, m), cut,
-                               DEFAULT_HORIZONS)
+    horizons = _horizon_errors(grid, om_raw, az_raw, _lagged(w, tau, dt), coef, (J, P, spins, m), cut,
+                               DEFAULT_HORIZONS, known)
+    if any(_measured(log, c) for c in ("phi", "theta", "psi")):
+        notes.append("the logged attitude is not used: without position the velocity, and with it the "
+                     "translational equations, are not determined by the data")
+    effects = (["yaw_torque"] + [e for e in model.effect_names if e in KNOWN_TORQUE_EFFECTS] + ["motor_lag"])
     return ImuFit(params, nrmse, [(float(a), float(b)) for a, b in profile], m, int(est.sum()), notes,
-                  horizons)
+                  horizons, effects)
