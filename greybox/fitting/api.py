@@ -105,7 +105,7 @@ class FitResult(FittedModel):
     p: np.ndarray                       # full flat parameter vector
     free_names: list[str]
     std: np.ndarray                     # standard deviations of the free parameters
-    covariance: np.ndarray
+    covariance: np.ndarray              # at least the Gauss-Newton one and the residuals' colour's (robust.py)
     correlation: np.ndarray
     converged: bool
     status: str
