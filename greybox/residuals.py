@@ -15,7 +15,7 @@ from .integrate import n_substeps, parallel_map, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 
 __all__ = ["fitted_trajectory", "output_residuals", "whiteness_fraction", "long_run_factor",
-           "WHITENESS_LAGS"]
+           "residual_widening", "WHITENESS_LAGS"]
 
 WHITENESS_LAGS = 30
 """Autocorrelation lags (in measured samples) examined by :func:`whiteness_fraction`."""
@@ -89,3 +89,10 @@ def long_run_factor(e: np.ndarray, lags: int = 50) -> float:
         rho = float(e[k:] @ e[:-k]) / e.size / v
         acc += (1 - k / (lags + 1)) * rho
     return max(1.0, 1.0 + 2.0 * acc)
+
+
+def residual_widening(E: np.ndarray, channels) -> float:
+    """The square root of the median :func:`long_run_factor` of the residual columns of ``E``
+    (n, ny; ``OUTPUTS`` order) whose channel is in ``channels``; 1 without any."""
+    facs = [long_run_factor(E[:, c]) for c, ch in enumerate(OUTPUTS) if ch in channels]
+    return math.sqrt(float(np.median(facs))) if facs else 1.0

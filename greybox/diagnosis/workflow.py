@@ -140,7 +140,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                            "the verdict is null because greybox cannot tell. A model that misses a large force or "
                            "torque cannot follow the data open loop over a shooting interval: see where it fails "
                            "(above), try shorter intervals, or process_noise='auto' (--process-noise auto)")
-    inconsistent = half_consistency(model, res, est, compile, say) if res.converged else {}
+    inconsistent = half_consistency(model, res, est, E, compile, say) if res.converged else {}
     for n, (a, sa, b, sb) in inconsistent.items():
         warnings.append(f"baseline fit: {n} differs between the two halves of the estimation data ({a:.4g} ± {sa:.2g} "
                         f"vs {b:.4g} ± {sb:.2g}): it is absorbing something the model lacks, not a constant of the "

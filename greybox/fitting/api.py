@@ -130,6 +130,7 @@ class FitResult(FittedModel):
     per_flight_rule: str | list[str] | None = None   # what fit(per_flight=...) was asked (refits ask the same)
     init_window: float | None = None    # s of measurements its predictions start from (None: predict's default)
     measured_start: bool = False        # its predictions start from the measured attitude and body rates
+    white_std: np.ndarray | None = None  # the std white residuals would give (Gauss-Newton), free_names order
 
     def settings(self, *, states: bool = True, flights: Sequence[int] | None = None) -> dict[str, Any]:
         """The keyword arguments of :func:`fit` that go on from this fit in its own
@@ -633,6 +634,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     # (``T`` averages its copies; a linear map, so the covariance follows exactly), each
     # flight's own value and std in ``per_flight_``.
     cov_all = s2 * P * np.outer(scale, scale)
+    cov_white = cov_all
     # what coloured residuals leave of that: the long-run covariance of the intervals' shares
     # of the estimate (a sandwich), never below the noise's own
     try:
@@ -645,6 +647,8 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     for f in range(n_flights):
         T[np.arange(len(free_idx)), ses.theta_index[f]] += 1.0 / n_flights   # shared: one column, sum 1
     cov = T @ cov_all @ T.T
+    var_white = np.diag(T @ cov_white @ T.T)
+    white_std = np.where(var_white > 0, np.sqrt(np.abs(var_white)), np.nan)
     P = T @ P @ T.T
     var = np.diag(cov)
     warnings: list[str] = []
@@ -738,7 +742,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
                                 **({"measured_start": True} if measured_start else {})),
                      per_flight_out,
                      per_flight if per_flight is None or isinstance(per_flight, str) else list(per_flight),
-                     init_window, measured_start)
+                     init_window, measured_start, white_std)
 
 
 def _flight_q(ses: FitSession) -> np.ndarray:
