@@ -109,6 +109,10 @@ class FlightLog:
         except ValueError:
             raise GreyboxInputError(f"{self.source or 'log'}: has no output column {name!r}") from None
 
+    def measures(self, name: str) -> bool:
+        """Whether the log has output column ``name`` with at least one measurement."""
+        return name in self.output_names and bool(np.isfinite(self.output(name)).any())
+
     def input(self, name: str) -> np.ndarray:
         return self.inputs[:, self.input_names.index(name)]
 
@@ -294,9 +298,8 @@ class FlightLog:
             raise GreyboxInputError(f"{where}: log too short to fit: {len(self)} samples, need at "
                                     f"least {min_samples}")
         for name in REQUIRED_OUTPUTS:
-            if name in ("x", "y", "z") and not np.isfinite(self.output(name)).any():
-                imu = [c for c in ("p", "q", "r", "az")
-                       if c not in self.output_names or not np.isfinite(self.output(c)).any()]
+            if name in ("x", "y", "z") and not self.measures(name):
+                imu = [c for c in ("p", "q", "r", "az") if not self.measures(c)]
                 need = f"{where}: column {name!r} is empty: fitting the full model needs position (vision, motion capture)"
                 raise GreyboxInputError(
                     need + "; this log has gyro and accelerometer, so `greybox fit` (greybox.fitting.fit_imu) "

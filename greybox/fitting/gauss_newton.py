@@ -274,6 +274,21 @@ class BorderedKKT:
         lam = (np.einsum("kab,kb->ka", S[:, :, :nx], dx[zi]) + S[:, :, nx:] @ dth - dx[zi + 1] + c) / q2
         return dz, lam
 
+    def _parameter_columns(self, H: np.ndarray, S: np.ndarray, q2: np.ndarray | None
+                           ) -> tuple[bool, np.ndarray, np.ndarray]:
+        """The undamped band eliminated against the parameters' columns: (soft, Schur
+        complement, the band's solution for those columns). With every gap penalised the
+        normal equations in the node states (``soft``), else (or when those are not positive
+        definite to rounding) the KKT band with its multipliers."""
+        if q2 is not None and np.all(q2 > 0):
+            try:
+                schur, Y = self._soft_normal(H, None, S, None, 0.0, q2)[:2]
+                return True, schur, Y
+            except np.linalg.LinAlgError:
+                pass
+        schur, Y = self._eliminate(H, None, S, None, 0.0, q2)[:2]
+        return False, schur, Y
+
     def influence(self, H: np.ndarray, g: np.ndarray, S: np.ndarray, c: np.ndarray,
                   q2: np.ndarray | None = None) -> np.ndarray:
         """Each interval's share of the undamped step in the parameters, (n_int, nth): the
@@ -285,15 +300,10 @@ class BorderedKKT:
         zi = self.zi
         if not nth:
             return np.zeros((len(zi), 0))
-        soft = None
-        if q2 is not None and np.all(q2 > 0):
-            try:
-                soft = self._soft_normal(H, None, S, None, 0.0, q2)
-            except np.linalg.LinAlgError:
-                pass
+        soft, schur, Y = self._parameter_columns(H, S, q2)
         gx, gth = g[zi, :nx], g[zi, nx:]
-        if soft is not None:
-            schur, Y = soft[0], soft[1].reshape(self.n_nodes, nx, nth)
+        if soft:
+            Y = Y.reshape(self.n_nodes, nx, nth)
             Dq = np.broadcast_to(1.0 / q2, (len(zi), nx))
             Dc = Dq * c
             Sx, St = S[:, :, :nx], S[:, :, nx:]
@@ -303,7 +313,6 @@ class BorderedKKT:
                  + np.einsum("kai,ka->ki", Y[zi], gx + np.einsum("kab,ka->kb", Sx, Dc))
                  - np.einsum("kai,ka->ki", Y[zi + 1], Dc))
         else:
-            schur, Y = self._eliminate(H, None, S, None, 0.0, q2)[:2]
             Yx, Yl = Y[self.rows_x].reshape(self.n_nodes, nx, nth), Y[self.rows_l].reshape(-1, nx, nth)
             r = -gth + np.einsum("kai,ka->ki", Yx[zi], gx) + np.einsum("kai,ka->ki", Yl, c)
         try:
@@ -315,14 +324,7 @@ class BorderedKKT:
         """The parameter block of the inverse of the undamped KKT matrix (the inverse of the
         Schur complement): the Gauss-Newton covariance of the parameters for unit-variance
         weighted residuals."""
-        schur = None
-        if q2 is not None and np.all(q2 > 0):
-            try:
-                schur = self._soft_normal(H, None, S, None, 0.0, q2)[0]
-            except np.linalg.LinAlgError:
-                pass
-        if schur is None:
-            schur = self._eliminate(H, None, S, None, 0.0, q2)[0]
+        schur = self._parameter_columns(H, S, q2)[1]
         try:
             return np.linalg.inv(schur)
         except np.linalg.LinAlgError as e:

@@ -44,7 +44,7 @@ from ..model import QuadrotorModel
 from ..residuals import long_run_factor
 from ..validation import DEFAULT_HORIZONS, HorizonErrors
 
-__all__ = ["ImuFit", "fit_imu", "is_imu_only", "imu_only_gaps", "IMU_EQUATIONS", "TAU_GRID", "HORIZON_CHANNELS",
+__all__ = ["ImuFit", "fit_imu", "is_imu_only", "IMU_EQUATIONS", "TAU_GRID", "HORIZON_CHANNELS",
            "KNOWN_TORQUE_EFFECTS"]
 
 KNOWN_TORQUE_EFFECTS = ("gyroscopic",)
@@ -67,21 +67,10 @@ WINDOW_SPACING_S = 0.05
 """s between the starts of the prediction windows of an IMU-only fit's ``horizons``."""
 
 
-def _measured(log: FlightLog, ch: str) -> bool:
-    return ch in log.output_names and bool(np.isfinite(log.output(ch)).any())
-
-
 def is_imu_only(log: FlightLog) -> bool:
     """Whether ``log`` has gyro and accelerometer but no position (an attitude, if logged, is
     not used: :func:`fit_imu`)."""
-    return (not any(_measured(log, c) for c in ("x", "y", "z"))
-            and all(_measured(log, c) for c in ("p", "q", "r", "az")))
-
-
-def imu_only_gaps(log: FlightLog) -> list[str]:
-    """The channels an IMU-only fit needs (gyro ``p, q, r`` and accelerometer ``az``) that
-    ``log`` does not measure."""
-    return [c for c in ("p", "q", "r", "az") if not _measured(log, c)]
+    return not any(log.measures(c) for c in ("x", "y", "z")) and all(log.measures(c) for c in ("p", "q", "r", "az"))
 
 
 @dataclass
@@ -159,8 +148,7 @@ def _known_torque(model: QuadrotorModel) -> "ca.Function | None":
         # (such effects carry no states of their own: the 12 base states are the whole state)
         acc.append(m.rhs(ca.vertcat(ca.SX.zeros(9), om), w, p, 0)[9:12])
     J = ca.DM(np.asarray(af.inertia, dtype=float))
-    f = ca.Function("known_torque", [om, w], [J @ (acc[0] - acc[1])])
-    return f
+    return ca.Function("known_torque", [om, w], [J @ (acc[0] - acc[1])])
 
 
 def _lagged(w: np.ndarray, tau: float, dt: float) -> np.ndarray:
@@ -254,7 +242,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     if model.inputs != "rotor_speeds":
         raise GreyboxInputError(f"{where}: an IMU-only fit needs rotor speeds as inputs")
     for ch in ("p", "q", "r", "az"):
-        if ch not in log.output_names or not np.isfinite(log.output(ch)).any():
+        if not log.measures(ch):
             raise GreyboxInputError(f"{where}: an IMU-only fit needs column {ch!r} (gyro and accelerometer)")
     af = model.airframe
     n_rot = af.n_rotors
@@ -294,13 +282,14 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     if est.sum() < 50 or val.sum() < 20:
         raise GreyboxInputError(f"{where}: too few usable IMU samples for an IMU-only fit")
     known = _known_torque(model)
+    thrust_side = -m * smooth(az)
 
     def equations(tau):
         """The equations' left sides (with the known torques taken off: they move with the
         lagged speeds) and regressors at the motor time constant ``tau``."""
         w_eff = _lagged(w, tau, dt)
         rot = lhs if known is None else lhs - smooth(np.asarray(known(om_s.T, w_eff.T)).T)
-        return ({"az": -m * smooth(az), "p_dot": rot[:, 0], "q_dot": rot[:, 1], "r_dot": rot[:, 2]},
+        return ({"az": thrust_side, "p_dot": rot[:, 0], "q_dot": rot[:, 1], "r_dot": rot[:, 2]},
                 _regressors(smooth(w_eff ** 2), P, spins))
 
     def solve(tau):
@@ -371,7 +360,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     az_raw = np.where(gaps, np.nan, az)
     horizons = _horizon_errors(grid, om_raw, az_raw, _lagged(w, tau, dt), coef, (J, P, spins, m), cut,
                                DEFAULT_HORIZONS, known)
-    if any(_measured(log, c) for c in ("phi", "theta", "psi")):
+    if any(log.measures(c) for c in ("phi", "theta", "psi")):
         notes.append("the logged attitude is not used: without position the velocity, and with it the "
                      "translational equations, are not determined by the data")
     effects = (["yaw_torque"] + [e for e in model.effect_names if e in KNOWN_TORQUE_EFFECTS] + ["motor_lag"])
