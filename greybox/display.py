@@ -115,6 +115,8 @@ def _verdict_words(d: "Diagnosis") -> str:
                          "random_torque": "null (what is missing acts as a random torque: the final model holds "
                                           "it as a disturbance)",
                          "unexplained": "null (the model misses something no candidate explains)",
+                         "sensor_error": "null (what is left above the noise is the sensors' own error, not "
+                                         "motion)",
                          "small_misfit": "null (no catalogue effect is significant; the model is a little "
                                          "off the noise, too little to tell what it is)",
                          "nothing_missing": "null (nothing significant is missing)"}[d.null_reason]

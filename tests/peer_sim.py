@@ -407,6 +407,8 @@ class PeerSensors:
     accel_noise: float = 0.05
     accel_bias: Sequence[float] | None = None   # m/s^2, added to the logged ax, ay, az
     log_commands: bool = False           # log the controller's speed commands (as a PWM log does), not the ESCs' speeds
+    att_correlation: float = 0.0         # s; > 0: the attitude noise (same RMS) is correlated over this time,
+                                         # as an estimator's output is (AR(1) of the same draws)
 
 
 @dataclass
@@ -479,7 +481,12 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
         keep[(t_log >= t0) & (t_log < t0 + length)] = False
     for j, name in enumerate("xyz"):
         cols[name] = np.where(keep, pos[:, j], np.nan)
-    att = eul + veh.att_noise * rng.standard_normal((n, 3))
+    att_err = veh.att_noise * rng.standard_normal((n, 3))
+    if sens.att_correlation > 0:
+        rho = math.exp(-log_dt / sens.att_correlation)
+        for k in range(1, n):
+            att_err[k] = rho * att_err[k - 1] + math.sqrt(1 - rho * rho) * att_err[k]
+    att = eul + att_err
     att[:, 2] = (att[:, 2] + math.pi) % (2 * math.pi) - math.pi
     for j, name in enumerate(("phi", "theta", "psi")):
         cols[name] = att[:, j]

@@ -161,6 +161,25 @@ def test_jittered_time_stamps_make_fit_use_process_noise(cf_flights):
     assert res.init_window in (0.05, 0.1, 0.2, 0.5)
 
 
+@pytest.mark.slow
+def test_a_filtered_attitude_is_the_sensors_error_and_output_error_stays(tmp_path):
+    """The 30 g vehicle with exact time stamps, its attitude logged as an estimator gives it
+    (the error correlated over 50 ms): the output-error fit is right but its attitude
+    residuals stand several times above the high-frequency noise estimate. The gyro does not
+    share them (not motion), so the fit keeps output error, and K_T and b come out within
+    0.05 %."""
+    fl = fly(PeerVehicle.crazyflie(), duration=20.0, seed=1, sensors=PeerSensors(time_jitter=0.0, att_correlation=0.05))
+    paths, truth = write_case(fl, tmp_path), fl.truth["greybox_equivalent"]
+    model = QuadrotorModel(load_airframe(paths["airframe"]))
+    est, _ = load_log(paths["log"]).split(0.8)
+    res = fit(model, est)
+    assert res.converged and res.process_noise is None, res.warnings
+    off = set(res.certificate.off_channels())
+    assert off and off <= {"phi", "theta", "psi"} and set(res.certificate.sensor_error) == off, res.certificate.text()
+    assert res.value("K_T") == pytest.approx(truth["K_T"], rel=5e-4)
+    assert res.value("b") == pytest.approx(truth["b"], rel=5e-4)
+
+
 def test_airframe_text_is_what_greybox_reads(tmp_path):
     veh = PeerVehicle.crazyflie()
     p = tmp_path / "a.toml"

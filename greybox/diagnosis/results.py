@@ -13,7 +13,9 @@ from .. import effects as fx
 from ..data import FlightLog
 from ..effects.discovered import CHANNEL_UNITS, DiscoveredEffect, discovered_effect_class, effect_file_text
 from ..fitting import FitResult
+from ..fitting.certificate import FILTERED_SENSOR_RATIO
 from ..model import OUTPUTS, QuadrotorModel
+from ..residuals import AttitudeMotion
 from ..validation import HorizonErrors, Prediction
 from .analysis import CommandImbalance, Finding
 from .closed_loop import rate_levels
@@ -24,6 +26,8 @@ noise (and coloured) are reported as what the model misses beyond every candidat
 it, a misfit the certificate still finds (``small_misfit``) is too small to tell what it is."""
 
 __all__ = ["CandidateResult", "Round", "Diagnosis", "Discovered", "DiscoveredTerm", "UNEXPLAINED_RATIO"]
+
+_PARTNER = {"p": "phi", "q": "theta", "r": "psi"}   # the angle a body rate mostly moves near level
 
 
 @dataclass
@@ -222,6 +226,26 @@ class Diagnosis:
     # error against horizon of the baseline and the final model (validation.horizon_errors_after)
     baseline_horizons: HorizonErrors | None = None
     final_horizons: HorizonErrors | None = None
+    # whether the final fit's attitude and rate residuals are motion (residuals.attitude_motion),
+    # computed when some of those channels are unexplained
+    attitude_motion: dict[str, AttitudeMotion] = field(default_factory=dict)
+
+    def motion_verdicts(self) -> dict[str, str]:
+        """Per unexplained attitude or rate channel whose residual the gyro-attitude comparison
+        can place: ``"sensor"`` (the attitude sensor's or the gyro's own error, not motion) or
+        ``"motion"`` (a moment the model misses: the rate residual integrates into the angle
+        residual one for one): :class:`~greybox.residuals.AttitudeMotion`."""
+        out: dict[str, str] = {}
+        cert = self.fitted_model.certificate
+        for ch, ratio in self.unexplained.items():
+            if ch in ("phi", "theta", "psi") and ch in self.attitude_motion and cert is not None:
+                if self.attitude_motion[ch].angle_is_sensor_error(ratio, cert.sensor_noise.get(ch, 0.0)):
+                    out[ch] = "sensor"
+            elif ch in _PARTNER and _PARTNER[ch] in self.attitude_motion:
+                v = self.attitude_motion[_PARTNER[ch]].rate_verdict()
+                if v:
+                    out[ch] = v
+        return out
 
     @property
     def baseline_certified(self) -> bool:
@@ -258,6 +282,10 @@ class Diagnosis:
                "certificate": self.baseline.certificate.as_dict() if self.baseline.certificate else None,
                "unexplained": {ch: _num(v) for ch, v in self.unexplained.items()},
                "unexplained_gaps": {n: _num(v) for n, v in self.unexplained_gaps.items()},
+               "attitude_motion": {ch: {"coherence": _num(m.coherence), "gain": _num(m.gain),
+                                        "gain_std": _num(m.gain_std)}
+                                   for ch, m in self.attitude_motion.items()},
+               "unexplained_motion": self.motion_verdicts(),
                "command_imbalance": self.command_imbalance.as_dict() if self.command_imbalance else None,
                "inconsistent_parameters": {n: {"first_half": a, "first_half_std": sa, "second_half": b,
                                                "second_half_std": sb}
@@ -285,7 +313,8 @@ class Diagnosis:
         was tested), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
         physics), ``"random_torque"`` (what is missing acts as a random torque, turbulence, which
         the final model holds as a disturbance), ``"unexplained"`` (residuals far above the noise
-        that no candidate explains), ``"small_misfit"`` (the final fit is not at the noise, but
+        that no candidate explains), ``"sensor_error"`` (the residuals far above the noise are
+        the attitude sensor's or the gyro's own error, not motion: :meth:`motion_verdicts`), ``"small_misfit"`` (the final fit is not at the noise, but
         within a few times it: too little to say what it is) or ``"nothing_missing"``; None when
         there is a verdict."""
         if self.verdict:
@@ -296,6 +325,9 @@ class Diagnosis:
             return "outside_catalogue"
         if self.added_disturbance:
             return "random_torque"
+        if self.unexplained and not self.unexplained_gaps and \
+                set(self.unexplained) == {ch for ch, v in self.motion_verdicts().items() if v == "sensor"}:
+            return "sensor_error"
         if self.unexplained or self.unexplained_gaps:
             return "unexplained"
         if self.misfit():
@@ -341,6 +373,7 @@ class Diagnosis:
                 "random_torque": "null -- what the model misses acts as a random torque (turbulence), which no "
                                  "catalogue effect holds: the final model holds it as a disturbance (without it the "
                                  f"rates are {rate_levels(self.baseline)} times their noise)",
+                "sensor_error": f"null -- nothing the model misses shows: {self._far_off()}",
                 "unexplained": f"null -- the model is missing something no candidate explains: {self._far_off()}"
                                + (f"; {self.findings[0].text}" if self.findings else ""),
                 "small_misfit": "null -- no catalogue effect is significant, and the model is not at the noise "
@@ -463,10 +496,34 @@ class Diagnosis:
 
     def _far_off(self) -> str:
         parts = []
-        if self.unexplained:
-            parts.append("residuals in " + ", ".join(f"{ch} ({v:.3g}x the sensor noise)"
-                                                     for ch, v in self.unexplained.items()) +
+        placed = self.motion_verdicts()
+        rest = {ch: v for ch, v in self.unexplained.items() if ch not in placed}
+        if rest:
+            parts.append("residuals in " + ", ".join(f"{ch} ({v:.3g}x the sensor noise)" for ch, v in rest.items()) +
                          " stay far above the noise and coloured")
+            if max(rest.values()) < FILTERED_SENSOR_RATIO:
+                parts[-1] += (" (or the sensors' noise is itself coloured, a filtered estimate, which the noise "
+                              "estimated from the measurements' high-frequency content does not count: "
+                              "raw sensor logs tell the two apart)")
+        angles = [ch for ch in ("phi", "theta", "psi") if placed.get(ch) == "sensor"]
+        if angles:
+            parts.append("the residuals in " + ", ".join(f"{ch} ({self.unexplained[ch]:.3g}x the sensor noise)"
+                                                         for ch in angles) +
+                         " are not motion: within each stretch of the fitted trajectory the integrated gyro "
+                         "residuals account for " + ", ".join(f"{100 * self.attitude_motion[ch].coherence:.0f} %"
+                                                              for ch in angles) +
+                         " of them: the attitude sensor's own error (its noise coloured by a filter, an "
+                         "estimator's lag), not a moment the model misses")
+        for kind, words in (("sensor", "do not move the angle residuals as motion would (slope {} where motion "
+                                       "gives 1): the gyro's own error"),
+                            ("motion", "are motion: integrated, they move the angle residuals one for one "
+                                       "(slope {}): a moment the model misses")):
+            rates = [ch for ch in ("p", "q", "r") if placed.get(ch) == kind]
+            if rates:
+                slopes = ", ".join(f"{self.attitude_motion[_PARTNER[ch]].gain:.2f} ± "
+                                   f"{self.attitude_motion[_PARTNER[ch]].gain_std:.2f}" for ch in rates)
+                parts.append("the residuals in " + ", ".join(f"{ch} ({self.unexplained[ch]:.3g}x the sensor noise)"
+                                                             for ch in rates) + " " + words.format(slopes))
         if self.unexplained_gaps:
             parts.append("the process noise of " + ", ".join(f"{n} ({v:.3g}x its random part)"
                                                             for n, v in self.unexplained_gaps.items()) +

@@ -16,9 +16,10 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import IF_NEEDED, fit, progress_printer
 from ..model import QuadrotorModel
+from ..residuals import attitude_motion
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
-from .analysis import command_imbalance, residual_analysis
+from .analysis import command_imbalance, flight_residuals, residual_analysis
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency
 from .screening import negligible_effect
@@ -304,6 +305,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             cur_model, cur_res, cur_pred = _drop_stand_ins(cur_model, cur_res, cur_pred, added, est, val, compile,
                                                            horizon, say, warnings)
     unexplained, unexplained_gaps = _unexplained(cur_res)
+    motion = {}
+    if any(ch in unexplained for ch in ("phi", "theta", "psi", "p", "q", "r")):
+        # is what the final fit leaves in the attitude and rates motion, or the sensors' own?
+        motion = attitude_motion(flight_residuals(cur_model, cur_res, est), est,
+                                 starts=list(cur_res.node_index) if cur_res.process_noise is not None else None)
     yaw = closed_loop_yaw(cur_res, est, baseline=res, halves_disagree="b" in inconsistent, compile=compile, say=say)
     if yaw.words:
         warnings.append(yaw.words)
@@ -313,7 +319,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      unexplained_gaps=unexplained_gaps,
                      inconsistent=inconsistent, command_imbalance=imbalance,
                      discovered=discovered, discovery=discovery_note, outside_catalogue=outside,
-                     input_timing=timing, closed_loop_fit=yaw.fit)
+                     input_timing=timing, closed_loop_fit=yaw.fit, attitude_motion=motion)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile, est=est)

@@ -23,11 +23,11 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError, SolverError
 from ..fitted import FittedModel, provenance
 from ..model import OUTPUTS, QuadrotorModel
-from ..residuals import fitted_trajectory, output_residuals, whiteness_fraction
+from ..residuals import AttitudeMotion, attitude_motion, fitted_trajectory, output_residuals, whiteness_fraction
 from ..shooting import default_interval, free_indices, noise_levels, sensor_noise
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
-from .certificate import (GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE, NOISE_RATIO_COLOURED, STEP_TOLERANCE,
-                          WHITENESS_ADEQUATE, Certificate)
+from .certificate import (FILTERED_SENSOR_RATIO, GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE,
+                          NOISE_RATIO_COLOURED, STEP_TOLERANCE, WHITENESS_ADEQUATE, Certificate)
 from .gauss_newton import FitSession, GaussNewton, Solver
 from .robust import long_run_covariance, upper_covariance
 
@@ -225,7 +225,9 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             is not certified, or its residuals stay far above the sensor noise
             (``certificate.adequate`` false), the fit is solved again with ``"auto"`` from the
             same start, and that fit is returned when it is certified (a warning says so;
-            ``process_noise`` is then set). An open-loop unstable body integrates any noise
+            ``process_noise`` is then set) — unless the only channels off the noise are
+            attitude channels whose residuals the gyro does not share (the attitude sensor's
+            own coloured error, :attr:`Certificate.sensor_error`): output error is kept. An open-loop unstable body integrates any noise
             on its logged inputs (quantised ESC speeds, jittered time stamps): 0.05 % on the
             rotor speeds leaves output-error residuals hundreds of times the sensor noise and
             a drag coefficient far off, where soft continuity recovers every parameter.
@@ -288,6 +290,19 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             oe, why = None, str(far)
     if oe is not None and oe.converged and oe.certificate is not None and oe.certificate.adequate:
         return oe
+    sensor = _attitude_sensor_error(model, oe, logs) if oe is not None and oe.converged else {}
+    if sensor:
+        cert = oe.certificate
+        cert.sensor_error = {ch: m.coherence for ch, m in sensor.items()}
+        oe.warnings.append("the residuals in " + ", ".join(f"{ch} ({cert.residual_over_noise[ch]:.3g}x the noise)"
+                                                           for ch in sensor) +
+                           " are not motion: the integrated gyro residuals account for " +
+                           ", ".join(f"{100 * m.coherence:.0f} %" for m in sensor.values()) +
+                           " of them (within 1-s stretches): the attitude sensor's own error (its noise coloured "
+                           "by a filter, an estimator's lag), which the noise estimated from the measurements' "
+                           "high-frequency content does not count. Kept as output error: process noise would "
+                           "let the states follow that error")
+        return oe
     if oe is not None:
         why = (f"its end point is not certified ({oe.status})" if not oe.converged else
                "its residuals stay far above the sensor noise (" +
@@ -304,12 +319,18 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             oe = _fit_formulation(model, logs, process_noise=None, **kw)
     if soft.converged:
         changed = _moved_parameters(oe, soft) if oe is not None else ""
+        off = oe.certificate.off_channels() if oe is not None and oe.converged and oe.certificate else []
+        filtered = ("; residuals a few times the noise estimated from the measurements' high-frequency "
+                    "content may also be the sensors' own noise, coloured by a filter (an autopilot's "
+                    "attitude estimate), which the states then follow: the output-error values are then "
+                    "the better ones" if off and max(oe.certificate.residual_over_noise[ch] for ch in off)
+                    < FILTERED_SENSOR_RATIO else "")
         soft.warnings.insert(0, "fitted with process noise (soft continuity): the output-error fit could not "
                                 f"follow the data, {why}" + (f"; it had {changed}" if changed else "") +
                              ". Noise on the logged inputs (quantised or jittered rotor speeds) or a force the "
                              "model lacks make an open-loop unstable body drift away; with process noise the "
                              "states may follow the data at a cost, and the residual check below says whether "
-                             "the model explains them over each interval")
+                             "the model explains them over each interval" + filtered)
         soft.timings["total"] = time.perf_counter() - t_start
         return soft
     oe.warnings.append(f"a fit with process noise did not reach a certified optimum either ({soft.status})")
@@ -763,6 +784,22 @@ def _q_text(model: QuadrotorModel, ses: FitSession) -> str:
     qf = _flight_q(ses)
     return ", ".join(f"{n}={qf[0, j]:.2g}" if np.all(qf[:, j] == qf[0, j]) else
                      f"{n}={qf[:, j].min():.2g}..{qf[:, j].max():.2g}" for j, n in enumerate(model.state_names))
+
+
+def _attitude_sensor_error(model: QuadrotorModel, res: FitResult, logs) -> dict[str, AttitudeMotion]:
+    """The attitude channels of the output-error fit ``res`` whose residuals are the attitude
+    sensor's own error rather than motion (:meth:`~greybox.residuals.AttitudeMotion.angle_is_sensor_error`),
+    when they are all the certificate finds off the noise; else empty."""
+    cert = res.certificate
+    off = cert.off_channels() if cert is not None else []
+    if not off or any(ch not in ("phi", "theta", "psi") for ch in off) or cert.off_states():
+        return {}
+    logs = [logs] if isinstance(logs, FlightLog) else list(logs)
+    E = [output_residuals(lg, fitted_trajectory(model, res, lg, i)[1]) for i, lg in enumerate(logs)]
+    motion = attitude_motion(E, logs)
+    out = {ch: motion[ch] for ch in off if ch in motion and
+           motion[ch].angle_is_sensor_error(cert.residual_over_noise[ch], cert.sensor_noise.get(ch, 0.0))}
+    return out if len(out) == len(off) else {}
 
 
 def per_flight_positions(model: QuadrotorModel, free_names: list[str],

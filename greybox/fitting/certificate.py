@@ -5,7 +5,7 @@ import math
 from dataclasses import dataclass, field
 
 __all__ = ["Certificate", "STEP_TOLERANCE", "GAP_TOLERANCE", "DECREASE_TOLERANCE", "NOISE_RATIO_ADEQUATE",
-           "NOISE_RATIO_COLOURED", "WHITENESS_ADEQUATE", "GAP_VISIBLE"]
+           "NOISE_RATIO_COLOURED", "WHITENESS_ADEQUATE", "GAP_VISIBLE", "FILTERED_SENSOR_RATIO"]
 
 STEP_TOLERANCE = 0.1
 """A fit is at its optimum when one more undamped Gauss-Newton step would move no free
@@ -29,6 +29,13 @@ logs a tiny systematic error is already far outside the whiteness band; it is no
 failure of the model."""
 WHITENESS_ADEQUATE = 0.2
 """Fraction of autocorrelation lags outside the 99 % band up to which residuals count as white."""
+FILTERED_SENSOR_RATIO = 10.0
+"""Residuals up to this multiple of the noise estimated from the measurements' high-frequency
+content may be the sensors' own noise when it is coloured (a filtered estimate: an
+autopilot's attitude, a smoothed vision pose), which that estimate does not count. Greybox's
+own flights with every sensor's noise correlated over 50 ms and nothing missing leave
+output-error residuals 2-6x that estimate; a sensor whose noise hides beyond 10x it would
+have to be filtered to a tenth of its bandwidth."""
 GAP_VISIBLE = 1.0
 """With process noise, a state's shooting gaps are judged only where their RMS reaches this
 multiple of the state's noise scale (what its measurements could just see over an interval):
@@ -59,6 +66,12 @@ class Certificate:
     over their random part (the scale of their interval-to-interval differences,
     :func:`~greybox.fitting.api.process_noise_scale`); about 1 for random forcing, large when
     consecutive gaps share a force or torque the model lacks."""
+    sensor_error: dict[str, float] = field(default_factory=dict)
+    """Attitude channels off the noise whose residuals are not motion but the attitude
+    sensor's own error, with the share of them the integrated gyro residuals account for
+    (:func:`~greybox.residuals.attitude_motion`; set by :func:`~greybox.fitting.fit` when it
+    keeps output error for that reason). They stay in :meth:`off_channels`: the residuals are
+    not at the noise; what they are is said in :meth:`text`."""
 
     @property
     def adequate(self) -> bool:
@@ -96,14 +109,21 @@ class Certificate:
             head = "optimum NOT certified: " + "; ".join(self.reasons)
         if self.held:
             head += f"; held on a bound: {', '.join(self.held)}"
-        off = self.off_channels()
+        sensor = [ch for ch in self.off_channels() if ch in self.sensor_error]
+        off = [ch for ch in self.off_channels() if ch not in self.sensor_error]
+        parts = []
         if off:
-            tail = ("residuals above the sensor noise in " +
-                    ", ".join(f"{ch} ({self.residual_over_noise[ch]:.3g}x noise, "
-                              f"{100 * self.whiteness.get(ch, 0.0):.0f} % of lags outside the band)" for ch in off) +
-                    ": the model does not explain these channels")
-        else:
-            tail = "residuals at the sensor noise"
+            parts.append("residuals above the sensor noise in " +
+                         ", ".join(f"{ch} ({self.residual_over_noise[ch]:.3g}x noise, "
+                                   f"{100 * self.whiteness.get(ch, 0.0):.0f} % of lags outside the band)" for ch in off) +
+                         ": the model does not explain these channels")
+        if sensor:
+            parts.append("residuals above the sensor noise in " +
+                         ", ".join(f"{ch} ({self.residual_over_noise[ch]:.3g}x noise)" for ch in sensor) +
+                         " that are not motion (the integrated gyro residuals account for " +
+                         ", ".join(f"{100 * self.sensor_error[ch]:.0f} %" for ch in sensor) +
+                         " of them): the attitude sensor's own error")
+        tail = "; ".join(parts) or "residuals at the sensor noise"
         states = self.off_states()
         if states:
             tail += ("; the shooting gaps of " + ", ".join(f"{n} ({self.systematic_gaps[n]:.3g}x their random part)"
@@ -119,6 +139,7 @@ class Certificate:
                 "whiteness": {k: _finite(v) for k, v in self.whiteness.items()},
                 "sensor_noise": {k: _finite(v) for k, v in self.sensor_noise.items()},
                 "systematic_gaps": {k: _finite(v) for k, v in self.systematic_gaps.items()},
+                "sensor_error": {k: _finite(v) for k, v in self.sensor_error.items()},
                 "reasons": list(self.reasons), "text": self.text()}
 
 
