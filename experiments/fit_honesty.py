@@ -8,7 +8,8 @@ Cramér-Rao bound, so an efficient estimator's ratio spread / reported std is cl
 ``--correlation-time TAU`` makes the sensor noise coloured (AR(1), correlated over TAU s,
 the same RMS as the white default: a filtered vision or IMU), where the Gauss-Newton std,
 which count every sample as independent, are too narrow; printed beside the reported
-std (which count the colour: :mod:`greybox.fitting.robust`) as ``GN ratio``. With
+std (which count the colour: :mod:`greybox.fitting.robust`; ``FitResult.white_std`` keeps
+the Gauss-Newton ones) as ``GN ratio``. With
 the default ``--process-noise if_needed`` the fit may take soft continuity, as it does on
 its own when the residuals look like a model that cannot follow; ``none`` keeps it output
 error.
@@ -26,30 +27,12 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
-import greybox.fitting.api as fit_api  # noqa: E402
 from greybox import QuadrotorModel, load_airframe  # noqa: E402
 from greybox.fitting import fit  # noqa: E402
 from greybox.synth import SensorSpec, synthesize  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 START = {"K_T": 2.395e-5 * 1.35, "b": 6.8429e-7 * 0.65, "Kd": [0.135, 0.065, 0.20]}
-
-
-class GaussNewtonStd:
-    """Keeps the Gauss-Newton covariance the fit computes before it widens it for colour
-    (the fit reports the wider one only), to print the two side by side."""
-
-    def __enter__(self):
-        self.last, self._orig = None, fit_api.upper_covariance
-
-        def keep(a, b):
-            self.last = a
-            return self._orig(a, b)
-        fit_api.upper_covariance = keep
-        return self
-
-    def __exit__(self, *exc):
-        fit_api.upper_covariance = self._orig
 
 
 def main() -> None:
@@ -68,13 +51,12 @@ def main() -> None:
                        sensors=SensorSpec(noise_correlation=a.correlation_time))
         log = r.log
         e, _ = log.split()
-        with GaussNewtonStd() as gn:
-            res = fit(model, e, p0=START, process_noise=None if a.process_noise == "none" else "if_needed")
+        res = fit(model, e, p0=START, process_noise=None if a.process_noise == "none" else "if_needed")
         names = res.free_names
         truth = np.array([model.parameter_dict(r.parameters)[n] for n in names])
         est.append([res.value(n) for n in names])
         std.append(res.std)
-        gn_std.append(np.sqrt(np.diag(gn.last)) if gn.last is not None else res.std)
+        gn_std.append(res.white_std if res.white_std is not None else res.std)
         print(f"run {k + 1:2d}: " + "  ".join(f"{n}={(v - t) / s:+.2f}sd" for n, v, t, s in
                                                zip(names, est[-1], truth, res.std)), flush=True)
     est, std, gn_std = np.array(est), np.array(std), np.array(gn_std)

@@ -304,6 +304,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             warnings.insert(0, timing["text"])
             cur_model, cur_res, cur_pred = _drop_stand_ins(cur_model, cur_res, cur_pred, added, est, val, compile,
                                                            horizon, say, warnings)
+    if timing_candidate and timing is None:
+        timed = _timing_caveat(cur_model, cur_res, est)
+        if timed:
+            warnings.append(timed)
     unexplained, unexplained_gaps = _unexplained(cur_res)
     motion = {}
     if any(ch in unexplained for ch in ("phi", "theta", "psi", "p", "q", "r")):
@@ -383,7 +387,8 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     # moves the rates a little and leaves a yaw residual as it was: -0.6 % of the excess, while
     # the validation nrmse falls 10 %)
     ranking = rank_round(model, res, pred, est, val, [name], compile, say, n_refit,
-                         min_explained_inadequate=-np.inf, min_explained=-np.inf)
+                         min_explained_inadequate=-np.inf, min_explained=-np.inf, size_in_parameters=True,
+                         refit_anyway=bool(against))
     cand = ranking[0] if ranking else None
     if cand is None or not cand.significant or cand.fit is None or not cand.fit.converged:
         if cand is not None:
@@ -403,6 +408,23 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     timing = {"effect": name, "s_lead": s, "s_lead_std": std, "nrmse_before": pred.total,
               "nrmse_after": cand.prediction.total, "text": note, "judged_with": list(against)}
     return fit_t.model, fit_t, cand.prediction, timing
+
+
+def _timing_caveat(model: QuadrotorModel, fr, est: Sequence[FlightLog]) -> str:
+    """Words for the final fit's lags and delays (:attr:`~greybox.effects.Effect.input_timed`)
+    when the log's timing stayed unsettled (the held rows stood): their std count the noise,
+    not whether a row's logged value holds for the whole row; that moves them by up to half a
+    row. "" when the final model has none."""
+    names = [n for e in model.effects for n in e.input_timed if n in fr.free_names]
+    if not names:
+        return ""
+    half = 0.5 * float(np.median(np.concatenate([np.diff(lg.t) for lg in est])))
+    values = ", ".join(f"{n} = {1e3 * fr.value(n):.3g} ± {1e3 * fr.std[fr.free_names.index(n)]:.2g} ms"
+                       for n in names)
+    return (f"{values} count{'s' if len(names) == 1 else ''} the measurement noise only: whether each row's "
+            f"rotor speeds hold for the whole row or are samples of a signal that varies within it (the log's "
+            f"timing, which these data do not settle) moves a lag or a delay by up to half a row, "
+            f"{1e3 * half:.2g} ms here; log the rotor speeds at the rate the controller sets them to remove it")
 
 
 def _unexplained(fr) -> tuple[dict[str, float], dict[str, float]]:

@@ -86,6 +86,11 @@ class Effect:
     what the model leaves out of that other state (``d_p`` of ``p``). A fit with process noise
     starts its random walk at the other state's shooting gaps per second: the base model's
     gaps in ``p`` are the unmodelled torque over one interval."""
+    input_timed: ClassVar[tuple[str, ...]] = ()
+    """Its parameters that are times measured against the logged inputs (a lag, a delay):
+    whether a row's logged value holds for the whole row or is a sample of a signal varying
+    within it moves them by up to half a row, beyond what their std count (a blind audit's
+    200 Hz log of a 400 Hz controller: tau_m 28.7 ms for 30, tau_pos 38.9 for 40)."""
     per_flight: ClassVar[bool] = False
     """Whether its parameters belong to one flight rather than to the vehicle (the day's
     wind, the battery's state): a fit of several flights with ``per_flight="auto"`` gives

@@ -122,6 +122,7 @@ class CommandDelay(Effect):
     """
 
     name = "command_delay"
+    input_timed = ("tau_cmd",)
     summary = "logged rotor commands acting tau_cmd seconds late (transport delay)"
     excited_by = 'fast command changes whose response is measured (attitude steps, aggressive turns)'
     fit_advice = 'fast roll and pitch changes with the gyro or attitude logged at a high rate'

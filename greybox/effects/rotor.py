@@ -91,6 +91,7 @@ class MotorLag(Effect):
     """
 
     name = "motor_lag"
+    input_timed = ("tau_m",)
     summary = "first-order motor lag, time constant tau_m"
     excited_by = 'fast rotor-speed changes (steps, excitation)'
     fit_advice = 'rapid rotor-speed changes (steps, excitation)'

@@ -16,6 +16,7 @@ class PositionDelay(Effect):
     """
 
     name = "position_delay"
+    input_timed = ("tau_pos",)
     summary = "latency of the position measurement"
     excited_by = 'fast translations (a delay lags the velocity)'
     fit_advice = 'fast translations (fast)'

@@ -327,8 +327,9 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
                     < FILTERED_SENSOR_RATIO else "")
         soft.warnings.insert(0, "fitted with process noise (soft continuity): the output-error fit could not "
                                 f"follow the data, {why}" + (f"; it had {changed}" if changed else "") +
-                             ". Noise on the logged inputs (quantised or jittered rotor speeds) or a force the "
-                             "model lacks make an open-loop unstable body drift away; with process noise the "
+                             ". Noise on the logged inputs (quantised or jittered rotor speeds), a force or a "
+                             "delay the model lacks (a late position measurement, inputs logged out of step) "
+                             "make an open-loop unstable body drift away; with process noise the "
                              "states may follow the data at a cost, and the residual check below says whether "
                              "the model explains them over each interval" + filtered)
         soft.timings["total"] = time.perf_counter() - t_start
