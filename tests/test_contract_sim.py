@@ -42,18 +42,24 @@ def test_signs_by_hand():
     assert roll == pytest.approx(cs.J_R * np.sum(cs.SPIN * w) / cs.J[0], rel=1e-9)
 
 
-@pytest.mark.slow
-def test_half_held_rows_are_the_logs_timing_and_the_drag_is_recovered(tmp_path):
-    """Nothing missing, 20-s flights: the verdict is null, the log's timing stands (the next
-    row's weight near the quarter that half-held commands give) and every drag coefficient
-    comes out within 4 of its std (held rows: 8-12 std)."""
-    cfg = dict(cs.CASES["c1_clean"], duration=20.0)
+def _diagnosed(case: str, tmp_path):
+    """The audit's two 20-s flights of ``case`` (estimation, validation) diagnosed, and the case."""
+    cfg = dict(cs.CASES[case], duration=20.0)
     cs.write_airframe(tmp_path / "airframe.toml")
     for name, seed, amp in (("est", 11, 1.0), ("val", 22, 0.9)):
         rows, rng = cs.fly(cfg, seed, amp)
         cs.write_log(rows, rng, cfg, tmp_path / f"{name}.csv")
     model = QuadrotorModel(load_airframe(tmp_path / "airframe.toml"))
-    d = diagnose(model, load_log(tmp_path / "est.csv"), validation=load_log(tmp_path / "val.csv"), progress=False)
+    return diagnose(model, load_log(tmp_path / "est.csv"), validation=load_log(tmp_path / "val.csv"),
+                    progress=False), cfg
+
+
+@pytest.mark.slow
+def test_half_held_rows_are_the_logs_timing_and_the_drag_is_recovered(tmp_path):
+    """Nothing missing, 20-s flights: the verdict is null, the log's timing stands (the next
+    row's weight near the quarter that half-held commands give) and every drag coefficient
+    comes out within 4 of its std (held rows: 8-12 std)."""
+    d = _diagnosed("c1_clean", tmp_path)[0]
     assert d.verdict is None, d.summary()
     assert d.input_timing is not None and 0.15 < d.input_timing["s_lead"] < 0.35, d.input_timing
     fr = d.fitted_model
@@ -73,13 +79,7 @@ def test_a_motor_lag_behind_half_held_commands_says_what_its_std_leave_out(tmp_p
     it beside the lag (held rows: tau_m a quarter row short, 10 of its noise std); the
     diagnosis says the lag is uncertain by up to half a row beyond its std, and the truth lies
     within that."""
-    cfg = dict(cs.CASES["c5_motorlag"], duration=20.0)
-    cs.write_airframe(tmp_path / "airframe.toml")
-    for name, seed, amp in (("est", 11, 1.0), ("val", 22, 0.9)):
-        rows, rng = cs.fly(cfg, seed, amp)
-        cs.write_log(rows, rng, cfg, tmp_path / f"{name}.csv")
-    model = QuadrotorModel(load_airframe(tmp_path / "airframe.toml"))
-    d = diagnose(model, load_log(tmp_path / "est.csv"), validation=load_log(tmp_path / "val.csv"), progress=False)
+    d, cfg = _diagnosed("c5_motorlag", tmp_path)
     assert d.verdict == "motor_lag", d.summary()
     fr = d.fitted_model
     tau, std = fr.value("tau_m"), fr.std[fr.free_names.index("tau_m")]
