@@ -314,9 +314,9 @@ class Diagnosis:
         physics), ``"random_torque"`` (what is missing acts as a random torque, turbulence, which
         the final model holds as a disturbance), ``"unexplained"`` (residuals far above the noise
         that no candidate explains), ``"sensor_error"`` (the residuals far above the noise are
-        the attitude sensor's or the gyro's own error, not motion: :meth:`motion_verdicts`), ``"small_misfit"`` (the final fit is not at the noise, but
-        within a few times it: too little to say what it is) or ``"nothing_missing"``; None when
-        there is a verdict."""
+        the attitude sensor's or the gyro's own error, not motion: :meth:`motion_verdicts`),
+        ``"small_misfit"`` (the final fit is not at the noise, but within a few times it: too
+        little to say what it is) or ``"nothing_missing"``; None when there is a verdict."""
         if self.verdict:
             return None
         if not self.baseline_certified:
