@@ -14,9 +14,9 @@ from .data import FlightLog
 from .integrate import n_substeps, parallel_map, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 
-__all__ = ["fitted_trajectory", "output_residuals", "whiteness_fraction", "long_run_factor",
+__all__ = ["fitted_trajectory", "output_residuals", "flight_residuals", "whiteness_fraction", "long_run_factor",
            "residual_widening", "attitude_motion", "AttitudeMotion", "WHITENESS_LAGS", "MOTION_WINDOW",
-           "NOT_MOTION_COHERENCE", "MOTION_GAIN_SIGMAS"]
+           "NOT_MOTION_COHERENCE", "MOTION_GAIN_SIGMAS", "ANGLE_OF_RATE"]
 
 WHITENESS_LAGS = 30
 """Autocorrelation lags (in measured samples) examined by :func:`whiteness_fraction`."""
@@ -33,6 +33,9 @@ MOTION_GAIN_SIGMAS = 3.0
 """How many standard errors the slope of the angle residual on the integrated rate residual
 must lie from 0 (and within of 1) for a rate channel's residual to count as motion, or from
 1 for it to count as the gyro's own error."""
+ANGLE_OF_RATE = {"p": "phi", "q": "theta", "r": "psi"}
+"""The Euler angle a body rate mostly moves near level flight: whose :class:`AttitudeMotion`
+says whether that rate's residual is motion (:meth:`AttitudeMotion.rate_verdict`)."""
 MOTION_WINDOW = 1.0
 """Seconds over which :func:`attitude_motion` compares an attitude residual with the
 integrated rate residuals (each window detrended: a gyro bias and slow drift drop out)."""
@@ -74,6 +77,11 @@ def output_residuals(log: FlightLog, Y: np.ndarray) -> np.ndarray:
     psi = OUTPUTS.index("psi")
     E[:, psi] = np.arctan2(np.sin(E[:, psi]), np.cos(E[:, psi]))
     return E
+
+
+def flight_residuals(model: QuadrotorModel, res: Any, logs: Sequence[FlightLog]) -> list[np.ndarray]:
+    """Output residuals (:func:`output_residuals`) of the fit ``res`` on each of its flights ``logs``."""
+    return [output_residuals(lg, fitted_trajectory(model, res, lg, i)[1]) for i, lg in enumerate(logs)]
 
 
 def whiteness_fraction(e: np.ndarray, lags: int = WHITENESS_LAGS) -> float:

@@ -13,7 +13,7 @@ from scipy import stats
 from ..data import FlightLog
 from ..fitting import FitResult
 from ..model import OUTPUTS, QuadrotorModel, rotation_matrices
-from ..residuals import fitted_trajectory, output_residuals, whiteness_fraction
+from ..residuals import flight_residuals, whiteness_fraction
 from ..shooting import initial_node_states
 from ..validation import Prediction
 
@@ -337,11 +337,6 @@ def regime_sentence(ch: str, name: str, r: float, env: np.ndarray, v: np.ndarray
     if r > 0:
         return f"{ch} error grows with {name} (r = {r:+.2f})"
     return f"{ch} error grows as {name} falls (r = {r:+.2f})"
-
-
-def flight_residuals(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog]) -> list[np.ndarray]:
-    """Output residuals of a fit on each of its estimation flights."""
-    return [output_residuals(lg, fitted_trajectory(model, res, lg, i)[1]) for i, lg in enumerate(logs)]
 
 
 def estimation_residuals(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog]) -> np.ndarray:

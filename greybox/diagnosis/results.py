@@ -15,7 +15,7 @@ from ..effects.discovered import CHANNEL_UNITS, DiscoveredEffect, discovered_eff
 from ..fitting import FitResult
 from ..fitting.certificate import FILTERED_SENSOR_RATIO
 from ..model import OUTPUTS, QuadrotorModel
-from ..residuals import AttitudeMotion
+from ..residuals import ANGLE_OF_RATE, AttitudeMotion
 from ..validation import HorizonErrors, Prediction
 from .analysis import CommandImbalance, Finding
 from .closed_loop import rate_levels
@@ -26,8 +26,6 @@ noise (and coloured) are reported as what the model misses beyond every candidat
 it, a misfit the certificate still finds (``small_misfit``) is too small to tell what it is."""
 
 __all__ = ["CandidateResult", "Round", "Diagnosis", "Discovered", "DiscoveredTerm", "UNEXPLAINED_RATIO"]
-
-_PARTNER = {"p": "phi", "q": "theta", "r": "psi"}   # the angle a body rate mostly moves near level
 
 
 @dataclass
@@ -241,8 +239,8 @@ class Diagnosis:
             if ch in ("phi", "theta", "psi") and ch in self.attitude_motion and cert is not None:
                 if self.attitude_motion[ch].angle_is_sensor_error(ratio, cert.sensor_noise.get(ch, 0.0)):
                     out[ch] = "sensor"
-            elif ch in _PARTNER and _PARTNER[ch] in self.attitude_motion:
-                v = self.attitude_motion[_PARTNER[ch]].rate_verdict()
+            elif ch in ANGLE_OF_RATE and ANGLE_OF_RATE[ch] in self.attitude_motion:
+                v = self.attitude_motion[ANGLE_OF_RATE[ch]].rate_verdict()
                 if v:
                     out[ch] = v
         return out
@@ -520,8 +518,8 @@ class Diagnosis:
                                        "(slope {}): a moment the model misses")):
             rates = [ch for ch in ("p", "q", "r") if placed.get(ch) == kind]
             if rates:
-                slopes = ", ".join(f"{self.attitude_motion[_PARTNER[ch]].gain:.2f} ± "
-                                   f"{self.attitude_motion[_PARTNER[ch]].gain_std:.2f}" for ch in rates)
+                slopes = ", ".join(f"{self.attitude_motion[ANGLE_OF_RATE[ch]].gain:.2f} ± "
+                                   f"{self.attitude_motion[ANGLE_OF_RATE[ch]].gain_std:.2f}" for ch in rates)
                 parts.append("the residuals in " + ", ".join(f"{ch} ({self.unexplained[ch]:.3g}x the sensor noise)"
                                                              for ch in rates) + " " + words.format(slopes))
         if self.unexplained_gaps:

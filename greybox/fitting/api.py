@@ -23,7 +23,8 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError, SolverError
 from ..fitted import FittedModel, provenance
 from ..model import OUTPUTS, QuadrotorModel
-from ..residuals import AttitudeMotion, attitude_motion, fitted_trajectory, output_residuals, whiteness_fraction
+from ..residuals import (AttitudeMotion, attitude_motion, fitted_trajectory, flight_residuals, output_residuals,
+                         whiteness_fraction)
 from ..shooting import default_interval, free_indices, noise_levels, sensor_noise
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
 from .certificate import (FILTERED_SENSOR_RATIO, GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE,
@@ -796,8 +797,7 @@ def _attitude_sensor_error(model: QuadrotorModel, res: FitResult, logs) -> dict[
     if not off or any(ch not in ("phi", "theta", "psi") for ch in off) or cert.off_states():
         return {}
     logs = [logs] if isinstance(logs, FlightLog) else list(logs)
-    E = [output_residuals(lg, fitted_trajectory(model, res, lg, i)[1]) for i, lg in enumerate(logs)]
-    motion = attitude_motion(E, logs)
+    motion = attitude_motion(flight_residuals(model, res, logs), logs)
     out = {ch: motion[ch] for ch in off if ch in motion and
            motion[ch].angle_is_sensor_error(cert.residual_over_noise[ch], cert.sensor_noise.get(ch, 0.0))}
     return out if len(out) == len(off) else {}
