@@ -8,8 +8,9 @@ measured quantities (an equation-error fit, as the data-driven identification of
 quadrotors with motor delays does):
 
 * thrust, from the specific force along the rotor axis: ``-m a_z = K_T sum_i w_eff_i^2``;
-* roll and pitch, from the gyro's derivative: ``(J omega_dot + omega x J omega)_x =
-  g_x K_T sum_i (-y_i) w_eff_i^2 + c_x`` (``g_x = 1`` when the airframe's arm and inertia
+* roll and pitch, from the gyro's change over each log step (the speeds held over it act
+  there: contract §2): ``(J d omega/dt + omega x J omega)_x = g_x K_T sum_i (-y_i) w_eff_i^2
+  + c_x`` with the step's mean of ``w_eff^2`` (``g_x = 1`` when the airframe's arm and inertia
   are right; ``c_x`` a constant trim: a centre-of-gravity offset, unequal rotors), and the
   same for pitch with ``x_i``;
 * yaw: ``(J omega_dot + omega x J omega)_z = b sum_i spin_i w_eff_i^2 + c_z``;
@@ -42,10 +43,11 @@ from ..data import FlightLog
 from ..errors import GreyboxInputError
 from ..model import QuadrotorModel
 from ..residuals import long_run_factor
+from ..shooting import estimate_noise
 from ..validation import DEFAULT_HORIZONS, HorizonErrors
 
 __all__ = ["ImuFit", "fit_imu", "is_imu_only", "IMU_EQUATIONS", "TAU_GRID", "HORIZON_CHANNELS",
-           "KNOWN_TORQUE_EFFECTS"]
+           "KNOWN_TORQUE_EFFECTS", "DRAG_NOTE_RATIO"]
 
 KNOWN_TORQUE_EFFECTS = ("gyroscopic",)
 """Effects whose torque depends on the body rates and rotor speeds alone, with parameters the
@@ -62,6 +64,10 @@ SMOOTHING_S = 0.02
 
 HORIZON_CHANNELS = ("p", "q", "r", "az")
 """Channels whose prediction error against horizon an IMU-only fit reports."""
+
+DRAG_NOTE_RATIO = 3.0
+"""Horizontal specific force (RMS) over the accelerometer's noise above which an IMU-only fit
+says that drag acts and that ``K_T`` may carry its vertical part."""
 
 WINDOW_SPACING_S = 0.05
 """s between the starts of the prediction windows of an IMU-only fit's ``horizons``."""
@@ -151,12 +157,40 @@ def _known_torque(model: QuadrotorModel) -> "ca.Function | None":
     return ca.Function("known_torque", [om, w], [J @ (acc[0] - acc[1])])
 
 
-def _lagged(w: np.ndarray, tau: float, dt: float) -> np.ndarray:
+def _lag_state(w: np.ndarray, tau: float, dt: float) -> np.ndarray:
+    """The rotors' effective speeds at the sample times: ``e[k+1] = a e[k] + (1 - a) w[k]``
+    with ``a = exp(-dt / tau)``, exact for speeds held from one sample to the next (contract
+    §2), from rest at ``w[0]``; ``w`` itself without a lag (the speed held from its sample on)."""
     if tau <= 0:
         return w
     a = math.exp(-dt / tau)
-    # a first-order lag of inputs held over each step (exact discretisation), from rest at w[0]
-    return lfilter([1 - a], [1, -a], w - w[0], axis=0) + w[0]
+    return lfilter([0.0, 1 - a], [1, -a], w - w[0], axis=0) + w[0]
+
+
+def _step_means(w: np.ndarray, e: np.ndarray, tau: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Means of the effective speed and of its square over each step ``[t_k, t_k+1)`` (one row
+    fewer than ``w``): the logged ``w[k]`` is held over it and ``e`` relaxes towards it,
+    ``e(t_k + s) = w[k] + (e[k] - w[k]) exp(-s / tau)``, integrated exactly."""
+    held = w[:-1]
+    if tau <= 0:
+        return held, held ** 2
+    d = e[:-1] - held
+    a = math.exp(-dt / tau)
+    m1, m2 = tau / dt * (1 - a), tau / (2 * dt) * (1 - a * a)
+    return held + m1 * d, held ** 2 + 2 * m1 * held * d + m2 * d ** 2
+
+
+def _horizontal_force(log: FlightLog) -> "tuple[float, float] | None":
+    """RMS of the body's horizontal specific force (``ax, ay``: drag and any force but the
+    thrust) and of its noise (:func:`~greybox.shooting.estimate_noise`), or None without them."""
+    if not (log.measures("ax") and log.measures("ay")):
+        return None
+    a = np.column_stack([log.output("ax"), log.output("ay")])
+    a = a[np.isfinite(a).all(axis=1)]
+    noise = math.hypot(estimate_noise(a[:, 0]), estimate_noise(a[:, 1]))
+    if a.shape[0] < 5 or not noise > 0:
+        return None
+    return float(np.sqrt(np.mean(np.sum(a ** 2, axis=1)))), noise
 
 
 def _regressors(w2: np.ndarray, P: np.ndarray, spins: np.ndarray) -> dict[str, np.ndarray]:
@@ -169,7 +203,8 @@ def _regressors(w2: np.ndarray, P: np.ndarray, spins: np.ndarray) -> dict[str, n
             "r_dot": np.column_stack([w2 @ spins, ones])}
 
 
-def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, w_eff: np.ndarray, coef: dict,
+def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, speeds: tuple[np.ndarray, np.ndarray, np.ndarray],
+                    coef: dict,
                     geometry: tuple[np.ndarray, np.ndarray, np.ndarray, float], first: int,
                     horizons: "tuple[float, ...]", known: "ca.Function | None" = None) -> HorizonErrors:
     """Open-loop prediction of the body rates and the specific force from the samples
@@ -177,15 +212,17 @@ def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, w_eff: np.
     (the naive predictor's and the model's start alike: no smoothing reaches into the
     window), the rates integrated by Heun's rule through ``J omega_dot = tau(w_eff) - omega
     x J omega`` with the fitted torque coefficients and trims (and the ``known`` torques:
-    :func:`_known_torque`); the specific force is the
-    output map ``-K_T sum w_eff^2 / m`` (no state). The naive predictor holds the start's
-    rates and specific force."""
+    :func:`_known_torque`), each step's torque its mean over the step; the specific force is
+    the output map ``-K_T sum w_eff^2 / m`` (no state). ``speeds``: the effective speeds at
+    the samples and their means and mean squares over each step (:func:`_step_means`). The
+    naive predictor holds the start's rates and specific force."""
     J, P, spins, m = geometry
-    dt = float(grid[1] - grid[0])
+    e, e_step, e2_step = speeds
+    dt = float(np.median(np.diff(grid)))
     Jinv = np.linalg.inv(J)
-    X = _regressors(w_eff ** 2, P, spins)
+    X = _regressors(e2_step, P, spins)
     torque = np.column_stack([X[eq] @ coef[eq] for eq in ("p_dot", "q_dot", "r_dot")])
-    az_model = -(X["az"] @ coef["az"]) / m
+    az_model = -((e ** 2).sum(axis=1) * coef["az"][0]) / m
     hs = sorted({round(dt, 9), *horizons})
     steps = [int(round(h / dt)) for h in hs]
     longest = max(steps)
@@ -196,18 +233,18 @@ def _horizon_errors(grid: np.ndarray, om: np.ndarray, az: np.ndarray, w_eff: np.
     sq_n = {ch: np.zeros(len(hs)) for ch in HORIZON_CHANNELS}
     cnt = {ch: np.zeros(len(hs)) for ch in HORIZON_CHANNELS}
     if starts.size:
-        def rate(o, k):      # omega_dot of every window at step k of its own
-            idx = np.minimum(starts + k, len(grid) - 1)
+        def rate(o, k):      # omega_dot of every window in step k of its own
+            idx = np.minimum(starts + k, len(torque) - 1)
             tq = torque[idx] - np.cross(o, o @ J.T)
             if known is not None:
-                tq = tq + np.asarray(known(o.T, w_eff[idx].T)).T
+                tq = tq + np.asarray(known(o.T, e_step[idx].T)).T
             return tq @ Jinv.T
         o = om[starts].copy()
         pred = {0: o.copy()}
         for k in range(longest):
             f0 = rate(o, k)
             o1 = o + dt * f0
-            o = o + 0.5 * dt * (f0 + rate(o1, k + 1))
+            o = o + 0.5 * dt * (f0 + rate(o1, k))
             if k + 1 in steps:
                 pred[k + 1] = o.copy()
         for i, k in enumerate(steps):
@@ -248,13 +285,19 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     n_rot = af.n_rotors
     t = log.t
     dt = float(np.median(np.diff(t)))
-    grid = np.arange(t[0], t[-1] + 0.5 * dt, dt)
+    steps = np.diff(t)
+    # rows a steady rate apart with a little jitter in their stamps are the samples themselves
+    # (a grid of the median step drifts across them: 5 ms over 20 s of a 200 Hz log)
+    rows = bool(np.all(np.abs(steps - dt) < 0.25 * dt))
+    grid = t.copy() if rows else np.arange(t[0], t[-1] + 0.5 * dt, dt)
     win = max(5, int(round(SMOOTHING_S / dt)) | 1)
     if grid.size < 10 * win:
         raise GreyboxInputError(f"{where}: too short for an IMU-only fit ({t[-1] - t[0]:.2f} s)")
 
     def on_grid(y):
         ok = np.isfinite(y)
+        if rows:
+            return np.interp(np.arange(t.size), np.flatnonzero(ok), y[ok]), ~ok
         return np.interp(grid, t[ok], y[ok]), np.interp(grid, t, (~ok).astype(float)) > 0.5
     cols, gaps = [], np.zeros(grid.size, bool)
     for ch in ("p", "q", "r", "az"):
@@ -262,17 +305,26 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         cols.append(y)
         gaps |= miss
     om, az = np.column_stack(cols[:3]), cols[3]
-    w = np.column_stack([np.interp(grid, t, log.inputs[:, i]) for i in range(n_rot)])
-    # rows whose smoothing window touches a gap of the IMU are left out
-    bad = np.convolve(gaps.astype(float), np.ones(win), mode="same") > 0
+    # the speeds as held (contract §2): each row's from its time to the next row's
+    held = np.arange(t.size) if rows else np.clip(np.searchsorted(t, grid + 1e-9 * dt, side="right") - 1, 0,
+                                                  len(t) - 1)
+    w = log.inputs[held, :n_rot].astype(float)
     smooth = lambda y: savgol_filter(y, win, 2, axis=0)  # noqa: E731
-    om_s = smooth(om)
-    om_dot = savgol_filter(om, win, 2, deriv=1, delta=dt, axis=0)
+    # The rotational equations are taken over each step [t_k, t_k+1), where the held speeds
+    # act: J (omega[k+1] - omega[k]) / dt against the step's mean torque. Taken at the samples
+    # (the gyro's derivative there against the speeds from that sample on), the torque was half
+    # a sample early: the torque gains and b came out 1-1.6 % low at 8-19 of their std and a
+    # motor lag appeared where there is none (9 ms at 100 Hz; a blind audit's own simulator).
+    # The last sample starts no step: every series has one row fewer than the grid.
+    om_mid = smooth(0.5 * (om[1:] + om[:-1]))
     J = np.asarray(af.inertia, dtype=float)
-    lhs = om_dot @ J.T + np.cross(om_s, om_s @ J.T)
+    lhs = smooth(np.diff(om, axis=0) / dt) @ J.T + np.cross(om_mid, om_mid @ J.T)
     P, spins = af.rotor_positions, af.spins
     m = af.mass
-    n = grid.size
+    n = grid.size - 1
+    # steps whose smoothing window touches a gap of the IMU are left out
+    gap_step = gaps[1:] | gaps[:-1]
+    bad = np.convolve(gap_step.astype(float), np.ones(win), mode="same") > 0
     edge = np.zeros(n, bool)
     edge[:win] = edge[-win:] = True
     use = ~(bad | edge)
@@ -282,15 +334,18 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     if est.sum() < 50 or val.sum() < 20:
         raise GreyboxInputError(f"{where}: too few usable IMU samples for an IMU-only fit")
     known = _known_torque(model)
-    thrust_side = -m * smooth(az)
+    thrust_side = -m * smooth(az[:-1])
 
     def equations(tau):
         """The equations' left sides (with the known torques taken off: they move with the
-        lagged speeds) and regressors at the motor time constant ``tau``."""
-        w_eff = _lagged(w, tau, dt)
-        rot = lhs if known is None else lhs - smooth(np.asarray(known(om_s.T, w_eff.T)).T)
-        return ({"az": thrust_side, "p_dot": rot[:, 0], "q_dot": rot[:, 1], "r_dot": rot[:, 2]},
-                _regressors(smooth(w_eff ** 2), P, spins))
+        lagged speeds) and regressors at the motor time constant ``tau``: the specific force
+        at each sample, the torques over each step (:func:`_step_means`)."""
+        e = _lag_state(w, tau, dt)
+        e_step, e2_step = _step_means(w, e, tau, dt)
+        rot = lhs if known is None else lhs - smooth(np.asarray(known(om_mid.T, e_step.T)).T)
+        X = _regressors(smooth(e2_step), P, spins)
+        X["az"] = smooth(e[:-1] ** 2).sum(axis=1)[:, None]
+        return {"az": thrust_side, "p_dot": rot[:, 0], "q_dot": rot[:, 1], "r_dot": rot[:, 2]}, X
 
     def solve(tau):
         y_eq, X = equations(tau)
@@ -358,8 +413,16 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     # the measured samples, not the smoothed ones, start and score the predictions
     om_raw = np.where(gaps[:, None], np.nan, om)
     az_raw = np.where(gaps, np.nan, az)
-    horizons = _horizon_errors(grid, om_raw, az_raw, _lagged(w, tau, dt), coef, (J, P, spins, m), cut,
+    e = _lag_state(w, tau, dt)
+    horizons = _horizon_errors(grid, om_raw, az_raw, (e, *_step_means(w, e, tau, dt)), coef, (J, P, spins, m), cut,
                                DEFAULT_HORIZONS, known)
+    drag = _horizontal_force(log)
+    if drag is not None and drag[0] > DRAG_NOTE_RATIO * drag[1]:
+        notes.append(f"the horizontal specific force is {drag[0]:.3g} m/s^2 RMS, {drag[0] / drag[1]:.1f}x the "
+                     "accelerometer's noise: drag (or another force) acts on the body, and its vertical part, "
+                     "which the thrust equation cannot tell from the thrust without the velocity, goes partly "
+                     "into K_T beyond its std (a blind audit's 30 g vehicle at 2.5 m/s, drag 0.33 of its mass "
+                     "per s: K_T 0.6 % low, 7 std); g_x, g_y are torques over this K_T")
     if any(log.measures(c) for c in ("phi", "theta", "psi")):
         notes.append("the logged attitude is not used: without position the velocity, and with it the "
                      "translational equations, are not determined by the data")
