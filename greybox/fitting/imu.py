@@ -328,8 +328,8 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     af = model.airframe
     n_rot = af.n_rotors
     t = log.t
-    dt = float(np.median(np.diff(t)))
     steps = np.diff(t)
+    dt = float(np.median(steps))
     # rows a steady rate apart with a little jitter in their stamps are the samples themselves
     # (a grid of the median step drifts across them: 5 ms over 20 s of a 200 Hz log)
     rows = bool(np.all(np.abs(steps - dt) < 0.25 * dt))
@@ -472,13 +472,12 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         params["s_lead"] = (float(lead), float("nan"))
         return params, nrmse, coef, tau, k, profile
 
-    held = estimate(0.0, held_profile)
-    params, nrmse, coef, tau, k, profile = held
+    params, nrmse, coef, tau, k, profile = estimate(0.0, held_profile)
     lead = min(best, key=lambda s_: (best[s_], s_))
     if lead > 0:
         # the timing counts when it moves what is fitted (the diagnosis's rule for a log's
         # timing, ranking.PARAMETER_SHIFT): a lead that fits a little better and moves nothing
-        # is a sliver of something else (a drag the thrust equation lacks chose 0.125)
+        # is no evidence against the contract's hold
         led = estimate(lead, [(tau_, solve(tau_, lead)[1]) for tau_ in grid_tau])
         shifts = [abs(led[0][n][0] - v) / sd for n, (v, sd) in params.items() if math.isfinite(sd) and sd > 0]
         if shifts and max(shifts) > LEAD_SHIFT:
