@@ -155,7 +155,7 @@ def _within_3_std(veh, res):
         assert abs(value - truth) < 3 * std, (name, value, std, truth)
 
 
-@pytest.mark.parametrize("rate", [100.0, 200.0])
+@pytest.mark.parametrize("rate", [100.0, pytest.param(200.0, marks=pytest.mark.slow)])
 def test_held_commands_act_over_their_step_and_no_lag_is_invented(rate, tmp_path):
     """The peer simulator's 30 g vehicle, its controller and log at the same rate, so the
     logged commands are held exactly over each row (contract §2), its motors lagging them
