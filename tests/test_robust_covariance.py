@@ -51,6 +51,22 @@ def test_upper_covariance_is_at_least_each_of_the_two_in_every_direction():
     assert np.allclose(upper_covariance(a, 3 * a), 3 * a)
 
 
+def test_upper_covariance_does_not_depend_on_the_parameters_units():
+    """A 30 g vehicle's b (1e-10, variance 1e-31) beside a drag (variance 1e-10): in SI units
+    the eigen-decomposition's rounding set b's std 100x its scatter. In any units the result
+    is the same covariance, rescaled."""
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        m = rng.standard_normal((4, 4))
+        a = m @ m.T + 0.1 * np.eye(4)
+        m = rng.standard_normal((4, 4))
+        b = m @ m.T
+        units = np.array([1e-15, 1e-13, 1e-3, 1.0])      # b, K_T, a drag, a lag in their SI sizes
+        expected = upper_covariance(a, b) * np.outer(units, units)
+        got = upper_covariance(a * np.outer(units, units), b * np.outer(units, units))
+        assert np.allclose(got, expected, rtol=1e-9, atol=0), (np.diag(got), np.diag(expected))
+
+
 @pytest.mark.parametrize("soft", [False, True])
 def test_the_intervals_shares_sum_to_the_gauss_newton_step(soft):
     """Away from the optimum (parameters 30 % off) the shares of a step are not small, and
