@@ -9,7 +9,8 @@ the torque the logged rotor speeds give through the airframe's geometry (Förste
 the hover ``K_T`` of a 30 g vehicle, the 46 mm arm and Förster's inertia:
 ``K_T sum_i (-y_i) w_eff_i^2 / J_x`` and the same with ``x_i``), ``w_eff`` the logged speeds
 through a first-order lag of ``TAU`` s (the uSD log's IMU-only fit: 45 ms; 43 ms since its
-torques act over each log step) and a further delay of 0-3 samples. Both are band-pass filtered (zero phase) and regressed on each other per band:
+torques act over each log step) and a further delay of 0-3 samples. Both are band-pass
+filtered (zero phase) and regressed on each other per band:
 ``gain`` (1 when the geometry is right) and the correlation ``r``, at the delay with the
 highest ``r``.
 

@@ -48,16 +48,17 @@ from ..shooting import estimate_noise
 from ..validation import DEFAULT_HORIZONS, HorizonErrors
 
 __all__ = ["ImuFit", "fit_imu", "is_imu_only", "IMU_EQUATIONS", "TAU_GRID", "HORIZON_CHANNELS",
-           "KNOWN_TORQUE_EFFECTS", "DRAG_NOTE_RATIO", "LEAD_GRID",
-           "LEAD_SHIFT"]
+           "KNOWN_TORQUE_EFFECTS", "DRAG_NOTE_RATIO", "LEAD_GRID", "LEAD_SHIFT"]
 
 KNOWN_TORQUE_EFFECTS = ("gyroscopic",)
 """Effects whose torque depends on the body rates and rotor speeds alone, with parameters the
 IMU-only equations do not fit: known from what an IMU log measures."""
 
 IMU_EQUATIONS = ("az", "p_dot", "q_dot", "r_dot")
-TORQUE_EQUATIONS = IMU_EQUATIONS[1:]
 """The equations fitted: specific force along the rotor axis, angular accelerations."""
+
+TORQUE_EQUATIONS = IMU_EQUATIONS[1:]
+"""The angular-acceleration equations, on which the speeds' timing within a row is scored."""
 
 TAU_GRID = tuple(float(x) for x in np.r_[0.0, np.arange(0.005, 0.3001, 0.005)])
 """Motor time constants (s) the profile is taken over."""
@@ -505,8 +506,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     w_row = acting(lead)
     e = _lag_state(w_row, tau, dt)
     horizons = _horizon_errors(grid, om_raw, az_raw, (e, *_step_means(w_row, e, tau, dt)), coef, (J, P, spins, m),
-                               cut,
-                               DEFAULT_HORIZONS, known)
+                               cut, DEFAULT_HORIZONS, known)
     drag = _horizontal_force(log)
     if drag is not None and drag[0] > DRAG_NOTE_RATIO * drag[1]:
         notes.append(f"the horizontal specific force is {drag[0]:.3g} m/s^2 RMS, {drag[0] / drag[1]:.1f}x the "
