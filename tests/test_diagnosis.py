@@ -81,6 +81,7 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     # the summary names the positions and angles where the final model beats the naive
     # predictor, as the JSON's final horizons have them
     h = r["final"]["horizons"]
+    assert r["horizons"] == h               # contract §5: the final model's at the top level
     line = next(ln for ln in capsys.readouterr().out.splitlines() if "beats the naive predictor" in ln)
     for ahead in (0.25, 0.5):
         i = h["horizons"].index(ahead)

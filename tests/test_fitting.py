@@ -266,3 +266,22 @@ def test_a_fit_goes_on_from_where_it_stopped_with_its_own_settings():
                                                                stopped.measured_start)
     direct = fit(model, est, max_iter=200, **stopped.settings(states=False))
     assert direct.converged and on.cost == pytest.approx(direct.cost, abs=0.01)
+
+
+def test_certificate_says_when_residuals_are_below_the_estimated_noise():
+    """Residuals well below the noise estimated from the measurements mean that estimate took
+    fast motion for noise (a blind audit's 30 g vehicle at 100 Hz: gyro residuals 0.53x): the
+    words say so instead of "at the sensor noise"; adequacy is unchanged."""
+    from greybox.fitting.certificate import NOISE_RATIO_BELOW, Certificate
+
+    cert = Certificate(optimal=True, step_over_std=0.01, state_step_over_noise=0.0, gap_over_noise=0.0, held=[],
+                       residual_over_noise={"x": 1.0, "p": 0.53, "q": 0.6}, whiteness={"x": 0.0, "p": 0.0, "q": 0.0},
+                       sensor_noise={"x": 1e-3, "p": 0.0095, "q": 0.0096})
+    assert cert.adequate
+    text = cert.text()
+    assert "below the noise estimated from the measurements in p (0.53x), q (0.6x)" in text, text
+    assert "x (" not in text.split("below the noise")[1]
+    just = Certificate(optimal=True, step_over_std=0.01, state_step_over_noise=0.0, gap_over_noise=0.0, held=[],
+                       residual_over_noise={"p": NOISE_RATIO_BELOW + 0.01}, whiteness={"p": 0.0},
+                       sensor_noise={"p": 0.005})
+    assert "below the noise" not in just.text() and "residuals at the sensor noise" in just.text()

@@ -130,6 +130,12 @@ def test_diagnose_of_two_flights_in_two_winds_names_the_wind_with_each_flights_v
     pf = win.fit.per_flight_
     assert pf["wind[0]"]["value"] == pytest.approx([WINDS[0][0], WINDS[1][0]], abs=0.2)
     assert pf["wind[1]"]["value"] == pytest.approx([WINDS[0][1], WINDS[1][1]], abs=0.2)
+    # each flight's wind, not only their mean, in the JSON and the summary (a blind audit: the
+    # mean, a wind neither flight had, was all they showed)
+    js = d.as_json()
+    assert js["ranking"][0]["parameters"]["wind[0]"]["per_flight"] == pf["wind[0]"]["value"]
+    assert js["model"]["per_flight"]["wind[1]"]["value"] == pf["wind[1]"]["value"]
+    assert f"wind[0] per flight (the mean above): {pf['wind[0]']['value'][0]:.4g}" in d.summary()
 
 
 def _write_flights(windy, tmp_path, n=3):

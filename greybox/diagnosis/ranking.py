@@ -18,7 +18,8 @@ from ..integrate import n_substeps
 from ..model import OUTPUTS, QuadrotorModel
 from ..validation import Prediction
 from .analysis import estimation_residuals
-from .results import CandidateResult
+from .closed_loop import controller_answer
+from .results import UNEXPLAINED_RATIO, CandidateResult
 from .screening import (explained_fraction, held_on_bound, lr_test, negligible_effect, null_on_bound,
                         physically_implausible, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
                         screen)
@@ -102,7 +103,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                candidates: Sequence[str], compile: str, say: Callable[[str], None], n_refit: int,
                nominated: Sequence[str] = (), min_explained_inadequate: float = MIN_EXPLAINED_INADEQUATE,
                min_explained: float = MIN_EXPLAINED, size_in_parameters: bool = False,
-               refit_anyway: bool = False) -> list[CandidateResult]:
+               refit_anyway: bool = False, controller_check: bool = False) -> list[CandidateResult]:
     """Screen ``candidates`` against the fitted model ``res`` (validation prediction
     ``pred``), refit the ``n_refit`` best (or all, from cold, when the baseline has a
     parameter on a bound) and the ``nominated`` ones (effects the logged commands point at),
@@ -115,7 +116,10 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     what matters is what it does to the estimates). ``refit_anyway``: refit the best few even
     when their score test is not significant (a local statistic: the log's timing against a
     model with a motor lag, which takes most of the same half sample, scored p = 0.065 where
-    its refit put s_lead 22 std from zero)."""
+    its refit put s_lead 22 std from zero). ``controller_check``: an effect that scales the
+    commands' moment and leaves the body rates far off is judged again with a disturbance
+    torque (:func:`~greybox.diagnosis.closed_loop.controller_answer`), as the sliver rule is,
+    against the model as given."""
     sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
     out: list[CandidateResult] = []
     for name in candidates:
@@ -257,6 +261,9 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                 cand.unconfirmable = True
                 cand.reason += (f"; the validation data hardly exercise it (its predictions there move by "
                                 f"< {100 * MIN_VALIDATION_GAIN:.0f} % of the error in every channel)")
+        elif controller_check and fr.converged and \
+                (answer := controller_answer(fr, cand.effect, est, UNEXPLAINED_RATIO, compile, say)):
+            cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but {answer}; cannot tell"
         else:
             cand.significant = True
             cand.reason = f"p = {cand.p_value:.2g}; validation {best_ch} {-100 * falls[best_ch]:+.0f} %, " \

@@ -58,6 +58,10 @@ class CandidateResult:
             new = [n for n in self.fit.free_names if _effect_of(self.fit.model, n) == self.effect]
             out["parameters"] = {n: {"value": self.fit.value(n),
                                      "std": float(self.fit.std[self.fit.free_names.index(n)])} for n in new}
+            for n in new:
+                if n in self.fit.per_flight_:
+                    # fitted per flight: "value" is the mean over the flights
+                    out["parameters"][n]["per_flight"] = [_num(x) for x in self.fit.per_flight_[n]["value"]]
         return out
 
 
@@ -293,6 +297,8 @@ class Diagnosis:
             out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
                             "channels": dict(self.final_prediction.nrmse),
                             "horizons": (self.final_horizons or self.final_prediction.horizon_errors()).as_dict()}
+        # contract §5: at the top level the final model's (the baseline's when nothing was added)
+        out["horizons"] = out["final"]["horizons"] if "final" in out else out["baseline"]["horizons"]
         # how each horizon report's windows started (validation.choose_horizon_predictor): the
         # baseline's and the final model's may differ, a held moment in one and not the other
         out["horizons_predictor"] = {k: dict(he.predictor) for k, he in
@@ -300,6 +306,11 @@ class Diagnosis:
                                      if he is not None and he.predictor}
         out["model"] = {"effects": self.fitted_model.model.effect_names, "parameters": self.parameter_table(),
                         "certified": bool(self.fitted_model.converged)}
+        if getattr(self.fitted_model, "per_flight_", None):
+            # parameters fitted per flight (a day's wind): "parameters" holds their mean
+            out["model"]["per_flight"] = {n: {"value": [_num(x) for x in v["value"]],
+                                              "std": [_num(x) for x in v["std"]]}
+                                          for n, v in self.fitted_model.per_flight_.items()}
         out["discovered"] = [d.as_dict() for d in self.discovered]
         out["discovery"] = _clean(self.discovery)
         out["time_s"] = self.timings.get("total")
@@ -426,6 +437,10 @@ class Diagnosis:
         lines.append("   final model: " + ", ".join(
             f"{n} = {fm.value(n):.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "")
             for n, s in zip(fm.free_names, fm.std)))
+        for n, v in getattr(fm, "per_flight_", {}).items():
+            # the value above is the mean over the flights, which none of them may have had
+            lines.append(f"   {n} per flight (the mean above): " + ", ".join(
+                f"{x:.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "") for x, s in zip(v["value"], v["std"])))
         lines += self._horizon_lines()
         lines += self._discovery_lines()
         lines += [f"warning: {w}" for w in self.warnings]

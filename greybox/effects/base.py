@@ -86,6 +86,12 @@ class Effect:
     what the model leaves out of that other state (``d_p`` of ``p``). A fit with process noise
     starts its random walk at the other state's shooting gaps per second: the base model's
     gaps in ``p`` are the unmodelled torque over one interval."""
+    scales_commanded_moment: ClassVar[bool] = False
+    """Whether its torque is a multiple of the moment the logged commands give. A closed-loop
+    controller answers a torque the model lacks through the commands (they carry minus that
+    torque), so such an effect can take up part of any unmodelled torque by scaling the
+    commands' moment down. When it leaves the body rates far off, the diagnosis judges it again
+    with a random-walk disturbance torque in the model (:func:`~greybox.diagnosis.ranking.rank_round`)."""
     input_timed: ClassVar[tuple[str, ...]] = ()
     """Its parameters that are times measured against the logged inputs (a lag, a delay):
     whether a row's logged value holds for the whole row or is a sample of a signal varying

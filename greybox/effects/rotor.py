@@ -141,6 +141,7 @@ class MomentGain(Effect):
     distinguish = {
         'motor_lag': 'fast rotor-speed steps: a lag delays the moment, a gain scales it at every frequency',
     }
+    scales_commanded_moment = True
 
     def parameters(self, airframe):
         return [Parameter("k_M", 1, 1.0, "1", 0.02, 5.0, 0.3, 1.0, True,
