@@ -116,10 +116,10 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     what matters is what it does to the estimates). ``refit_anyway``: refit the best few even
     when their score test is not significant (a local statistic: the log's timing against a
     model with a motor lag, which takes most of the same half sample, scored p = 0.065 where
-    its refit put s_lead 22 std from zero). ``controller_check``: an effect that scales the
-    commands' moment and leaves the body rates far off is judged again with a disturbance
-    torque (:func:`~greybox.diagnosis.closed_loop.controller_answer`), as the sliver rule is,
-    against the model as given."""
+    its refit put s_lead 22 std from zero). ``controller_check``: the round's first, when it
+    is an effect that scales the commands' moment and leaves the body rates far off, is judged
+    again with a disturbance torque (:func:`~greybox.diagnosis.closed_loop.controller_answer`),
+    and refused when it was the controller's answer (the first round, as the sliver rule)."""
     sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
     out: list[CandidateResult] = []
     for name in candidates:
@@ -261,9 +261,6 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                 cand.unconfirmable = True
                 cand.reason += (f"; the validation data hardly exercise it (its predictions there move by "
                                 f"< {100 * MIN_VALIDATION_GAIN:.0f} % of the error in every channel)")
-        elif controller_check and fr.converged and \
-                (answer := controller_answer(fr, cand.effect, est, UNEXPLAINED_RATIO, compile, say)):
-            cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but {answer}; cannot tell"
         else:
             cand.significant = True
             cand.reason = f"p = {cand.p_value:.2g}; validation {best_ch} {-100 * falls[best_ch]:+.0f} %, " \
@@ -363,7 +360,19 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     # model at the baseline while certified CoG-offset and asymmetry refits were there);
     # among them the largest validation improvement (the out-of-sample evidence), then the
     # likelihood ratio
-    return order_refitted(refitted) + rest
+    ordered = order_refitted(refitted)
+    while controller_check and ordered and ordered[0].significant and ordered[0].fit is not None \
+            and ordered[0].fit.converged:
+        # the round's verdict-to-be, asked whether it is the controller's answer (one
+        # disturbance fit, for an effect that scales the commands' moment)
+        top = ordered[0]
+        answer = controller_answer(top.fit, top.effect, est, UNEXPLAINED_RATIO, compile, say)
+        if not answer:
+            break
+        top.significant = False
+        top.reason = f"significant in the fit (p = {top.p_value:.2g}) but {answer}; cannot tell"
+        ordered = order_refitted(refitted)
+    return ordered + rest
 
 
 def order_refitted(refitted: Sequence[CandidateResult]) -> list[CandidateResult]:
