@@ -385,8 +385,9 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     (:class:`~greybox.effects.SampledInputs`), judged like a candidate (likelihood ratio,
     effect size, validation) against the certified fit ``res`` of ``model``. When they are,
     the diagnosis goes on from the model with it: ``(model, fit, prediction, words, refit)``;
-    else the arguments, None and the certified refit with the timing free (None without one). The words and numbers: ``{"effect", "s_lead", "s_lead_std",
-    "nrmse_before", "nrmse_after", "text", "judged_with"}`` (:attr:`Diagnosis.input_timing`);
+    else the arguments, None and the certified refit with the timing free (None without one).
+    The words and numbers: ``{"effect", "s_lead", "s_lead_std", "nrmse_before", "nrmse_after",
+    "text", "judged_with"}`` (:attr:`Diagnosis.input_timing`);
     ``against``: the effects ``model`` has beyond the model as given (judged again after the
     rounds), ``judged_with`` lists them.
 
