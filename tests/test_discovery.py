@@ -222,6 +222,7 @@ def test_rate_damping_is_discovered_refitted_and_written(paper, damped, tmp_path
     entry = js["discovered"][0]
     assert set(entry) >= {"channel", "terms", "significant", "nrmse_before", "nrmse_after"}
     assert set(entry["terms"][0]) == {"feature", "coefficient", "std"} and entry["significant"] is True
+    assert entry["refit_certified"] is True     # its nrmse_after is a certified refit's
     assert "5. beyond the catalogue" in d.summary() and "what the verdict holds" not in d.summary()
     # beside a verdict whose final model predicts better, the section says whose terms they are
     from dataclasses import replace

@@ -542,6 +542,10 @@ def _refit_and_judge(d: Discovered, model: QuadrotorModel, res: FitResult, pred:
         d.significant = True
         d.reason = (f"p = {d.p_value:.2g} (regression), {d.lr_p_value:.2g} (refit); validation {best_ch} "
                     f"{-100 * falls[best_ch]:+.0f} %, total {-100 * gain:+.0f} %")
+    if not fr.converged:
+        # its nrmse and LR are where the refit stopped (a diverged one's nrmse was 1.8e6 on a
+        # blind audit's flight, read there as a result)
+        d.reason = f"its refit was not certified ({fr.status}); " + d.reason
     say(f"  discovered {d.channel:<3} {', '.join(t.feature for t in d.terms):<24} LR {d.lr:10.1f} "
         f"nrmse {pred.total:.3f} -> {pr.total:.3f}  ({time.perf_counter() - t0:.1f} s)")
     return confirmed_alone

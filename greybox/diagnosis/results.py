@@ -155,7 +155,8 @@ class Discovered:
                "p_value": _num(self.p_value),
                "contribution": _num(self.contribution), "share": _num(self.share), "unit": self.unit, "lr": _num(self.lr),
                "lr_p_value": _num(self.lr_p_value), "reason": self.reason,
-               "effect": self.effect.name if self.effect is not None else None}
+               "effect": self.effect.name if self.effect is not None else None,
+               "refit_certified": None if self.fit is None else bool(self.fit.converged)}
         if self.channels_after is not None:
             out["channels_after"] = {k: _num(v) for k, v in self.channels_after.items()}
         return out
