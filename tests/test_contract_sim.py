@@ -92,16 +92,19 @@ def test_a_motor_lag_behind_half_held_commands_says_what_its_std_leave_out(tmp_p
 
 
 @pytest.mark.slow
-def test_a_motor_lag_behind_commands_logged_at_the_controllers_rate_has_no_timing_caveat(tmp_path):
-    """30-ms motors, the 400 Hz commands logged at 400 Hz: each row's command holds for the
-    whole row, as the contract's zero-order hold says. motor_lag is the verdict, the held rows
-    stand, and with the log's timing free as well the lag's std stays a small share of half a
-    row: the data settle the timing, so no caveat says the lag may be off by half a row (a
-    blind audit's 100 Hz log of that kind: tau_m 24.99 ms for 25, yet the words said 5 ms)."""
+def test_a_motor_lag_behind_commands_logged_at_the_controllers_rate_gives_its_value_with_the_timing_free(tmp_path):
+    """30-ms motors, the 400 Hz commands logged at 400 Hz (held rows exact): motor_lag is the
+    verdict and the held rows stand. Whether the data settle the timing is measured, not
+    assumed: fitted with the timing free as well, tau_m is 30.8 ± 1.3 ms here (a soft fit),
+    an uncertainty as large as the half row (1.25 ms), so the caveat stays and quotes that
+    refit beside the held fit's 30.0 ± 0.19 ms. (Where the refit settles it, the words go: a
+    blind audit's 100 Hz log of commands at the controller's rate, tau_m 24.99 ± 0.04 ms,
+    has no caveat now; it said 5 ms.)"""
     d, cfg = _diagnosed("c5b_motorlag_log400", tmp_path)
     assert d.verdict == "motor_lag", d.summary()
     assert d.input_timing is None
     fr = d.fitted_model
     tau, std = fr.value("tau_m"), fr.std[fr.free_names.index("tau_m")]
     assert abs(tau - cfg["tau_m"]) < 3 * std, (tau, std)
-    assert not any("half a row" in w for w in d.warnings), d.warnings
+    caveat = [w for w in d.warnings if "half a row" in w]
+    assert len(caveat) == 1 and "with the log's timing free as well: tau_m = " in caveat[0], d.warnings
