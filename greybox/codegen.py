@@ -50,17 +50,26 @@ def compiler_available() -> str | None:
 
 
 def code_size(f: ca.Function) -> int:
-    """Instructions of ``f`` and, once each, of the functions its MX graph calls: what the C
-    compiler works through (an MX function's own count is that of its nodes only)."""
-    if not f.is_a("MXFunction"):
-        return f.n_instructions()
-    called: dict[str, ca.Function] = {}
-    for k in range(f.n_instructions()):
-        node = f.instruction_MX(k)
-        if node.is_call():
-            g = node.which_function()
-            called.setdefault(g.name(), g)
-    return f.n_instructions() + sum(code_size(g) for g in called.values())
+    """Instructions of ``f`` and, once each, of every function it calls (through its MX graph
+    or a conditional's branches, at any depth): what the C compiler works through (an MX
+    function's own count is that of its nodes only)."""
+    seen: dict[str, ca.Function] = {}
+
+    def visit(g: ca.Function) -> None:
+        if g.name() in seen:
+            return
+        seen[g.name()] = g
+        if g.is_a("MXFunction"):
+            for k in range(g.n_instructions()):
+                node = g.instruction_MX(k)
+                if node.is_call():
+                    visit(node.which_function())
+        elif not g.is_a("SXFunction"):
+            for h in g.find_functions(1):      # a conditional (Switch): its branches
+                visit(h)
+
+    visit(f)
+    return sum(g.n_instructions() for g in seen.values() if g.is_a("MXFunction") or g.is_a("SXFunction"))
 
 
 def expected_build_seconds(f: ca.Function, opt: str = "-O1") -> float:

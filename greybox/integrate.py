@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple, Sequence
 
 import casadi as ca
 import numpy as np
@@ -20,7 +21,7 @@ import numpy as np
 from .errors import GreyboxInputError, SolverError
 from .model import QuadrotorModel
 
-__all__ = ["MAX_STEP", "rk4_step", "rk4_step_with_output", "n_substeps", "simulate", "Simulation", "threads",
+__all__ = ["MAX_STEP", "SUBSTEP_SLACK", "Substeps", "substeps", "rk4_step", "rk4_step_with_output", "n_substeps", "simulate", "Simulation", "threads",
            "parallel_map", "integrate_states_along"]
 
 MAX_STEP = 2.5e-3
@@ -45,13 +46,66 @@ def parallel_map(f: ca.Function, n: int) -> ca.Function:
     return f.map(n, "serial") if k == 1 else f.map(n, "thread", k)
 
 
+SUBSTEP_SLACK = 0.05
+"""A sub-step may exceed ``max_step`` by this fraction: a 100-Hz log's steps, 10 ms give or
+take the jitter of its time stamps (Unix times: 1e-7 s), take four sub-steps, not five."""
+
+
 def n_substeps(h_max: float, max_step: float = MAX_STEP) -> int:
-    """Number of RK4 sub-steps so that no step exceeds ``max_step``."""
-    return max(1, math.ceil(h_max / max_step - 1e-9))
+    """Number of RK4 sub-steps so that no step exceeds ``max_step`` (by more than
+    :data:`SUBSTEP_SLACK`)."""
+    return max(1, math.ceil(h_max / (max_step * (1 + SUBSTEP_SLACK))))
 
 
-def rk4_step(model: QuadrotorModel, n_sub: int = 1) -> ca.Function:
-    """``F(x, u, p, t, h) -> x_next``: ``n_sub`` RK4 steps of size ``h/n_sub``, input held."""
+class Substeps(NamedTuple):
+    """RK4 sub-steps per sample of a log: ``n`` over its usual (median) step, up to ``n_max``
+    over its longest (a dropped row). A sample takes the least multiple of ``n`` that keeps
+    its sub-steps within ``max_step``; a sample-step function branches on the step's length
+    (:func:`rk4_step`), so one 20-ms gap in a 100-Hz log no longer makes every sample take
+    the sub-steps of 20 ms."""
+    n: int
+    n_max: int
+    max_step: float = MAX_STEP
+
+    @property
+    def branches(self) -> int:
+        """Number of sub-step counts: ``n``, ``2n``, ... up to ``n_max``."""
+        return max(1, math.ceil(self.n_max / self.n))
+
+    def branch(self, h: "ca.MX | np.ndarray") -> "ca.MX | np.ndarray":
+        """0-based branch of a step of length ``h``: it takes ``(branch + 1) * n`` sub-steps."""
+        limit = self.n * self.max_step * (1 + SUBSTEP_SLACK)
+        if isinstance(h, ca.MX):
+            return ca.fmin(ca.fmax(ca.ceil(h / limit) - 1, 0), self.branches - 1)
+        return np.clip(np.ceil(np.asarray(h) / limit) - 1, 0, self.branches - 1).astype(int)
+
+
+def substeps(h: "np.ndarray | Sequence[np.ndarray]", max_step: float = MAX_STEP) -> Substeps:
+    """The :class:`Substeps` of sample steps ``h`` (an array of steps, or several flights'
+    arrays)."""
+    parts = [np.asarray(a, dtype=float).ravel() for a in (h if isinstance(h, (list, tuple)) else [h])]
+    h = np.concatenate(parts) if parts else np.zeros(0)
+    if h.size == 0:
+        return Substeps(1, 1, max_step)
+    n = n_substeps(float(np.median(h)), max_step)
+    n_max = max(n, n_substeps(float(h.max()), max_step))
+    return Substeps(n, n * math.ceil(n_max / n), max_step)
+
+
+def log_substeps(logs: "Sequence") -> Substeps:
+    """The :class:`Substeps` of flight logs (objects with sample times ``t``): what the fitter,
+    the diagnosis' queued builds and the predictions use alike."""
+    return substeps([np.diff(lg.t) for lg in logs])
+
+
+def rk4_step(model: QuadrotorModel, n_sub: "int | Substeps" = 1) -> ca.Function:
+    """``F(x, u, p, t, h) -> x_next``: ``n_sub`` RK4 steps of size ``h/n_sub``, input held;
+    with :class:`Substeps` of several branches, a step of length ``h`` takes the count of its
+    branch (:meth:`Substeps.branch`)."""
+    if isinstance(n_sub, Substeps):
+        if n_sub.branches == 1:
+            return rk4_step(model, n_sub.n)
+        return _branched(rk4_step(model, n_sub.n), n_sub, "rk4")
     f = model.rhs
     x = ca.SX.sym("x", model.nx)
     u = ca.SX.sym("u", model.nu)
@@ -70,6 +124,23 @@ def rk4_step(model: QuadrotorModel, n_sub: int = 1) -> ca.Function:
     return ca.Function("rk4", [x, u, p, t, h], [xk], ["x", "u", "p", "t", "h"], ["x_next"])
 
 
+def _branched(step: ca.Function, plan: Substeps, name: str) -> ca.Function:
+    """``step`` (``(x, u, p, t, h) -> x_next``, ``plan.n`` sub-steps) repeated ``k`` times
+    over ``h/k`` in branch ``k - 1``, chosen by the step's length; only the chosen branch runs."""
+    ins = [ca.MX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
+    x, u, p, t, h = ins
+    cases = []
+    for k in range(1, plan.branches + 1):
+        xs, ts, hk = x, t, h / k
+        for _ in range(k):
+            xs = step(xs, u, p, ts, hk)
+            ts = ts + hk
+        cases.append(ca.Function(f"{name}_x{k}", ins, [xs]))
+    switch = ca.Function.conditional(f"{name}_branch", cases[:-1], cases[-1])
+    return ca.Function(name, ins, [switch(plan.branch(h), x, u, p, t, h)],
+                       ["x", "u", "p", "t", "h"], ["x_next"])
+
+
 def integrate_states_along(model: QuadrotorModel, t: np.ndarray, inputs: np.ndarray, states: "list[int]",
                            x0: np.ndarray, held: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Some of the model's states, ``states`` (indices), integrated sample by sample over the
@@ -80,14 +151,15 @@ def integrate_states_along(model: QuadrotorModel, t: np.ndarray, inputs: np.ndar
     get node guesses that follow the logged inputs, where inputs held over a whole interval
     missed them by the inputs' change."""
     h = np.diff(t)
-    step = rk4_step(model, n_substeps(float(max(h.max(), 1e-6))))
-    xa = ca.SX.sym("xa", len(states))
-    xo = ca.SX.sym("xo", model.nx)
-    u = ca.SX.sym("u", model.nu)
-    pp = ca.SX.sym("p", model.n_params)
-    ts = ca.SX.sym("t")
-    hs = ca.SX.sym("h")
-    x = ca.SX(xo)
+    step = rk4_step(model, substeps(np.maximum(h, 1e-6)))
+    Sym = ca.SX if step.is_a("SXFunction") else ca.MX     # a branched step is an MX graph
+    xa = Sym.sym("xa", len(states))
+    xo = Sym.sym("xo", model.nx)
+    u = Sym.sym("u", model.nu)
+    pp = Sym.sym("p", model.n_params)
+    ts = Sym.sym("t")
+    hs = Sym.sym("h")
+    x = Sym(xo)
     for i, c in enumerate(states):
         x[c] = xa[i]
     f = ca.Function("states_along", [xa, xo, u, pp, ts, hs], [step(x, u, pp, ts, hs)[states]])
@@ -98,15 +170,16 @@ def integrate_states_along(model: QuadrotorModel, t: np.ndarray, inputs: np.ndar
     return np.vstack([np.asarray(x0, dtype=float)[None, :], seq.T])
 
 
-def rk4_step_with_output(model: QuadrotorModel, n_sub: int = 1) -> ca.Function:
+def rk4_step_with_output(model: QuadrotorModel, n_sub: "int | Substeps" = 1) -> ca.Function:
     """``F(x, u, p, t, h) -> (x_next, y, x)``: one held-input RK4 interval and the outputs and
     state at its start, the building block of trajectory and prediction maps."""
     step = rk4_step(model, n_sub)
-    x = ca.SX.sym("x", model.nx)
-    u = ca.SX.sym("u", model.nu)
-    p = ca.SX.sym("p", model.n_params)
-    t = ca.SX.sym("t")
-    h = ca.SX.sym("h")
+    Sym = ca.SX if step.is_a("SXFunction") else ca.MX
+    x = Sym.sym("x", model.nx)
+    u = Sym.sym("u", model.nu)
+    p = Sym.sym("p", model.n_params)
+    t = Sym.sym("t")
+    h = Sym.sym("h")
     return ca.Function("rk4_out", [x, u, p, t, h], [step(x, u, p, t, h), model.output(x, u, p, t), x],
                        ["x", "u", "p", "t", "h"], ["x_next", "y", "x_now"])
 
@@ -202,7 +275,7 @@ def simulate(model: QuadrotorModel, t: np.ndarray, inputs: np.ndarray, p: np.nda
     if n > 1:
         h = np.diff(t)
         if method == "rk4":
-            step = rk4_step(model, n_substeps(float(h.max()), max_step))
+            step = rk4_step(model, substeps(h, max_step))
         elif method == "cvodes":
             step = _cvodes_step(model, rtol, atol)
         else:

@@ -11,7 +11,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 
 from .data import FlightLog
-from .integrate import n_substeps, parallel_map, rk4_step_with_output
+from .integrate import log_substeps, parallel_map, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 
 __all__ = ["fitted_trajectory", "output_residuals", "flight_residuals", "whiteness_fraction", "long_run_factor",
@@ -52,7 +52,7 @@ def fitted_trajectory(model: QuadrotorModel, res: Any, log: FlightLog, flight: i
     N = res.interval
     n = len(log)
     M = len(idx) - 1
-    f = rk4_step_with_output(model, n_substeps(float(np.diff(log.t).max())))
+    f = rk4_step_with_output(model, log_substeps([log]))
     F = parallel_map(f.mapaccum("traj", N, [0], [0]), M)
     k = np.minimum(np.arange(M * N), n - 1)
     hk = np.append(np.diff(log.t), 0.0)[k]

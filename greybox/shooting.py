@@ -31,7 +31,7 @@ from scipy.signal import savgol_filter
 from . import codegen
 from .data import FlightLog
 from .errors import GreyboxInputError
-from .integrate import integrate_states_along, parallel_map, rk4_step
+from .integrate import Substeps, integrate_states_along, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import body_rates_from_euler_rates
 
@@ -186,7 +186,7 @@ class ShootingProblem:
     """
 
     @staticmethod
-    def step_functions(model: QuadrotorModel, free_idx: list[int], n_sub: int
+    def step_functions(model: QuadrotorModel, free_idx: list[int], n_sub: "int | Substeps"
                        ) -> tuple[ca.Function, ca.Function]:
         """Per-sample Gauss-Newton step functions: (blocks, value).
 
@@ -233,19 +233,40 @@ class ShootingProblem:
         accumulate = ca.Function("gb_sample_accumulate", [x, S, H, g, c, u, t, th, sc, pfix, ym, w],
                                  [H + JJ, g + Je.T @ e, c + e * e])
 
-        dt = Hs / n_sub
-        xk, Sk, tk = X, Sm, T
-        for _ in range(n_sub):
-            xk, Sk = substep(xk, Sk, U, tk, dt, Th, Sc, Pf)
-            tk = tk + dt
+        plan = n_sub if isinstance(n_sub, Substeps) else Substeps(n_sub, n_sub)
+
+        def substeps_over(k: int) -> list:
+            # k * plan.n sub-steps over the sample's step Hs
+            dt = Hs / (k * plan.n)
+            xk, Sk, tk = X, Sm, T
+            for _ in range(k * plan.n):
+                xk, Sk = substep(xk, Sk, U, tk, dt, Th, Sc, Pf)
+                tk = tk + dt
+            return [xk, Sk]
+
+        if plan.branches == 1:
+            xk, Sk = substeps_over(1)
+        else:
+            # a long step (a dropped row) takes more sub-steps; only its branch runs
+            cases = [ca.Function(f"gb_substeps_x{k}", inputs, substeps_over(k))
+                     for k in range(1, plan.branches + 1)]
+            xk, Sk = ca.Function.conditional("gb_substeps", cases[:-1], cases[-1])(plan.branch(Hs), *inputs)
         Hn, gn, Cn = accumulate(X, Sm, Hm, gm, C, U, T, Th, Sc, Pf, Ym, Wm)
         step_blk = ca.Function("gb_step_blocks", inputs, [xk, Sk, Hn, gn, Cn])
-        step = rk4_step(model, n_sub)
-        step_val = ca.Function("gb_step_value", [x, c, u, t, h, ym, w, th, sc, pfix],
-                               [step(x, u, p, t, h), c + e * e])
+        step = rk4_step(model, plan)
+        if step.is_a("SXFunction"):
+            step_val = ca.Function("gb_step_value", [x, c, u, t, h, ym, w, th, sc, pfix],
+                                   [step(x, u, p, t, h), c + e * e])
+        else:       # a branched step is an MX graph: the residuals' SX part called beside it
+            vin = [x, c, u, t, h, ym, w, th, sc, pfix]
+            cost = ca.Function("gb_sample_cost", vin, [c + e * e])
+            mins = [ca.MX.sym(f"v{i}", v.sparsity()) for i, v in enumerate(vin)]
+            Mx, Mc, Mu, Mt, Mh, Mym, Mw, Mth, Msc, Mpf = mins
+            Mp = ca.Function("gb_params", [th, sc, pfix], [p])(Mth, Msc, Mpf)
+            step_val = ca.Function("gb_step_value", mins, [step(Mx, Mu, Mp, Mt, Mh), cost(*mins)])
         return step_blk, step_val
 
-    def __init__(self, model: QuadrotorModel, free_idx: list[int], N: int, n_sub: int,
+    def __init__(self, model: QuadrotorModel, free_idx: list[int], N: int, n_sub: "int | Substeps",
                  compile_mode: str):
         if compile_mode not in ("auto", "always", "quick", "never"):
             raise GreyboxInputError(f"compile must be 'auto', 'always', 'quick' or 'never', not {compile_mode!r}")
@@ -256,7 +277,8 @@ class ShootingProblem:
         self.nx, self.nth, self.nz, self.ny = nx, nth, nz, ny
         self.compile_mode = compile_mode
         self._opt = "-O0" if compile_mode == "quick" else "-O1"
-        key = f"{_structure_key(model)} {tuple(free_idx)} {n_sub}"
+        plan = n_sub if isinstance(n_sub, Substeps) else Substeps(n_sub, n_sub)
+        key = f"{_structure_key(model)} {tuple(free_idx)} {plan.n} {plan.n_max} {plan.max_step}"
         if key not in _STEP_FUNCTIONS:
             step_blk, step_val = self.step_functions(model, free_idx, n_sub)
             _STEP_FUNCTIONS[key] = {"blocks": step_blk, "value": step_val}

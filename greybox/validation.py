@@ -28,7 +28,7 @@ from . import effects as fx
 from .data import FlightLog
 from .errors import GreyboxInputError
 from .shooting import ShootingProblem, estimate_noise, initial_node_states
-from .integrate import n_substeps, parallel_map, rk4_step_with_output
+from .integrate import Substeps, log_substeps, parallel_map, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import euler_rates_from_body_rates
 
@@ -121,7 +121,7 @@ def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts
     if np.any(starts < L):
         raise GreyboxInputError("state estimation needs L samples before every start")
     sigma = _sigma(log) if sigma is None else sigma
-    n_sub = n_substeps(float(np.diff(log.t).max()))
+    n_sub = log_substeps([log])
     prob = ShootingProblem(model, [], L, n_sub, compile)
     nW = starts.size
     Fb = prob.mapped(nW).blocks
@@ -180,7 +180,7 @@ def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts
     return xe
 
 
-def _prediction_function(model: QuadrotorModel, n_steps: int, n_sub: int, n_windows: int) -> ca.Function:
+def _prediction_function(model: QuadrotorModel, n_steps: int, n_sub: "int | Substeps", n_windows: int) -> ca.Function:
     acc = rk4_step_with_output(model, n_sub).mapaccum("pred", n_steps, [0], [0])
     X0 = ca.MX.sym("x0", model.nx)
     U = ca.MX.sym("U", model.nu, n_steps)
@@ -200,7 +200,7 @@ def _predict_windows(model: QuadrotorModel, p: np.ndarray, log: FlightLog, start
     last sample) and the start states (windows, nx)."""
     t = log.t
     x0 = estimate_states(model, p, log, starts, L, sigma, compile=compile, measured_start=measured_start)
-    n_sub = n_substeps(float(np.diff(t).max()))
+    n_sub = log_substeps([log])
     F = _prediction_function(model, n_steps, n_sub, len(starts))
     idx = np.minimum(starts[:, None] + np.arange(n_steps)[None, :], t.size - 1)   # (nW, n_steps)
     nxt = np.minimum(idx + 1, t.size - 1)

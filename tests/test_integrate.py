@@ -3,7 +3,7 @@ import pytest
 
 from greybox import QuadrotorModel, effects, simulate
 from greybox.errors import GreyboxInputError
-from greybox.integrate import integrate_states_along, n_substeps, rk4_step
+from greybox.integrate import Substeps, integrate_states_along, log_substeps, n_substeps, rk4_step, substeps
 
 
 def test_rk4_agrees_with_cvodes_on_a_rich_model(plus_airframe):
@@ -34,6 +34,55 @@ def test_rk4_is_fourth_order(plus_airframe):
 
 def test_substeps():
     assert n_substeps(0.001) == 1 and n_substeps(0.01) == 4 and n_substeps(0.0025) == 1
+    # Unix time stamps carry ~1e-7 s of rounding: a 100-Hz log's 10 ms are still four sub-steps
+    assert n_substeps(0.0100000003) == 4 and n_substeps(0.0106) == 5
+
+
+def test_a_dropped_row_sets_the_substeps_of_its_own_step_only():
+    h = np.full(1000, 0.01)
+    h[[100, 500]] = [0.02, 0.03]             # two dropped rows, then two
+    plan = substeps(h)
+    assert plan == Substeps(4, 12) and plan.branches == 3
+    assert list(plan.branch(np.array([0.0, 0.005, 0.01, 0.0104, 0.011, 0.02, 0.03, 0.05]))) == [0, 0, 0, 0, 1, 1, 2, 2]
+    assert substeps(np.full(10, 0.01)) == Substeps(4, 4)
+    # several flights: one plan over all their steps
+    class Log:
+        def __init__(self, t):
+            self.t = t
+    assert log_substeps([Log(np.arange(0, 1, 0.01)), Log(np.r_[0, 0.01, 0.03, 0.04])]) == Substeps(4, 8)
+
+
+def test_a_branched_step_takes_the_substeps_of_its_steps_length(plus_airframe):
+    m = QuadrotorModel(plus_airframe) + effects.MotorLag()
+    p = m.parameter_vector({"tau_m": 0.03})
+    x0 = np.zeros(m.nx)
+    x0[9:12] = [1.0, -0.5, 0.8]
+    x0[12:] = m.hover_speed()
+    u = [m.hover_speed() * 1.05] * 4
+    step = rk4_step(m, Substeps(2, 6))
+    for h, n in ((0.004, 2), (0.005, 2), (0.0075, 4), (0.01, 4), (0.015, 6), (0.04, 6)):
+        got = np.asarray(step(x0, u, p, 0.3, h)).ravel()
+        want = np.asarray(rk4_step(m, n)(x0, u, p, 0.3, h)).ravel()
+        np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-13)
+
+
+def test_a_log_with_a_dropped_row_simulates_as_one_without_it(plus_airframe):
+    """RK4 over a log with dropped rows (their steps branch to more sub-steps) against CVODES
+    on the full grid with the inputs held over the gaps, at the kept rows."""
+    m = QuadrotorModel(plus_airframe)
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 2.0, 0.01)
+    W = m.hover_speed() * (1 + 0.01 * rng.standard_normal((t.size, 4)))
+    full = simulate(m, t, W, method="cvodes")
+    keep = np.ones(t.size, bool)
+    keep[[50, 120, 121]] = False
+    gap = simulate(m, t[keep], W[keep], method="rk4")
+    # the dropped rows' inputs are the held ones of the row before in the gapped log
+    W_held = W.copy()
+    W_held[50], W_held[120], W_held[121] = W[49], W[119], W[119]
+    ref = simulate(m, t, W_held, method="cvodes")
+    np.testing.assert_allclose(gap.states, ref.states[keep], atol=1e-8)
+    assert np.abs(ref.states[keep] - full.states[keep]).max() > 1e-7     # the hold mattered
 
 
 def test_simulate_argument_errors(plus_airframe):

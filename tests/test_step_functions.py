@@ -9,7 +9,7 @@ import pytest
 import greybox
 from greybox import QuadrotorModel, codegen
 from greybox import effects as fx
-from greybox.integrate import rk4_step
+from greybox.integrate import Substeps, rk4_step
 from greybox.model import OUTPUTS
 from greybox.shooting import ShootingProblem
 
@@ -70,6 +70,38 @@ def test_step_blocks_equal_the_jacobian_of_the_whole_step(effects, n_sub):
     xn_v, c_v = (np.asarray(a).ravel() for a in val(x, args[4], u, 0.3, 0.004, ym, args[9], args[10], sc, p))
     np.testing.assert_allclose(xn_v, want[0], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(c_v, want[4], rtol=1e-12)
+
+
+@pytest.mark.parametrize("h,n_sub", [(0.004, 2), (0.0075, 4), (0.012, 6)])
+def test_a_long_steps_blocks_take_the_substeps_of_its_branch(h, n_sub):
+    """A log with dropped rows: a sample's blocks over a step of 4 ms take 2 sub-steps, over
+    7.5 ms 4, over 12 ms 6 -- each as the unbranched step functions with that count."""
+    af = greybox.load_airframe(PAPER)
+    model = QuadrotorModel(af) + fx.by_name("motor_lag")
+    rng = np.random.default_rng(5)
+    free_idx = [0, 1, model.param_names.index("tau_m")]
+    nx, nth, ny = model.nx, len(free_idx), model.ny
+    nz = nx + nth
+    p = model.default_parameters()
+    sc = np.where(p[free_idx] != 0, p[free_idx], 1e-2)
+    x = np.zeros(nx)
+    x[:12] = rng.normal(size=12) * [1, 1, 1, .3, .3, 3, 1, 1, 1, 2, 2, 2]
+    x[12:] = 500.0 + rng.normal(size=nx - 12) * 20
+    u = 500.0 + rng.normal(size=model.nu) * 30
+    ym = x[:ny] + rng.normal(size=ny) * 0.05
+    J = rng.normal(size=(2 * nz, nz))
+    args = [x, rng.normal(size=(nx, nz)), J.T @ J, rng.normal(size=nz), rng.uniform(size=ny),
+            u, 0.3, h, ym, rng.uniform(1, 10, size=ny), 1.0 + 0.1 * rng.normal(size=nth), sc, p]
+    blk, val = ShootingProblem.step_functions(model, free_idx, Substeps(2, 6))
+    blk_n, val_n = ShootingProblem.step_functions(model, free_idx, n_sub)
+    got = [np.asarray(a) for a in blk(*args)]
+    want = [np.asarray(a) for a in blk_n(*args)]
+    for a, b in zip(got, want):
+        np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-13 * np.abs(b).max())
+    np.testing.assert_allclose(got[0].ravel(), reference_blocks(model, free_idx, n_sub, args)[0], rtol=1e-12)
+    vargs = (x, args[4], u, 0.3, h, ym, args[9], args[10], sc, p)
+    for a, b in zip(val(*vargs), val_n(*vargs)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-13, atol=1e-13)
 
 
 def test_code_size_counts_the_functions_an_mx_graph_calls_once():

@@ -14,7 +14,7 @@ from scipy import stats
 from .. import effects as fx
 from ..data import FlightLog
 from ..fitting import FitResult
-from ..integrate import n_substeps
+from ..integrate import log_substeps
 from ..model import OUTPUTS, QuadrotorModel
 from ..validation import Prediction
 from .analysis import estimation_residuals
@@ -182,7 +182,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     # flight against 3-10 s of refits); the cold refits of every candidate, which all need
     # their blocks at once, build them first: quick, in parallel.
     rcompile = compile
-    n_sub = n_substeps(max(float(np.diff(lg.t).max()) for lg in est))
+    n_sub = log_substeps(est)
     if compile == "auto" and to_refit:
         if cold:
             t0 = time.perf_counter()

@@ -16,7 +16,7 @@ from .. import effects as fx
 from ..data import FlightLog
 from ..errors import ConvergenceWarning
 from ..fitting import FitResult, FitSession, fit, per_flight_positions
-from ..integrate import integrate_states_along
+from ..integrate import Substeps, integrate_states_along
 from ..model import BASE_STATES, OUTPUTS, QuadrotorModel
 from ..residuals import long_run_factor
 from ..shooting import ShootingProblem, free_indices
@@ -465,7 +465,7 @@ def null_on_bound(ext: QuadrotorModel, name: str) -> bool:
     return any(par.effect == name and par.lower >= min(par.null, par.upper) for par in ext.parameters)
 
 
-def queue_refit_builds(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: int) -> None:
+def queue_refit_builds(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: "int | Substeps") -> None:
     """Compile the refit step functions (blocks, line search, start-state estimation) of candidates ``names`` in
     the background, one compiler at a time, in the order they will be refitted: the refits
     go on meanwhile (the first on the virtual machine) and the later ones find their
@@ -489,7 +489,7 @@ def _refit_structures(model: QuadrotorModel, res: FitResult, names: Sequence[str
     return out
 
 
-def precompile_refits(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: int) -> None:
+def precompile_refits(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: "int | Substeps") -> None:
     """Compile the refit step functions of candidates ``names`` at once, unoptimised, two
     compilers in parallel: for the cold refits of every candidate, where each is known to
     need its blocks (ten quick builds beat ten optimised ones, and ten builds one after the

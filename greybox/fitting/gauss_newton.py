@@ -33,7 +33,7 @@ from scipy.linalg import cho_solve_banded, cholesky_banded, solve_banded
 
 from ..data import FlightLog
 from ..errors import SolverError
-from ..integrate import n_substeps
+from ..integrate import log_substeps
 from ..model import OUTPUTS, QuadrotorModel
 from ..shooting import ShootingProblem, initial_node_states, layout, parameter_bounds
 from .certificate import DECREASE_TOLERANCE, GAP_TOLERANCE, STEP_TOLERANCE
@@ -376,9 +376,8 @@ class FitSession:
         self.q: np.ndarray | None = None
         self.max_step: float | None = None   # trust region on the scaled parameters (None: off)
         self.interval = interval
-        h_max = max(float(np.diff(l.t).max()) for l in logs)
         t0 = time.perf_counter()
-        self.prob = ShootingProblem(model, free_idx, interval, n_substeps(h_max), compile)
+        self.prob = ShootingProblem(model, free_idx, interval, log_substeps(logs), compile)
         self.t_build = time.perf_counter() - t0
         self.data = layout(model, logs, interval, sigma)
         self.n_int = sum(M for _, M in self.data.flights)
