@@ -1,8 +1,9 @@
 """The diagnosis on flights of a blind audit's simulator (``audit_sim.py``: another
 integrator, a geometric attitude controller at the log rate, multisine excitation on the
-commands), written from the contract alone: nothing missing gives null, and a torque outside
+commands), written from the contract alone: nothing missing gives null, a torque outside
 the catalogue that the controller cancels is not named after the effect that scales the
-commands' moment (slow: two 30-s flights at 200 Hz and one diagnosis each, 1-2 minutes)."""
+commands' moment, and a cubic thrust term is the thrust curve (slow: two flights and one
+diagnosis each, 1-2 minutes)."""
 from __future__ import annotations
 
 import pytest
@@ -66,3 +67,28 @@ def test_nothing_missing_on_a_30_g_vehicle_at_100_hz_gives_null(tmp_path):
     # high-frequency content is about twice the gyro's 5 mrad/s, and the certificate says so
     cert = d.baseline.certificate
     assert cert.residual_over_noise["p"] < 0.7 and "below the noise estimated" in cert.text(), cert.text()
+
+
+@pytest.mark.slow
+def test_a_cubic_thrust_term_is_the_thrust_curve_not_a_moment_gain(tmp_path):
+    """The audit's 30 g vehicle at 100 Hz with ``T = K_T w^2 + c w^3``, ``c w_hover`` about 10 %
+    of ``K_T`` (the audit's case O2). Before ``thrust_curve`` joined the catalogue the verdict was
+    ``moment_gain``, k_M 1.040 ± 0.004: a differential thrust slope 4.5 % above the mean thrust's,
+    named as a moment gain, with nothing saying the thrust curve was off. The form
+    ``K_T' w^2 (1 + k_w (w/w_h - 1))`` holds ``a w^2 + c w^3`` exactly, with ``K_T' = K_T + c w_h``
+    and ``k_w = c w_h / K_T'`` at the hover speed ``w_h`` of ``K_T'`` (measured 2026-11-30:
+    k_w 0.08692 ± 0.00026 for 0.08701, validation error -47 %; moment_gain -39 %)."""
+    c = 1.04e-12
+    d, v = _diagnosed(tmp_path, "cf30g", {"w3": c}, 100.0, (88, 588))
+    assert d.baseline_certified
+    assert d.verdict == "thrust_curve", d.summary()
+    weight = v["mass"] * qs.G / 4
+    K_Tp = v["K_T"]
+    for _ in range(60):
+        K_Tp = v["K_T"] + c * (weight / K_Tp) ** 0.5
+    k_w = c * (weight / K_Tp) ** 0.5 / K_Tp
+    final = d.fitted_model
+    std = final.parameters["k_w"]["std"]
+    assert final.value("k_w") == pytest.approx(k_w, abs=3 * std), (final.value("k_w"), std, k_w)
+    assert final.value("K_T") == pytest.approx(K_Tp, rel=2e-3)
+    assert final.value("b") == pytest.approx(v["b"], rel=1e-2)

@@ -45,7 +45,7 @@ from .power import BatteryVoltage, CommandDelay, RotorMap, SampledInputs, Thrust
 from .registry import (DISTURBANCE_MODELS, ENTRY_POINT_GROUP, by_name, confusable, distinguishing_manoeuvre,
                        effect_class, example_values, known_effects, load_effects_file, measurement_only,
                        parse_effect_names, per_flight, register, registered_effects, unregister)
-from .rotor import Gyroscopic, MomentGain, MotorLag, YawTorque
+from .rotor import Gyroscopic, MomentGain, MotorLag, ThrustCurve, YawTorque
 from .sensors import AccelBias, AttitudeBias, PositionDelay
 
 __all__ = [
@@ -56,5 +56,5 @@ __all__ = [
     "APPLY_ORDER", "register", "load_effects_file", "known_effects", "registered_effects",
     "effect_class", "confusable", "measurement_only", "per_flight", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP",
     "example_values", "DiscoveredEffect",
-    "unregister", "HeldMoment", "DisturbanceTorque", "DISTURBANCE_MODELS", "MomentGain", "CommandDelay", "SampledInputs", "is_derived_signal",
+    "unregister", "HeldMoment", "DisturbanceTorque", "DISTURBANCE_MODELS", "MomentGain", "ThrustCurve", "CommandDelay", "SampledInputs", "is_derived_signal",
 ]

@@ -7,7 +7,7 @@ from .base import Effect
 from .drag import DragMoment, HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag, Wind
 from .ground import GroundEffect
 from .power import BatteryVoltage, CommandDelay, RotorMap, SampledInputs, ThrustDrift
-from .rotor import Gyroscopic, MomentGain, MotorLag, YawTorque
+from .rotor import Gyroscopic, MomentGain, MotorLag, ThrustCurve, YawTorque
 from .sensors import AccelBias, AttitudeBias, PositionDelay
 
 __all__ = ["CATALOGUE", "SIGNAL_EFFECTS", "APPLY_ORDER", "BASE_EFFECTS"]
@@ -15,7 +15,7 @@ __all__ = ["CATALOGUE", "SIGNAL_EFFECTS", "APPLY_ORDER", "BASE_EFFECTS"]
 CATALOGUE: dict[str, type[Effect]] = {
     cls.name: cls
     for cls in (YawTorque, LinearDrag, Gyroscopic, QuadraticDrag, RotorDrag, HubRotorDrag, DragMoment, GroundEffect,
-                MotorLag, MomentGain, CogOffset, MotorAsymmetry, Wind, ThrustDrift, PositionDelay,
+                MotorLag, MomentGain, ThrustCurve, CogOffset, MotorAsymmetry, Wind, ThrustDrift, PositionDelay,
                 AttitudeBias)
 }
 """The catalogue of effects (README, "Effects"), by name, in the order they are applied."""
