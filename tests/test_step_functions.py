@@ -40,13 +40,9 @@ def reference_blocks(model, free_idx, n_sub, args):
     return [xn_v.ravel(), Sn, H + Jes.T @ Jes, g + Jes.T @ e_v.ravel(), c + e_v.ravel() ** 2]
 
 
-@pytest.mark.parametrize("effects,n_sub", [([], 1), (["motor_lag", "drag_moment"], 3),
-                                           (["moment_gain", "battery_voltage"], 4)])
-def test_step_blocks_equal_the_jacobian_of_the_whole_step(effects, n_sub):
-    af = greybox.load_airframe(PAPER)
-    model = QuadrotorModel(af) + [fx.by_name(e) for e in effects]
-    rng = np.random.default_rng(3)
-    free_idx = sorted(rng.choice(model.n_params, size=min(5, model.n_params), replace=False).tolist())
+def sample_args(model, free_idx, rng, h):
+    """A sample's arguments of the blocks function: a moving state with rotors near 500 rad/s,
+    a random sensitivity and accumulated blocks, a yaw measured one turn on, step ``h``."""
     nx, nth, ny = model.nx, len(free_idx), model.ny
     nz = nx + nth
     p = model.default_parameters()
@@ -59,15 +55,31 @@ def test_step_blocks_equal_the_jacobian_of_the_whole_step(effects, n_sub):
     ym[:12] = x[:12] + rng.normal(size=12) * 0.05
     ym[5] += 2 * np.pi                   # a yaw measured one turn on: the residual is wrapped
     J = rng.normal(size=(2 * nz, nz))
-    args = [x, rng.normal(size=(nx, nz)), J.T @ J, rng.normal(size=nz), rng.uniform(size=ny),
-            u, 0.3, 0.004, ym, rng.uniform(1, 10, size=ny), 1.0 + 0.1 * rng.normal(size=nth), sc, p]
+    return [x, rng.normal(size=(nx, nz)), J.T @ J, rng.normal(size=nz), rng.uniform(size=ny),
+            u, 0.3, h, ym, rng.uniform(1, 10, size=ny), 1.0 + 0.1 * rng.normal(size=nth), sc, p]
+
+
+def value_args(args):
+    """The value function's arguments from the blocks function's (``sample_args``)."""
+    x, S, H, g, c, u, t, h, ym, w, th, sc, p = args
+    return (x, c, u, t, h, ym, w, th, sc, p)
+
+
+@pytest.mark.parametrize("effects,n_sub", [([], 1), (["motor_lag", "drag_moment"], 3),
+                                           (["moment_gain", "battery_voltage"], 4)])
+def test_step_blocks_equal_the_jacobian_of_the_whole_step(effects, n_sub):
+    af = greybox.load_airframe(PAPER)
+    model = QuadrotorModel(af) + [fx.by_name(e) for e in effects]
+    rng = np.random.default_rng(3)
+    free_idx = sorted(rng.choice(model.n_params, size=min(5, model.n_params), replace=False).tolist())
+    args = sample_args(model, free_idx, rng, 0.004)
     blk, val = ShootingProblem.step_functions(model, free_idx, n_sub)
     got = [np.asarray(a) for a in blk(*args)]
     want = reference_blocks(model, free_idx, n_sub, args)
     for a, b in zip(got, want):
         np.testing.assert_allclose(a.reshape(np.shape(b)), b, rtol=1e-9, atol=1e-9 * np.abs(b).max())
     assert np.array_equal(got[2], got[2].T)          # J'J assembled symmetric
-    xn_v, c_v = (np.asarray(a).ravel() for a in val(x, args[4], u, 0.3, 0.004, ym, args[9], args[10], sc, p))
+    xn_v, c_v = (np.asarray(a).ravel() for a in val(*value_args(args)))
     np.testing.assert_allclose(xn_v, want[0], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(c_v, want[4], rtol=1e-12)
 
@@ -78,20 +90,8 @@ def test_a_long_steps_blocks_take_the_substeps_of_its_branch(h, n_sub):
     7.5 ms 4, over 12 ms 6 -- each as the unbranched step functions with that count."""
     af = greybox.load_airframe(PAPER)
     model = QuadrotorModel(af) + fx.by_name("motor_lag")
-    rng = np.random.default_rng(5)
     free_idx = [0, 1, model.param_names.index("tau_m")]
-    nx, nth, ny = model.nx, len(free_idx), model.ny
-    nz = nx + nth
-    p = model.default_parameters()
-    sc = np.where(p[free_idx] != 0, p[free_idx], 1e-2)
-    x = np.zeros(nx)
-    x[:12] = rng.normal(size=12) * [1, 1, 1, .3, .3, 3, 1, 1, 1, 2, 2, 2]
-    x[12:] = 500.0 + rng.normal(size=nx - 12) * 20
-    u = 500.0 + rng.normal(size=model.nu) * 30
-    ym = x[:ny] + rng.normal(size=ny) * 0.05
-    J = rng.normal(size=(2 * nz, nz))
-    args = [x, rng.normal(size=(nx, nz)), J.T @ J, rng.normal(size=nz), rng.uniform(size=ny),
-            u, 0.3, h, ym, rng.uniform(1, 10, size=ny), 1.0 + 0.1 * rng.normal(size=nth), sc, p]
+    args = sample_args(model, free_idx, np.random.default_rng(5), h)
     blk, val = ShootingProblem.step_functions(model, free_idx, Substeps(2, 6))
     blk_n, val_n = ShootingProblem.step_functions(model, free_idx, n_sub)
     got = [np.asarray(a) for a in blk(*args)]
@@ -99,8 +99,7 @@ def test_a_long_steps_blocks_take_the_substeps_of_its_branch(h, n_sub):
     for a, b in zip(got, want):
         np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-13 * np.abs(b).max())
     np.testing.assert_allclose(got[0].ravel(), reference_blocks(model, free_idx, n_sub, args)[0], rtol=1e-12)
-    vargs = (x, args[4], u, 0.3, h, ym, args[9], args[10], sc, p)
-    for a, b in zip(val(*vargs), val_n(*vargs)):
+    for a, b in zip(val(*value_args(args)), val_n(*value_args(args))):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-13, atol=1e-13)
 
 
@@ -111,3 +110,16 @@ def test_code_size_counts_the_functions_an_mx_graph_calls_once():
     g = ca.Function("g", [X], [f(f(X)) + X])
     assert codegen.code_size(f) == f.n_instructions()
     assert codegen.code_size(g) == g.n_instructions() + f.n_instructions()
+
+
+def test_code_size_counts_a_conditionals_branches_and_what_they_call_once():
+    x = ca.SX.sym("x", 3)
+    f = ca.Function("f", [x], [ca.sin(x) * x])
+    X = ca.MX.sym("X", 3)
+    once = ca.Function("once", [X], [f(X)])
+    twice = ca.Function("twice", [X], [f(f(X))])
+    switch = ca.Function.conditional("switch", [once], twice)
+    k = ca.MX.sym("k")
+    g = ca.Function("g", [k, X], [switch(k, X)])
+    assert codegen.code_size(g) == (g.n_instructions() + once.n_instructions() + twice.n_instructions()
+                                    + f.n_instructions())
