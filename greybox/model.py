@@ -124,6 +124,12 @@ class QuadrotorModel:
             out += e.parameters(self.airframe)
         return out
 
+    def effect_components(self, effect: str) -> list[tuple[Parameter, str, float]]:
+        """``(parameter, component name, null value)`` of every parameter component of
+        ``effect``, in vector order (``[]`` when the model does not hold it)."""
+        return [(par, comp, float(par.null)) for par in self.parameters if par.effect == effect
+                for comp in par.component_names]
+
     @property
     def param_names(self) -> list[str]:
         """Flat component names of the parameter vector (``K_T``, ``b``, ``Kd[0]``...)."""

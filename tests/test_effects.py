@@ -391,3 +391,11 @@ def test_thrust_curve_is_a_cubic_thrust_term_about_hover(base):
     dm0 = rhs(m0, hover_state(), u, m0.parameter_vector({"K_T": K_Tp}))[9:12]
     k = np.argmax(np.abs(dm0))
     assert dm[k] / dm0[k] == pytest.approx(1 + k_w / 2, rel=2e-3)
+
+
+def test_effect_components_name_each_component_with_its_null(base):
+    m = base + effects.MomentGain() + effects.MotorAsymmetry()
+    assert [(c, n) for _, c, n in m.effect_components("moment_gain")] == [("k_M", 1.0)]
+    assert [(c, n) for _, c, n in m.effect_components("linear_drag")] == [("Kd[0]", 0.0), ("Kd[1]", 0.0), ("Kd[2]", 0.0)]
+    assert [c for _, c, _ in m.effect_components("motor_asymmetry")] == ["K_T_dev[0]", "K_T_dev[1]", "K_T_dev[2]"]
+    assert m.effect_components("wind") == []

@@ -201,15 +201,11 @@ def controller_answer(fr: FitResult, effect: str, logs: Sequence[FlightLog], rat
                 f"the controller answers through the commands) the fit was not certified ({alt.status}), so "
                 "greybox cannot tell it from the controller's answer to a torque the model lacks")
     moves, fell = [], True
-    for par in fr.model.parameters:
-        if par.effect != effect:
-            continue
-        nulls = np.broadcast_to(np.asarray(par.null, dtype=float), (par.size,))
-        for comp, null in zip(par.component_names, nulls):
-            v, vd = fr.value(comp), alt.value(comp)
-            moves.append(f"{comp} {v:.3g} -> {vd:.3g}")
-            if abs(vd - null) > (1 - ANSWER_SHARE) * abs(v - null):
-                fell = False
+    for _, comp, null in fr.model.effect_components(effect):
+        v, vd = fr.value(comp), alt.value(comp)
+        moves.append(f"{comp} {v:.3g} -> {vd:.3g}")
+        if abs(vd - null) > (1 - ANSWER_SHARE) * abs(v - null):
+            fell = False
     if not moves or not fell:
         return ""
     return (f"with it {', '.join(rates)} stay far off, and refitted with a disturbance torque (a random torque the "

@@ -53,11 +53,10 @@ def effect_accelerations(fr: FitResult, effect: str, logs: Sequence[FlightLog]
     switched off this way (its own states, a parameter whose null is outside its bounds) or
     when, without a force, it changes other measurements (a position delay)."""
     model = fr.model
-    comps = [(model.param_names.index(c), par.null) for par in model.parameters if par.effect == effect
-             for c in par.component_names]
+    comps = [(model.param_names.index(c), null) for _, c, null in model.effect_components(effect)]
     if not comps or any(e.name == effect and e.state_names(model.airframe) for e in model.effects):
         return None
-    if any(par.effect == effect and not par.lower <= par.null <= par.upper for par in model.parameters):
+    if any(not par.lower <= null <= par.upper for par, _, null in model.effect_components(effect)):
         return None
     da, dw, a_all, w_all = [], [], [], []
     g = model.airframe.gravity
@@ -402,17 +401,12 @@ def physically_negligible(fr: FitResult, effect: str) -> str:
         return ""
     plausible = fx.example_values(effect, model.airframe, kt)
     parts = []
-    for par in model.parameters:
-        if par.effect != effect:
-            continue
-        # no plausible size known: a tenth of the parameter's nominal scale
-        ref = np.abs(np.atleast_1d(np.asarray(plausible.get(par.name, 0.1 * par.scale), dtype=float)))
-        ref = np.resize(np.max(ref), par.size)
-        for comp, r in zip(par.component_names, ref):
-            v = fr.value(comp) - par.null
-            if abs(v) >= NEGLIGIBLE_FRACTION * r:
-                return ""
-            parts.append(f"{comp} = {fr.value(comp):.3g} {par.unit}".rstrip())
+    for par, comp, null in model.effect_components(effect):
+        # the largest plausible component's size; none known: a tenth of the parameter's scale
+        ref = float(np.max(np.abs(np.atleast_1d(np.asarray(plausible.get(par.name, 0.1 * par.scale), dtype=float)))))
+        if abs(fr.value(comp) - null) >= NEGLIGIBLE_FRACTION * ref:
+            return ""
+        parts.append(f"{comp} = {fr.value(comp):.3g} {par.unit}".rstrip())
     if not parts:
         return ""
     return f"{', '.join(parts)} (below {100 * NEGLIGIBLE_FRACTION:.0f} % of a plausible size for this airframe)"
@@ -443,19 +437,15 @@ def held_on_bound(fr: FitResult, effect: str) -> str:
     balances the commanded trim moment was in the model."""
     held = set(fr.certificate.held) if fr.certificate is not None else set()
     parts = []
-    for par in fr.model.parameters:
-        if par.effect != effect:
+    for par, comp, null in fr.model.effect_components(effect):
+        v = fr.value(comp)
+        if comp not in held or np.isclose(v, null, rtol=1e-6, atol=1e-12):
             continue
-        nulls = np.broadcast_to(np.asarray(par.null, dtype=float), (par.size,))
-        for comp, null in zip(par.component_names, nulls):
-            v = fr.value(comp)
-            if comp not in held or np.isclose(v, null, rtol=1e-6, atol=1e-12):
-                continue
-            side = "lower" if abs(v - par.lower) <= abs(v - par.upper) else "upper"
-            # a bound that stands for the null (a motor lag's 2 ms floor) is no stand-in
-            if (side == "lower" and null <= par.lower) or (side == "upper" and null >= par.upper):
-                continue
-            parts.append(f"{comp} = {v:.3g} ({side} bound)")
+        side = "lower" if abs(v - par.lower) <= abs(v - par.upper) else "upper"
+        # a bound that stands for the null (a motor lag's 2 ms floor) is no stand-in
+        if (side == "lower" and null <= par.lower) or (side == "upper" and null >= par.upper):
+            continue
+        parts.append(f"{comp} = {v:.3g} ({side} bound)")
     return ", ".join(parts)
 
 
