@@ -21,7 +21,7 @@ import numpy as np
 from .errors import GreyboxInputError, SolverError
 from .model import QuadrotorModel
 
-__all__ = ["MAX_STEP", "SUBSTEP_SLACK", "Substeps", "substeps", "rk4_step", "rk4_step_with_output", "n_substeps", "simulate", "Simulation", "threads",
+__all__ = ["MAX_STEP", "SUBSTEP_SLACK", "Substeps", "substeps", "log_substeps", "rk4_step", "rk4_step_with_output", "n_substeps", "simulate", "Simulation", "threads",
            "parallel_map", "integrate_states_along"]
 
 MAX_STEP = 2.5e-3
