@@ -53,10 +53,11 @@ def effect_accelerations(fr: FitResult, effect: str, logs: Sequence[FlightLog]
     switched off this way (its own states, a parameter whose null is outside its bounds) or
     when, without a force, it changes other measurements (a position delay)."""
     model = fr.model
-    comps = [(model.param_names.index(c), null) for _, c, null in model.effect_components(effect)]
+    components = model.effect_components(effect)
+    comps = [(model.param_names.index(c), null) for _, c, null in components]
     if not comps or any(e.name == effect and e.state_names(model.airframe) for e in model.effects):
         return None
-    if any(not par.lower <= null <= par.upper for par, _, null in model.effect_components(effect)):
+    if any(not par.lower <= null <= par.upper for par, _, null in components):
         return None
     da, dw, a_all, w_all = [], [], [], []
     g = model.airframe.gravity
