@@ -177,8 +177,9 @@ class FlightLog:
         inputs and extras held, outputs not measured (NaN).
 
         The model holds inputs between samples anyway, so this changes nothing it computes;
-        it only keeps the integrator's sub-step count (set by the longest step, and compiled
-        into every interval function) from being dictated by one dropout.
+        it only bounds the sample-step functions' branches (:class:`~greybox.integrate.Substeps`:
+        one per multiple of the usual sub-step count, up to the longest step's), which a
+        dropout of a second in a 1-kHz log would make a thousand.
         """
         if len(self) < 3:
             return self

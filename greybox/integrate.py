@@ -258,8 +258,9 @@ def simulate(model: QuadrotorModel, t: np.ndarray, inputs: np.ndarray, p: np.nda
         raise GreyboxInputError(f"x0 needs {model.nx} values, got {x0.size}")
 
     if t.size > 2 and method == "rk4" and np.diff(t).max() > 3 * np.median(np.diff(t)):
-        # a long step would set the sub-step count of every step (it is compiled in): split
-        # long steps on a finer grid with the input held, and report the original samples
+        # a long step would add a branch to the step function per median step it spans
+        # (Substeps): split long steps on a finer grid with the input held, as
+        # FlightLog.fill_gaps does, and report the original samples
         step = float(np.median(np.diff(t)))
         n_in = np.maximum(np.ceil(np.diff(t) / step).astype(int), 1)
         keep = np.concatenate([[0], np.cumsum(n_in)])

@@ -266,6 +266,25 @@ class ShootingProblem:
             step_val = ca.Function("gb_step_value", mins, [step(Mx, Mu, Mp, Mt, Mh), cost(*mins)])
         return step_blk, step_val
 
+    @classmethod
+    def shared_step_functions(cls, model: QuadrotorModel, free_idx: list[int], n_sub: "int | Substeps"
+                              ) -> dict[str, ca.Function]:
+        """The step functions of a structure, ``{"blocks": ..., "value": ...}``
+        (:meth:`step_functions`), built once in a process and kept while they are among the
+        most recently used (:data:`STEP_FUNCTIONS_KEPT` instructions in all): every problem of
+        the structure and the diagnosis' builds queued ahead of its refits share them (the
+        same function objects: each is built, and serialised for its cache name, once)."""
+        plan = n_sub if isinstance(n_sub, Substeps) else Substeps(n_sub, n_sub)
+        key = f"{_structure_key(model)} {tuple(free_idx)} {plan.n} {plan.n_max} {plan.max_step}"
+        if key not in _STEP_FUNCTIONS:
+            step_blk, step_val = cls.step_functions(model, free_idx, n_sub)
+            _STEP_FUNCTIONS[key] = {"blocks": step_blk, "value": step_val}
+            kept = sum(codegen.code_size(f) for fs in _STEP_FUNCTIONS.values() for f in fs.values())
+            while len(_STEP_FUNCTIONS) > 1 and kept > STEP_FUNCTIONS_KEPT:
+                kept -= sum(codegen.code_size(f) for f in _STEP_FUNCTIONS.popitem(last=False)[1].values())
+        _STEP_FUNCTIONS.move_to_end(key)
+        return dict(_STEP_FUNCTIONS[key])
+
     def __init__(self, model: QuadrotorModel, free_idx: list[int], N: int, n_sub: "int | Substeps",
                  compile_mode: str):
         if compile_mode not in ("auto", "always", "quick", "never"):
@@ -277,16 +296,7 @@ class ShootingProblem:
         self.nx, self.nth, self.nz, self.ny = nx, nth, nz, ny
         self.compile_mode = compile_mode
         self._opt = "-O0" if compile_mode == "quick" else "-O1"
-        plan = n_sub if isinstance(n_sub, Substeps) else Substeps(n_sub, n_sub)
-        key = f"{_structure_key(model)} {tuple(free_idx)} {plan.n} {plan.n_max} {plan.max_step}"
-        if key not in _STEP_FUNCTIONS:
-            step_blk, step_val = self.step_functions(model, free_idx, n_sub)
-            _STEP_FUNCTIONS[key] = {"blocks": step_blk, "value": step_val}
-            kept = sum(codegen.code_size(f) for fs in _STEP_FUNCTIONS.values() for f in fs.values())
-            while len(_STEP_FUNCTIONS) > 1 and kept > STEP_FUNCTIONS_KEPT:
-                kept -= sum(codegen.code_size(f) for f in _STEP_FUNCTIONS.popitem(last=False)[1].values())
-        _STEP_FUNCTIONS.move_to_end(key)
-        self._symbolic = dict(_STEP_FUNCTIONS[key])
+        self._symbolic = self.shared_step_functions(model, free_idx, n_sub)
         self._step: dict[str, ca.Function] = {}
         self._how: dict[str, str] = {}
         self._lib: dict[str, Path] = {}       # kind -> its library path in the compile cache

@@ -123,3 +123,26 @@ def test_code_size_counts_a_conditionals_branches_and_what_they_call_once():
     g = ca.Function("g", [k, X], [switch(k, X)])
     assert codegen.code_size(g) == (g.n_instructions() + once.n_instructions() + twice.n_instructions()
                                     + f.n_instructions())
+
+
+@pytest.mark.filterwarnings("ignore::greybox.errors.ConvergenceWarning")
+def test_the_diagnosis_queues_the_very_functions_its_refits_run(tmp_path, monkeypatch):
+    """The step functions the diagnosis queues for compiling ahead of a round's refits are
+    the objects the refits' problems use (built once; the library names agree)."""
+    from greybox.diagnosis.screening import queue_refit_builds
+    monkeypatch.setenv("GREYBOX_CACHE", str(tmp_path))
+    queued = []
+    monkeypatch.setattr(codegen, "queue_builds", lambda fs, opt="-O1": queued.extend(fs))
+    log = greybox.load_log(greybox.__path__[0] + "/data/logs/demo_ground_effect.csv").split(0.3)[0]
+    model = QuadrotorModel(greybox.load_airframe(PAPER))
+    res = greybox.fit(model, log, compile="never", max_iter=3, process_noise=None)
+    queue_refit_builds(model, res, ["motor_lag"], 2)
+    ext = model + fx.by_name("motor_lag")
+    free_idx = [ext.param_names.index(n) for n in res.free_names + ["tau_m"]]
+    shared = ShootingProblem.shared_step_functions(ext, sorted(free_idx), 2)
+    assert shared["blocks"] in queued and shared["value"] in queued
+    assert ShootingProblem.shared_step_functions(ext, [], 2)["blocks"] in queued
+    # the refit's problem builds nothing again
+    monkeypatch.setattr(ShootingProblem, "step_functions",
+                        staticmethod(lambda *a: pytest.fail("step functions built a second time")))
+    ShootingProblem(ext, sorted(free_idx), 10, 2, "never")

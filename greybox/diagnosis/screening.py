@@ -465,8 +465,9 @@ def queue_refit_builds(model: QuadrotorModel, res: FitResult, names: Sequence[st
     from ..codegen import queue_builds
     functions = []
     for ext, free_idx in _refit_structures(model, res, names):
-        functions.extend(ShootingProblem.step_functions(ext, free_idx, n_sub))
-        functions.append(ShootingProblem.step_functions(ext, [], n_sub)[0])   # its predictions' start states
+        functions.extend(ShootingProblem.shared_step_functions(ext, free_idx, n_sub).values())
+        # its predictions' start states
+        functions.append(ShootingProblem.shared_step_functions(ext, [], n_sub)["blocks"])
     queue_builds(functions)
 
 
@@ -486,5 +487,5 @@ def precompile_refits(model: QuadrotorModel, res: FitResult, names: Sequence[str
     need its blocks (ten quick builds beat ten optimised ones, and ten builds one after the
     other: the paper demo took 105 s that way against 75 s)."""
     from ..codegen import precompile
-    precompile([ShootingProblem.step_functions(ext, free_idx, n_sub)[0]
+    precompile([ShootingProblem.shared_step_functions(ext, free_idx, n_sub)["blocks"]
                 for ext, free_idx in _refit_structures(model, res, names)], opt="-O0")
