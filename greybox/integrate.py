@@ -105,7 +105,7 @@ def rk4_step(model: QuadrotorModel, n_sub: "int | Substeps" = 1) -> ca.Function:
     if isinstance(n_sub, Substeps):
         if n_sub.branches == 1:
             return rk4_step(model, n_sub.n)
-        return _branched(rk4_step(model, n_sub.n), n_sub, "rk4")
+        return _branched(rk4_step(model, n_sub.n), n_sub, "rk4_branched")
     f = model.rhs
     x = ca.SX.sym("x", model.nx)
     u = ca.SX.sym("u", model.nu)

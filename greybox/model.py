@@ -21,7 +21,7 @@ follows the README's "Conventions" (the paper's pitch term has the wrong sign).
 """
 from __future__ import annotations
 
-from typing import Iterable, Mapping
+from typing import TYPE_CHECKING, Iterable, Mapping
 
 import casadi as ca
 import numpy as np
@@ -31,6 +31,9 @@ from .airframe import Airframe
 from .errors import GreyboxInputError
 from .rotations import euler_rate_matrix, rotation_matrices, rotation_matrix  # noqa: F401 (public here too)
 from .parameters import Parameter, flat_names
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .data import FlightLog
 
 __all__ = ["QuadrotorModel", "BASE_STATES", "OUTPUTS", "STATE_OUTPUTS", "rotation_matrix", "rotation_matrices",
            "euler_rate_matrix"]
@@ -82,6 +85,7 @@ class QuadrotorModel:
         self.airframe = airframe
         self.inputs = inputs
         self._functions: tuple[ca.Function, ca.Function] | None = None
+        self._check_parameter_names()
         self._check_airframe_parameters()
 
     # ------------------------------------------------------------------ composition
@@ -89,10 +93,12 @@ class QuadrotorModel:
         return QuadrotorModel(self.airframe, list(self.effects + other), self.inputs)
 
     def accepts(self, effect: fx.Effect) -> bool:
-        """Whether ``effect`` can be added: the model has neither it nor a state of one of its
-        state names (a disturbance torque's ``d_p, d_q`` clash with a held moment's)."""
+        """Whether ``effect`` can be added: the model has neither it nor a state or parameter
+        of one of its names (a disturbance torque's ``d_p, d_q`` clash with a held moment's)."""
         own = effect.state_names(self.airframe)
-        return effect.name not in self.effects and not set(own) & set(self.state_names)
+        names = {p.name for p in effect.parameters(self.airframe)}
+        return effect.name not in self.effects and not set(own) & set(self.state_names) and \
+            not names & {p.name for p in self.parameters}
 
     def without(self, *names: str) -> "QuadrotorModel":
         """The same model with the named effects removed."""
@@ -243,6 +249,16 @@ class QuadrotorModel:
         return len(self.param_names)
 
     # ------------------------------------------------------------------ parameter values
+    def _check_parameter_names(self) -> None:
+        # one name is one value in the parameter vector, [parameters], --set and JSON
+        owner: dict[str, str] = {}
+        for par in self.parameters:
+            who = par.effect if par.name != THRUST.name else "the base model"
+            if par.name in owner and owner[par.name] != who:
+                raise GreyboxInputError(f"effects {owner[par.name]!r} and {who!r} both have a parameter named "
+                                        f"{par.name!r}: rename one of them")
+            owner[par.name] = who
+
     def _check_airframe_parameters(self) -> None:
         known = {THRUST.name: THRUST}
         for cls in fx.known_effects().values():

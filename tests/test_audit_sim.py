@@ -75,9 +75,9 @@ def test_a_cubic_thrust_term_is_the_thrust_curve_not_a_moment_gain(tmp_path):
     of ``K_T`` (the audit's case O2). Before ``thrust_curve`` joined the catalogue the verdict was
     ``moment_gain``, k_M 1.040 ± 0.004: a differential thrust slope 4.5 % above the mean thrust's,
     named as a moment gain, with nothing saying the thrust curve was off. The form
-    ``K_T' w^2 (1 + k_w (w/w_h - 1))`` holds ``a w^2 + c w^3`` exactly, with ``K_T' = K_T + c w_h``
-    and ``k_w = c w_h / K_T'`` at the hover speed ``w_h`` of ``K_T'`` (measured 2026-11-30:
-    k_w 0.08692 ± 0.00026 for 0.08701, validation error -47 %; moment_gain -39 %)."""
+    ``K_T' w^2 (1 + k_Tw (w/w_h - 1))`` holds ``a w^2 + c w^3`` exactly, with ``K_T' = K_T + c w_h``
+    and ``k_Tw = c w_h / K_T'`` at the hover speed ``w_h`` of ``K_T'`` (measured 2026-11-30:
+    k_Tw 0.08692 ± 0.00026 for 0.08701, validation error -47 %; moment_gain -39 %)."""
     c = 1.04e-12
     d, v = _diagnosed(tmp_path, "cf30g", {"w3": c}, 100.0, (88, 588))
     assert d.baseline_certified
@@ -86,9 +86,9 @@ def test_a_cubic_thrust_term_is_the_thrust_curve_not_a_moment_gain(tmp_path):
     K_Tp = v["K_T"]
     for _ in range(60):
         K_Tp = v["K_T"] + c * (weight / K_Tp) ** 0.5
-    k_w = c * (weight / K_Tp) ** 0.5 / K_Tp
+    k_Tw = c * (weight / K_Tp) ** 0.5 / K_Tp
     final = d.fitted_model
-    std = final.parameters["k_w"]["std"]
-    assert final.value("k_w") == pytest.approx(k_w, abs=3 * std), (final.value("k_w"), std, k_w)
+    std = final.parameters["k_Tw"]["std"]
+    assert final.value("k_Tw") == pytest.approx(k_Tw, abs=3 * std), (final.value("k_Tw"), std, k_Tw)
     assert final.value("K_T") == pytest.approx(K_Tp, rel=2e-3)
     assert final.value("b") == pytest.approx(v["b"], rel=1e-2)

@@ -365,8 +365,8 @@ def test_a_model_accepts_an_effect_it_has_not_and_whose_states_do_not_clash():
 
 
 def test_thrust_curve_is_a_cubic_thrust_term_about_hover(base):
-    """``K_T' w^2 (1 + k_w (w/w_h - 1))`` with ``w_h`` the hover speed of ``K_T'`` is
-    ``K_T w^2 + c w^3`` exactly when ``K_T' = K_T + c w_h`` and ``k_w = c w_h / K_T'``: the
+    """``K_T' w^2 (1 + k_Tw (w/w_h - 1))`` with ``w_h`` the hover speed of ``K_T'`` is
+    ``K_T w^2 + c w^3`` exactly when ``K_T' = K_T + c w_h`` and ``k_Tw = c w_h / K_T'``: the
     vertical acceleration at level rest, equal rotors at 0.8-1.2 hover speeds, worked out by
     hand against the model's."""
     m = base + effects.ThrustCurve()
@@ -376,21 +376,21 @@ def test_thrust_curve_is_a_cubic_thrust_term_about_hover(base):
     for _ in range(60):                     # the fixed point K_T' = K_T + c w_h(K_T')
         K_Tp = K_T + c * np.sqrt(af.mass * af.gravity / (af.n_rotors * K_Tp))
     w_h = np.sqrt(af.mass * af.gravity / (af.n_rotors * K_Tp))
-    k_w = c * w_h / K_Tp
-    assert 0.03 < k_w < 0.2
-    p = m.parameter_vector({"K_T": K_Tp, "k_w": k_w})
+    k_Tw = c * w_h / K_Tp
+    assert 0.03 < k_Tw < 0.2
+    p = m.parameter_vector({"K_T": K_Tp, "k_Tw": k_Tw})
     for f in (0.8, 1.0, 1.2):
         w = f * w_h
         zdd = rhs(m, hover_state(), [w] * 4, p)[8]
         assert zdd == pytest.approx(af.gravity - af.n_rotors * (K_T * w ** 2 + c * w ** 3) / af.mass, rel=1e-12, abs=1e-12)
     assert rhs(m, hover_state(), [w_h] * 4, p)[8] == pytest.approx(0.0, abs=1e-12)   # hover trim unchanged
-    # one rotor faster: its thrust, hence the moment, grows 1 + k_w/2 times as fast as K_T's square
+    # one rotor faster: its thrust, hence the moment, grows 1 + k_Tw/2 times as fast as K_T's square
     u = np.array([w_h * 1.001, w_h, w_h, w_h])
     dm = rhs(m, hover_state(), u, p)[9:12] - rhs(m, hover_state(), [w_h] * 4, p)[9:12]
     m0 = base
     dm0 = rhs(m0, hover_state(), u, m0.parameter_vector({"K_T": K_Tp}))[9:12]
     k = np.argmax(np.abs(dm0))
-    assert dm[k] / dm0[k] == pytest.approx(1 + k_w / 2, rel=2e-3)
+    assert dm[k] / dm0[k] == pytest.approx(1 + k_Tw / 2, rel=2e-3)
 
 
 def test_effect_components_name_each_component_with_its_null(base):

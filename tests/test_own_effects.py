@@ -95,6 +95,33 @@ def test_register_decorator_and_clear_errors():
         fx.by_name("no_such_effect")
 
 
+def test_a_parameter_name_is_one_effects_only(effect_file):
+    """Parameters are named alike in the vector, [parameters], --set and JSON: an effect that
+    reuses another's parameter name is refused when registered and when put in a model (the
+    README's rate-damping example's ``k_w`` once was ``thrust_curve``'s too: a model with both
+    had one ``k_w`` of the wrong size and failed deep inside CasADi)."""
+    fx.load_effects_file(effect_file)
+    af = greybox.load_airframe(PAPER)
+    both = QuadrotorModel(af, ["yaw_torque", "rate_damping", "thrust_curve"])
+    assert {"k_w[0]", "k_Tw"} <= set(both.param_names)
+    xdot = np.asarray(both.rhs(both.initial_state(), [400.0] * 4, both.default_parameters(), 0.0)).ravel()
+    assert np.all(np.isfinite(xdot))
+
+    class DragAgain(fx.Effect):
+        name = "test_drag_again"
+
+        def parameters(self, airframe):
+            return [Parameter("Kd", 3, 0.0, "N s/m", 0.0, 1.0, 1e-3, 0.0, True, "drag", self.name)]
+    with pytest.raises(GreyboxInputError, match="'Kd' .*linear_drag"):
+        fx.register(DragAgain)
+    assert "test_drag_again" not in fx.known_effects()
+    # not registered, put in a model directly: refused there, and not accepted as a candidate
+    model = QuadrotorModel(af)
+    assert not model.accepts(DragAgain())
+    with pytest.raises(GreyboxInputError, match="'linear_drag' and 'test_drag_again' both have .*'Kd'"):
+        QuadrotorModel(af, list(model.effects) + [DragAgain()])
+
+
 def test_effects_file_everywhere_on_the_command_line(effect_file, tmp_path, capsys):
     # listed, with its parameters
     assert main(["effects", "--effects-file", str(effect_file), "--json", str(tmp_path / "e.json")]) == 0

@@ -68,20 +68,25 @@ def register(cls: type[Effect], source: str = "register()", from_file: bool = Fa
         obj = cls()
     except Exception as e:   # noqa: BLE001 - any failure to build is the user's to fix
         raise GreyboxInputError(f"{source}: effect {name!r} cannot be created without arguments ({e})") from None
-    _check_hooks(obj, source)
+    _check_parameter_names(obj, _check_hooks(obj, source), source)
     _REGISTERED[name] = cls
     _REGISTERED_FROM[name] = source
     _FROM_FILE[name] = from_file
     return cls
 
 
-def _check_hooks(effect: Effect, source: str) -> None:
-    """Call the hooks that need no model on a generic airframe, so that an effect that
-    cannot describe itself fails here with its file and line, not deep in a fit."""
-    import traceback
+def _generic_airframe() -> "Airframe":
     from ..airframe import airframe_from_dict
-    af = airframe_from_dict({"airframe": {"name": "check", "mass": 1.0, "inertia": [0.01, 0.01, 0.02],
-                                          "arm_length": 0.2, "layout": "x"}}, source="effect check")
+    return airframe_from_dict({"airframe": {"name": "check", "mass": 1.0, "inertia": [0.01, 0.01, 0.02],
+                                            "arm_length": 0.2, "layout": "x"}}, source="effect check")
+
+
+def _check_hooks(effect: Effect, source: str) -> list[Parameter]:
+    """Call the hooks that need no model on a generic airframe, so that an effect that
+    cannot describe itself fails here with its file and line, not deep in a fit. Returns its
+    parameters there."""
+    import traceback
+    af = _generic_airframe()
     try:
         params = effect.parameters(af)
         states = effect.state_names(af)
@@ -94,6 +99,28 @@ def _check_hooks(effect: Effect, source: str) -> None:
         tb = traceback.extract_tb(e.__traceback__)
         where = f", line {tb[-1].lineno}" if tb else ""
         raise GreyboxInputError(f"{source}{where}: effect {effect.name!r}: {type(e).__name__}: {e}") from None
+    return params
+
+
+def _check_parameter_names(effect: Effect, params: list[Parameter], source: str) -> None:
+    """Refuse an effect whose parameter names another known effect's parameter (or the base
+    model's ``K_T``): parameters are named alike in a model's vector, an airframe's
+    ``[parameters]``, ``--set`` and every JSON result, so two of one name would be one value
+    there, and a model holding both could not be built."""
+    owners = {"K_T": "the base model"}
+    af = _generic_airframe()
+    for other, cls in {**CATALOGUE, **SIGNAL_EFFECTS, **_REGISTERED}.items():
+        if other == effect.name:
+            continue
+        try:
+            for p in cls().parameters(af):
+                owners.setdefault(p.name, f"effect {other!r}")
+        except Exception:   # noqa: BLE001 - an effect that cannot describe itself names nothing
+            continue
+    taken = [f"{p.name!r} (already {owners[p.name]}'s)" for p in params if p.name in owners]
+    if taken:
+        raise GreyboxInputError(f"{source}: effect {effect.name!r}: parameter name {', '.join(taken)}; "
+                                "give it another name")
 
 
 def _same_class(a: type, b: type) -> bool:

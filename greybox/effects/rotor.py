@@ -174,20 +174,20 @@ class MomentGain(Effect):
 
 class ThrustCurve(Effect):
     """A rotor's thrust per ``w²`` changing with its speed about hover:
-    ``T_i = K_T w_i² (1 + k_w (w_i/w_h - 1))`` with ``w_h = sqrt(m g / (N K_T))`` the speed at
+    ``T_i = K_T w_i² (1 + k_Tw (w_i/w_h - 1))`` with ``w_h = sqrt(m g / (N K_T))`` the speed at
     which equal rotors carry the weight, so ``K_T`` keeps its meaning (thrust per ``w²`` at
     hover) and the hover trim is unchanged.
 
     A propeller's thrust coefficient is not a constant: it changes with the blades' Reynolds
     number, and a thrust stand's curve is seldom a pure square (``a w² + c w³`` is this form
-    exactly, ``k_w = c w_h / K_T``). Around hover it makes every thrust change ``1 + k_w/2``
+    exactly, ``k_Tw = c w_h / K_T``). Around hover it makes every thrust change ``1 + k_Tw/2``
     times what ``K_T`` alone gives -- the differential thrust of roll and pitch commands like a
     moment gain, and the collective thrust of climbs and descents, which a moment gain leaves
     alone. The reaction torque keeps ``b w²``.
     """
 
     name = "thrust_curve"
-    summary = "thrust per w^2 changing with rotor speed about hover, 1 + k_w (w/w_h - 1)"
+    summary = "thrust per w^2 changing with rotor speed about hover, 1 + k_Tw (w/w_h - 1)"
     excited_by = 'a wide range of thrust levels (climbs, descents, hard manoeuvres)'
     fit_advice = 'climbs and descents at several thrust levels, and roll and pitch steps'
     channels = ('z', 'phi', 'theta', 'p', 'q')
@@ -195,24 +195,27 @@ class ThrustCurve(Effect):
         'moment_gain': 'climbs and descents at constant attitude: a thrust curve changes the vertical '
                        'response to a thrust change as well, a moment gain only roll and pitch',
     }
-    # about hover its roll and pitch moments are (1 + k_w/2) times the commands': a k_w below 0
+    # about hover its roll and pitch moments are (1 + k_Tw/2) times the commands': a k_Tw below 0
     # can take up part of a torque the controller cancels, as a moment gain below 1 can
     scales_commanded_moment = True
 
     def parameters(self, airframe):
-        return [Parameter("k_w", 1, 0.0, "1", -1.0, 1.0, 0.05, 0.0, True,
+        # a k_Tw < 0 makes the thrust peak at w/w_h = 2 (1 - k_Tw) / (-3 k_Tw): 1.78 at the -0.6
+        # bound, past the speeds flown; at -1 it was 1.33, within them (a thrust falling as a
+        # rotor speeds up, which no propeller has)
+        return [Parameter("k_Tw", 1, 0.0, "1", -0.6, 1.0, 0.05, 0.0, True,
                           "relative change of the thrust coefficient per relative rotor speed above hover",
                           self.name)]
 
     def plausible_values(self, airframe, K_T):
-        return {"k_w": 0.1}
+        return {"k_Tw": 0.1}
 
     def plausible_limits(self, airframe):
         # a propeller's thrust coefficient moves by a few to some tens of per cent over its
         # working speeds (Reynolds number); one that doubles per speed change is a wrong model
-        return {"k_w": 0.5}
+        return {"k_Tw": 0.5}
 
     def modify(self, ctx):
         af = ctx.airframe
         w_hover = ca.sqrt(af.mass * af.gravity / (af.n_rotors * ctx.params["K_T"]))
-        ctx.thrust_scale *= 1.0 + ctx.params["k_w"] * (ctx.w / w_hover - 1.0)
+        ctx.thrust_scale *= 1.0 + ctx.params["k_Tw"] * (ctx.w / w_hover - 1.0)
