@@ -251,13 +251,13 @@ class QuadrotorModel:
     # ------------------------------------------------------------------ parameter values
     def _check_parameter_names(self) -> None:
         # one name is one value in the parameter vector, [parameters], --set and JSON
-        owner: dict[str, str] = {}
-        for par in self.parameters:
-            who = par.effect if par.name != THRUST.name else "the base model"
-            if par.name in owner and owner[par.name] != who:
-                raise GreyboxInputError(f"effects {owner[par.name]!r} and {who!r} both have a parameter named "
-                                        f"{par.name!r}: rename one of them")
-            owner[par.name] = who
+        owner = {THRUST.name: "the base model"}
+        for e in self.effects:
+            for par in e.parameters(self.airframe):
+                if par.name in owner:
+                    raise GreyboxInputError(f"{owner[par.name]} and effect {e.name!r} both have a parameter named "
+                                            f"{par.name!r}: rename one of them")
+                owner[par.name] = f"effect {e.name!r}"
 
     def _check_airframe_parameters(self) -> None:
         known = {THRUST.name: THRUST}

@@ -118,7 +118,7 @@ def test_a_parameter_name_is_one_effects_only(effect_file):
     # not registered, put in a model directly: refused there, and not accepted as a candidate
     model = QuadrotorModel(af)
     assert not model.accepts(DragAgain())
-    with pytest.raises(GreyboxInputError, match="'linear_drag' and 'test_drag_again' both have .*'Kd'"):
+    with pytest.raises(GreyboxInputError, match="effect 'linear_drag' and effect 'test_drag_again' both have .*'Kd'"):
         QuadrotorModel(af, list(model.effects) + [DragAgain()])
 
 
