@@ -155,6 +155,11 @@ def test_the_diagnosis_queues_the_very_functions_its_refits_run(tmp_path, monkey
     shared = ShootingProblem.shared_step_functions(ext, sorted(free_idx), 2)
     assert shared["blocks"] in queued and shared["value"] in queued
     assert ShootingProblem.shared_step_functions(ext, [], 2)["blocks"] in queued
+    # a validation log with a dropped row predicts with its own plan: queued too
+    queued.clear()
+    queue_refit_builds(model, res, ["motor_lag"], 2, [Substeps(2, 2), Substeps(2, 6)])
+    assert ShootingProblem.shared_step_functions(ext, [], Substeps(2, 6))["blocks"] in queued
+    assert ShootingProblem.shared_step_functions(ext, [], 2)["blocks"] in queued
     # the refit's problem builds nothing again
     monkeypatch.setattr(ShootingProblem, "step_functions",
                         staticmethod(lambda *a: pytest.fail("step functions built a second time")))

@@ -183,6 +183,9 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     # their blocks at once, build them first: quick, in parallel.
     rcompile = compile
     n_sub = log_substeps(est)
+    # predictions take each log's own sub-steps (validation, and the estimation logs that
+    # choose a soft fit's window): a dropped row in one half of a flight only
+    plans = [log_substeps([lg]) for lg in [*est, *(val or [])]]
     if compile == "auto" and to_refit:
         if cold:
             t0 = time.perf_counter()
@@ -190,7 +193,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             rcompile = "quick"
             say(f"  built refit models ({time.perf_counter() - t0:.1f} s)")
         else:
-            queue_refit_builds(model, res, [c.effect for c in to_refit], n_sub)
+            queue_refit_builds(model, res, [c.effect for c in to_refit], n_sub, plans)
     starts: dict[str, FitResult] = {}
     if cold:
         # cold refits in two stages: a few iterations for every candidate (the right model
@@ -328,7 +331,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             say(f"  none of the best by score stands, the model is far from the data: refitting the next "
                 f"{len(more)} ({', '.join(c.effect for c in more)})")
             if compile == "auto":
-                queue_refit_builds(model, res, [c.effect for c in more], n_sub)
+                queue_refit_builds(model, res, [c.effect for c in more], n_sub, plans)
             refit_batch(more)
             to_refit = to_refit + more
     # An effect known to explain the same data as the round's best (Effect.distinguish) is
@@ -342,7 +345,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         if partners:
             say(f"  refitting what explains the same as {lead.effect}: {', '.join(c.effect for c in partners)}")
             if compile == "auto":
-                queue_refit_builds(model, res, [c.effect for c in partners], n_sub)
+                queue_refit_builds(model, res, [c.effect for c in partners], n_sub, plans)
             refit_batch(partners)
             to_refit = to_refit + partners
     for c in out:

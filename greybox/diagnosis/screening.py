@@ -456,18 +456,23 @@ def null_on_bound(ext: QuadrotorModel, name: str) -> bool:
     return any(par.effect == name and par.lower >= min(par.null, par.upper) for par in ext.parameters)
 
 
-def queue_refit_builds(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: "int | Substeps") -> None:
+def queue_refit_builds(model: QuadrotorModel, res: FitResult, names: Sequence[str], n_sub: "int | Substeps",
+                       prediction_plans: "Sequence[int | Substeps]" = ()) -> None:
     """Compile the refit step functions (blocks, line search, start-state estimation) of candidates ``names`` in
     the background, one compiler at a time, in the order they will be refitted: the refits
     go on meanwhile (the first on the virtual machine) and the later ones find their
     libraries ready. A round's models are new structures (the last round's verdict is in
-    them), so a fresh compile cache would otherwise make each refit wait for its own."""
+    them), so a fresh compile cache would otherwise make each refit wait for its own.
+    ``n_sub``: the fit's sub-steps (:func:`~greybox.integrate.log_substeps` of the estimation
+    logs); ``prediction_plans``: those of each log predicted on (each log's own: a log's
+    dropped rows give its plan more branches), default ``n_sub``."""
     from ..codegen import queue_builds
     functions = []
     for ext, free_idx in _refit_structures(model, res, names):
         functions.extend(ShootingProblem.shared_step_functions(ext, free_idx, n_sub).values())
         # its predictions' start states
-        functions.append(ShootingProblem.shared_step_functions(ext, [], n_sub)["blocks"])
+        functions.extend(ShootingProblem.shared_step_functions(ext, [], plan)["blocks"]
+                         for plan in dict.fromkeys(prediction_plans or [n_sub]))
     queue_builds(functions)
 
 
