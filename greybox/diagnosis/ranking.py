@@ -13,7 +13,7 @@ from scipy import stats
 
 from .. import effects as fx
 from ..data import FlightLog
-from ..fitting import FitResult
+from ..fitting import STOPPED, FitResult
 from ..integrate import log_substeps
 from ..model import OUTPUTS, QuadrotorModel
 from ..validation import Prediction
@@ -22,7 +22,7 @@ from .closed_loop import controller_answer
 from .results import UNEXPLAINED_RATIO, CandidateResult
 from .screening import (explained_fraction, held_on_bound, lr_test, negligible_effect, null_on_bound,
                         physically_implausible, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
-                        screen)
+                        screen, screen_jointly)
 
 __all__ = ["PARAMETER_SHIFT", "parameter_shifts", "ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
            "rank_round", "order_refitted", "default_candidates", "far_channels"]
@@ -122,10 +122,15 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     and refused when it was the controller's answer (the first round, as the sliver rule)."""
     sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
     out: list[CandidateResult] = []
+    t0 = time.perf_counter()
+    together = screen_jointly(model, res, est, candidates, sigma, compile)
+    if together:
+        say(f"  screened {len(together)} candidates from one evaluation ({time.perf_counter() - t0:.1f} s)")
     for name in candidates:
         t0 = time.perf_counter()
-        score, df = screen(model, res, est, name, sigma, compile)
-        say(f"  screen {name:<16} score {score:12.1f}  ({time.perf_counter() - t0:.1f} s)")
+        score, df = together[name] if name in together else screen(model, res, est, name, sigma, compile)
+        say(f"  screen {name:<16} score {score:12.1f}  "
+            f"({'with the others' if name in together else f'{time.perf_counter() - t0:.1f} s'})")
         out.append(CandidateResult(name, df, score, nrmse_before=pred.total))
     out.sort(key=lambda c: -c.score)
     n_tests = max(len(candidates), 1)
@@ -231,7 +236,11 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             negligible = ""
         implausible = physically_implausible(fr, cand.effect)
         on_bound = held_on_bound(fr, cand.effect)
-        if cand.p_value >= ALPHA:
+        if implausible and fr.status.startswith(STOPPED):
+            # stopped on a bound beyond the plausible (HeldBeyondPlausible): refused there
+            cand.reason = (f"physically implausible: {implausible}; its refit held it on a bound and was stopped "
+                           f"there (LR {cand.lr:.3g} a lower bound)")
+        elif cand.p_value >= ALPHA:
             cand.reason = f"not significant (p = {cand.p_value:.2g})"
         elif negligible:
             cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but physically negligible: {negligible}"
@@ -282,7 +291,9 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             judge(cand, ext, fr, pr)
             # a refit short of its optimum (capped) has an LR that is a lower bound (0 while still
             # on its way past the baseline)
-            capped = "" if fr.converged else ", short of its optimum: LR a lower bound"
+            capped = "" if fr.converged else \
+                ", stopped on a bound beyond the plausible: LR a lower bound" if fr.status.startswith(STOPPED) else \
+                ", short of its optimum: LR a lower bound"
             say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
                 f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s{capped})")
         # A capped refit's statistic is a lower bound only when it has got past the baseline; one

@@ -20,10 +20,10 @@ from .api import (IF_NEEDED, MAX_RESTARTS, THRUST_ADVICE, TRUST_REGION, FitResul
                   per_flight_positions, progress_printer)
 from .certificate import Certificate
 from .estimator import GreyBoxEstimator
-from .gauss_newton import FitSession, GaussNewton, Solver
+from .gauss_newton import STOPPED, FitSession, GaussNewton, Solver, budget_spent
 from .imu import ImuFit, fit_imu, is_imu_only
 
 __all__ = ["fit", "FitResult", "Certificate", "GreyBoxEstimator", "Solver", "GaussNewton", "FitSession",
            "estimate_noise", "sensor_noise", "initial_node_states", "DEFAULT_INTERVAL_S",
            "default_interval", "THRUST_ADVICE", "manoeuvre_advice", "MAX_RESTARTS", "TRUST_REGION", "progress_printer",
-           "per_flight_positions", "fit_imu", "ImuFit", "is_imu_only", "IF_NEEDED"]
+           "per_flight_positions", "fit_imu", "ImuFit", "is_imu_only", "IF_NEEDED", "STOPPED", "budget_spent"]

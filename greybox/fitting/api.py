@@ -29,7 +29,7 @@ from ..shooting import default_interval, free_indices, noise_levels, sensor_nois
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
 from .certificate import (FILTERED_SENSOR_RATIO, GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE,
                           NOISE_RATIO_COLOURED, STEP_TOLERANCE, WHITENESS_ADEQUATE, Certificate)
-from .gauss_newton import FitSession, GaussNewton, Solver
+from .gauss_newton import FitSession, GaussNewton, Solver, budget_spent
 from .robust import long_run_covariance, upper_covariance
 
 __all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS",
@@ -607,7 +607,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
             total_iters += iters
         P, s2, opt = check(X, th, blocks)
         for _ in range(MAX_RESTARTS):
-            if not opt[4] or status == "maximum iterations reached":   # the user's budget is spent
+            if not opt[4] or budget_spent(status):   # the user's budget is spent, or their rule said stop
                 break
             # Not there yet: a line search that found no decrease on an l1 merit whose weights
             # only grow, or an iteration cap. Solve on from here with fresh damping and merit
@@ -620,7 +620,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
 
     start = (X.copy(), th.copy(), ses.sigma.copy(), None if ses.q is None else ses.q.copy())
     X, th, mu, total_iters, converged, status, blocks, P, s2, opt = attempt(X, th)
-    if opt[4] and status != "maximum iterations reached":
+    if opt[4] and not budget_spent(status):
         # A second strategy from the same start: a trust region on the parameters. Far from
         # the optimum a linearisation can ask for a sign change or a tenfold value in one step
         # (a foreign 1 kg flight with a weak rotor went there and never came back); kept for

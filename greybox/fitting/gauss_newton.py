@@ -38,7 +38,17 @@ from ..model import OUTPUTS, QuadrotorModel
 from ..shooting import ShootingProblem, initial_node_states, layout, parameter_bounds
 from .certificate import DECREASE_TOLERANCE, GAP_TOLERANCE, STEP_TOLERANCE
 
-__all__ = ["Solver", "GaussNewton", "FitSession", "BorderedKKT"]
+__all__ = ["Solver", "GaussNewton", "FitSession", "BorderedKKT", "STOPPED", "budget_spent"]
+
+STOPPED = "stopped by its caller: "
+"""How the status of a solve ended by :class:`GaussNewton`'s ``stop`` begins."""
+
+
+def budget_spent(status: str) -> bool:
+    """Whether a solve ended because its caller's budget or rule said so (the iteration cap,
+    or :class:`GaussNewton`'s ``stop``), not because it could go no further: the fit then
+    neither solves on from there nor tries again from the start."""
+    return status == "maximum iterations reached" or status.startswith(STOPPED)
 
 
 class Solver(Protocol):
@@ -477,11 +487,12 @@ class FitSession:
         gg[~self.last_mask] = g
         return H, gg, S, self.gaps(X, xe)
 
-    def step(self, X, th, blocks, mu):
-        """Gauss-Newton step with parameters on a bound held when the step points outward."""
+    def step(self, X, th, blocks, mu, held: np.ndarray | None = None):
+        """Gauss-Newton step with parameters on a bound held when the step points outward;
+        ``held``: parameters (a mask over ``th``) held where they are in any case."""
         H, gg, S, cz = self._kkt_parts(X, blocks)
         nx, nth, kkt = self.nx, self.nth, self.kkt
-        frozen = np.zeros(nth, dtype=bool)
+        frozen = np.zeros(nth, dtype=bool) if held is None else np.array(held, dtype=bool)
         for _ in range(nth + 1):
             Hf, gf, Sf = H, gg, S
             if frozen.any():
@@ -507,12 +518,14 @@ class FitSession:
         self.last_held = frozen
         return dz, lam, H, gg, cz
 
-    def predicted_decrease(self, X, th) -> float:
+    def predicted_decrease(self, X, th, blocks: tuple | None = None, held: np.ndarray | None = None) -> float:
         """Cost decrease one undamped Gauss-Newton step predicts from (X, th): at the optimum of
         a smaller model it is half the score (Lagrange multiplier) statistic of the extra
-        parameters."""
-        blocks = self.evaluate(X, th)
-        return self._decrease(*self.step(X, th, blocks, 0.0))
+        parameters. ``blocks``: :meth:`evaluate` at (X, th) when already known; ``held``: a
+        mask of parameters held (the step of the model without them: several candidates'
+        statistics from one evaluation)."""
+        blocks = self.evaluate(X, th) if blocks is None else blocks
+        return self._decrease(*self.step(X, th, blocks, 0.0, held=held))
 
     def predicted_optimum(self, X, th) -> float:
         """The cost at (X, th) less :meth:`predicted_decrease`: the cost one undamped
@@ -644,10 +657,17 @@ class GaussNewton:
     ``negligible_decrease``: it stops once full steps whose cost decreases fall geometrically
     would together lower the cost (half the weighted chi-square) by less than this, however
     far the parameters still creep; ``None`` to run to the step tolerance alone.
+
+    ``stop``: called as ``stop(session, th)`` after every accepted step; words returned (not
+    "") end the solve there, its status :data:`STOPPED` followed by them, not converged, and
+    the fit takes it as a spent budget (:func:`budget_spent`). A diagnosis stops a
+    candidate's refit that holds the candidate on a bound beyond what it physically does.
     """
 
-    def __init__(self, negligible_decrease: float | None = 0.1 * DECREASE_TOLERANCE):
+    def __init__(self, negligible_decrease: float | None = 0.1 * DECREASE_TOLERANCE,
+                 stop: "Callable[[FitSession, np.ndarray], str] | None" = None):
         self.negligible_decrease = negligible_decrease
+        self.stop = stop
 
     def solve(self, ses: "FitSession", X, th, mu, max_iter, tol, rough: bool = False):
         """Damped Gauss-Newton from (X, th). ``rough``: stop once the cost settles to 1e-3
@@ -740,6 +760,10 @@ class GaussNewton:
                 # spent on a problem about to be re-weighted (a large-residual start can creep
                 # at a linear rate for dozens of iterations)
                 converged, status = True, "settled (weights to be re-estimated)"
+                break
+            why = self.stop(ses, th) if self.stop is not None else ""
+            if why:
+                status = STOPPED + why
                 break
         if not np.all(np.isfinite(X)) or not np.all(np.isfinite(th)):
             raise SolverError("fit diverged: non-finite states or parameters")
