@@ -143,6 +143,7 @@ def _effect_states_along(model: QuadrotorModel, log: FlightLog, X: np.ndarray, p
 
 
 _STEP_FUNCTIONS: "OrderedDict[str, dict[str, ca.Function]]" = OrderedDict()
+_STEP_SIZES: dict[str, int] = {}      # key -> instructions of its step functions (counted once)
 """Step functions by model structure, free set and sub-steps, the most recently used up to
 :data:`STEP_FUNCTIONS_KEPT` instructions. A diagnosis round builds some seventy problems of
 a few dozen structures (the screening's, each refit's solves, every prediction's state
@@ -279,9 +280,9 @@ class ShootingProblem:
         if key not in _STEP_FUNCTIONS:
             step_blk, step_val = cls.step_functions(model, free_idx, n_sub)
             _STEP_FUNCTIONS[key] = {"blocks": step_blk, "value": step_val}
-            kept = sum(codegen.code_size(f) for fs in _STEP_FUNCTIONS.values() for f in fs.values())
-            while len(_STEP_FUNCTIONS) > 1 and kept > STEP_FUNCTIONS_KEPT:
-                kept -= sum(codegen.code_size(f) for f in _STEP_FUNCTIONS.popitem(last=False)[1].values())
+            _STEP_SIZES[key] = codegen.code_size(step_blk) + codegen.code_size(step_val)
+            while len(_STEP_FUNCTIONS) > 1 and sum(_STEP_SIZES.values()) > STEP_FUNCTIONS_KEPT:
+                del _STEP_SIZES[_STEP_FUNCTIONS.popitem(last=False)[0]]
         _STEP_FUNCTIONS.move_to_end(key)
         return dict(_STEP_FUNCTIONS[key])
 
