@@ -41,6 +41,8 @@ def test_joint_statistics_are_each_candidates_own(baseline):
         alone, df_alone = screen(model, res, [est], name, sigma, "never")
         assert df == df_alone
         assert score == pytest.approx(alone, rel=1e-8, abs=1e-6), name
+    # several flights (per-flight copies, degrees of freedom per copy): one screen each
+    assert screen_jointly(model, res, [est, est], NAMES, sigma, "never") == {}
     # statistics worth comparing: most candidates explain something of what the model lacks
     assert sum(score > 10 for score, _ in together.values()) >= 3, together
 
