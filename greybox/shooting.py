@@ -143,13 +143,13 @@ def _effect_states_along(model: QuadrotorModel, log: FlightLog, X: np.ndarray, p
 
 
 _STEP_FUNCTIONS: "OrderedDict[str, dict[str, ca.Function]]" = OrderedDict()
-_STEP_SIZES: dict[str, int] = {}      # key -> instructions of its step functions (counted once)
 """Step functions by model structure, free set and sub-steps, the most recently used up to
 :data:`STEP_FUNCTIONS_KEPT` instructions. A diagnosis round builds some seventy problems of
 a few dozen structures (the screening's, each refit's solves, every prediction's state
 estimates, the start-state window's choice), from new model objects of the same effects;
 building a step function (two symbolic Jacobians) and hashing it for its compile-cache name
 cost more than a small fit spends evaluating it."""
+_STEP_SIZES: dict[str, int] = {}      # key -> instructions of its step functions (counted once)
 STEP_FUNCTIONS_KEPT = 4_000_000
 """Instructions of the step functions kept (about 75 bytes each: some 300 MB), most of a
 diagnosis round's structures (a Crazyflie round: about 5 million)."""

@@ -119,14 +119,20 @@ def extended_model(model: QuadrotorModel, res: FitResult, name: str
                    ) -> tuple[QuadrotorModel, np.ndarray, list[str]]:
     """The model plus effect ``name``, its parameter vector (baseline values, new parameters at
     their null value or lower bound) and the free set (baseline's plus the new parameters)."""
-    ext = model + fx.by_name(name)
+    return _extended_by(model, res, [name])
+
+
+def _extended_by(model: QuadrotorModel, res: FitResult, names: Sequence[str]
+                 ) -> tuple[QuadrotorModel, np.ndarray, list[str]]:
+    """:func:`extended_model` with the effects ``names`` added at once."""
+    ext = model + [fx.by_name(name) for name in names]
     base = res.model.parameter_dict(res.p)
     p = ext.default_parameters()
-    names = ext.param_names
+    param_names = ext.param_names
     new: list[str] = []
     for par in ext.parameters:
         for comp in par.component_names:
-            i = names.index(comp)
+            i = param_names.index(comp)
             if comp in base:
                 p[i] = base[comp]
             else:
@@ -230,23 +236,11 @@ def screen_jointly(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightL
     if len(joint) < 2 or len(logs) != 1 or res.per_flight_:
         return {}
     try:
-        sup = model
-        for name in joint:
-            sup = sup + fx.by_name(name)
+        sup, p, free = _extended_by(model, res, joint)
     except GreyboxInputError:
         return {}        # effects that cannot be in one model (a clash of names): one at a time
-    base = res.model.parameter_dict(res.p)
-    p = sup.default_parameters()
-    new: dict[str, list[str]] = {name: [] for name in joint}
-    for par in sup.parameters:
-        for comp in par.component_names:
-            i = sup.param_names.index(comp)
-            if comp in base:
-                p[i] = base[comp]
-            elif par.effect in new:
-                p[i] = min(max(par.null, par.lower), par.upper)
-                new[par.effect].append(comp)
-    free_idx = free_indices(sup, list(res.free_names) + [c for comps in new.values() for c in comps], None)
+    new = {name: [c for _, c, _ in sup.effect_components(name)] for name in joint}
+    free_idx = free_indices(sup, free, None)
     logs = [sup.prepare_log(lg) for lg in logs]
     ses = FitSession(sup, logs, free_idx, p, sigma, res.interval, compile, lambda _m: None)
     if res.process_noise is not None:
@@ -258,8 +252,8 @@ def screen_jointly(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightL
     cost = ses.total_cost(X, blocks[0], blocks[4])
     if not abs(cost - res.cost) <= JOINT_COST_TOLERANCE * max(abs(res.cost), 1e-300):
         return {}
-    free = [sup.param_names[i] for i in ses.free_idx]
-    comp_of = [free[j] for j in ses.local_of]
+    free_names = [sup.param_names[i] for i in ses.free_idx]
+    comp_of = [free_names[j] for j in ses.local_of]
     out = {}
     for name in joint:
         others = {c for m, comps in new.items() if m != name for c in comps}
@@ -348,11 +342,13 @@ class HeldBeyondPlausible:
         words: list[str] = []
         std = {c: 1.0 for c in free if c in comps}     # free components: the ones judged
         p = ses.pfix.copy()
-        for f in range(ses.theta_index.shape[0]):       # each flight's values (per-flight copies)
-            if e is None or words or not on_bound[ses.theta_index[f]].any():
-                continue
-            p[ses.free_idx] = ses.flight_theta(th, f)
-            words = e.plausibility_warnings(model.parameter_dict(p), std, model.airframe)
+        # each flight's values (per-flight copies), where one of its copies is on a bound
+        for f in (range(ses.theta_index.shape[0]) if e is not None else ()):
+            if on_bound[ses.theta_index[f]].any():
+                p[ses.free_idx] = ses.flight_theta(th, f)
+                words = e.plausibility_warnings(model.parameter_dict(p), std, model.airframe)
+                if words:
+                    break
         self.held = self.held + 1 if words else 0
         if self.held < self.iterations:
             return ""
