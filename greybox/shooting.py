@@ -182,6 +182,10 @@ class ShootingProblem:
       :func:`greybox.codegen.queue_builds`), and none ever waits for one: a refit that ends
       before its library is ready has it ready in the cache for the next fit of that
       structure. A broken file under the cache name is removed (with a warning) and rebuilt.
+    - ``"cached"``: a library from the compile cache if there is one, else the virtual
+      machine; never starts the compiler: for one-off evaluations (a diagnosis' screening,
+      whose model of every candidate at once is new each round and as large as eight
+      refits' models: its own build took the compiler 25 s on a real flight, for nothing).
     - ``"always"``: compile at once (``-O1``); ``"quick"``: at once, unoptimised (``-O0``);
     - ``"never"``: the virtual machine only.
     """
@@ -288,8 +292,9 @@ class ShootingProblem:
 
     def __init__(self, model: QuadrotorModel, free_idx: list[int], N: int, n_sub: "int | Substeps",
                  compile_mode: str):
-        if compile_mode not in ("auto", "always", "quick", "never"):
-            raise GreyboxInputError(f"compile must be 'auto', 'always', 'quick' or 'never', not {compile_mode!r}")
+        if compile_mode not in ("auto", "cached", "always", "quick", "never"):
+            raise GreyboxInputError(f"compile must be 'auto', 'cached', 'always', 'quick' or 'never', "
+                                    f"not {compile_mode!r}")
         self.model, self.free_idx, self.N = model, free_idx, N
         nx, nu, ny, npar = model.nx, model.nu, model.ny, model.n_params
         nth = len(free_idx)
@@ -340,6 +345,10 @@ class ShootingProblem:
             g = codegen.cached(f, opt=self._opt, lib=self._lib[kind])
             if g is not None:
                 f, how = g, "cached"
+        elif self.compile_mode == "cached" and codegen.compiler_available():
+            g = codegen.cached(f, opt=self._opt)
+            if g is not None:
+                f, how = g, "cached"
         self._step[kind], self._how[kind] = f, how
 
     def account(self, kind: str, seconds: float) -> None:
@@ -347,7 +356,7 @@ class ShootingProblem:
         mode, start compiling its step function in the background once the virtual machine
         has cost :data:`BACKGROUND_BUILD_AT` of what the compiler is expected to, and swap
         the library in when it is ready."""
-        if self.compile_mode == "auto":
+        if self.compile_mode in ("auto", "cached"):
             codegen.poll_builds()           # queued builds of work to come move on too
         if kind not in self._lib or self._how.get(kind) != "virtual machine":
             return

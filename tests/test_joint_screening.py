@@ -71,3 +71,38 @@ def test_an_effect_that_is_not_nothing_at_its_null_stops_the_joint_screen(baseli
             {"wind", "thrust_drift"}
     finally:
         fx.unregister("test_always_pushing")
+
+
+def test_a_screening_starts_no_compiler_but_takes_a_cached_library(baseline, monkeypatch, tmp_path):
+    """A screening evaluates each model once: with ``compile="auto"`` it must not start the
+    C compiler on it (the model of a round's candidates together is new each round and took
+    the compiler 25 s on a real flight), even where "auto" would build after any time on the
+    virtual machine; a library already in the cache is used."""
+    from greybox import codegen, shooting
+    from greybox.integrate import log_substeps
+    from greybox.shooting import ShootingProblem, free_indices
+    if codegen.compiler_available() is None:
+        pytest.skip("no C compiler")
+    model, res, est = baseline
+    monkeypatch.setenv("GREYBOX_CACHE", str(tmp_path))
+    monkeypatch.setattr(shooting, "BACKGROUND_BUILD_AT", 0.0)     # "auto" builds after any VM time
+    started = []
+    monkeypatch.setattr(codegen, "start_build", lambda f, **kw: started.append(f.name()))
+    free_idx = free_indices(model, list(res.free_names), None)
+    n_sub = log_substeps([est])
+    auto = ShootingProblem(model, free_idx, res.interval, n_sub, "auto")
+    auto.account("blocks", 1.0)
+    assert started == ["gb_step_blocks"]                          # the contrast: "auto" builds
+    started.clear()
+    cached = ShootingProblem(model, free_idx, res.interval, n_sub, "cached")
+    cached.account("blocks", 1.0)
+    assert started == [] and cached.how == "virtual machine"
+    sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
+    together = screen_jointly(model, res, [est], NAMES, sigma, "auto")
+    lag = screen(model, res, [est], "motor_lag", sigma, "auto")
+    assert started == []
+    assert together == screen_jointly(model, res, [est], NAMES, sigma, "never")
+    assert lag[0] == pytest.approx(screen(model, res, [est], "motor_lag", sigma, "never")[0], rel=1e-10)
+    # a library in the cache is taken
+    codegen.compiled(ShootingProblem.shared_step_functions(model, free_idx, n_sub)["blocks"])
+    assert ShootingProblem(model, free_idx, res.interval, n_sub, "cached").how == "cached"

@@ -179,6 +179,15 @@ def _propagate_new_states(ext: QuadrotorModel, new: list[int], full: np.ndarray,
     return seq[k - k[0]]
 
 
+def _one_off(compile: str) -> str:
+    """The compile mode for a job of a few evaluations (a screening) in a diagnosis run with
+    ``compile``: a cached library, else the virtual machine, and no build started for it
+    (``"auto"`` would start one once the virtual machine had cost half the expected build;
+    the model of a round's candidates together, new each round, took the compiler 25 s on a
+    real flight and was never evaluated again)."""
+    return "cached" if compile == "auto" else compile
+
+
 def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], name: str, sigma: np.ndarray,
            compile: str) -> tuple[float, int]:
     """Score statistic and degrees of freedom of candidate ``name`` at the baseline optimum
@@ -191,7 +200,8 @@ def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], nam
     spread = (per_flight_positions(ext, [ext.param_names[i] for i in free_idx], res.per_flight_rule)
               if len(logs) > 1 else [])
     # one evaluation: on CasADi's virtual machine unless a compiled library is cached
-    ses = FitSession(ext, logs, free_idx, p, sigma, res.interval, compile, lambda _m: None, per_flight=spread)
+    ses = FitSession(ext, logs, free_idx, p, sigma, res.interval, _one_off(compile), lambda _m: None,
+                     per_flight=spread)
     if res.process_noise is not None:
         qd = _process_noise(ext, res)    # per state a std, or one per flight
         qf = np.array([[v[f] if isinstance(v, (list, tuple)) else v for v in qd.values()] for f in range(len(logs))])
@@ -242,7 +252,7 @@ def screen_jointly(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightL
     new = {name: [c for _, c, _ in sup.effect_components(name)] for name in joint}
     free_idx = free_indices(sup, free, None)
     logs = [sup.prepare_log(lg) for lg in logs]
-    ses = FitSession(sup, logs, free_idx, p, sigma, res.interval, compile, lambda _m: None)
+    ses = FitSession(sup, logs, free_idx, p, sigma, res.interval, _one_off(compile), lambda _m: None)
     if res.process_noise is not None:
         qd = _process_noise(sup, res)
         ses.q = np.array([v[0] if isinstance(v, (list, tuple)) else v for v in qd.values()])
