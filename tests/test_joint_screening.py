@@ -103,6 +103,10 @@ def test_a_screening_starts_no_compiler_but_takes_a_cached_library(baseline, mon
     assert started == []
     assert together == screen_jointly(model, res, [est], NAMES, sigma, "never")
     assert lag[0] == pytest.approx(screen(model, res, [est], "motor_lag", sigma, "never")[0], rel=1e-10)
+    # a fit in "cached" mode (public: fit(compile="cached")) builds nothing and gets the same optimum
+    again = fit(model, est, process_noise=None, compile="cached")
+    assert started == [] and again.converged
+    assert np.allclose(again.p, res.p, rtol=1e-6, atol=1e-12)
     # a library in the cache is taken
     codegen.compiled(ShootingProblem.shared_step_functions(model, free_idx, n_sub)["blocks"])
     assert ShootingProblem(model, free_idx, res.interval, n_sub, "cached").how == "cached"

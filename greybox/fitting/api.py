@@ -218,7 +218,9 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         reweight: re-estimate channel noise from the residuals and solve again.
         compile: ``"auto"`` (a compiled step function from the cache, else CasADi's virtual
             machine, compiled to C in the background once evaluating there has cost half
-            what compiling is expected to, and used when ready), ``"always"`` (compile at once), ``"quick"`` (at once, without
+            what compiling is expected to, and used when ready), ``"cached"`` (a compiled
+            step function from the cache, else the virtual machine; never compiles),
+            ``"always"`` (compile at once), ``"quick"`` (at once, without
             optimisation: faster to build, slower to run) or ``"never"``.
         progress: True to print iterations to stderr, or a callable taking a line of text.
         initial_states: per flight (M+1, nx) node state guesses (default: from the data).
