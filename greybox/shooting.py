@@ -184,8 +184,8 @@ class ShootingProblem:
       structure. A broken file under the cache name is removed (with a warning) and rebuilt.
     - ``"cached"``: a library from the compile cache if there is one, else the virtual
       machine; never starts the compiler: for one-off evaluations (a diagnosis' screening,
-      whose model of every candidate at once is new each round and as large as eight
-      refits' models: its own build took the compiler 25 s on a real flight, for nothing).
+      whose model of every candidate at once is new each round and several times a refit's
+      model in size: its own build took the compiler 25 s on a real flight, for nothing).
     - ``"always"``: compile at once (``-O1``); ``"quick"``: at once, unoptimised (``-O0``);
     - ``"never"``: the virtual machine only.
     """
@@ -340,13 +340,11 @@ class ShootingProblem:
         how = "virtual machine"
         if self.compile_mode in ("always", "quick"):
             f, how = codegen.compiled(f, opt=self._opt)
-        elif self.compile_mode == "auto" and codegen.compiler_available():
-            self._lib[kind] = codegen.library_path(f, self._opt)
-            g = codegen.cached(f, opt=self._opt, lib=self._lib[kind])
-            if g is not None:
-                f, how = g, "cached"
-        elif self.compile_mode == "cached" and codegen.compiler_available():
-            g = codegen.cached(f, opt=self._opt)
+        elif self.compile_mode in ("auto", "cached") and codegen.compiler_available():
+            lib = codegen.library_path(f, self._opt)
+            if self.compile_mode == "auto":
+                self._lib[kind] = lib       # built once the virtual machine has cost enough
+            g = codegen.cached(f, opt=self._opt, lib=lib)
             if g is not None:
                 f, how = g, "cached"
         self._step[kind], self._how[kind] = f, how
