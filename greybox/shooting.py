@@ -177,9 +177,10 @@ class ShootingProblem:
       structure, in this process and earlier runs: :func:`greybox.codegen.add_vm_seconds`)
       reaches half the compiler's expected time for it; then it is compiled (``-O1``) in the
       background while the virtual machine goes on, and the library is used from when it
-      is ready. A job that evaluates a function a few times (a screening) starts no
-      compiler by itself (the diagnosis queues the builds of the refits it knows are coming:
-      :func:`greybox.codegen.queue_builds`), and none ever waits for one: a refit that ends
+      is ready. A job that evaluates a function a few times mostly stays below that, but
+      one evaluation of a large function can pass it: a diagnosis' screening therefore runs
+      ``"cached"`` (below), and the diagnosis queues the builds of the refits it knows are
+      coming (:func:`greybox.codegen.queue_builds`). None ever waits for a build: a refit that ends
       before its library is ready has it ready in the cache for the next fit of that
       structure. A broken file under the cache name is removed (with a warning) and rebuilt.
     - ``"cached"``: a library from the compile cache if there is one, else the virtual
