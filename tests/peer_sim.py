@@ -16,6 +16,10 @@ as a PWM log has them, the motors' lag in between), and its own forms of the eff
   hub's height above the floor, capped at the 1.33 of ``h_i = rho/2``;
 * per-rotor gains on thrust and reaction torque (a damaged propeller), a CoG offset, a
   constant wind, body drag in the **body** frame;
+* a battery whose voltage sags with the current drawn and the charge spent, driving motors
+  whose ESCs are open loop (``PeerBattery``): the command sets a duty cycle calibrated at one
+  voltage, and a DC motor's speed under a propeller's load follows the duty times the
+  battery's voltage through its own quadratic (back-EMF plus load), not a linear scale;
 * effects the greybox catalogue does not hold: aerodynamic rate damping ``-D omega``,
   blade-flapping moments ``k_f (e3 x v_b)``, thrust that falls with the inflow
   ``T (1 - k_in v_z,b ...)`` (axial climb), a gyro bias, and turbulence (a random torque).
@@ -53,7 +57,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["PeerVehicle", "PeerEffects", "PeerSensors", "PeerFlight", "fly", "write_case",
+__all__ = ["PeerVehicle", "PeerEffects", "PeerBattery", "PeerSensors", "PeerFlight", "fly", "write_case",
            "airframe_text", "quat_to_rot", "rot_to_euler"]
 
 E3 = np.array([0.0, 0.0, 1.0])
@@ -146,6 +150,27 @@ class PeerVehicle:
 
 
 @dataclass
+class PeerBattery:
+    """A battery and open-loop ESCs. The battery: open-circuit voltage ``v_full`` falling by
+    ``drain`` volts per coulomb drawn, internal resistance ``r_int``; it supplies the rotors'
+    aerodynamic power ``sum b g_i w_i^3`` divided by ``efficiency``, so its voltage is
+    ``V = (V_oc + sqrt(V_oc^2 - 4 r_int P))/2``. Each motor: ``Ke w + c w^2 = duty V``
+    (back-EMF plus a load torque in ``w^2`` through the winding), ``c w_h^2`` a share
+    ``load_share`` of the drive at hover; the ESC's duty for a speed command ``w_cmd`` is
+    the one that gives ``w_cmd`` at ``v_esc`` volts. The log gets ``vbat`` (noise
+    ``vbat_noise`` V, rounded to ``vbat_quantum``)."""
+
+    v_full: float = 4.15
+    r_int: float = 0.15               # ohm
+    drain: float = 0.004              # V per coulomb
+    v_esc: float = 3.8                # V, the voltage the ESC's command-to-duty map assumes
+    efficiency: float = 0.5           # aerodynamic over electrical power
+    load_share: float = 0.5
+    vbat_noise: float = 0.005
+    vbat_quantum: float = 0.001
+
+
+@dataclass
 class PeerEffects:
     """The physics beyond the rigid body, thrust and reaction torque; all off by default."""
 
@@ -161,11 +186,12 @@ class PeerEffects:
     inflow: float = 0.0                          # T_i (1 + k_in v_z,b), 1/(m/s)
     gyro_bias: Sequence[float] | None = None     # rad/s, added to the logged p, q, r
     turbulence: float = 0.0                      # N m, RMS of a random torque (1-s correlation)
+    battery: PeerBattery | None = None           # voltage-driven motors behind open-loop ESCs; vbat logged
 
     def active(self) -> dict[str, Any]:
         out = {}
         for k, v in asdict(self).items():
-            if v is None or v is False or (not isinstance(v, (list, tuple)) and v == 0):
+            if v is None or v is False or (not isinstance(v, (list, tuple, dict)) and v == 0):
                 continue
             out[k] = list(v) if isinstance(v, (list, tuple)) else v
         return out
@@ -222,6 +248,27 @@ class PeerDynamics:
         self.rate_damping = None if fx.rate_damping is None else np.asarray(fx.rate_damping, float)
         self.ge = (veh.rotor_radius / 4.0) ** 2
         self.disturbance = np.zeros(3)          # turbulence torque, updated by the simulator
+        self.charge = 0.0                       # C drawn from the battery, updated by the simulator
+        if fx.battery is not None:
+            w_h, lam = veh.w_hover, fx.battery.load_share
+            self.Ke, self.c = (1.0 - lam) / w_h, lam / w_h ** 2     # drive in units of the hover drive
+
+    def battery_voltage(self, w: np.ndarray) -> tuple[float, float]:
+        """The battery's terminal voltage and current with the rotors at ``w``."""
+        bat = self.fx.battery
+        v_oc = bat.v_full - bat.drain * self.charge
+        power = self.veh.b * float(self.gain @ np.abs(w) ** 3) / bat.efficiency
+        v = 0.5 * (v_oc + math.sqrt(max(v_oc * v_oc - 4.0 * bat.r_int * power, 0.0)))
+        return v, power / v
+
+    def motor_target(self, w_cmd: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """The speed each motor tends to: ``w_cmd`` itself, or with a battery the root of
+        ``Ke w + c w^2 = duty V`` for the duty the ESC sets."""
+        if self.fx.battery is None:
+            return w_cmd
+        v, _ = self.battery_voltage(w)
+        drive = (self.Ke * w_cmd + self.c * w_cmd * w_cmd) * v / self.fx.battery.v_esc
+        return (-self.Ke + np.sqrt(self.Ke ** 2 + 4.0 * self.c * np.maximum(drive, 0.0))) / (2.0 * self.c)
 
     def loads(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World acceleration of the CoG and the body moment (without the gyroscopic terms)."""
@@ -262,7 +309,7 @@ class PeerDynamics:
         h = np.array([0.0, 0.0, -self.veh.rotor_inertia * (self.spin @ w)])
         omdot = self.Jinv @ (M - np.cross(om, self.J @ om + h))
         qdot = 0.5 * quat_mul(q, np.array([0.0, om[0], om[1], om[2]]))
-        wdot = (w_cmd - w) / self.veh.tau_motor
+        wdot = (self.motor_target(w_cmd, w) - w) / self.veh.tau_motor
         return np.concatenate([v, acc, qdot, omdot, wdot])
 
     def rk4(self, s: np.ndarray, w_cmd: np.ndarray, dt: float) -> np.ndarray:
@@ -441,6 +488,7 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
     n = int(round(duration / log_dt))
     states = np.empty((n, 17))
     commands = np.empty((n, 4))                  # the command the motors are receiving at each logged row
+    volts = np.empty(n)                          # the battery's voltage at each logged row
     w_cmd = np.full(4, veh.w_hover)
     turb_tau = 1.0
     for k in range(-n_warm, n * sub):
@@ -454,6 +502,10 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
         if k >= 0 and k % sub == 0:
             states[k // sub] = s
             commands[k // sub] = w_cmd
+            if fx.battery is not None:
+                volts[k // sub] = dyn.battery_voltage(s[13:17])[0]
+        if fx.battery is not None and k >= 0:
+            dyn.charge += dyn.battery_voltage(s[13:17])[1] * dt
         s = dyn.rk4(s, w_cmd, dt)
         if not np.all(np.isfinite(s)):
             raise RuntimeError(f"peer_sim: the flight diverged at t = {t:.3f} s")
@@ -494,6 +546,10 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
     gyro = states[:, 10:13] + bias + veh.gyro_noise * rng.standard_normal((n, 3))
     for j, name in enumerate("pqr"):
         cols[name] = gyro[:, j]
+    if fx.battery is not None:
+        bat = fx.battery
+        vb = volts + bat.vbat_noise * rng.standard_normal(n)
+        cols["vbat"] = np.round(vb / bat.vbat_quantum) * bat.vbat_quantum
     if sens.accel:
         acc = np.empty((n, 3))
         for k in range(n):
@@ -527,6 +583,9 @@ def _truth(veh, fx, sens, seed, duration, dyn, ctrl) -> dict[str, Any]:
         eq["wind"] = [float(x) for x in fx.wind]
     if sens.log_commands:
         eq["tau_m"] = veh.tau_motor
+    if sens.log_commands and fx.battery is not None:
+        # d ln w / d ln V at hover: the drive's share in Ke w + c w^2 over its slope
+        eq["K_vbat_at_hover"] = 1.0 / ((1.0 + fx.battery.load_share) * fx.battery.v_esc)
     if sens.accel and sens.accel_bias is not None:
         eq["acc_bias"] = [float(x) for x in sens.accel_bias]
     return {"simulator": "peer_sim", "vehicle": asdict(veh), "effects": fx.active(),
