@@ -26,7 +26,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 
-from peer_sim import PeerEffects, PeerSensors, PeerVehicle, fly, write_case  # noqa: E402
+from peer_sim import PeerBattery, PeerEffects, PeerSensors, PeerVehicle, fly, write_case  # noqa: E402
 
 from greybox import QuadrotorModel, load_airframe, load_log  # noqa: E402
 from greybox.diagnosis import diagnose  # noqa: E402
@@ -76,6 +76,14 @@ CASES = {
     "cf_commands_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(), 25.0, "motor_lag",
                           {"sensors": PeerSensors(log_commands=True)}),
     "1kg_commands": (PeerVehicle.one_kg, PeerEffects(), 20.0, "motor_lag", {"sensors": PeerSensors(log_commands=True)}),
+    # the commands drive open-loop ESCs from a battery that sags with current and charge
+    # (3.9 -> 3.6 V, vbat logged): motor_lag and battery_voltage, not thrust_drift
+    "cf_battery_commands_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(battery=PeerBattery()),
+                                  25.0, ("motor_lag", "battery_voltage"),
+                                  {"sensors": PeerSensors(log_commands=True)}),
+    # the same battery with the motors' speeds logged: the voltage changes nothing the log misses
+    "cf_battery_speeds_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(battery=PeerBattery()),
+                                25.0, None),
 }
 """name: (vehicle, effects, duration s, what should be named[, options: those of
 ``peer_sim.airframe_text``, and ``sensors``, a ``PeerSensors``]); what should be named: an effect, or a tuple of effects

@@ -261,6 +261,12 @@ class PeerDynamics:
         v = 0.5 * (v_oc + math.sqrt(max(v_oc * v_oc - 4.0 * bat.r_int * power, 0.0)))
         return v, power / v
 
+    def hover_speed_ratio(self, v: float) -> float:
+        """``w / w_cmd`` of a motor commanded to the hover speed with the battery at ``v``
+        volts (1 at the ESC's voltage; the root of ``(1 - l) x + l x^2 = v / v_esc``)."""
+        lam, v_esc = self.fx.battery.load_share, self.fx.battery.v_esc
+        return (-(1 - lam) + math.sqrt((1 - lam) ** 2 + 4 * lam * v / v_esc)) / (2 * lam)
+
     def motor_target(self, w_cmd: np.ndarray, w: np.ndarray) -> np.ndarray:
         """The speed each motor tends to: ``w_cmd`` itself, or with a battery the root of
         ``Ke w + c w^2 = duty V`` for the duty the ESC sets."""
@@ -560,11 +566,11 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
             acc += np.asarray(sens.accel_bias, float)
         for j, name in enumerate(("ax", "ay", "az")):
             cols[name] = acc[:, j]
-    truth = _truth(veh, fx, sens, seed, duration, dyn, ctrl)
+    truth = _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts)
     return PeerFlight(columns=cols, truth=truth, states=states)
 
 
-def _truth(veh, fx, sens, seed, duration, dyn, ctrl) -> dict[str, Any]:
+def _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts) -> dict[str, Any]:
     gains = dyn.gain
     mean_gain = float(gains.mean())
     eq: dict[str, Any] = {"K_T": veh.K_T * mean_gain, "b": veh.b * mean_gain,
@@ -584,8 +590,14 @@ def _truth(veh, fx, sens, seed, duration, dyn, ctrl) -> dict[str, Any]:
     if sens.log_commands:
         eq["tau_m"] = veh.tau_motor
     if sens.log_commands and fx.battery is not None:
-        # d ln w / d ln V at hover: the drive's share in Ke w + c w^2 over its slope
-        eq["K_vbat_at_hover"] = 1.0 / ((1.0 + fx.battery.load_share) * fx.battery.v_esc)
+        # greybox's battery_voltage: w = w_log (1 + K_vbat (vbat - 4 V)). Its K_T and b are
+        # those at 4 V, and K_vbat gives the truth's log-slope of the hover speed at the
+        # flight's mean voltage
+        at_4v = dyn.hover_speed_ratio(4.0) ** 2
+        eq["K_T"], eq["b"] = eq["K_T"] * at_4v, eq["b"] * at_4v
+        v = float(np.mean(volts))
+        slope = (math.log(dyn.hover_speed_ratio(v + 0.01)) - math.log(dyn.hover_speed_ratio(v - 0.01))) / 0.02
+        eq["K_vbat"] = slope / (1.0 + slope * (4.0 - v))
     if sens.accel and sens.accel_bias is not None:
         eq["acc_bias"] = [float(x) for x in sens.accel_bias]
     return {"simulator": "peer_sim", "vehicle": asdict(veh), "effects": fx.active(),
