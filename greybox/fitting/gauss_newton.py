@@ -666,6 +666,11 @@ class GaussNewton:
     would together lower the cost (half the weighted chi-square) by less than this, however
     far the parameters still creep; ``None`` to run to the step tolerance alone.
 
+    ``extrapolate``: the longest multiple of a full step tried once full steps converge
+    linearly (each lowering the cost by more than :data:`SLOW_RATIO` of the one before): 2, 4,
+    ... times the step along its direction while the merit keeps falling, one evaluation of
+    the residuals each; ``1.0`` turns it off.
+
     ``stop``: called as ``stop(session, th)`` after every accepted step; words returned (not
     "") end the solve there, its status :data:`STOPPED` followed by them, not converged, and
     the fit takes it as a spent budget (:func:`budget_spent`). A diagnosis stops a
