@@ -22,8 +22,8 @@ from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency
-from .screening import negligible_effect, refit as refit_candidate
-from .ranking import (MAX_VALIDATION_LOSS, MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
+from .screening import negligible_effect
+from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
                       rank_round, tie_explanation, validation_ties)
 from .results import UNEXPLAINED_RATIO, Diagnosis, Round
 
@@ -403,20 +403,8 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     # the validation nrmse falls 10 %)
     ranking = rank_round(model, res, pred, est, val, [name], compile, say, n_refit,
                          min_explained_inadequate=-np.inf, min_explained=-np.inf, size_in_parameters=True,
-                         refit_anyway=bool(against))
+                         refit_anyway=bool(against), solve_on_significant=True)
     cand = ranking[0] if ranking else None
-    if cand is not None and cand.significant and cand.fit is not None and not cand.fit.converged:
-        # significant at a point short of its optimum (its likelihood ratio a lower bound):
-        # solved on from there before it is judged (another simulator's 30 g vehicle, motor
-        # commands at 100 Hz from a sagging battery: the held rows stood for want of a few
-        # iterations, and tau_m came out 15.5 ms for its 20-ms motors)
-        _, solved, solved_pred = refit_candidate(model, res, est, val, name, res.sigma, compile, start=cand.fit,
-                                                 max_iter=SOLVE_ON_ITER, horizon=pred.horizon)
-        say(f"  solved on {name:<13} nrmse {pred.total:.3f} -> {solved_pred.total:.3f}  "
-            f"({'certified' if solved.converged else solved.status})")
-        if solved.converged and solved.cost <= cand.fit.cost and \
-                solved_pred.total <= (1 + MAX_VALIDATION_LOSS) * cand.prediction.total:
-            cand.fit, cand.prediction = solved, solved_pred
     if cand is None or not cand.significant or cand.fit is None or not cand.fit.converged:
         if cand is not None:
             why = cand.reason if not cand.significant or cand.fit is None else \
@@ -440,8 +428,6 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     return fit_t.model, fit_t, cand.prediction, timing, fit_t
 
 
-SOLVE_ON_ITER = 100
-"""Iteration budget to solve on a significant timing refit that stopped short of its optimum."""
 SETTLED_SHARE = 0.1
 """A lag's std with the log's timing free, as a share of half a row, below which the data
 settle the timing for it (:func:`_timing_caveat` then says nothing)."""

@@ -649,6 +649,9 @@ class FitSession:
 EXTRAPOLATE = 64.0
 """Longest multiple of a full Gauss-Newton step tried when the solve converges linearly
 (:data:`SLOW_RATIO`): 2, 4, ... times the step while the merit keeps falling."""
+EXTRA_GAIN = 0.1
+"""A longer step is kept only when it lowers the merit below the shorter one's by at least this
+share of what the full step gained (no step lengthened for a rounding-level gain)."""
 SLOW_RATIO = 0.5
 """A full step whose cost decrease is more than this share of the previous full step's
 marks linear convergence: the next full step is extended (:data:`EXTRAPOLATE`)."""
@@ -735,15 +738,24 @@ class GaussNewton:
                 # along nearly the same direction (a large-residual fit, a stiff state chain: a
                 # motor lag's refit crept 0.2 of cost per step for 400 steps). Longer steps along
                 # the direction are tried while the merit keeps falling.
+                # never past the trust region a retried fit keeps its parameters in
+                longest = self.extrapolate
+                if ses.max_step is not None and ses.nth and float(np.max(np.abs(dth))) > 0:
+                    longest = min(longest, ses.max_step / float(np.max(np.abs(dth))))
+                full_gain = merit0 - merit_t
                 longer = 2.0
-                while longer <= self.extrapolate:
-                    Xe, the = X + longer * dX, np.clip(th + longer * dth, ses.lo_s, ses.hi_s)
+                while longer <= longest:
+                    raw = th + longer * dth
+                    Xe, the = X + longer * dX, np.clip(raw, ses.lo_s, ses.hi_s)
                     xe_e, c_e = ses.evaluate(Xe, the, blocks=False)
                     merit_e = ses.total_cost(Xe, xe_e, c_e) if soft else \
                         0.5 * float(c_e.sum()) + float((rho * np.abs(ses.gaps(Xe, xe_e))).sum())
-                    if not (np.isfinite(merit_e) and merit_e < merit_t):
+                    # each doubling must gain a real share of what the full step gained
+                    if not (np.isfinite(merit_e) and merit_e < merit_t - EXTRA_GAIN * full_gain):
                         break
                     Xt, tht, merit_t, trial, alpha = Xe, the, merit_e, None, longer
+                    if np.any(the != raw):
+                        break          # a bound cut the step: it no longer follows the direction
                     longer *= 2.0
                 slow = alpha > 1.0
             step_size = float(np.max(np.abs(tht - th))) if ses.nth else 0.0
@@ -773,6 +785,8 @@ class GaussNewton:
                 last_actual = cost - new_cost
             elif alpha < 1.0:
                 slow, last_actual = False, 0.0
+            else:
+                last_actual = 0.0        # a longer step's decrease is no full step's to compare with
             cost = new_cost
             # soft continuity: the smoother's states settle slowly once the parameters have
             # stopped moving, so a looser cost test
