@@ -103,8 +103,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                candidates: Sequence[str], compile: str, say: Callable[[str], None], n_refit: int,
                nominated: Sequence[str] = (), min_explained_inadequate: float = MIN_EXPLAINED_INADEQUATE,
                min_explained: float = MIN_EXPLAINED, size_in_parameters: bool = False,
-               refit_anyway: bool = False, controller_check: bool = False,
-               solve_on_significant: bool = False) -> list[CandidateResult]:
+               refit_anyway: bool = False, controller_check: bool = False) -> list[CandidateResult]:
     """Screen ``candidates`` against the fitted model ``res`` (validation prediction
     ``pred``), refit the ``n_refit`` best (or all, from cold, when the baseline has a
     parameter on a bound) and the ``nominated`` ones (effects the logged commands point at),
@@ -120,11 +119,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     its refit put s_lead 22 std from zero). ``controller_check``: the round's first, when it
     is an effect that scales the commands' moment and leaves the body rates far off, is judged
     again with a disturbance torque (:func:`~greybox.diagnosis.closed_loop.controller_answer`),
-    and refused when it was the controller's answer (the first round, as the sliver rule).
-    ``solve_on_significant``: a refit significant at a point short of its optimum is solved on
-    and judged again, however it predicts (the log's timing judged after the rounds: with a
-    sagging battery behind another simulator's motors its capped refit left the held rows
-    standing and tau_m 15.5 ms for 20)."""
+    and refused when it was the controller's answer (the first round, as the sliver rule)."""
     sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
     out: list[CandidateResult] = []
     t0 = time.perf_counter()
@@ -314,10 +309,8 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         # at k_M 0.02 after being refused at 0.024 in the round before, took 40 s of a 285-s
         # diagnosis to be refused again).
         for cand in sorted(batch, key=lambda c: c.nrmse_after):
-            if cand.fit is None or cand.fit.converged:
-                continue
-            if not (cand.nrmse_after < (1 - MIN_VALIDATION_GAIN) * min(pred.total, certified_best)
-                    or (solve_on_significant and cand.significant)):
+            if cand.fit is None or cand.fit.converged or \
+                    not cand.nrmse_after < (1 - MIN_VALIDATION_GAIN) * min(pred.total, certified_best):
                 continue
             if physically_implausible(cand.fit, cand.effect):
                 cand.reason += f" (its refit stopped short: {cand.fit.status}; not solved on)"

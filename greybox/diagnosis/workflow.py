@@ -403,13 +403,11 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     # the validation nrmse falls 10 %)
     ranking = rank_round(model, res, pred, est, val, [name], compile, say, n_refit,
                          min_explained_inadequate=-np.inf, min_explained=-np.inf, size_in_parameters=True,
-                         refit_anyway=bool(against), solve_on_significant=True)
+                         refit_anyway=bool(against))
     cand = ranking[0] if ranking else None
     if cand is None or not cand.significant or cand.fit is None or not cand.fit.converged:
         if cand is not None:
-            why = cand.reason if not cand.significant or cand.fit is None else \
-                f"{cand.reason}, but its refit is not certified: {cand.fit.status}"
-            say(f"diagnose: the held rows stand ({why or 'its refit is not certified'})")
+            say(f"diagnose: the held rows stand ({cand.reason or 'its refit is not certified'})")
         refit = cand.fit if cand is not None and cand.fit is not None and cand.fit.converged else None
         return model, res, pred, None, refit
     fit_t = cand.fit
