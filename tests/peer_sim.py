@@ -261,20 +261,23 @@ class PeerDynamics:
         v = 0.5 * (v_oc + math.sqrt(max(v_oc * v_oc - 4.0 * bat.r_int * power, 0.0)))
         return v, power / v
 
-    def hover_speed_ratio(self, v: float) -> float:
-        """``w / w_cmd`` of a motor commanded to the hover speed with the battery at ``v``
-        volts (1 at the ESC's voltage; the root of ``(1 - l) x + l x^2 = v / v_esc``)."""
-        lam, v_esc = self.fx.battery.load_share, self.fx.battery.v_esc
-        return (-(1 - lam) + math.sqrt((1 - lam) ** 2 + 4 * lam * v / v_esc)) / (2 * lam)
-
-    def motor_target(self, w_cmd: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """The speed each motor tends to: ``w_cmd`` itself, or with a battery the root of
-        ``Ke w + c w^2 = duty V`` for the duty the ESC sets."""
-        if self.fx.battery is None:
-            return w_cmd
-        v, _ = self.battery_voltage(w)
+    def motor_speed(self, w_cmd, v: float):
+        """The steady speed of a motor commanded to ``w_cmd`` with the battery at ``v`` volts:
+        the root of ``Ke w + c w^2 = duty V`` for the duty the ESC sets (``w_cmd`` at ``v_esc``)."""
         drive = (self.Ke * w_cmd + self.c * w_cmd * w_cmd) * v / self.fx.battery.v_esc
         return (-self.Ke + np.sqrt(self.Ke ** 2 + 4.0 * self.c * np.maximum(drive, 0.0))) / (2.0 * self.c)
+
+    def hover_speed_ratio(self, v: float) -> float:
+        """``w / w_cmd`` of a motor commanded to the hover speed with the battery at ``v``
+        volts (1 at the ESC's voltage)."""
+        return float(self.motor_speed(self.veh.w_hover, v)) / self.veh.w_hover
+
+    def motor_target(self, w_cmd: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """The speed each motor tends to: ``w_cmd`` itself, or with a battery
+        :meth:`motor_speed` at the voltage the rotors at ``w`` leave."""
+        if self.fx.battery is None:
+            return w_cmd
+        return self.motor_speed(w_cmd, self.battery_voltage(w)[0])
 
     def loads(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World acceleration of the CoG and the body moment (without the gyroscopic terms)."""
@@ -508,10 +511,11 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
         if k >= 0 and k % sub == 0:
             states[k // sub] = s
             commands[k // sub] = w_cmd
-            if fx.battery is not None:
-                volts[k // sub] = dyn.battery_voltage(s[13:17])[0]
         if fx.battery is not None and k >= 0:
-            dyn.charge += dyn.battery_voltage(s[13:17])[1] * dt
+            volt, current = dyn.battery_voltage(s[13:17])
+            if k % sub == 0:
+                volts[k // sub] = volt
+            dyn.charge += current * dt
         s = dyn.rk4(s, w_cmd, dt)
         if not np.all(np.isfinite(s)):
             raise RuntimeError(f"peer_sim: the flight diverged at t = {t:.3f} s")

@@ -697,6 +697,13 @@ class GaussNewton:
         cost = ses.total_cost(X, blocks[0], blocks[4])
         last_rel, last_decrease = np.inf, np.inf
         last_actual, slow = 0.0, False
+
+        def merit(Xm, xe, c):
+            """The line search's merit at nodes ``Xm`` (end states ``xe``, residual costs ``c``):
+            the cost with soft continuity, else the cost plus the l1 penalty on the gaps."""
+            if soft:
+                return ses.total_cost(Xm, xe, c)
+            return 0.5 * float(c.sum()) + float((rho * np.abs(ses.gaps(Xm, xe))).sum())
         it, status, converged = 0, "maximum iterations reached", False
         for it in range(1, max_iter + 1):
             dz, lam, H, gg, cz = ses.step(X, th, blocks, mu)
@@ -724,10 +731,7 @@ class GaussNewton:
                 else:
                     trial = None
                     xe_t, c_t = ses.evaluate(Xt, tht, blocks=False)
-                if soft:
-                    merit_t = ses.total_cost(Xt, xe_t, c_t)
-                else:
-                    merit_t = 0.5 * float(c_t.sum()) + float((rho * np.abs(ses.gaps(Xt, xe_t))).sum())
+                merit_t = merit(Xt, xe_t, c_t)
                 if np.isfinite(merit_t) and merit_t <= merit0 + 1e-4 * alpha * min(slope, 0.0) and \
                         (not soft or merit_t < merit0):
                     accepted = True
@@ -737,8 +741,8 @@ class GaussNewton:
                 # Linear convergence: full steps that each take the same share of what is left
                 # along nearly the same direction (a large-residual fit, a stiff state chain: a
                 # motor lag's refit crept 0.2 of cost per step for 400 steps). Longer steps along
-                # the direction are tried while the merit keeps falling.
-                # never past the trust region a retried fit keeps its parameters in
+                # the direction are tried while the merit keeps falling; never past the trust
+                # region a retried fit keeps its parameters in.
                 longest = self.extrapolate
                 if ses.max_step is not None and ses.nth and float(np.max(np.abs(dth))) > 0:
                     longest = min(longest, ses.max_step / float(np.max(np.abs(dth))))
@@ -747,9 +751,7 @@ class GaussNewton:
                 while longer <= longest:
                     raw = th + longer * dth
                     Xe, the = X + longer * dX, np.clip(raw, ses.lo_s, ses.hi_s)
-                    xe_e, c_e = ses.evaluate(Xe, the, blocks=False)
-                    merit_e = ses.total_cost(Xe, xe_e, c_e) if soft else \
-                        0.5 * float(c_e.sum()) + float((rho * np.abs(ses.gaps(Xe, xe_e))).sum())
+                    merit_e = merit(Xe, *ses.evaluate(Xe, the, blocks=False))
                     # each doubling must gain a real share of what the full step gained
                     if not (np.isfinite(merit_e) and merit_e < merit_t - EXTRA_GAIN * full_gain):
                         break
