@@ -22,13 +22,16 @@ The workflow (:func:`diagnose`):
    refitted residuals (Bartlett-weighted autocorrelation, so coloured noise does not
    masquerade as information), is compared with chi-square(df) (halved where the null
    value is on a bound), Bonferroni-corrected over the candidates. A candidate is
-   *significant* when that test passes at 1 % **and** the validation ``nrmse`` falls by at
-   least 2 % (out-of-sample confirmation). The verdict is the best significant candidate,
+   *significant* when that test passes at 1 % **and** some channel's validation ``nrmse``
+   falls by at least 5 % (out-of-sample confirmation). The verdict is the best significant candidate,
    or ``None``.
 4. **Add it and watch the error fall.** With ``iterate=True`` the verdict is added, the
    model refitted and the remaining candidates screened again, until nothing significant
    is missing. Candidates that were significant alone but explain nothing once the winner
-   is in are reported as confusable, with the manoeuvre that would tell them apart.
+   is in are reported as confusable, with the manoeuvre that would tell them apart. Then
+   *backward elimination* (:mod:`greybox.diagnosis.elimination`): each earlier verdict is
+   judged again against the final model less itself, by the same test; one that no longer
+   stands (a stand-in for part of what a later verdict explains) is left out, with a warning.
    When nothing stands in the first round and the body rates stay far off (a random torque,
    turbulence, that no candidate holds, hiding any other effect in the process noise), the
    candidates are judged again from a baseline holding that torque as a disturbance
@@ -51,7 +54,8 @@ from __future__ import annotations
 # refit, and the statistics a refit is judged by), ``ranking`` (one round over the
 # candidates), ``closed_loop`` (a torque taken as a disturbance: b's closed-loop bias, the
 # baseline under turbulence), ``consistency`` (the baseline on the two halves of the data), ``discovery``
-# (residual forces beyond the catalogue, step 5), ``results`` (Diagnosis, its JSON and
+# (residual forces beyond the catalogue, step 5), ``elimination`` (each verdict judged again
+# in the final model), ``results`` (Diagnosis, its JSON and
 # summary), ``report`` (the HTML report) and ``workflow`` (:func:`diagnose`).
 # the constants are public names of greybox.diagnosis as well
 from .analysis import IMBALANCE_NOTABLE, CommandImbalance, Finding, command_imbalance, residual_analysis

@@ -374,7 +374,7 @@ class Diagnosis:
         """The verdict in words: the effect and how much it explains, or why it is null."""
         why = self.null_reason
         if why is None:
-            top = self.ranking[0] if self.ranking else None
+            top = next((c for c in self.ranking if c.effect == self.verdict), None)
             share = (f"; it removes {100 * top.explained:.0f} % of the residual above the sensor noise"
                      if top is not None and top.explained is not None else "")
             return f"{self.verdict}{share}"

@@ -22,6 +22,7 @@ from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency
+from .elimination import backward_elimination
 from .screening import negligible_effect
 from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
                       rank_round, tie_explanation, validation_ties)
@@ -322,6 +323,26 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         timed = _timing_caveat(cur_model, cur_res, est, timing_refit if same else None)
         if timed:
             warnings.append(timed)
+    if iterate and cur_res is not res:
+        # backward elimination: does each earlier verdict still stand with the later ones in?
+        found = [(rd.verdict, len(rd.ranking)) for rd in rounds
+                 if rd.verdict and rd.verdict in cur_model.effect_names and rd.verdict not in model.effect_names]
+        cur_res, cur_pred, removals = backward_elimination(cur_res, cur_pred, found, est, val, compile, say)
+        cur_model = cur_res.model
+        for r in removals:
+            k = next(k for k, rd in enumerate(rounds, start=1) if rd.verdict == r.effect)
+            later = [rd.verdict for rd in rounds[k:] if rd.verdict and rd.verdict in cur_model.effect_names]
+            warnings.append(f"{r.effect}, the verdict of round {k}, no longer stands once "
+                            f"{', '.join(later) or 'the later verdicts are'} in the model: {r.reason}. It stood in "
+                            f"for part of what {'they explain' if len(later) > 1 else 'that explains'}; the final "
+                            "model leaves it out")
+        gone = {r.effect for r in removals}
+        if verdict in gone:
+            top = next(c for c in rounds[0].ranking if c.effect == verdict)
+            top.significant = False
+            top.reason += "; no longer stands once the later verdicts are in (backward elimination)"
+            rounds[0].ranking.sort(key=lambda c: not c.significant)    # stable: the survivors first
+            verdict = next((rd.verdict for rd in rounds if rd.verdict and rd.verdict not in gone), None)
     unexplained, unexplained_gaps = _unexplained(cur_res)
     motion = {}
     if any(ch in unexplained for ch in ("phi", "theta", "psi", "p", "q", "r")):

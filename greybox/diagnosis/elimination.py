@@ -1,0 +1,172 @@
+"""Backward elimination (step 4 of :func:`~greybox.diagnosis.diagnose`): does each verdict
+of the rounds still stand in the final model, with the later verdicts in it?
+
+Forward selection adds the best candidate of each round against the model of that round. A
+verdict of an early round can be a partial stand-in for what a later round names (a thrust
+that drifts in time standing in for a battery that sags), and once the later effect is in,
+it explains nothing more. Each earlier verdict is therefore judged again against the final
+model less itself, by the test that admitted it: likelihood ratio (Bonferroni over its round's
+candidates), effect size, and confirmation on the validation data. A cheap Wald screen on the
+final fit comes first: a verdict whose parameters are still far from their null values there
+(:data:`WALD_MARGIN`) and not physically negligible stands without a refit; every other is
+refitted out of the model.
+"""
+from __future__ import annotations
+
+import time
+import warnings as _warnings
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy import stats
+
+from ..data import FlightLog
+from ..errors import ConvergenceWarning
+from ..fitting import FitResult, fit
+from ..validation import Prediction, predict_after_fit
+from .analysis import estimation_residuals
+from .ranking import ALPHA, MAX_VALIDATION_LOSS, MIN_VALIDATION_GAIN
+from .screening import lr_test, negligible_effect, null_on_bound
+
+__all__ = ["WALD_MARGIN", "Removal", "wald_p_value", "fit_without", "judge_removal", "backward_elimination"]
+
+WALD_MARGIN = 1e-3
+"""A verdict stands without a refit when its Wald p-value on the final fit (Bonferroni over
+its round's candidates) is below this share of :data:`~greybox.diagnosis.ALPHA`: the Wald and
+likelihood-ratio statistics agree only near the null, so only a verdict far past the line is
+spared its refit (on real flights every verdict's is, at no cost)."""
+
+
+@dataclass
+class Removal:
+    """What the final model less one verdict says about it. ``stands``: it passes its round's
+    test again; ``reason``: why or why not, in words; ``fit`` and ``prediction``: the
+    certified refit without it (None when it stood on the Wald screen or the refit was not
+    certified)."""
+
+    effect: str
+    stands: bool
+    reason: str
+    lr: float | None = None
+    p_value: float | None = None
+    fit: FitResult | None = None
+    prediction: Prediction | None = None
+
+
+def _effect_free(res: FitResult, effect: str) -> list[str]:
+    return [comp for _, comp, _ in res.model.effect_components(effect) if comp in res.free_names]
+
+
+def _degrees_of_freedom(res: FitResult, effect: str) -> int:
+    """Free parameter components of ``effect`` in ``res``, each flight's copy counted."""
+    return sum(len(res.per_flight_[c]["value"]) if c in res.per_flight_ else 1 for c in _effect_free(res, effect))
+
+
+def wald_p_value(res: FitResult, effect: str, n_tests: int = 1) -> float:
+    """The Wald test of ``effect``'s free parameters against their null values on the fit
+    ``res`` (its covariance, which counts the residuals' colour), halved where the null is on
+    a bound, times ``n_tests`` (Bonferroni); 1.0 when it has no free parameter or a singular
+    covariance block."""
+    free = _effect_free(res, effect)
+    if not free:
+        return 1.0
+    idx = [res.free_names.index(c) for c in free]
+    nulls = {comp: null for _, comp, null in res.model.effect_components(effect)}
+    d = np.array([res.value(c) - nulls[c] for c in free])
+    C = res.covariance[np.ix_(idx, idx)]
+    try:
+        w = float(d @ np.linalg.solve(C, d))
+    except np.linalg.LinAlgError:
+        return 1.0
+    if not np.isfinite(w):
+        return 1.0
+    p = float(stats.chi2.sf(max(w, 0.0), len(free)))
+    if null_on_bound(res.model, effect):
+        p *= 0.5
+    return min(1.0, p * n_tests)
+
+
+def fit_without(res: FitResult, effect: str, est: Sequence[FlightLog], compile: str = "auto") -> FitResult:
+    """The fit ``res`` refitted without ``effect``, warm-started at its values, in its
+    formulation (weights, interval, process noise of the states that remain, node states)."""
+    full = res.model
+    reduced = full.without(effect)
+    keep = [full.state_names.index(s) for s in reduced.state_names]
+    kw = res.settings()
+    kw["initial_states"] = [np.asarray(x)[:, keep] for x in kw["initial_states"]]
+    if kw["process_noise"] is not None:
+        kw["process_noise"] = {s: q for s, q in kw["process_noise"].items() if s in reduced.state_names}
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", ConvergenceWarning)   # judged by the caller: certified or not
+        return fit(reduced, est, free=[n for n in res.free_names if n in reduced.param_names],
+                   p0=np.array([res.value(n) for n in reduced.param_names]), compile=compile, max_iter=200, **kw)
+
+
+def judge_removal(res: FitResult, pred: Prediction, effect: str, est: Sequence[FlightLog],
+                  val: Sequence[FlightLog], n_tests: int, compile: str = "auto") -> Removal:
+    """Whether ``effect`` still stands in the certified fit ``res`` (validation prediction
+    ``pred``) by the test that admitted it in its round: significant (likelihood ratio against
+    the certified refit without it, Bonferroni over ``n_tests``), not physically negligible,
+    and confirmed on the validation data (some channel's nrmse lower by
+    :data:`~greybox.diagnosis.MIN_VALIDATION_GAIN` with it, the total not higher by more than
+    :data:`~greybox.diagnosis.MAX_VALIDATION_LOSS`). First the Wald screen
+    (:data:`WALD_MARGIN`)."""
+    small = negligible_effect(res, effect, est)
+    p_wald = wald_p_value(res, effect, n_tests)
+    if not small and p_wald < WALD_MARGIN * ALPHA:
+        return Removal(effect, True, f"Wald p = {p_wald:.2g} on the final fit")
+    reduced = fit_without(res, effect, est, compile)
+    if not reduced.converged:
+        return Removal(effect, True, f"the refit without it is not certified ({reduced.status}): cannot tell, kept")
+    lr, p = lr_test(reduced, res, estimation_residuals(res.model, res, est), _degrees_of_freedom(res, effect),
+                    null_on_bound(res.model, effect), n_tests)
+    rp = predict_after_fit(reduced, est, val, compile=compile, horizon=pred.horizon)
+    falls = {ch: 1 - pred.nrmse[ch] / rp.nrmse[ch] for ch in rp.nrmse if rp.nrmse[ch] > 0 and ch in pred.nrmse}
+    best = max(falls, key=falls.get) if falls else None
+    gain = 1 - pred.total / rp.total if rp.total > 0 else 0.0
+    out = Removal(effect, False, "", lr, p, reduced, rp)
+    if p >= ALPHA:
+        out.reason = f"not significant once the others are in (LR {lr:.3g}, p = {p:.2g})"
+    elif small:
+        out.reason = f"physically negligible once the others are in: {small}"
+    elif best is None or falls[best] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS:
+        what = f"best channel {best} {-100 * falls[best]:+.1f} %, " if best is not None else ""
+        out.reason = (f"significant (p = {p:.2g}) but not confirmed on validation once the others are in "
+                      f"({what}total {-100 * gain:+.1f} %)")
+    else:
+        out.stands = True
+        out.reason = f"p = {p:.2g}; validation {best} {-100 * falls[best]:+.0f} %"
+    return out
+
+
+def backward_elimination(res: FitResult, pred: Prediction, verdicts: Sequence[tuple[str, int]],
+                         est: Sequence[FlightLog], val: Sequence[FlightLog], compile: str = "auto",
+                         say: Callable[[str], None] = lambda _m: None
+                         ) -> tuple[FitResult, Prediction, list[Removal]]:
+    """The certified final fit ``res`` (prediction ``pred``) less the ``verdicts`` that no
+    longer stand (:func:`judge_removal`), one at a time. ``verdicts``: ``(effect, n_tests)``
+    in the order the rounds added them, ``n_tests`` its round's candidates. The last verdict
+    was judged against all the others by its round and is judged again only after one was
+    removed. Returns the final fit, its prediction and the removals (each with why)."""
+    order = [e for e, _ in verdicts]
+    tests = dict(verdicts)
+    removed: list[Removal] = []
+    if len(order) < 2 or not res.converged:
+        return res, pred, removed
+    pending = order[:-1]
+    while pending:
+        effect = pending.pop(0)
+        if effect not in res.model.effect_names:
+            continue
+        t0 = time.perf_counter()
+        r = judge_removal(res, pred, effect, est, val, tests[effect], compile)
+        say(f"diagnose: does {effect} still stand with the later verdicts? "
+            f"{'yes' if r.stands else 'no'} ({r.reason}; {time.perf_counter() - t0:.1f} s)")
+        if r.stands:
+            continue
+        removed.append(r)
+        res, pred = r.fit, r.prediction
+        # with one gone, each other verdict is judged again against the new fit (the last too)
+        pending = [e for e in order if e in res.model.effect_names]
+    return res, pred, removed
