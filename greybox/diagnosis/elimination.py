@@ -6,7 +6,8 @@ verdict of an early round can be a partial stand-in for what a later round names
 that drifts in time standing in for a battery that sags), and once the later effect is in,
 it explains nothing more. Each earlier verdict is therefore judged again against the final
 model less itself, by the test that admitted it: likelihood ratio (Bonferroni over its round's
-candidates), effect size, and confirmation on the validation data. A cheap Wald screen on the
+candidates) and effect size; its confirmation on the validation data stays its round's. A
+cheap Wald screen on the
 final fit comes first: a verdict whose parameters are still far from their null values there
 (:data:`WALD_MARGIN`) and not physically negligible stands without a refit; every other is
 refitted out of the model.
@@ -26,7 +27,7 @@ from ..errors import ConvergenceWarning
 from ..fitting import FitResult, fit
 from ..validation import Prediction, predict_after_fit
 from .analysis import estimation_residuals
-from .ranking import ALPHA, MAX_VALIDATION_LOSS, MIN_VALIDATION_GAIN
+from .ranking import ALPHA
 from .screening import lr_test, negligible_effect, null_on_bound
 
 __all__ = ["WALD_MARGIN", "Removal", "wald_p_value", "fit_without", "judge_removal", "backward_elimination"]
@@ -43,7 +44,7 @@ class Removal:
     """What the final model less one verdict says about it. ``stands``: it passes its round's
     test again; ``reason``: why or why not, in words; ``fit`` and ``prediction``: the
     certified refit without it (None when it stood on the Wald screen or the refit was not
-    certified)."""
+    certified; the prediction only when it is left out)."""
 
     effect: str
     stands: bool
@@ -107,11 +108,11 @@ def judge_removal(res: FitResult, pred: Prediction, effect: str, est: Sequence[F
                   val: Sequence[FlightLog], n_tests: int, compile: str = "auto") -> Removal:
     """Whether ``effect`` still stands in the certified fit ``res`` (validation prediction
     ``pred``) by the test that admitted it in its round: significant (likelihood ratio against
-    the certified refit without it, Bonferroni over ``n_tests``), not physically negligible,
-    and confirmed on the validation data (some channel's nrmse lower by
-    :data:`~greybox.diagnosis.MIN_VALIDATION_GAIN` with it, the total not higher by more than
-    :data:`~greybox.diagnosis.MAX_VALIDATION_LOSS`). First the Wald screen
-    (:data:`WALD_MARGIN`)."""
+    the certified refit without it, Bonferroni over ``n_tests``) and not physically
+    negligible. First the Wald screen (:data:`WALD_MARGIN`). Its confirmation on the validation
+    data is its round's (a verdict is not judged there again: on two real Crazyflie flights
+    the drag moment, p = 0 in the final model and cutting the 0.5-s psi or theta error by
+    16-41 %, raised the total nrmse by 7-10 % and would have gone)."""
     small = negligible_effect(res, effect, est)
     p_wald = wald_p_value(res, effect, n_tests)
     if not small and p_wald < WALD_MARGIN * ALPHA:
@@ -121,23 +122,12 @@ def judge_removal(res: FitResult, pred: Prediction, effect: str, est: Sequence[F
         return Removal(effect, True, f"the refit without it is not certified ({reduced.status}): cannot tell, kept")
     lr, p = lr_test(reduced, res, estimation_residuals(res.model, res, est), _degrees_of_freedom(res, effect),
                     null_on_bound(res.model, effect), n_tests)
-    rp = predict_after_fit(reduced, est, val, compile=compile, horizon=pred.horizon)
-    falls = {ch: 1 - pred.nrmse[ch] / rp.nrmse[ch] for ch in rp.nrmse if rp.nrmse[ch] > 0 and ch in pred.nrmse}
-    best = max(falls, key=falls.get) if falls else None
-    gain = 1 - pred.total / rp.total if rp.total > 0 else 0.0
-    out = Removal(effect, False, "", lr, p, reduced, rp)
-    if p >= ALPHA:
-        out.reason = f"not significant once the others are in (LR {lr:.3g}, p = {p:.2g})"
-    elif small:
-        out.reason = f"physically negligible once the others are in: {small}"
-    elif best is None or falls[best] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS:
-        what = f"best channel {best} {-100 * falls[best]:+.1f} %, " if best is not None else ""
-        out.reason = (f"significant (p = {p:.2g}) but not confirmed on validation once the others are in "
-                      f"({what}total {-100 * gain:+.1f} %)")
-    else:
-        out.stands = True
-        out.reason = f"p = {p:.2g}; validation {best} {-100 * falls[best]:+.0f} %"
-    return out
+    if p < ALPHA and not small:
+        return Removal(effect, True, f"LR {lr:.3g}, p = {p:.2g} against the refit without it", lr, p, reduced)
+    why = (f"not significant once the others are in (LR {lr:.3g}, p = {p:.2g})" if p >= ALPHA else
+           f"physically negligible once the others are in: {small}")
+    return Removal(effect, False, why, lr, p, reduced,
+                   predict_after_fit(reduced, est, val, compile=compile, horizon=pred.horizon))
 
 
 def backward_elimination(res: FitResult, pred: Prediction, verdicts: Sequence[tuple[str, int]],
