@@ -141,6 +141,7 @@ def crazyflie_model():
     return QuadrotorModel(airframe_from_dict(airframe_dict(crazyflie())))
 
 
+@pytest.mark.slow
 def test_another_simulators_transport_delay_is_found_and_its_absence_too(crazyflie_model):
     """Another simulator (scipy solve_ivp, its own cascaded controller at 500 Hz) flies a
     30 g vehicle whose motors (5 ms lag) receive each command 40 ms after it is issued and

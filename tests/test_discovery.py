@@ -197,6 +197,7 @@ def test_cannot_tell_without_a_certified_fit(paper, damped):
     assert found == [] and what["status"] == "cannot tell" and "cannot tell" in what["text"]
 
 
+@pytest.mark.slow
 def test_rate_damping_is_discovered_refitted_and_written(paper, damped, tmp_path):
     """-k*omega on every axis: discovered as mx ~ p, my ~ q, mz ~ r with the true -k/J,
     each refitted by the ordinary fitter and confirmed on the validation flight; together

@@ -104,6 +104,7 @@ def test_real_crazyflie_usd_log_gives_a_motor_lag_and_a_propeller_torque_ratio(t
     assert all(h.model[ch][i] < h.naive[ch][i] for ch in ("p", "q", "r"))
 
 
+@pytest.mark.slow
 def test_a_3_kg_vehicles_imu_log_with_attitude_measured_speeds_and_heavy_rotors(tmp_path, capsys):
     """The peer simulator's 3 kg vehicle (15-inch rotors of 3e-4 kg m^2), accelerometer and
     gyro at 400 Hz, the ESCs' measured speeds, the attitude logged but no position: it is an
@@ -178,7 +179,7 @@ def test_commands_sampled_from_a_faster_controller_lead_the_rows_and_the_lag_is_
     _within_3_std(veh, res)
 
 
-@pytest.mark.parametrize("drag", [False, True])
+@pytest.mark.parametrize("drag", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_the_drag_note_follows_the_horizontal_specific_force(drag, tmp_path):
     """The thrust equation lacks the vertical drag; where the accelerometer's horizontal
     channels show a force (drag, in the model) the fit says K_T may carry it, and only there:

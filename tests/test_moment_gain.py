@@ -26,6 +26,7 @@ def test_moment_gain_scales_the_roll_and_pitch_acceleration_of_a_speed_differenc
     assert model.parameter_vector({})[model.param_names.index("k_M")] == 1.0   # null: the airframe's
 
 
+@pytest.mark.slow
 def test_a_vehicle_three_times_as_heavy_in_roll_and_pitch_is_found_with_a_third_of_the_moment():
     """Another simulator (scipy solve_ivp, its own controller) flies a 30 g vehicle whose roll
     and pitch inertia are three times the airframe file's. A process-noise fit with

@@ -469,6 +469,7 @@ def _accel_case(tmp_path, name, seeds=(1,), **kw):
     return paths, flights[0].truth["greybox_equivalent"]
 
 
+@pytest.mark.slow
 def test_accelerometer_bias_of_another_simulator_is_recovered(tmp_path):
     """The peer simulator's IMU reads its specific force plus a bias (0.15, -0.1, 0.2) m/s^2.
     The model with ``accel_bias`` fits it certified and recovers the bias within 3 std, K_T
