@@ -332,10 +332,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         for r in removals:
             k = next(k for k, rd in enumerate(rounds, start=1) if rd.verdict == r.effect)
             later = [rd.verdict for rd in rounds[k:] if rd.verdict and rd.verdict in cur_model.effect_names]
-            warnings.append(f"{r.effect}, the verdict of round {k}, no longer stands once "
-                            f"{', '.join(later) or 'the later verdicts are'} in the model: {r.reason}. It stood in "
-                            f"for part of what {'they explain' if len(later) > 1 else 'that explains'}; the final "
-                            "model leaves it out")
+            others = (f"{', '.join(later)} {'are' if len(later) > 1 else 'is'}" if later else
+                      "the other verdicts are")
+            warnings.append(f"{r.effect}, the verdict of round {k}, no longer stands once {others} in the model: "
+                            f"{r.reason}. It stood in for part of what the others explain; the final model leaves "
+                            "it out")
         gone = {r.effect for r in removals}
         if verdict in gone:
             top = next(c for c in rounds[0].ranking if c.effect == verdict)
