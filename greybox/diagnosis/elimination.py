@@ -55,8 +55,9 @@ class Removal:
     prediction: Prediction | None = None
 
 
-def _effect_free(res: FitResult, effect: str) -> list[str]:
-    return [comp for _, comp, _ in res.model.effect_components(effect) if comp in res.free_names]
+def _effect_free(res: FitResult, effect: str) -> dict[str, float]:
+    """``{component: null value}`` of ``effect``'s free parameter components in ``res``."""
+    return {comp: null for _, comp, null in res.model.effect_components(effect) if comp in res.free_names}
 
 
 def _degrees_of_freedom(res: FitResult, effect: str) -> int:
@@ -73,8 +74,7 @@ def wald_p_value(res: FitResult, effect: str, n_tests: int = 1) -> float:
     if not free:
         return 1.0
     idx = [res.free_names.index(c) for c in free]
-    nulls = {comp: null for _, comp, null in res.model.effect_components(effect)}
-    d = np.array([res.value(c) - nulls[c] for c in free])
+    d = np.array([res.value(c) - null for c, null in free.items()])
     C = res.covariance[np.ix_(idx, idx)]
     try:
         w = float(d @ np.linalg.solve(C, d))
