@@ -88,11 +88,13 @@ def wald_p_value(res: FitResult, effect: str, n_tests: int = 1) -> float:
     return min(1.0, p * n_tests)
 
 
-def fit_without(res: FitResult, effect: str, est: Sequence[FlightLog], compile: str = "auto") -> FitResult:
-    """The fit ``res`` refitted without ``effect``, warm-started at its values, in its
-    formulation (weights, interval, process noise of the states that remain, node states)."""
+def fit_without(res: FitResult, effects: str | Sequence[str], est: Sequence[FlightLog], compile: str = "auto",
+                max_iter: int = 200) -> FitResult:
+    """The fit ``res`` refitted without ``effects`` (one name or several), warm-started at its
+    values, in its formulation (weights, interval, process noise of the states that remain,
+    node states); certified or not, as :attr:`FitResult.converged` says (no warning)."""
     full = res.model
-    reduced = full.without(effect)
+    reduced = full.without(*([effects] if isinstance(effects, str) else effects))
     keep = [full.state_names.index(s) for s in reduced.state_names]
     kw = res.settings()
     kw["initial_states"] = [np.asarray(x)[:, keep] for x in kw["initial_states"]]
@@ -101,7 +103,8 @@ def fit_without(res: FitResult, effect: str, est: Sequence[FlightLog], compile: 
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # judged by the caller: certified or not
         return fit(reduced, est, free=[n for n in res.free_names if n in reduced.param_names],
-                   p0=np.array([res.value(n) for n in reduced.param_names]), compile=compile, max_iter=200, **kw)
+                   p0=np.array([res.value(n) for n in reduced.param_names]), compile=compile, max_iter=max_iter,
+                   **kw)
 
 
 def judge_removal(res: FitResult, pred: Prediction, effect: str, est: Sequence[FlightLog],

@@ -22,7 +22,7 @@ from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency
-from .elimination import backward_elimination
+from .elimination import backward_elimination, fit_without
 from .screening import negligible_effect
 from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
                       rank_round, tie_explanation, validation_ties)
@@ -382,16 +382,12 @@ def _drop_stand_ins(model: QuadrotorModel, res, pred, added: Sequence[str], est:
     stale = [e for e, words in why.items() if words]
     if not stale:
         return model, res, pred
-    reduced = model.without(*stale)
-    if reduced.nx != model.nx:
+    if model.without(*stale).nx != model.nx:
         return model, res, pred
-    with _warnings.catch_warnings():
-        _warnings.simplefilter("ignore", ConvergenceWarning)
-        refit = fit(reduced, est, free=[n for n in res.free_names if n in reduced.param_names],
-                    p0=np.array([res.value(n) for n in reduced.param_names]), compile=compile, max_iter=100,
-                    **res.settings())
+    refit = fit_without(res, stale, est, compile, max_iter=100)
     if not refit.converged:
         return model, res, pred
+    reduced = refit.model
     words = "; ".join(why[e] for e in stale)
     say(f"diagnose: {', '.join(stale)} negligible once the log's timing is in the model ({words}): left out")
     warnings.append(f"{', '.join(stale)}, a verdict of the rounds, {'is' if len(stale) == 1 else 'are'} physically "
