@@ -32,7 +32,6 @@ quadrotor: at 1 kHz decimate first). The held-out 1-s-ahead fit checks the resul
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -89,7 +88,7 @@ class StateSpaceModel:
         over all windows together (MATLAB ``compare`` with a prediction horizon)."""
         du = np.asarray(u, dtype=float) - self.u0
         dy = np.asarray(y, dtype=float) - self.y0
-        n, l = self.order, dy.shape[1]
+        n = self.order
         N = du.shape[0]
         starts = np.arange(init, N - horizon + 1, horizon)
         if starts.size == 0:

@@ -14,7 +14,7 @@ import numpy as np
 from .. import effects as fx
 from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError
-from ..fitting import IF_NEEDED, fit, progress_printer
+from ..fitting import IF_NEEDED, FitResult, fit, progress_printer
 from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
@@ -435,7 +435,7 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
             f"until the next row: each interval is modelled with {name} (the next row's weight s_lead = {s:.3g} "
             f"± {std:.2g}; 0.5 is a signal interpolated linearly between rows), which changes the validation nrmse "
             f"{pred.total:.3f} -> {cand.prediction.total:.3f}. This is the log's timing, not a physical effect: "
-            + (f"the baseline and every candidate below include it" if not against else
+            + ("the baseline and every candidate below include it" if not against else
                f"judged against the model with {', '.join(against)} (against the baseline, far off without "
                f"{'it' if len(against) == 1 else 'them'}, it was not significant), the final model includes it"))
     say(f"diagnose: {note}")

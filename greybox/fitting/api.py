@@ -652,7 +652,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         status = f"{'' if status.startswith('converged') else status + '; '}optimum not certified: {'; '.join(reasons)}"
     converged = not reasons
     t_solve = time.perf_counter() - t0
-    sigma, scale, nth, nx = ses.sigma, ses.scale, ses.nth, ses.nx
+    sigma, scale, nth = ses.sigma, ses.scale, ses.nth
     cch = blocks[4]
     cost = ses.total_cost(X, blocks[0], cch)
     # Reported per free parameter: a parameter fitted per flight by its mean over the flights
