@@ -1,9 +1,16 @@
-from importlib import resources
-from pathlib import Path
+import os
 
-import pytest
+# one BLAS thread per test process: the tests run one worker per CPU (pyproject's addopts),
+# and a worker's BLAS threads on top of them would only fight over the same cores
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from greybox.airframe import airframe_from_dict, load_airframe
+from importlib import resources  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+
+from greybox.airframe import airframe_from_dict, load_airframe  # noqa: E402
 
 AIRFRAMES = Path(str(resources.files("greybox") / "data" / "airframes"))
 

@@ -61,6 +61,7 @@ def test_default_candidates_over_several_flights(base):
     assert "battery_voltage" in default_candidates(base, [a, b])
 
 
+@pytest.mark.slow
 def test_a_trim_that_follows_the_speed_points_at_drag_acting_above_the_centre_of_gravity():
     """On another simulator's flights (tests/foreign_sim.py): a body drag K acting h above
     the CoG needs a thrust-point shift of h K v / (m g) to trim, roll against body-y speed

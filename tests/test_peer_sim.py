@@ -135,6 +135,7 @@ def test_battery_sags_with_current_and_open_loop_motors_follow_its_voltage():
     assert dyn.hover_speed_ratio(v2) == pytest.approx(1.0 + slower[0], rel=1e-12)
 
 
+@pytest.mark.slow
 def test_longer_steps_certify_a_fit_that_full_steps_take_hundreds_of_iterations_to(tmp_path):
     """Gauss-Newton converges linearly on a large-residual fit: a motor lag refitted on a flight
     whose logged commands drive motors that also follow the sagging battery (which the model
@@ -401,6 +402,7 @@ def test_ground_effect_under_turbulence_is_found_with_the_torque_as_a_disturbanc
     assert not d.unexplained
 
 
+@pytest.mark.slow
 def test_disturbance_baseline_takes_a_random_torque_out_of_the_rates(tmp_path):
     """The baseline the diagnosis judges candidates against under turbulence
     (``closed_loop.disturbance_baseline``: a random-walk torque, the only process noise), on
