@@ -3,17 +3,21 @@ verdict that a later one explains away is left out of the final model, and one t
 stands, on the Wald screen and on its refit alike."""
 import pytest
 
-from greybox import QuadrotorModel, load_airframe, load_log
+from greybox import QuadrotorModel, diagnose, load_airframe, load_log
 from greybox.diagnosis import ALPHA
-from greybox.diagnosis import elimination
-from greybox.diagnosis.elimination import backward_elimination, judge_removal, wald_p_value
+from greybox.diagnosis import elimination, workflow
+from greybox.diagnosis.elimination import Removal, backward_elimination, judge_removal, wald_p_value
 from greybox.effects import by_name
 from greybox.fitting import fit
+from greybox.synth import SensorSpec, synthesize
 from greybox.validation import predict_after_fit
+
+from conftest import AIRFRAMES
 
 from peer_sim import PeerBattery, PeerEffects, PeerSensors, PeerVehicle, fly, write_case
 
 N_TESTS = 12     # a round's candidates, as the diagnosis counts them for Bonferroni
+FORCED_DURATION = 10.0
 
 
 @pytest.fixture(scope="module")
@@ -70,3 +74,55 @@ def test_the_battery_that_is_there_stands_on_its_refit_too(drift_beside_battery,
     final, _, removed = backward_elimination(res, pred, [("battery_voltage", N_TESTS), ("thrust_drift", N_TESTS)],
                                              est, val)
     assert removed == [] and set(final.model.effect_names) >= {"battery_voltage", "thrust_drift"}
+
+
+def test_when_round_ones_verdict_no_longer_stands_the_verdict_moves_on(monkeypatch):
+    """The workflow's side of a removal. No foreign flight was found where forward selection
+    takes a stand-in first (the peer's battery wins round 1 over the drift even with a 0.15-V
+    noisy ``vbat``), so the judgement is forced here: round 1's verdict, refitted out for real,
+    is declared not to stand. The final model leaves it out, its ranking entry says why, a
+    warning names the later verdict, and the verdict becomes round 2's in the summary and the
+    JSON alike, with the final fit certified."""
+    paper = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    true = paper + by_name("ground_effect") + by_name("thrust_drift")
+    p = true.default_parameters()
+    p[true.param_names.index("k_ge")] = 1.806e-3
+    p[true.param_names.index("K_T_drift")] = -0.002
+    flight = synthesize(true, p, duration=FORCED_DURATION, seed=3, sensors=SensorSpec(rate=100.0, vision_rate=50.0),
+                        manoeuvres=["hover", "ground", "step_z", "yaw", "step_x", "ground"])
+    real = elimination.judge_removal
+    forced = []
+
+    def judged(res, pred, effect, est, val, n_tests, compile="auto"):
+        r = real(res, pred, effect, est, val, n_tests, compile)
+        if forced or effect != first[0]:
+            return r
+        assert r.fit is not None and r.fit.converged, r.reason     # the Wald screen is off: refitted
+        forced.append(effect)
+        return Removal(effect, False, "forced by the test", r.lr, r.p_value, r.fit,
+                       predict_after_fit(r.fit, est, val, horizon=pred.horizon))
+
+    first = []
+    monkeypatch.setattr(elimination, "WALD_MARGIN", 0.0)
+    monkeypatch.setattr(elimination, "judge_removal", judged)
+    monkeypatch.setattr(workflow, "backward_elimination",
+                        lambda res, pred, verdicts, *a, **k: (first.append(verdicts[0][0]) or
+                                                              elimination.backward_elimination(res, pred, verdicts,
+                                                                                               *a, **k)))
+    d = diagnose(paper, flight.log, candidates=["ground_effect", "thrust_drift", "wind"])
+    picks = [rd.verdict for rd in d.rounds if rd.verdict]
+    assert len(picks) == 2 and set(picks) == {"ground_effect", "thrust_drift"}, d.summary()
+    assert forced == [picks[0]]
+    assert d.verdict == picks[1]
+    assert picks[0] not in d.final_model.effect_names and picks[1] in d.final_model.effect_names
+    assert d.final_fit.converged
+    entry = next(c for c in d.ranking if c.effect == picks[0])
+    assert not entry.significant and "backward elimination" in entry.reason
+    significant = [c.significant for c in d.ranking]      # round 1's ranking: what still stands first
+    assert significant == sorted(significant, reverse=True)
+    # the verdict's share is its own round's, measured on what round 1's pick left
+    assert f"verdict: {picks[1]}; it removes" in d.summary() and "that round 2's model" in d.summary()
+    assert any(w.startswith(f"{picks[0]}, the verdict of round 1, no longer stands once {picks[1]} is in the model")
+               for w in d.warnings), d.warnings
+    js = d.as_json()
+    assert js["verdict"] == picks[1] and picks[0] not in js["added"] and picks[1] in js["added"]

@@ -374,8 +374,13 @@ class Diagnosis:
         """The verdict in words: the effect and how much it explains, or why it is null."""
         why = self.null_reason
         if why is None:
-            top = next((c for c in self.ranking if c.effect == self.verdict), None)
+            # the share is measured in the round that admitted the verdict: round 1's, unless
+            # round 1's pick no longer stood once the later ones were in (backward elimination)
+            k, top = next(((k, c) for k, rd in enumerate(self.rounds, start=1) if rd.verdict == self.verdict
+                           for c in rd.ranking if c.effect == self.verdict),
+                          (1, next((c for c in self.ranking if c.effect == self.verdict), None)))
             share = (f"; it removes {100 * top.explained:.0f} % of the residual above the sensor noise"
+                     + (f" that round {k}'s model (with the earlier verdicts) left" if k > 1 else "")
                      if top is not None and top.explained is not None else "")
             return f"{self.verdict}{share}"
         return {"uncertified": "null (cannot tell: the baseline fit is not certified)",
