@@ -431,7 +431,9 @@ def assemble_log(t: np.ndarray, rotor_speeds: np.ndarray, outputs: Mapping[str, 
     """A flight log on one time base ``t`` (s): inputs ``w1..wN`` (rad/s, never missing) and
     the outputs given by name (each (n,), NaN where that sensor has no sample). The required
     outputs ``x, y, z, phi, theta, psi`` are always columns (all NaN when the source has
-    none); ``p, q, r`` are columns when given."""
+    none); ``p, q, r`` are columns when given. Dropouts are filled as a CSV's are
+    (:meth:`~greybox.data.FlightLog.fill_gaps`), so the log in memory is the one its CSV
+    loads as."""
     t = np.asarray(t, dtype=float)
     W = np.asarray(rotor_speeds, dtype=float).reshape(t.size, -1)
     unknown = set(outputs) - set(REQUIRED_OUTPUTS) - set(OPTIONAL_OUTPUTS)
@@ -441,7 +443,7 @@ def assemble_log(t: np.ndarray, rotor_speeds: np.ndarray, outputs: Mapping[str, 
     nan = np.full(t.size, np.nan)
     Y = np.column_stack([np.asarray(outputs.get(n, nan), dtype=float).reshape(t.size) for n in names])
     return FlightLog(t, W, input_names or [f"w{i + 1}" for i in range(W.shape[1])], Y, names,
-                     dict(extras or {}), list(notes or []), source)
+                     dict(extras or {}), list(notes or []), source).fill_gaps()
 
 
 # ------------------------------------------------------------------------ result
