@@ -317,7 +317,9 @@ def test_cli_px4_sample_with_airframe(tmp_path, capsys):
     # the log in memory is the one its CSV loads as: the sample's dropouts (up to 61 ms in a
     # 4-ms log) filled with held-input rows in both
     from greybox.io import import_px4
-    mem = import_px4(ULG, keep_ground=True, pwm_map=(0.9, -850)).log
+    imp = import_px4(ULG, keep_ground=True, pwm_map=(0.9, -850))
+    mem = imp.log
+    assert any("gap(s) longer than 3 median steps" in n for n in imp.notes)    # printed by the CLI
     assert len(mem) == len(log) > 17079 and np.allclose(mem.t, log.t, rtol=0, atol=1e-6)
     assert np.diff(mem.t).max() < 3.01 * np.median(np.diff(mem.t))
     assert any("gap(s) longer than 3 median steps" in n for n in mem.notes)

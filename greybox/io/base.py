@@ -433,7 +433,7 @@ def assemble_log(t: np.ndarray, rotor_speeds: np.ndarray, outputs: Mapping[str, 
     outputs ``x, y, z, phi, theta, psi`` are always columns (all NaN when the source has
     none); ``p, q, r`` are columns when given. Dropouts are filled as a CSV's are
     (:meth:`~greybox.data.FlightLog.fill_gaps`), so the log in memory is the one its CSV
-    loads as."""
+    loads as; the note that says so is added to ``notes`` too (an importer's notes)."""
     t = np.asarray(t, dtype=float)
     W = np.asarray(rotor_speeds, dtype=float).reshape(t.size, -1)
     unknown = set(outputs) - set(REQUIRED_OUTPUTS) - set(OPTIONAL_OUTPUTS)
@@ -442,8 +442,11 @@ def assemble_log(t: np.ndarray, rotor_speeds: np.ndarray, outputs: Mapping[str, 
     names = REQUIRED_OUTPUTS + [n for n in OPTIONAL_OUTPUTS if n in outputs]
     nan = np.full(t.size, np.nan)
     Y = np.column_stack([np.asarray(outputs.get(n, nan), dtype=float).reshape(t.size) for n in names])
-    return FlightLog(t, W, input_names or [f"w{i + 1}" for i in range(W.shape[1])], Y, names,
-                     dict(extras or {}), list(notes or []), source).fill_gaps()
+    log = FlightLog(t, W, input_names or [f"w{i + 1}" for i in range(W.shape[1])], Y, names,
+                    dict(extras or {}), list(notes or []), source).fill_gaps()
+    if notes is not None:
+        notes.extend(log.notes[len(notes):])
+    return log
 
 
 # ------------------------------------------------------------------------ result
