@@ -7,10 +7,9 @@ that drifts in time standing in for a battery that sags), and once the later eff
 it explains nothing more. Each earlier verdict is therefore judged again against the final
 model less itself, by the test that admitted it: likelihood ratio (Bonferroni over its round's
 candidates) and effect size; its confirmation on the validation data stays its round's. A
-cheap Wald screen on the
-final fit comes first: a verdict whose parameters are still far from their null values there
-(:data:`WALD_MARGIN`) and not physically negligible stands without a refit; every other is
-refitted out of the model.
+cheap Wald screen on the final fit comes first: a verdict whose parameters are still far from
+their null values there (:data:`WALD_MARGIN`) and not physically negligible stands without a
+refit; every other is refitted out of the model.
 """
 from __future__ import annotations
 
