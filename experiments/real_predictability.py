@@ -17,11 +17,22 @@ naive predictor), is regressed on the same double integral of:
   observer's estimate of everything the commands do not show, held over the window) and
   predicts only what the change of the commands adds to it.
 
+Two one-input forms of the mixer's command ``u`` (the roll, pitch or yaw combination of the
+four ``w_i^2``) ask *how* the commands carry what they carry:
+
+- **plant form**: ``k u`` delayed by 0-100 ms or through a first-order lag of 20-200 ms, and
+  a trim (the best of these) — the form of every torque model a plant has; its gain is
+  printed as a share of the published one (roll, pitch: ``arm/sqrt(2) K_T / J``, ``K_T``
+  from the hover speed) or, for yaw, as the ``b/K_T`` it implies (m);
+- **command change**: ``k (u[t-1] - u[t])`` and a trim — the angular acceleration following
+  the command's *change* with the opposite sign, i.e. the logged command read as the rate
+  loop's answer (``u ~ -K omega``: the command moves as the measured rate does). A free fit of
+  lags 0 and 1 lands on equal and opposite gains on every flight.
+
 The regression is fitted on the first half of the flight and scored on the second (held
 out). Its held-out RMS is what the best such model could reach; when it is not below the
-naive predictor's, no model driven by these inputs beats the naive predictor on that axis —
-the logged PWM (a snapshot at ~85 Hz of a 500 Hz controller's output) does not carry the
-torque the vehicle felt. Writes ``experiments/out/real_predictability.md``.
+naive predictor's, no model driven by these inputs beats the naive predictor on that axis.
+Writes ``experiments/out/real_predictability.md``.
 """
 from __future__ import annotations
 
@@ -29,6 +40,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from scipy.signal import lfilter
 
 from greybox.importers import import_nanobench
 from greybox.model import rotation_matrices
@@ -37,12 +49,22 @@ from real_crazyflie import nanobench_files  # the sibling script: how flights ar
 
 HERE = Path(__file__).resolve().parent
 LAGS = range(0, 11, 2)
+# Crazyflie constants of the imported airframe (greybox.io.nanobench): mass, inertia, arm
+MASS, INERTIA, ARM, G = 0.030, (1.395e-5, 1.436e-5, 2.173e-5), 0.046, 9.81
+# the mixer's roll, pitch and yaw combinations of w1..w4 (M1 front-right, M2 back-right,
+# M3 back-left, M4 front-left; M1/M3 spin +1): torque about +x, +y, +z in FRD
+MIXER = np.array([[-1.0, -1.0, 1.0, 1.0], [1.0, -1.0, -1.0, 1.0], [1.0, -1.0, 1.0, -1.0]])
+DELAYS = range(0, 11)                       # samples (10 ms each): 0-100 ms
+LAG_TIMES = (0.02, 0.05, 0.1, 0.2)          # s
 
 
-def bound(path: Path, horizon: float) -> dict[str, tuple[float, float, float, float]]:
+def bound(path: Path, horizon: float) -> dict[str, tuple]:
     """{axis: (naive RMS, best w^2-linear RMS, best w^2+v_b+omega RMS, best Δw^2 RMS with the
-    start's torque held)} in rad, held out."""
-    log = import_nanobench(path).log
+    start's torque held, plant form RMS, its gain (share of the published, or b/K_T in m for
+    yaw), its delay or lag (str), command-change RMS, its gain (same units))} in rad, held
+    out."""
+    imported = import_nanobench(path)
+    log = imported.log
     dt = float(np.median(np.diff(log.t)))
     H = int(round(horizon / dt))
     om = np.column_stack([log.output(c) for c in "pqr"])
@@ -71,17 +93,35 @@ def bound(path: Path, horizon: float) -> dict[str, tuple[float, float, float, fl
     # the double integral of x(t) - x(start): the start's torque is held, only changes add
     held = np.concatenate([double_integral(x) - 0.5 * H * (H + 1) * dt ** 2 * x[idx] for x in lagged], axis=1)
     half = len(idx) // 2
+
+    def held_out(X: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
+        scale = np.maximum(np.abs(X[:half]).max(axis=0), 1e-300)
+        coef, *_ = np.linalg.lstsq(X[:half] / scale, y[:half], rcond=None)
+        r = y[half:] - (X[half:] / scale) @ coef
+        return float(np.sqrt(np.mean(r ** 2))), coef / scale
+
+    trim = double_integral(ones)
+    k_t = MASS * G / (4 * imported.hover_rotor_speed ** 2)
+    published = [ARM / np.sqrt(2) * k_t / INERTIA[0], ARM / np.sqrt(2) * k_t / INERTIA[1],
+                 k_t / INERTIA[2]]   # yaw: per unit b/K_T
     out = {}
     for a, axis in enumerate(("roll", "pitch", "yaw")):
         y = y_all[:, a]
         naive = float(np.sqrt(np.mean(y[half:] ** 2)))
         best = []
         for X in [double_integral(np.concatenate(feats, axis=1)) for feats in sets] + [held]:
-            scale = np.maximum(np.abs(X[:half]).max(axis=0), 1e-300)
-            coef, *_ = np.linalg.lstsq(X[:half] / scale, y[:half], rcond=None)
-            r = y[half:] - (X[half:] / scale) @ coef
-            best.append(float(np.sqrt(np.mean(r ** 2))))
-        out[axis] = (naive, *best)
+            best.append(held_out(X, y)[0])
+        u = w2 @ MIXER[a]
+        shaped = [(np.roll(u, d), f"{10 * d} ms delay") for d in DELAYS]
+        shaped += [(lfilter([dt / (T + dt)], [1.0, -T / (T + dt)], u, zi=[T / (T + dt) * u[0]])[0],
+                    f"{1000 * T:.0f} ms lag") for T in LAG_TIMES]
+        fits = [(held_out(np.column_stack([double_integral(x[:, None]), trim]), y), how)
+                for x, how in shaped]
+        (plant_rms, plant_coef), how = min(fits, key=lambda f: f[0][0])
+        change_rms, change_coef = held_out(
+            np.column_stack([double_integral((np.roll(u, 1) - u)[:, None]), trim]), y)
+        out[axis] = (naive, *best, plant_rms, plant_coef[0] / published[a], how,
+                     change_rms, change_coef[0] / published[a])
     return out
 
 
@@ -92,13 +132,20 @@ def main() -> None:
     a = ap.parse_args()
     files = nanobench_files(a.files)
     lines = ["| flight | horizon | axis | naive (rad) | best linear in w² (rad) | + v_b, ω (rad) "
-             "| Δw², start's torque held (rad) |",
-             "|---|---|---|---|---|---|---|"]
+             "| Δw², start's torque held (rad) | plant form: / naive, gain, timing "
+             "| command change: / naive, gain |",
+             "|---|---|---|---|---|---|---|---|---|"]
+
+    def gain(axis: str, k: float) -> str:
+        return f"b/K_T {k:.4f} m" if axis == "yaw" else f"{k:.3f}"
+
     for f in files:
         for h in (0.25, 0.5):
-            for axis, (nv, *bs) in bound(f, h).items():
+            for axis, (nv, *bs, plant, k_plant, how, change, k_change) in bound(f, h).items():
                 lines.append(f"| {f.stem} | {h:g} s | {axis} | {nv:.4f} | " +
-                             " | ".join(f"{b:.4f} ({100 * (b / nv - 1):+.0f} %)" for b in bs) + " |")
+                             " | ".join(f"{b:.4f} ({100 * (b / nv - 1):+.0f} %)" for b in bs) +
+                             f" | {plant / nv:.2f}, {gain(axis, k_plant)}, {how}"
+                             f" | {change / nv:.2f}, {gain(axis, k_change)} |")
         print("\n".join(lines[-6:]), flush=True)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text("\n".join(lines) + "\n")
