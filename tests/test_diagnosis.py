@@ -76,6 +76,13 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert first["effect"] == "yaw_torque" and first["significant"] is True
     assert first["nrmse_after"] < first["nrmse_before"]
     assert {c["effect"] for c in r["ranking"]} == {"yaw_torque", "attitude_bias"}
+    # nothing acts on this flight that the log does not show: the commands' torque shows in the
+    # attitude (diagnosis.predictability), far better than the naive predictor
+    cp = r["command_predictability"]
+    assert cp["horizons"] == [0.25, 0.5]
+    for axis in ("roll", "pitch"):
+        a = cp["axes"][axis]
+        assert a["torque_hidden"] == [False, False] and a["plant"][0] < 0.5 * a["naive"][0], cp
     html = (tmp_path / "rep" / "report.html").read_text()
     assert "data:image/png;base64," in html and "yaw_torque" in html and "0.5 s ahead" in html
     # the summary names the positions and angles where the final model beats the naive

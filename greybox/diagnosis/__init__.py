@@ -53,7 +53,8 @@ from __future__ import annotations
 # residuals, regimes, command imbalance), ``screening`` (a candidate's score statistic and
 # refit, and the statistics a refit is judged by), ``ranking`` (one round over the
 # candidates), ``closed_loop`` (a torque taken as a disturbance: b's closed-loop bias, the
-# baseline under turbulence), ``consistency`` (the baseline on the two halves of the data), ``discovery``
+# baseline under turbulence), ``predictability`` (whether the logged commands' torque shows in
+# the attitude at all, data only), ``consistency`` (the baseline on the two halves of the data), ``discovery``
 # (residual forces beyond the catalogue, step 5), ``elimination`` (each verdict judged again
 # in the final model), ``results`` (Diagnosis, its JSON and
 # summary), ``report`` (the HTML report) and ``workflow`` (:func:`diagnose`).
@@ -62,6 +63,7 @@ from .analysis import IMBALANCE_NOTABLE, CommandImbalance, Finding, command_imba
 from .closed_loop import TIGHT_PROCESS_NOISE
 from .consistency import CONSISTENCY_MIN_CHANGE, CONSISTENCY_Z
 from .discovery import MAX_THRUST_SHIFT
+from .predictability import CommandPredictability, command_predictability
 from .ranking import (ALPHA, COLD_CONTINUE, COLD_SCREEN_ITER, MAX_VALIDATION_LOSS, MIN_EXPLAINED, MIN_EXPLAINED_INADEQUATE,
                       MIN_VALIDATION_GAIN, N_REFIT, PARTNER_SCORE_SHARE, default_candidates, order_refitted,
                       validation_ties)
@@ -72,4 +74,5 @@ from .workflow import UNEXPLAINED_RATIO, diagnose, distinguishing_manoeuvre
 __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
            "MIN_VALIDATION_GAIN", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "distinguishing_manoeuvre",
            "CommandImbalance", "command_imbalance", "default_candidates", "Discovered", "DiscoveredTerm",
-           "order_refitted", "validation_ties", "PARTNER_SCORE_SHARE", "MAX_THRUST_SHIFT"]
+           "order_refitted", "validation_ties", "PARTNER_SCORE_SHARE", "MAX_THRUST_SHIFT",
+           "CommandPredictability", "command_predictability"]

@@ -38,6 +38,7 @@ def write_report(d: "Diagnosis", out: Path) -> Path:  # noqa: F821 - Diagnosis: 
     img = lambda k: f'<img src="data:image/png;base64,{images[k]}"/>' if k in images else ""
     imbalance = (f"<li>{esc(d.command_imbalance.text())}</li>"
                  if d.command_imbalance is not None and d.command_imbalance.notable else "")
+    horizons = "".join(f"<p>{esc(line.strip())}</p>" for line in d.horizon_lines())
     param_rows = "".join(
         f"<tr><td>{esc(n)}</td><td>{v['value']:.6g}</td>"
         f"<td>{'fixed' if v['std'] is None else format(v['std'], '.3g')}</td></tr>"
@@ -62,7 +63,7 @@ td,th{{border:1px solid #ccc;padding:3px 8px}}img{{max-width:100%}}</style></hea
 <h2>3. Which effect is missing</h2><table><tr><th>effect</th><th>significant</th><th>score</th><th>LR</th>
 <th>p</th><th>nrmse before</th><th>nrmse after</th><th>why</th></tr>{rows}</table>{img('ranking')}
 <h2>4. Added, and the error falls</h2>
-<table><tr><th>channel</th><th>before</th><th>after</th><th>change</th></tr>{chan_rows}</table>{img('compare_after')}
+<table><tr><th>channel</th><th>before</th><th>after</th><th>change</th></tr>{chan_rows}</table>{horizons}{img('compare_after')}
 {discovery}
 <h2>Fitted parameters of the final model</h2><table><tr><th>parameter</th><th>value</th><th>std</th></tr>{param_rows}</table>
 <h2>Warnings</h2><ul>{''.join(f'<li>{esc(w)}</li>' for w in d.warnings) or '<li>none</li>'}</ul>

@@ -19,6 +19,7 @@ from ..residuals import ANGLE_OF_RATE, AttitudeMotion
 from ..validation import HorizonErrors, Prediction
 from .analysis import CommandImbalance, Finding
 from .closed_loop import rate_levels
+from .predictability import ANGLE_OF_AXIS, CommandPredictability
 
 UNEXPLAINED_RATIO = 3.0
 """With a null verdict, channels whose residual RMS stays above this multiple of the sensor
@@ -232,6 +233,9 @@ class Diagnosis:
     # whether the final fit's attitude and rate residuals are motion (residuals.attitude_motion),
     # computed when some of those channels are unexplained
     attitude_motion: dict[str, AttitudeMotion] = field(default_factory=dict)
+    # whether the logged commands' roll and pitch torque shows in the attitude (data only;
+    # diagnosis.predictability), None where it cannot be told (no gyro, not rotor speeds)
+    command_predictability: "CommandPredictability | None" = None
 
     def motion_verdicts(self) -> dict[str, str]:
         """Per unexplained attitude or rate channel whose residual the gyro-attitude comparison
@@ -290,6 +294,8 @@ class Diagnosis:
                                    for ch, m in self.attitude_motion.items()},
                "unexplained_motion": self.motion_verdicts(),
                "command_imbalance": self.command_imbalance.as_dict() if self.command_imbalance else None,
+               "command_predictability": (self.command_predictability.as_dict()
+                                          if self.command_predictability else None),
                "inconsistent_parameters": {n: {"first_half": a, "first_half_std": sa, "second_half": b,
                                                "second_half_std": sb}
                                            for n, (a, sa, b, sb) in self.inconsistent.items()}}
@@ -447,12 +453,12 @@ class Diagnosis:
             # the value above is the mean over the flights, which none of them may have had
             lines.append(f"   {n} per flight (the mean above): " + ", ".join(
                 f"{x:.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "") for x, s in zip(v["value"], v["std"])))
-        lines += self._horizon_lines()
+        lines += self.horizon_lines()
         lines += self._discovery_lines()
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
-    def _horizon_lines(self) -> list[str]:
+    def horizon_lines(self) -> list[str]:
         """The final model against the naive predictor at 0.25 and 0.5 s, and how its windows
         started when a moment was held (validation.choose_horizon_predictor)."""
         he = self.final_horizons
@@ -469,7 +475,25 @@ class Diagnosis:
         held = he.predictor.get("held_moment")
         return ["   beats the naive predictor (constant velocity and body rates) on " + "; ".join(beats) +
                 (f" (its windows hold a roll and pitch moment estimated with the start state over "
-                 f"{he.predictor['init_window']:g} s: it predicts the estimation data better so)" if held else "")]
+                 f"{he.predictor['init_window']:g} s: it predicts the estimation data better so)" if held else "")] + \
+            ([f"   why not on attitude: {self.horizon_why()}"] if self.horizon_why() else [])
+
+    def horizon_why(self) -> str:
+        """Why the final model loses to the naive predictor on roll or pitch, when the log says
+        (:class:`~greybox.diagnosis.predictability.CommandPredictability`): the commands' torque
+        does not show in the attitude at the first horizon (0.25, then 0.5 s) where the model
+        loses on an angle whose torque is hidden; "" otherwise."""
+        he, cp = self.final_horizons, self.command_predictability
+        if he is None or cp is None:
+            return ""
+        for h in (0.25, 0.5):
+            if not any(abs(x - h) < 1e-9 for x in he.horizons) or not any(abs(x - h) < 1e-9 for x in cp.horizons):
+                continue
+            losing = [ch for ch in ("phi", "theta") if ch in he.model and not he.beats_naive(ch, h)]
+            hidden = {ANGLE_OF_AXIS[a] for a in cp.hidden_axes(h)}
+            if set(losing) & hidden:
+                return cp.text(h, losing=losing)
+        return ""
 
     @property
     def best_discovery(self) -> Discovered | None:

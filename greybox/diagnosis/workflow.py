@@ -20,6 +20,7 @@ from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
+from .predictability import command_predictability
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency
 from .elimination import backward_elimination, fit_without
@@ -353,13 +354,18 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     yaw = closed_loop_yaw(cur_res, est, baseline=res, halves_disagree="b" in inconsistent, compile=compile, say=say)
     if yaw.words:
         warnings.append(yaw.words)
+    # whether the logged commands' torque shows in the attitude at all (data only): why a model of
+    # the vehicle may lose to the naive attitude predictor whatever its parameters
+    predictability = command_predictability(model, logs + (val if validation is not None else []),
+                                            k_t=res.value("K_T") if "K_T" in res.free_names else None)
     diag = Diagnosis(model, res, pred, findings, white, incorr, rounds[0].ranking if rounds else [], verdict,
                      warnings, rounds, cur_model, cur_res, cur_pred, E, regimes, est[0],
                      validation_source=_validation_source(validation, split, len(est), horizon), unexplained=unexplained,
                      unexplained_gaps=unexplained_gaps,
                      inconsistent=inconsistent, command_imbalance=imbalance,
                      discovered=discovered, discovery=discovery_note, outside_catalogue=outside,
-                     input_timing=timing, closed_loop_fit=yaw.fit, attitude_motion=motion)
+                     input_timing=timing, closed_loop_fit=yaw.fit, attitude_motion=motion,
+                     command_predictability=predictability)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile, est=est)
