@@ -24,7 +24,9 @@ The workflow (:func:`diagnose`):
    value is on a bound), Bonferroni-corrected over the candidates. A candidate is
    *significant* when that test passes at 1 % **and** some channel's validation ``nrmse``
    falls by at least 5 % (out-of-sample confirmation). The verdict is the best significant candidate,
-   or ``None``.
+   or ``None``. When the logged rotor speeds carry notable white noise, the verdict-to-be is
+   first extrapolated to noise-free speeds (SIMEX, :mod:`greybox.diagnosis.input_noise`): one
+   that is then at its null was the errors in the inputs, and the next is asked.
 4. **Add it and watch the error fall.** With ``iterate=True`` the verdict is added, the
    model refitted and the remaining candidates screened again, until nothing significant
    is missing. Candidates that were significant alone but explain nothing once the winner
@@ -54,7 +56,8 @@ from __future__ import annotations
 # refit, and the statistics a refit is judged by), ``ranking`` (one round over the
 # candidates), ``closed_loop`` (a torque taken as a disturbance: b's closed-loop bias, the
 # baseline under turbulence), ``predictability`` (whether the logged commands' torque shows in
-# the attitude at all, data only), ``consistency`` (the baseline on the two halves of the data), ``discovery``
+# the attitude at all, data only), ``input_noise`` (noise on the logged speeds: SIMEX),
+# ``consistency`` (the baseline on the two halves of the data), ``discovery``
 # (residual forces beyond the catalogue, step 5), ``elimination`` (each verdict judged again
 # in the final model), ``results`` (Diagnosis, its JSON and
 # summary), ``report`` (the HTML report) and ``workflow`` (:func:`diagnose`).
@@ -63,6 +66,7 @@ from .analysis import IMBALANCE_NOTABLE, CommandImbalance, Finding, command_imba
 from .closed_loop import TIGHT_PROCESS_NOISE
 from .consistency import CONSISTENCY_MIN_CHANGE, CONSISTENCY_Z
 from .discovery import MAX_THRUST_SHIFT
+from .input_noise import InputNoise, SimexCheck, input_noise, simex_check
 from .predictability import CommandPredictability, command_predictability
 from .ranking import (ALPHA, COLD_CONTINUE, COLD_SCREEN_ITER, MAX_VALIDATION_LOSS, MIN_EXPLAINED, MIN_EXPLAINED_INADEQUATE,
                       MIN_VALIDATION_GAIN, N_REFIT, PARTNER_SCORE_SHARE, default_candidates, order_refitted,
@@ -75,4 +79,5 @@ __all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_anal
            "MIN_VALIDATION_GAIN", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "distinguishing_manoeuvre",
            "CommandImbalance", "command_imbalance", "default_candidates", "Discovered", "DiscoveredTerm",
            "order_refitted", "validation_ties", "PARTNER_SCORE_SHARE", "MAX_THRUST_SHIFT",
-           "CommandPredictability", "command_predictability"]
+           "CommandPredictability", "command_predictability", "InputNoise", "input_noise", "SimexCheck",
+           "simex_check"]

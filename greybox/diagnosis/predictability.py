@@ -108,7 +108,7 @@ class CommandPredictability:
             return ""
         k = self._k(horizon)
         parts = [f"{a}: {self.ratio('plant', a, horizon):.2f} of the naive error with "
-                 f"{100 * self.plant_gain[a][k]:.0f} % of the model's torque per command" for a in axes]
+                 f"{int(round(100 * self.plant_gain[a][k]))} % of the model's torque per command" for a in axes]
         changes = [a for a in axes if self.ratio("change", a, horizon) < CHANGE_BETTER]
         said = (f"over {horizon:g} s the logged commands' torque does not show in the "
                 f"{' and '.join(axes)}: a torque linear in them (any delay to 0.1 s or lag to 0.2 s, a trim; "

@@ -19,6 +19,7 @@ from ..model import OUTPUTS, QuadrotorModel
 from ..validation import Prediction
 from .analysis import estimation_residuals
 from .closed_loop import controller_answer
+from .input_noise import input_noise, simex_check
 from .results import UNEXPLAINED_RATIO, CandidateResult
 from .screening import (explained_fraction, held_on_bound, lr_test, negligible_effect, null_on_bound,
                         physically_implausible, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
@@ -385,6 +386,24 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             break
         top.significant = False
         top.reason = f"significant in the fit (p = {top.p_value:.2g}) but {answer}; cannot tell"
+        ordered = order_refitted(refitted)
+    noise = input_noise(model, est)
+    while noise is not None and noise.notable and ordered and ordered[0].significant \
+            and ordered[0].fit is not None and ordered[0].fit.converged:
+        # the round's verdict-to-be, asked whether the noise on the logged speeds gives it
+        # (errors in the inputs: diagnosis.input_noise)
+        top = ordered[0]
+        t0 = time.perf_counter()
+        check = simex_check(top.fit, top.effect, est, noise, compile, alpha=ALPHA / n_tests)
+        if check is None:
+            break
+        say(f"  errors in the inputs: {top.effect} {'stands' if check.stands else 'is what the noise gives'} "
+            f"({time.perf_counter() - t0:.1f} s)")
+        if check.stands:
+            top.reason += f"; {check.text()}"
+            break
+        top.significant = False
+        top.reason = f"significant in the fit (p = {top.p_value:.2g}) but {check.text()}"
         ordered = order_refitted(refitted)
     return ordered + rest
 
