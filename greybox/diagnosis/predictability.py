@@ -41,12 +41,13 @@ AXES = ("roll", "pitch", "yaw")
 ANGLE_OF_AXIS = {"roll": "phi", "pitch": "theta", "yaw": "psi"}
 HARDLY_BETTER = 0.75
 """The plant form predicts hardly better than the naive predictor when its held-out RMS error is
-above this share of the naive one (0.91-1.23 under an unseen torque, 0.04-0.17 without one on
-the peer simulator's vehicles; 0.94-1.02 on the real flights)."""
+above this share of the naive one (0.91-1.23 under an unseen torque the controller cancels,
+0.04-0.40 where the commands' torque shows, on the peer simulator's vehicles; 0.94-1.02 on the
+real flights)."""
 HIDDEN_SHARE = 0.25
 """The plant form's gain, as a share of the model's torque per command, under which the
 commands' torque counts as hidden: a quarter, far from both the 0-10 % of closed loops under an
-unseen torque and the 86-102 % where the torque shows (the peer simulator's 30 g, 1.2 kg and 3 kg
+unseen torque and the 82-102 % where the torque shows (the peer simulator's 30 g, 1.2 kg and 3 kg
 vehicles, calm or under a random torque their manoeuvres outweigh)."""
 CHANGE_BETTER = 0.9
 """The command change is said to predict better when its error is below this share of the naive
