@@ -473,10 +473,11 @@ class Diagnosis:
         if not beats:
             return []
         held = he.predictor.get("held_moment")
+        why = self.horizon_why()
         return ["   beats the naive predictor (constant velocity and body rates) on " + "; ".join(beats) +
                 (f" (its windows hold a roll and pitch moment estimated with the start state over "
                  f"{he.predictor['init_window']:g} s: it predicts the estimation data better so)" if held else "")] + \
-            ([f"   why not on attitude: {self.horizon_why()}"] if self.horizon_why() else [])
+            ([f"   why not on attitude: {why}"] if why else [])
 
     def horizon_why(self) -> str:
         """Why the final model loses to the naive predictor on roll or pitch, when the log says
