@@ -289,3 +289,26 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
     nan = cand("cog_offset", 2, float("nan"), 9e9)
     for order in ([nan, cand("wind", 2, 0.9, 1.0)], [cand("wind", 2, 0.9, 1.0), nan]):
         assert [c.effect for c in order_refitted(order)] == ["wind", "cog_offset"]
+
+
+def test_a_regime_said_once_when_two_variables_are_the_same_numbers():
+    """With the heading held the horizontal speed and the body-frame one are the same numbers:
+    a channel's error following them is said once (the stronger), a different regime still is,
+    and another channel keeps its own (a blind audit read every finding twice)."""
+    from greybox.data import FlightLog
+    from greybox.diagnosis.analysis import _regime_findings
+    from greybox.model import OUTPUTS
+    rng = np.random.default_rng(3)
+    n = 3000
+    t = np.arange(n) * 0.01
+    speed = 1.0 + np.sin(0.3 * t) ** 2
+    height = 1.0 + 0.5 * np.cos(0.7 * t)
+    regimes = {"horizontal speed": speed, "body-frame horizontal speed": speed * (1 + 1e-4 * rng.standard_normal(n)),
+               "height above ground": height}
+    E = rng.standard_normal((n, len(OUTPUTS))) * 0.01
+    E[:, OUTPUTS.index("x")] *= speed ** 3           # x's error grows with the speed
+    E[:, OUTPUTS.index("z")] *= height ** 4          # z's with the height
+    log = FlightLog(t, np.zeros((n, 4)), ["w1", "w2", "w3", "w4"], np.zeros((n, 0)), [])
+    found = [(f.channel, f.variable) for f in _regime_findings(E, log, regimes, 0.3)]
+    assert sum(ch == "x" and "speed" in v for ch, v in found) == 1, found
+    assert ("z", "height above ground") in found, found

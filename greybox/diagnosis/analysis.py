@@ -318,7 +318,34 @@ def _regime_findings(E: np.ndarray, log: FlightLog, regimes: dict[str, np.ndarra
             if np.isfinite(r) and abs(r) >= min_r:
                 out.append(Finding(ch, name, r, regime_sentence(ch, name, r, env[sel][ok], v[sel][ok]),
                                    v[sel][ok], env[sel][ok]))
-    return out
+    return _distinct(out, regimes)
+
+
+SAME_REGIME_R = 0.98
+"""Two regime variables this rank-correlated over the flight are one regime: a channel's error
+is said to follow the stronger only (with the heading held, the horizontal speed and the
+body-frame one are the same numbers, and a blind audit read every finding twice)."""
+
+
+def _distinct(findings: list[Finding], regimes: dict[str, np.ndarray]) -> list[Finding]:
+    """Per channel, the findings strongest first, less those whose regime variable is one
+    already said (:data:`SAME_REGIME_R`), in their original order."""
+    keep: list[Finding] = []
+    for f in sorted(findings, key=lambda f: -abs(f.r)):
+        same = [g for g in keep if g.channel == f.channel and g.variable != f.variable
+                and _same_regime(regimes[g.variable], regimes[f.variable])]
+        if not same:
+            keep.append(f)
+    kept = {id(f) for f in keep}
+    return [f for f in findings if id(f) in kept]
+
+
+def _same_regime(a: np.ndarray, b: np.ndarray) -> bool:
+    ok = np.isfinite(a) & np.isfinite(b)
+    if ok.sum() < 30 or np.ptp(a[ok]) == 0 or np.ptp(b[ok]) == 0:
+        return False
+    sel = np.flatnonzero(ok)[:: max(1, ok.sum() // 4000)]
+    return float(stats.spearmanr(a[sel], b[sel])[0]) >= SAME_REGIME_R
 
 
 def regime_sentence(ch: str, name: str, r: float, env: np.ndarray, v: np.ndarray) -> str:
