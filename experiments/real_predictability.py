@@ -39,30 +39,28 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-from scipy.signal import lfilter
+import tomllib
 
-from greybox.importers import import_nanobench
+import numpy as np
+
+from greybox import QuadrotorModel
+from greybox.airframe import airframe_from_dict
+from greybox.diagnosis import command_predictability
+from greybox.importers import crazyflie_airframe_toml, import_nanobench
 from greybox.model import rotation_matrices
 
 from real_crazyflie import nanobench_files  # the sibling script: how flights are named
 
 HERE = Path(__file__).resolve().parent
 LAGS = range(0, 11, 2)
-# Crazyflie constants of the imported airframe (greybox.io.nanobench): mass, inertia, arm
-MASS, INERTIA, ARM, G = 0.030, (1.395e-5, 1.436e-5, 2.173e-5), 0.046, 9.81
-# the mixer's roll, pitch and yaw combinations of w1..w4 (M1 front-right, M2 back-right,
-# M3 back-left, M4 front-left; M1/M3 spin +1): torque about +x, +y, +z in FRD
-MIXER = np.array([[-1.0, -1.0, 1.0, 1.0], [1.0, -1.0, -1.0, 1.0], [1.0, -1.0, 1.0, -1.0]])
-DELAYS = range(0, 11)                       # samples (10 ms each): 0-100 ms
-LAG_TIMES = (0.02, 0.05, 0.1, 0.2)          # s
 
 
 def bound(path: Path, horizon: float) -> dict[str, tuple]:
     """{axis: (naive RMS, best w^2-linear RMS, best w^2+v_b+omega RMS, best Δw^2 RMS with the
-    start's torque held, plant form RMS, its gain (share of the published, or b/K_T in m for
-    yaw), its delay or lag (str), command-change RMS, its gain (same units))} in rad, held
-    out."""
+    start's torque held, plant form RMS over its naive one, its gain (share of the published,
+    or b/K_T in m for yaw), its delay or lag (str), command change RMS over its naive one, its
+    gain (same units))}, RMS in rad, held out; the last five from
+    :func:`greybox.diagnosis.command_predictability`."""
     imported = import_nanobench(path)
     log = imported.log
     dt = float(np.median(np.diff(log.t)))
@@ -100,10 +98,11 @@ def bound(path: Path, horizon: float) -> dict[str, tuple]:
         r = y[half:] - (X[half:] / scale) @ coef
         return float(np.sqrt(np.mean(r ** 2))), coef / scale
 
-    trim = double_integral(ones)
-    k_t = MASS * G / (4 * imported.hover_rotor_speed ** 2)
-    published = [ARM / np.sqrt(2) * k_t / INERTIA[0], ARM / np.sqrt(2) * k_t / INERTIA[1],
-                 k_t / INERTIA[2]]   # yaw: per unit b/K_T
+    # the plant form and the command change: the diagnosis's own check (greybox.diagnosis.
+    # predictability), with the imported airframe's published K_T, inertia and arm
+    model = QuadrotorModel(airframe_from_dict(tomllib.loads(
+        crazyflie_airframe_toml(hover_rotor_speed=imported.hover_rotor_speed))))
+    cp = command_predictability(model, log, horizons=(horizon,))
     out = {}
     for a, axis in enumerate(("roll", "pitch", "yaw")):
         y = y_all[:, a]
@@ -111,17 +110,8 @@ def bound(path: Path, horizon: float) -> dict[str, tuple]:
         best = []
         for X in [double_integral(np.concatenate(feats, axis=1)) for feats in sets] + [held]:
             best.append(held_out(X, y)[0])
-        u = w2 @ MIXER[a]
-        shaped = [(np.roll(u, d), f"{10 * d} ms delay") for d in DELAYS]
-        shaped += [(lfilter([dt / (T + dt)], [1.0, -T / (T + dt)], u, zi=[T / (T + dt) * u[0]])[0],
-                    f"{1000 * T:.0f} ms lag") for T in LAG_TIMES]
-        fits = [(held_out(np.column_stack([double_integral(x[:, None]), trim]), y), how)
-                for x, how in shaped]
-        (plant_rms, plant_coef), how = min(fits, key=lambda f: f[0][0])
-        change_rms, change_coef = held_out(
-            np.column_stack([double_integral((np.roll(u, 1) - u)[:, None]), trim]), y)
-        out[axis] = (naive, *best, plant_rms, plant_coef[0] / published[a], how,
-                     change_rms, change_coef[0] / published[a])
+        out[axis] = (naive, *best, cp.ratio("plant", axis, horizon), cp.plant_gain[axis][0],
+                     cp.plant_timing[axis][0], cp.ratio("change", axis, horizon), cp.change_gain[axis][0])
     return out
 
 
@@ -144,8 +134,8 @@ def main() -> None:
             for axis, (nv, *bs, plant, k_plant, how, change, k_change) in bound(f, h).items():
                 lines.append(f"| {f.stem} | {h:g} s | {axis} | {nv:.4f} | " +
                              " | ".join(f"{b:.4f} ({100 * (b / nv - 1):+.0f} %)" for b in bs) +
-                             f" | {plant / nv:.2f}, {gain(axis, k_plant)}, {how}"
-                             f" | {change / nv:.2f}, {gain(axis, k_change)} |")
+                             f" | {plant:.2f}, {gain(axis, k_plant)}, {how}"
+                             f" | {change:.2f}, {gain(axis, k_change)} |")
         print("\n".join(lines[-6:]), flush=True)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text("\n".join(lines) + "\n")

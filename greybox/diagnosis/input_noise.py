@@ -130,11 +130,9 @@ def simex_check(cand_fit: FitResult, effect: str, logs: Sequence[FlightLog], noi
     (the diagnosis's, per candidate). None when a refit fails or is not certified (then nothing
     is said)."""
     model = cand_fit.model
-    own = [par for par in model.parameters if par.effect == effect]
-    names = [c for par in own for c in par.component_names if c in cand_fit.free_names]
-    if not names:
+    nulls = {comp: null for _, comp, null in model.effect_components(effect) if comp in cand_fit.free_names}
+    if not nulls:
         return None
-    nulls = {c: par.null for par in own for c in par.component_names}
     rng = np.random.default_rng(seed)
     refits: dict[float, list[FitResult]] = {}
     try:
@@ -151,7 +149,7 @@ def simex_check(cand_fit: FitResult, effect: str, logs: Sequence[FlightLog], noi
     z = float(stats.norm.isf(alpha / 2))
     values = {}
     stands = False
-    for n in names:
+    for n in nulls:
         i = cand_fit.free_names.index(n)
         one = cand_fit.value(n)
         draws = [np.array([r.value(n) for r in refits[level]]) for level in LEVELS]
@@ -164,9 +162,9 @@ def simex_check(cand_fit: FitResult, effect: str, logs: Sequence[FlightLog], noi
         mc = sum(g * g * float(np.var(d, ddof=1)) / len(d) for g, d in zip(slope, draws))
         std = float(np.sqrt(float(cand_fit.std[i]) ** 2 + mc))
         values[n] = (one, two, three, zero, std)
-        if not np.isfinite(std) or abs(zero - float(nulls[n])) > z * std:
+        if not np.isfinite(std) or abs(zero - nulls[n]) > z * std:
             stands = True
-    return SimexCheck(effect, noise, values, stands, {n: float(nulls[n]) for n in names})
+    return SimexCheck(effect, noise, values, stands, nulls)
 
 
 def extrapolate(one: float, two: float, three: float) -> float:

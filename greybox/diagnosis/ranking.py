@@ -376,36 +376,48 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     # among them the largest validation improvement (the out-of-sample evidence), then the
     # likelihood ratio
     ordered = order_refitted(refitted)
-    while controller_check and ordered and ordered[0].significant and ordered[0].fit is not None \
-            and ordered[0].fit.converged:
-        # the round's verdict-to-be, asked whether it is the controller's answer (one
-        # disturbance fit, for an effect that scales the commands' moment)
-        top = ordered[0]
-        answer = controller_answer(top.fit, top.effect, est, UNEXPLAINED_RATIO, compile, say)
-        if not answer:
-            break
-        top.significant = False
-        top.reason = f"significant in the fit (p = {top.p_value:.2g}) but {answer}; cannot tell"
-        ordered = order_refitted(refitted)
+    if controller_check:
+        def controllers_answer(top: CandidateResult) -> str:
+            """Whether it is the controller's answer (one disturbance fit, for an effect that
+            scales the commands' moment)."""
+            answer = controller_answer(top.fit, top.effect, est, UNEXPLAINED_RATIO, compile, say)
+            return f"{answer}; cannot tell" if answer else ""
+
+        ordered = _ask_verdict_to_be(ordered, refitted, controllers_answer)
     noise = input_noise(model, est)
-    while noise is not None and noise.notable and ordered and ordered[0].significant \
-            and ordered[0].fit is not None and ordered[0].fit.converged:
-        # the round's verdict-to-be, asked whether the noise on the logged speeds gives it
-        # (errors in the inputs: diagnosis.input_noise)
+    if noise is not None and noise.notable:
+        def noise_gives(top: CandidateResult) -> str:
+            """Whether the noise on the logged speeds gives it (errors in the inputs:
+            diagnosis.input_noise); one that stands says so in its reason."""
+            t0 = time.perf_counter()
+            check = simex_check(top.fit, top.effect, est, noise, compile, alpha=ALPHA / n_tests)
+            if check is None:
+                return ""
+            say(f"  errors in the inputs: {top.effect} {'stands' if check.stands else 'is what the noise gives'} "
+                f"({time.perf_counter() - t0:.1f} s)")
+            if check.stands:
+                top.reason += f"; {check.text()}"
+                return ""
+            return check.text()
+
+        ordered = _ask_verdict_to_be(ordered, refitted, noise_gives)
+    return ordered + rest
+
+
+def _ask_verdict_to_be(ordered: list[CandidateResult], refitted: Sequence[CandidateResult],
+                       refused_because: Callable[[CandidateResult], str]) -> list[CandidateResult]:
+    """Ask the round's verdict-to-be (the first, significant with a certified refit)
+    ``refused_because``; while it answers with words, refuse it with them and ask the next.
+    Returns the candidates in their new order."""
+    while ordered and ordered[0].significant and ordered[0].fit is not None and ordered[0].fit.converged:
         top = ordered[0]
-        t0 = time.perf_counter()
-        check = simex_check(top.fit, top.effect, est, noise, compile, alpha=ALPHA / n_tests)
-        if check is None:
-            break
-        say(f"  errors in the inputs: {top.effect} {'stands' if check.stands else 'is what the noise gives'} "
-            f"({time.perf_counter() - t0:.1f} s)")
-        if check.stands:
-            top.reason += f"; {check.text()}"
+        why = refused_because(top)
+        if not why:
             break
         top.significant = False
-        top.reason = f"significant in the fit (p = {top.p_value:.2g}) but {check.text()}"
+        top.reason = f"significant in the fit (p = {top.p_value:.2g}) but {why}"
         ordered = order_refitted(refitted)
-    return ordered + rest
+    return ordered
 
 
 def order_refitted(refitted: Sequence[CandidateResult]) -> list[CandidateResult]:
