@@ -285,3 +285,22 @@ def test_certificate_says_when_residuals_are_below_the_estimated_noise():
                        residual_over_noise={"p": NOISE_RATIO_BELOW + 0.01}, whiteness={"p": 0.0},
                        sensor_noise={"p": 0.005})
     assert "below the noise" not in just.text() and "residuals at the sensor noise" in just.text()
+
+
+def test_certificate_says_how_far_white_residuals_within_twice_the_noise_are():
+    """White residuals up to twice the noise are adequate, but the words say how far they are
+    instead of "at the sensor noise" (a blind audit read that beside az at 1.92x); below sqrt(2)
+    they are at it."""
+    from greybox.fitting.certificate import Certificate
+
+    cert = Certificate(optimal=True, step_over_std=0.01, state_step_over_noise=0.0, gap_over_noise=0.0, held=[],
+                       residual_over_noise={"x": 1.05, "az": 1.92, "ay": 1.5}, whiteness={"x": 0.0, "az": 0.05, "ay": 0.1},
+                       sensor_noise={"x": 1e-3, "az": 0.05, "ay": 0.05})
+    assert cert.adequate
+    text = cert.text()
+    assert "at the sensor noise" not in text, text
+    assert "within 2x the sensor noise (az 1.92x, ay 1.5x; the others at it)" in text, text
+    at = Certificate(optimal=True, step_over_std=0.01, state_step_over_noise=0.0, gap_over_noise=0.0, held=[],
+                     residual_over_noise={"x": 1.05, "az": 1.3}, whiteness={"x": 0.0, "az": 0.05},
+                     sensor_noise={"x": 1e-3, "az": 0.05})
+    assert "residuals at the sensor noise" in at.text()

@@ -24,7 +24,7 @@ from ..validation import DEFAULT_HORIZON, Prediction, predict_after_fit
 
 __all__ = ["NEGLIGIBLE_FRACTION", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "negligible_effect", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
            "explained_fraction", "screen_jointly", "JOINT_COST_TOLERANCE", "physically_negligible", "physically_implausible", "held_on_bound", "null_on_bound", "precompile_refits", "queue_refit_builds",
-           "HeldBeyondPlausible", "HELD_ITERATIONS"]
+           "HeldBeyondPlausible", "HELD_ITERATIONS", "within_row_timing"]
 
 
 NEGLIGIBLE_FRACTION = 0.01
@@ -527,6 +527,29 @@ def physically_negligible(fr: FitResult, effect: str) -> str:
     if not parts:
         return ""
     return f"{', '.join(parts)} (below {100 * NEGLIGIBLE_FRACTION:.0f} % of a plausible size for this airframe)"
+
+
+def within_row_timing(model: QuadrotorModel, effect: str, values: dict[str, float],
+                      logs: Sequence[FlightLog]) -> str:
+    """Words saying that every lag or delay of ``effect`` (its
+    :attr:`~greybox.effects.Effect.input_timed` parameters, at ``values``) is shorter than half
+    a row of the logged inputs, or "". How the logged values vary within a row (held, or samples
+    of a signal varying between rows: the log's timing) moves a lag by up to half a row (a blind
+    audit's 200 Hz log: tau_m 28.7 ms for 30), so a lag under half a row cannot be told from
+    it: a six-rotor simulator with no lag between its logged speeds and its thrust, speeds
+    logged at 200 Hz with white noise, gave ``motor_lag`` LR 312 and tau_m 1.05 ms with the
+    noise's share extrapolated out (:mod:`~greybox.diagnosis.input_noise`)."""
+    e = next((x for x in model.effects if x.name == effect), None)
+    timed = [n for n in (e.input_timed if e is not None else ()) if n in values]
+    if not timed or not logs:
+        return ""
+    half = 0.5 * float(np.median(np.concatenate([np.diff(lg.t) for lg in logs])))
+    if not all(abs(values[n]) < half for n in timed):
+        return ""
+    said = ", ".join(f"{n} = {1e3 * values[n]:.3g} ms" for n in timed)
+    return (f"{said} is under half a row of the logged inputs ({1e3 * half:.2g} ms), which how the logged values "
+            "vary within a row (the log's timing) moves a lag by: cannot tell it from the log's timing; "
+            "log the inputs faster to measure it")
 
 
 def negligible_effect(fr: FitResult, effect: str, logs: Sequence[FlightLog]) -> str:

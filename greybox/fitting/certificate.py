@@ -129,7 +129,19 @@ class Certificate:
                          " that are not motion (the integrated gyro residuals account for " +
                          ", ".join(f"{100 * self.sensor_error[ch]:.0f} %" for ch in sensor) +
                          " of them): the attitude sensor's own error")
-        tail = "; ".join(parts) or "residuals at the sensor noise"
+        near = {ch: r for ch, r in self.residual_over_noise.items()
+                if ch not in self.off_channels() and r > NOISE_RATIO_COLOURED}
+        if parts:
+            tail = "; ".join(parts)
+        elif near:
+            # white residuals up to NOISE_RATIO_ADEQUATE x the noise are adequate; say how far
+            # they are, not that they are at the noise (a blind audit read "at the sensor noise"
+            # beside az at 1.92x)
+            tail = (f"residuals white and within {NOISE_RATIO_ADEQUATE:.0f}x the sensor noise (" +
+                    ", ".join(f"{ch} {r:.3g}x" for ch, r in sorted(near.items(), key=lambda kv: -kv[1])) +
+                    "; the others at it)")
+        else:
+            tail = "residuals at the sensor noise"
         below = [ch for ch, r in self.residual_over_noise.items() if r < NOISE_RATIO_BELOW]
         if below:
             tail += ("; residuals below the noise estimated from the measurements in " +
