@@ -156,6 +156,28 @@ def test_noise_on_logged_speeds_with_every_default_candidate_is_null(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_cog_offset_with_every_default_candidate_is_all_that_is_added(tmp_path):
+    """A 15, -10 mm CoG offset, 1 % noise on the logged speeds, every default candidate, rounds
+    until nothing stands: cog_offset and nothing else of the catalogue (the log's timing may be
+    taken), its offset within 3 std, K_T and b the vehicle's. On the audit's own flight of this
+    case, round 2 named accel_bias (acc_bias z -0.108 m/s^2 trading with K_T -1.1 %), then, with
+    SIMEX, thrust_curve extrapolated across its null (k_Tw -0.167 -> +0.31 ± 0.03), then a capped
+    motor lag checked by nothing (Kd[2] 20x the truth)."""
+    est, _ = hexa_flight(tmp_path, "cog", 41, 36.0)
+    val, _ = hexa_flight(tmp_path, "cog", 42, 30.0)
+    model = QuadrotorModel(load_airframe(tmp_path / "airframe.toml"))
+    d = diagnose(model, est, validation=val)
+    assert d.verdict == "cog_offset", d.summary()
+    added = [e for e in d.final_model.effect_names if e not in model.effect_names]
+    assert set(added) <= {"cog_offset", "sampled_inputs"}, d.summary()
+    fr = d.final_fit
+    for i, truth in enumerate((0.015, -0.010)):
+        assert fr.value(f"r_cog[{i}]") == pytest.approx(truth, abs=3 * fr.std[fr.free_names.index(f"r_cog[{i}]")])
+    assert fr.value("K_T") == pytest.approx(hexa_sim.KT, rel=0.01)
+    assert fr.value("b") == pytest.approx(hexa_sim.BQ, rel=0.03)
+
+
+@pytest.mark.slow
 def test_a_weak_rotor_stands_with_the_inputs_errors_taken_out(tmp_path):
     """Rotor 3 at 92 % thrust and torque, 1 % noise on the logged speeds: motor_asymmetry is the
     verdict, and the check says it stands with the inputs' errors taken out; rotor 3's deviation
