@@ -84,6 +84,13 @@ CASES = {
     # the same battery with the motors' speeds logged: the voltage changes nothing the log misses
     "cf_battery_speeds_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(battery=PeerBattery()),
                                 25.0, None),
+    # 1 % white noise on the logged ESC speeds (errors in the inputs: the SIMEX check)
+    "1kg_speed_noise": (PeerVehicle.one_kg, PeerEffects(), 20.0, None, {"sensors": PeerSensors(speed_noise=0.01)}),
+    "cf_speed_noise": (PeerVehicle.crazyflie, PeerEffects(), 20.0, None, {"sensors": PeerSensors(speed_noise=0.01)}),
+    "1kg_weak_rotor_speed_noise": (PeerVehicle.one_kg, PeerEffects(motor_gains=[1.0, 1.0, 0.9, 1.0]), 20.0,
+                                   "motor_asymmetry", {"sensors": PeerSensors(speed_noise=0.01)}),
+    "3kg_cog_speed_noise": (PeerVehicle.three_kg, PeerEffects(cog_offset=[0.015, -0.01]), 20.0, "cog_offset",
+                            {"sensors": PeerSensors(speed_noise=0.01)}),
 }
 """name: (vehicle, effects, duration s, what should be named[, options: those of
 ``peer_sim.airframe_text``, and ``sensors``, a ``PeerSensors``]); what should be named: an effect, or a tuple of effects

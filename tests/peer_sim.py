@@ -463,6 +463,7 @@ class PeerSensors:
     accel_noise: float = 0.05
     accel_bias: Sequence[float] | None = None   # m/s^2, added to the logged ax, ay, az
     log_commands: bool = False           # log the controller's speed commands (as a PWM log does), not the ESCs' speeds
+    speed_noise: float = 0.0             # relative white noise on the logged speeds (an ESC's telemetry)
     att_correlation: float = 0.0         # s; > 0: the attitude noise (same RMS) is correlated over this time,
                                          # as an estimator's output is (AR(1) of the same draws)
 
@@ -526,6 +527,9 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
     t_stamp[0] = 0.0
     cols: dict[str, np.ndarray] = {"t": t_stamp}
     w = commands.copy() if sens.log_commands else states[:, 13:17].copy()
+    if sens.speed_noise:
+        # drawn from its own stream: the flight's other noise stays that of the same seed without it
+        w = w * (1 + sens.speed_noise * np.random.default_rng([seed, 7]).standard_normal(w.shape))
     if veh.speed_quantum and not sens.log_commands:
         w = np.round(w / veh.speed_quantum) * veh.speed_quantum
     for i in range(4):
