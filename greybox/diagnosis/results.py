@@ -236,6 +236,10 @@ class Diagnosis:
     # whether the logged commands' roll and pitch torque shows in the attitude (data only;
     # diagnosis.predictability), None where it cannot be told (no gyro, not rotor speeds)
     command_predictability: "CommandPredictability | None" = None
+    # body rates the certified baseline misses far beyond their noise by as much as the noise on
+    # the logged rotor speeds moves them per row (in gyro noises; diagnosis.input_noise): a random
+    # torque that cannot be told from the inputs' noise
+    rates_from_input_noise: dict[str, float] = field(default_factory=dict)
 
     def motion_verdicts(self) -> dict[str, str]:
         """Per unexplained attitude or rate channel whose residual the gyro-attitude comparison
@@ -281,6 +285,7 @@ class Diagnosis:
                "verdict": self.verdict,
                "null_reason": self.null_reason,
                "judged_with_disturbance": self.judged_with_disturbance,
+               "rates_from_input_noise": dict(self.rates_from_input_noise),
                "outside_catalogue": self.outside_catalogue or None,
                "input_timing": _clean(self.input_timing) if self.input_timing else None,
                "findings": [f.text for f in self.findings],
@@ -328,7 +333,9 @@ class Diagnosis:
         """Why the verdict is null: ``"uncertified"`` (the baseline fit is not certified, nothing
         was tested), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
         physics), ``"random_torque"`` (what is missing acts as a random torque, turbulence, which
-        the final model holds as a disturbance), ``"unexplained"`` (residuals far above the noise
+        the final model holds as a disturbance), ``"input_noise"`` (the rates are missed by a
+        random torque that the noise on the logged rotor speeds gives: cannot tell a turbulence
+        from it), ``"unexplained"`` (residuals far above the noise
         that no candidate explains), ``"sensor_error"`` (the residuals far above the noise are
         the attitude sensor's or the gyro's own error, not motion: :meth:`motion_verdicts`),
         ``"small_misfit"`` (the final fit is not at the noise, but within a few times it: too
@@ -341,6 +348,8 @@ class Diagnosis:
             return "outside_catalogue"
         if self.added_disturbance:
             return "random_torque"
+        if self.rates_from_input_noise:
+            return "input_noise"
         if self.unexplained and not self.unexplained_gaps and \
                 set(self.unexplained) == {ch for ch, v in self.motion_verdicts().items() if v == "sensor"}:
             return "sensor_error"
@@ -394,6 +403,10 @@ class Diagnosis:
                 "random_torque": "null -- what the model misses acts as a random torque (turbulence), which no "
                                  "catalogue effect holds: the final model holds it as a disturbance (without it the "
                                  f"rates are {rate_levels(self.baseline)} times their noise)",
+                "input_noise": "null -- the model misses the body rates by a random torque that the noise on the "
+                               "logged rotor speeds gives (it moves " +
+                               ", ".join(f"{s} by {v:.2g}" for s, v in self.rates_from_input_noise.items()) +
+                               " times the gyro's noise per row): cannot tell a turbulence from it",
                 "sensor_error": f"null -- nothing the model misses shows: {self._far_off()}",
                 "unexplained": f"null -- the model is missing something no candidate explains: {self._far_off()}"
                                + (f"; {self.findings[0].text}" if self.findings else ""),

@@ -21,6 +21,7 @@ from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fi
 from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import command_imbalance, residual_analysis
 from .predictability import command_predictability
+from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency
 from .elimination import backward_elimination, fit_without
@@ -197,6 +198,22 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     rounds, cur_model, cur_res, cur_pred = run_rounds(model, res, pred, remaining)
     rates = (rates_missing_a_torque(res, UNEXPLAINED_RATIO)
              if rounds and rounds[0].verdict is None and can_hold_disturbance(res.model) else [])
+    noise = input_noise(model, est) if rates else None
+    moved = rates_moved_by_input_noise(res, est, noise) if noise is not None and noise.notable else {}
+    by_inputs = {s: v for s, v in moved.items() if s in rates and v >= RATE_STEP_NOTABLE}
+    if by_inputs:
+        # white noise on the logged speeds is a random torque on the model: a turbulence
+        # cannot be told from it, and a disturbance fitted to it bends b (the peer simulator's
+        # 30 g vehicle with 1 % speed noise, nothing missing: b -43 %, validation 0.33 -> 0.59)
+        warnings.append(
+            f"{', '.join(rates)} stay far off with every candidate ({rate_levels(res)} times their noise), and the "
+            f"white noise on the logged rotor speeds ({', '.join(f'{v:.3g}' for v in noise.sigma)} rad/s, up to "
+            f"{100 * noise.share:.0f} % of their variance) moves the modelled "
+            + ", ".join(f"{s} by {v:.2g}" for s, v in by_inputs.items()) +
+            " times the gyro's noise per row: a random torque of that size is what the noise on the inputs gives, "
+            "and greybox cannot tell a turbulence from it; the final model is the model as given (log the rotor "
+            "speeds with less noise, or filtered, to tell)")
+        rates = []
     if rates:
         # A random torque no catalogue effect holds (turbulence) leaves the rates far off, and a
         # candidate fed by the commands explains a sliver of it, so none stands; an effect that
@@ -365,7 +382,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      inconsistent=inconsistent, command_imbalance=imbalance,
                      discovered=discovered, discovery=discovery_note, outside_catalogue=outside,
                      input_timing=timing, closed_loop_fit=yaw.fit, attitude_motion=motion,
-                     command_predictability=predictability)
+                     command_predictability=predictability, rates_from_input_noise=by_inputs)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile, est=est)
