@@ -411,9 +411,9 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             # a lag the inputs' errors made longer than half a row may be shorter without them
             short = within_row_timing(top.fit.model, top.effect,
                                       {n: v[3] for n, v in check.values.items()}, est) if check.stands else ""
-            say(f"  errors in the inputs: {top.effect} "
-                f"{'stands' if check.stands and not short else 'is what the noise gives' if not check.stands else 'stands, within a row of the inputs'} "
-                f"({time.perf_counter() - t0:.1f} s)")
+            state = "is what the noise gives" if not check.stands else \
+                "stands, within a row of the inputs" if short else "stands"
+            say(f"  errors in the inputs: {top.effect} {state} ({time.perf_counter() - t0:.1f} s)")
             if short:
                 return f"with the inputs' errors taken out (SIMEX: {check.values_text()}), {short}"
             if check.stands:
