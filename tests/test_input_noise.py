@@ -62,6 +62,21 @@ def test_a_lag_under_half_a_row_of_the_inputs_cannot_be_told_from_the_logs_timin
     assert within_row_timing(curved, "thrust_curve", {"k_Tw": 1e-4}, [log]) == ""
 
 
+def test_a_verdict_the_inputs_noise_check_could_not_judge_says_so(noisy, monkeypatch):
+    """When SIMEX cannot judge the verdict-to-be (one of its noisier refits fails or is not
+    certified), the verdict keeps its place and its reason says the check could not be made."""
+    from greybox.diagnosis import ranking
+
+    model, log, _ = noisy
+    calls = []
+    monkeypatch.setattr(ranking, "simex_check", lambda *a, **k: calls.append(a[1]))
+    d = diagnose(model, log, candidates=["thrust_curve", "moment_gain"], iterate=False, discover=False)
+    # unchecked, the noise's thrust curve or moment gain stands on this 10-s flight
+    assert d.verdict is not None and calls == [d.verdict], (calls, d.summary())
+    top = next(c for c in d.ranking if c.effect == d.verdict)
+    assert "could not be checked" in top.reason, top.reason
+
+
 def test_b_the_disturbance_refit_does_not_move_is_kept(noisy):
     """Nothing missing, noise on the logged speeds: when the halves' b disagree, the refit with a
     disturbance torque leaves b where it was (+0.2 %, 0.1 std), so the words keep the fit's b

@@ -407,6 +407,9 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             t0 = time.perf_counter()
             check = simex_check(top.fit, top.effect, est, noise, compile, alpha=ALPHA / n_tests)
             if check is None:
+                say(f"  errors in the inputs: {top.effect} could not be checked ({time.perf_counter() - t0:.1f} s)")
+                top.reason += ("; whether the noise on the logged speeds gives it could not be checked (a refit "
+                               "with more noise on them failed or was not certified)")
                 return ""
             # a lag the inputs' errors made longer than half a row may be shorter without them
             short = within_row_timing(top.fit.model, top.effect,
