@@ -25,7 +25,7 @@ from .errors import GreyboxInputError
 
 __all__ = ["FlightLog", "load_log", "save_log", "read_csv_table", "read_text_file", "atomic_write", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
-           "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units"]
+           "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "median_row_interval"]
 
 REQUIRED_OUTPUTS = ["x", "y", "z", "phi", "theta", "psi"]
 OPTIONAL_OUTPUTS = ["p", "q", "r", "ax", "ay", "az"]
@@ -424,6 +424,11 @@ def _csv_rows(path: Path, text: str) -> tuple[list[list[str]], list[int]]:
                if "field limit" in str(e) else f"malformed CSV ({e})")
         raise GreyboxInputError(f"{path}: row {start}: {why}") from None
     return rows, lines
+
+
+def median_row_interval(logs: Iterable[FlightLog]) -> float:
+    """The median time between consecutive rows over ``logs``, s."""
+    return float(np.median(np.concatenate([np.diff(lg.t) for lg in logs])))
 
 
 def check_sample_times(t: np.ndarray, where: str, rows: np.ndarray | None = None) -> None:

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from . import codegen
-from .data import FlightLog
+from .data import FlightLog, median_row_interval
 from .errors import GreyboxInputError
 from .integrate import Substeps, integrate_states_along, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
@@ -46,8 +46,7 @@ DEFAULT_INTERVAL_S = 0.05
 
 def default_interval(logs: "Sequence[FlightLog]") -> int:
     """Samples per shooting interval closest to :data:`DEFAULT_INTERVAL_S`."""
-    dt = float(np.median(np.concatenate([np.diff(l.t) for l in logs])))
-    return max(1, int(round(DEFAULT_INTERVAL_S / dt)))
+    return max(1, int(round(DEFAULT_INTERVAL_S / median_row_interval(logs))))
 
 PSI = OUTPUTS.index("psi")
 BACKGROUND_BUILD_AT = 0.5

@@ -33,6 +33,7 @@ import warnings as _warnings
 from dataclasses import dataclass, replace
 from typing import Sequence
 
+import casadi as ca
 import numpy as np
 from scipy import stats
 
@@ -89,19 +90,17 @@ def input_noise(model: QuadrotorModel, logs: Sequence[FlightLog]) -> InputNoise 
 RATE_STEP_NOTABLE = 1.0
 """The noise on the logged speeds moves a modelled body rate by this many times the gyro's noise
 per row or more: a random torque the rates then miss is the inputs' noise as much as anything
-(the peer simulator's 30 g vehicle at 500 Hz with 1 % speed noise: p, q 2.0 per row, the rates
-3x their noise with every candidate, taken for turbulence; the 1.2 kg vehicle 0.5, the audit's
-hexacopter 0.75, their rates at the noise)."""
+(the peer simulator's 30 g vehicle at 500 Hz with 1 % speed noise: p, q 1.4 per row, the rates
+3x their noise with every candidate, taken for turbulence; its 1.2 kg vehicle 0.37, the audit's
+hexacopter 0.54, their rates at the noise)."""
 
 
 def rates_moved_by_input_noise(fr: FitResult, logs: Sequence[FlightLog], noise: InputNoise) -> dict[str, float]:
     """Per body rate (``p, q, r``) the RMS change over one row that the logged speeds' white noise
     gives the model ``fr`` (its rate derivatives' sensitivity to every input column derived from a
     rotor speed, each column's noise independent of the others'), over the gyro's noise (the
-    certificate's, from the measurements). Empty where the rates are not measured or do not
-    follow the inputs directly (a motor lag between them)."""
-    import casadi as ca
-
+    certificate's, from the measurements). Empty where the rates are not measured; 0 for a rate
+    that does not follow the inputs directly (a motor lag between them)."""
     model = fr.model
     cert = fr.certificate
     if cert is None or model.inputs != "rotor_speeds":
@@ -109,11 +108,11 @@ def rates_moved_by_input_noise(fr: FitResult, logs: Sequence[FlightLog], noise: 
     rates = [s for s in ("p", "q", "r") if cert.sensor_noise.get(s, 0.0) > 0]
     if not rates:
         return {}
-    n = model.airframe.n_rotors
-    # each input column's rotor: w3 and w3@next, w3@-10ms carry rotor 3's noise
-    rotor = [int(name.split("@")[0][1:]) - 1 if name.split("@")[0][1:].isdigit() else -1
-             for name in model.input_names]
-    sigma = np.array([noise.sigma[i] if 0 <= i < n else 0.0 for i in rotor])
+    # each input column's noise: w3, w3@next and w3@-10ms carry rotor 3's (steady_input_map:
+    # the column each derived one copies)
+    speeds = model.command_names
+    sigma = model.steady_input_map() @ np.array([noise.sigma[speeds.index(s)] if s in speeds else 0.0
+                                                 for s in model.steady_input_names])
     x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
     p, t = ca.SX.sym("p", model.n_params), ca.SX.sym("t")
     rows = [model.state_names.index(s) for s in rates]

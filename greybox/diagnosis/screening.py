@@ -13,7 +13,7 @@ import numpy as np
 from scipy import stats
 
 from .. import effects as fx
-from ..data import FlightLog
+from ..data import FlightLog, median_row_interval
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import FitResult, FitSession, GaussNewton, fit, per_flight_positions
 from ..integrate import Substeps, integrate_states_along
@@ -543,7 +543,7 @@ def within_row_timing(model: QuadrotorModel, effect: str, values: dict[str, floa
     timed = [n for n in (e.input_timed if e is not None else ()) if n in values]
     if not timed or not logs:
         return ""
-    half = 0.5 * float(np.median(np.concatenate([np.diff(lg.t) for lg in logs])))
+    half = 0.5 * median_row_interval(logs)
     if not all(abs(values[n]) < half for n in timed):
         return ""
     said = ", ".join(f"{n} = {1e3 * values[n]:.3g} ms" for n in timed)

@@ -12,7 +12,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .. import effects as fx
-from ..data import FlightLog
+from ..data import FlightLog, median_row_interval
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import IF_NEEDED, FitResult, fit, progress_printer
 from ..model import QuadrotorModel
@@ -484,7 +484,7 @@ def _timing_caveat(model: QuadrotorModel, fr, est: Sequence[FlightLog], timing_r
     names = [n for e in model.effects for n in e.input_timed if n in fr.free_names]
     if not names:
         return ""
-    half = 0.5 * float(np.median(np.concatenate([np.diff(lg.t) for lg in est])))
+    half = 0.5 * median_row_interval(est)
 
     def ms(f, n):
         return f"{n} = {1e3 * f.value(n):.3g} ± {1e3 * f.std[f.free_names.index(n)]:.2g} ms"

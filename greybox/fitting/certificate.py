@@ -115,8 +115,9 @@ class Certificate:
             head = "optimum NOT certified: " + "; ".join(self.reasons)
         if self.held:
             head += f"; held on a bound: {', '.join(self.held)}"
-        sensor = [ch for ch in self.off_channels() if ch in self.sensor_error]
-        off = [ch for ch in self.off_channels() if ch not in self.sensor_error]
+        off_channels = self.off_channels()
+        sensor = [ch for ch in off_channels if ch in self.sensor_error]
+        off = [ch for ch in off_channels if ch not in self.sensor_error]
         parts = []
         if off:
             parts.append("residuals above the sensor noise in " +
@@ -130,7 +131,7 @@ class Certificate:
                          ", ".join(f"{100 * self.sensor_error[ch]:.0f} %" for ch in sensor) +
                          " of them): the attitude sensor's own error")
         near = {ch: r for ch, r in self.residual_over_noise.items()
-                if ch not in self.off_channels() and r > NOISE_RATIO_COLOURED}
+                if ch not in off_channels and r > NOISE_RATIO_COLOURED}
         if parts:
             tail = "; ".join(parts)
         elif near:
