@@ -33,13 +33,13 @@ import warnings as _warnings
 from dataclasses import dataclass, replace
 from typing import Sequence
 
-import casadi as ca
 import numpy as np
 from scipy import stats
 
 from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxError
 from ..fitting import FitResult, fit
+from ..fitting.input_errors import INPUT_NOISE_SHARE, state_steps
 from ..model import QuadrotorModel
 from ..shooting import estimate_noise
 
@@ -47,10 +47,9 @@ __all__ = ["InputNoise", "input_noise", "SimexCheck", "simex_check", "extrapolat
            "rates_moved_by_input_noise", "RATE_STEP_NOTABLE", "NOISE_SHARE_NOTABLE",
            "DRAWS", "LEVELS"]
 
-NOISE_SHARE_NOTABLE = 0.01
+NOISE_SHARE_NOTABLE = INPUT_NOISE_SHARE
 """Share of a logged rotor speed's variance that is white noise from which the inputs' errors
-are checked for (the real NanoBench flights' PWM-derived speeds: 0.01-0.6 %; 1 % ESC telemetry
-noise on a hexacopter: 7-12 %)."""
+are checked for (the fit's own floor of process noise counts from the same share)."""
 DRAWS = 2
 """Noise draws averaged per noise level."""
 LEVELS = (2.0, 3.0)
@@ -108,26 +107,17 @@ def rates_moved_by_input_noise(fr: FitResult, logs: Sequence[FlightLog], noise: 
     rates = [s for s in ("p", "q", "r") if cert.sensor_noise.get(s, 0.0) > 0]
     if not rates:
         return {}
-    # each input column's noise: w3, w3@next and w3@-10ms carry rotor 3's (steady_input_map:
-    # the column each derived one copies)
+    # each steady input's noise: the rotor speeds' (w3@next, w3@-10ms carry rotor 3's: state_steps)
     speeds = model.command_names
-    sigma = model.steady_input_map() @ np.array([noise.sigma[speeds.index(s)] if s in speeds else 0.0
-                                                 for s in model.steady_input_names])
-    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
-    p, t = ca.SX.sym("p", model.n_params), ca.SX.sym("t")
+    sigma = np.array([noise.sigma[speeds.index(s)] if s in speeds else 0.0 for s in model.steady_input_names])
     rows = [model.state_names.index(s) for s in rates]
-    jac = ca.Function("rate_input_sensitivity", [x, u, p, t], [ca.jacobian(model.rhs(x, u, p, t)[rows], u)])
-    x0 = model.initial_state()
-    steps = []
+    steps, weights = [], []
     for log in logs:
         prepared = model.prepare_log(log)
-        dt = np.diff(prepared.t)
         idx = np.unique(np.linspace(0, len(prepared) - 2, min(400, len(prepared) - 1)).astype(int))
-        J = jac.map(idx.size)(np.repeat(np.asarray(x0).reshape(-1, 1), idx.size, axis=1), prepared.inputs[idx].T,
-                              np.repeat(fr.p.reshape(-1, 1), idx.size, axis=1), prepared.t[idx].reshape(1, -1))
-        J = np.asarray(J).reshape(len(rows), model.nu, idx.size, order="F")
-        steps.append(np.sqrt(np.einsum("rck,c->rk", J ** 2, sigma ** 2)) * dt[idx])
-    step = np.sqrt(np.mean(np.concatenate(steps, axis=1) ** 2, axis=1))
+        steps.append(state_steps(model, prepared, fr.p, sigma, idx)[rows])
+        weights.append(idx.size)
+    step = np.sqrt(np.average(np.square(steps), axis=0, weights=weights))
     return {s: float(step[k] / cert.sensor_noise[s]) for k, s in enumerate(rates)}
 
 

@@ -7,6 +7,8 @@
   as solvers see it;
 * :class:`Certificate` (:mod:`greybox.fitting.certificate`) — whether the end point is the
   optimum and the model adequate;
+* :mod:`greybox.fitting.input_errors` — the process noise that white noise on the logged
+  inputs gives the states (a soft fit's floor);
 * :class:`GreyBoxEstimator` (:mod:`greybox.fitting.estimator`) — scikit-learn's contract;
 * :func:`fit_imu` (:mod:`greybox.fitting.imu`) — what a log of the IMU and the rotor commands
   alone identifies (no position, no attitude): thrust, yaw torque, motor lag, torque gains.

@@ -1,0 +1,150 @@
+"""Errors in the inputs: white noise on the logged inputs (an ESC's speed telemetry) as the fit
+sees it. The model is fed the logged values, so their noise is a random force and torque at
+every row that the states integrate: a process noise the data fix before any fit, from the
+inputs' high-frequency content and the model's sensitivity to them.
+
+* :func:`input_column_noise` — each steady input's white-noise level and share of its variance;
+* :func:`state_steps` — the RMS change over one row that this noise gives each state;
+* :func:`input_noise_process_scale` — the same over one shooting interval: the floor of a
+  soft fit's process noise (:func:`greybox.fitting.fit`).
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+
+from ..data import FlightLog
+from ..model import QuadrotorModel
+from ..shooting import estimate_noise
+
+__all__ = ["INPUT_NOISE_SHARE", "input_column_noise", "followed_share", "state_steps",
+           "input_noise_process_scale"]
+
+INPUT_NOISE_SHARE = 0.01
+"""Share of a logged input's variance that is white noise from which that noise counts: below
+it, noise on an input biases a gain by less than that share (the regression-dilution bound),
+which no parameter's error of interest is (the real NanoBench flights' PWM-derived speeds:
+0.01-0.6 %; a hexacopter's 1 % ESC telemetry noise: 7-12 %)."""
+
+
+def input_column_noise(model: QuadrotorModel, log: FlightLog) -> tuple[np.ndarray, float]:
+    """Per steady input (:attr:`QuadrotorModel.steady_input_names`) of the prepared ``log``, its
+    white-noise standard deviation (robust second differences,
+    :func:`~greybox.shooting.estimate_noise`; 0 where it cannot be told), and the largest share
+    of an input's variance that this noise makes up."""
+    names = model.steady_input_names
+    sigma = np.zeros(len(names))
+    share = 0.0
+    for j, name in enumerate(names):
+        if name not in log.input_names:
+            continue
+        col = log.inputs[:, log.input_names.index(name)]
+        var = float(np.nanvar(col)) if np.any(np.isfinite(col)) else 0.0
+        s = estimate_noise(col) if var > 0 else float("nan")
+        if np.isfinite(s) and var > 0:
+            sigma[j] = s
+            share = max(share, s * s / var)
+    return sigma, share
+
+
+def state_steps(model: QuadrotorModel, log: FlightLog, p: np.ndarray, sigma_steady: np.ndarray,
+                rows: np.ndarray, states: np.ndarray | None = None) -> np.ndarray:
+    """Per state, the RMS over ``rows`` of the change over one row that independent white noise
+    ``sigma_steady`` on each steady input gives it: the state derivatives' sensitivity to every
+    input column (a derived column, ``w3@next``, carries its own draw of rotor 3's noise),
+    at the states ``states`` (one per row; default the model's rest state) and parameters
+    ``p``, times the row's length. ``log`` is prepared (:meth:`QuadrotorModel.prepare_log`)."""
+    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
+    pp, t = ca.SX.sym("p", model.n_params), ca.SX.sym("t")
+    jac = ca.Function("state_input_sensitivity", [x, u, pp, t], [ca.jacobian(model.rhs(x, u, pp, t), u)])
+    rows = np.asarray(rows, dtype=int)
+    if states is None:
+        states = np.repeat(np.asarray(model.initial_state(), dtype=float).reshape(1, -1), rows.size, axis=0)
+    J = jac.map(rows.size)(np.asarray(states, dtype=float).T, log.inputs[rows].T,
+                           np.repeat(np.asarray(p, dtype=float).reshape(-1, 1), rows.size, axis=1),
+                           log.t[rows].reshape(1, -1))
+    J = np.asarray(J).reshape(model.nx, model.nu, rows.size, order="F")
+    sigma = model.steady_input_map() @ sigma_steady
+    dt = np.diff(log.t)[np.minimum(rows, len(log) - 2)]
+    per_row = np.sqrt(np.einsum("sck,c->sk", J ** 2, sigma ** 2)) * dt
+    return np.sqrt(np.mean(per_row ** 2, axis=1))
+
+
+def followed_share(model: QuadrotorModel, log: FlightLog, p: np.ndarray, max_rows: int = 4000) -> float | None:
+    """How much of the logged inputs' row-to-row content the vehicle follows, from the gyro: the
+    body rates' increments from one row to the next, less their neighbours' mean, regressed on
+    what the model makes of the inputs' own such content (its rate derivatives' sensitivity to
+    the inputs, at rest and ``p``, times each row's input less its neighbours' mean, times the
+    row's length). 1: the fast content is what the rotors did (a 100 Hz controller's commands
+    logged exactly); 0: it is noise on the log (telemetry), or commands the motors do not
+    follow — to a model fed them, either is a random torque. None without a gyro at every row
+    or with nothing to regress on. The slope is the followed share of the inputs' fast variance
+    (regression dilution: var(true) / (var(true) + var(noise)))."""
+    rates = [s for s in ("p", "q", "r") if s in log.output_names]
+    if len(rates) == 0 or len(log) < 5:
+        return None
+    G = np.column_stack([log.output(s) for s in rates])
+    rows = np.unique(np.linspace(1, len(log) - 3, min(max_rows, len(log) - 3)).astype(int))
+    ok = np.all(np.isfinite(G[rows - 1]) & np.isfinite(G[rows]) & np.isfinite(G[rows + 1]) & np.isfinite(G[rows + 2]),
+                axis=1)
+    rows = rows[ok]
+    if rows.size < 20:
+        return None
+    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
+    pp, t = ca.SX.sym("p", model.n_params), ca.SX.sym("t")
+    idx = [model.state_names.index(s) for s in rates]
+    jac = ca.Function("rate_input_sensitivity", [x, u, pp, t], [ca.jacobian(model.rhs(x, u, pp, t)[idx], u)])
+    x0 = np.asarray(model.initial_state(), dtype=float).reshape(-1, 1)
+    J = np.asarray(jac.map(rows.size)(np.repeat(x0, rows.size, axis=1), log.inputs[rows].T,
+                                      np.repeat(np.asarray(p, dtype=float).reshape(-1, 1), rows.size, axis=1),
+                                      log.t[rows].reshape(1, -1)))
+    J = J.reshape(len(idx), model.nu, rows.size, order="F")
+    U = log.inputs
+    fast_u = U[rows] - 0.5 * (U[rows - 1] + U[rows + 1])
+    dt = log.t[rows + 1] - log.t[rows]
+    predicted = np.einsum("rck,kc->kr", J, fast_u) * dt[:, None]
+    dg = np.diff(G, axis=0)                      # dg[k] = g[k+1] - g[k]
+    measured = dg[rows] - 0.5 * (dg[rows - 1] + dg[rows + 1])
+    den = float(np.sum(predicted ** 2))
+    if not np.isfinite(den) or den <= 0:
+        return None
+    return float(np.sum(predicted * measured) / den)
+
+
+def input_noise_process_scale(model: QuadrotorModel, logs: Sequence[FlightLog], node_index: Sequence[np.ndarray],
+                              X: np.ndarray, p: np.ndarray, interval: int) -> np.ndarray | None:
+    """Per flight (rows) and state (columns), the random walk over one shooting interval of
+    ``interval`` rows that white noise on the logged inputs gives the states (:func:`state_steps`
+    at the node states ``X``, stacked over the flights as ``node_index`` places them, and the
+    parameters ``p``; independent draws per row). None when no logged input's noise makes up
+    :data:`INPUT_NOISE_SHARE` of its variance.
+
+    The floor of a soft fit's process noise. Re-estimated from the gaps alone, a state's process
+    noise can fall far below what the inputs' noise gives it (the gaps shrink with it), and the
+    fit then shrinks the gains that pass the noise on (errors in variables): on the ninth
+    audit's hexacopter (speed noise 7-12 % of the speeds' variance) vz's fell to 3.5e-7 m/s
+    where the noise gives 9e-4, and the fit took drag 35 % low to follow the heights; a 30 g
+    vehicle with 1 % speed noise kept b 7 % low."""
+    per_flight = []
+    for log in logs:
+        sigma, share = input_column_noise(model, log)
+        if share >= INPUT_NOISE_SHARE:
+            # the fast content the vehicle follows is signal, not noise: only the rest counts
+            followed = followed_share(model, log, p)
+            unfollowed = 0.0 if followed is None else float(np.clip(1.0 - followed, 0.0, 1.0))
+            sigma, share = sigma * np.sqrt(unfollowed), share * unfollowed
+        per_flight.append((sigma, share))
+    if not any(share >= INPUT_NOISE_SHARE for _, share in per_flight):
+        return None
+    out = np.zeros((len(logs), model.nx))
+    k0 = 0
+    for f, (log, idx) in enumerate(zip(logs, node_index)):
+        nodes = X[k0:k0 + len(idx)]
+        k0 += len(idx)
+        pick = np.unique(np.linspace(0, len(idx) - 2, min(400, len(idx) - 1)).astype(int))
+        steps = state_steps(model, log, p, per_flight[f][0], np.asarray(idx)[pick], nodes[pick])
+        out[f] = steps * math.sqrt(max(interval, 1))
+    return out
