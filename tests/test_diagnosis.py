@@ -72,6 +72,7 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert set(r["baseline"]["horizons"]) == {"horizons", "model", "naive"}
     assert set(r["horizons_predictor"]["baseline"]) == {"init_window", "measured_start", "held_moment"}
     assert r["verdict"] == "yaw_torque" and r["null_reason"] is None
+    assert r["input_noise_corrected"] is None          # exact logged speeds: nothing to take out
     first = r["ranking"][0]
     assert first["effect"] == "yaw_torque" and first["significant"] is True
     assert first["nrmse_after"] < first["nrmse_before"]

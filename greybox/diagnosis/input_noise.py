@@ -43,7 +43,7 @@ from ..fitting.input_errors import INPUT_NOISE_SHARE, state_steps
 from ..model import QuadrotorModel
 from ..shooting import estimate_noise
 
-__all__ = ["InputNoise", "input_noise", "SimexCheck", "simex_check", "extrapolate", "away_from_null",
+__all__ = ["InputNoise", "input_noise", "SimexCheck", "simex", "simex_check", "extrapolate", "away_from_null",
            "rates_moved_by_input_noise", "RATE_STEP_NOTABLE", "NOISE_SHARE_NOTABLE",
            "DRAWS", "LEVELS"]
 
@@ -163,36 +163,32 @@ def _noisier(logs: Sequence[FlightLog], noise: InputNoise, level: float, rng: np
     return out
 
 
-def simex_check(cand_fit: FitResult, effect: str, logs: Sequence[FlightLog], noise: InputNoise,
-                compile: str = "auto", alpha: float = 0.01, seed: int = 0) -> SimexCheck | None:
-    """Refit ``cand_fit`` (the model with ``effect``) with the inputs' noise variance at each of
-    :data:`LEVELS` times the log's (module doc) and extrapolate ``effect``'s parameters to
-    noise-free inputs; ``alpha``: the two-sided level at which one must then differ from its null
-    (the diagnosis's, per candidate). None when a refit fails or is not certified (then nothing
-    is said)."""
-    model = cand_fit.model
-    nulls = {comp: null for _, comp, null in model.effect_components(effect) if comp in cand_fit.free_names}
-    if not nulls:
-        return None
+def simex(fr: FitResult, logs: Sequence[FlightLog], noise: InputNoise, names: Sequence[str],
+          compile: str = "auto", seed: int = 0) -> dict[str, tuple[float, float, float, float, float]] | None:
+    """SIMEX for the free parameters ``names`` of the fit ``fr``: refit with the inputs' noise
+    variance at each of :data:`LEVELS` times the log's (:data:`DRAWS` draws each, the fit's own
+    weights and process noise) and extrapolate to noise-free inputs (:func:`extrapolate`). Per
+    parameter ``(with the log's noise, with twice its variance, with three times, extrapolated,
+    std)``: the std counts the fit's and the Monte Carlo spread of the draws carried through the
+    extrapolant. None when a refit fails or is not certified."""
+    model = fr.model
     rng = np.random.default_rng(seed)
     refits: dict[float, list[FitResult]] = {}
     try:
         with _warnings.catch_warnings():
             _warnings.simplefilter("ignore", ConvergenceWarning)
             for level in LEVELS:
-                refits[level] = [fit(model, _noisier(logs, noise, level, rng), p0=cand_fit.p,
-                                     free=cand_fit.free_names, compile=compile, max_iter=100,
-                                     **cand_fit.settings(states=False)) for _ in range(DRAWS)]
+                refits[level] = [fit(model, _noisier(logs, noise, level, rng), p0=fr.p, free=fr.free_names,
+                                     compile=compile, max_iter=100, **fr.settings(states=False))
+                                 for _ in range(DRAWS)]
     except GreyboxError:
         return None
     if not all(r.converged for rs in refits.values() for r in rs):
         return None
-    z = float(stats.norm.isf(alpha / 2))
     values = {}
-    stands = False
-    for n in nulls:
-        i = cand_fit.free_names.index(n)
-        one = cand_fit.value(n)
+    for n in names:
+        i = fr.free_names.index(n)
+        one = fr.value(n)
         draws = [np.array([r.value(n) for r in refits[level]]) for level in LEVELS]
         two, three = (float(d.mean()) for d in draws)
         zero = extrapolate(one, two, three)
@@ -201,9 +197,26 @@ def simex_check(cand_fit: FitResult, effect: str, logs: Sequence[FlightLog], noi
         slope = [(extrapolate(one, two + h[0], three) - extrapolate(one, two - h[0], three)) / (2 * h[0]),
                  (extrapolate(one, two, three + h[1]) - extrapolate(one, two, three - h[1])) / (2 * h[1])]
         mc = sum(g * g * float(np.var(d, ddof=1)) / len(d) for g, d in zip(slope, draws))
-        std = float(np.sqrt(float(cand_fit.std[i]) ** 2 + mc))
-        values[n] = (one, two, three, zero, std)
-        stands = stands or away_from_null(one, zero, std, nulls[n], z)
+        values[n] = (one, two, three, zero, float(np.sqrt(float(fr.std[i]) ** 2 + mc)))
+    return values
+
+
+def simex_check(cand_fit: FitResult, effect: str, logs: Sequence[FlightLog], noise: InputNoise,
+                compile: str = "auto", alpha: float = 0.01, seed: int = 0) -> SimexCheck | None:
+    """Refit ``cand_fit`` (the model with ``effect``) with the inputs' noise variance at each of
+    :data:`LEVELS` times the log's (module doc; :func:`simex`) and extrapolate ``effect``'s
+    parameters to noise-free inputs; ``alpha``: the two-sided level at which one must then differ
+    from its null (the diagnosis's, per candidate). None when a refit fails or is not certified
+    (then nothing is said)."""
+    nulls = {comp: null for _, comp, null in cand_fit.model.effect_components(effect)
+             if comp in cand_fit.free_names}
+    if not nulls:
+        return None
+    values = simex(cand_fit, logs, noise, list(nulls), compile, seed)
+    if values is None:
+        return None
+    z = float(stats.norm.isf(alpha / 2))
+    stands = any(away_from_null(one, zero, std, nulls[n], z) for n, (one, _, _, zero, std) in values.items())
     return SimexCheck(effect, noise, values, stands, nulls)
 
 

@@ -240,6 +240,10 @@ class Diagnosis:
     # the logged rotor speeds moves them per row (in gyro noises; diagnosis.input_noise): a random
     # torque that cannot be told from the inputs' noise
     rates_from_input_noise: dict[str, float] = field(default_factory=dict)
+    # the final model's free parameters with the logged speeds' white noise taken out (SIMEX,
+    # diagnosis.input_noise.simex): name -> (fitted, twice the noise variance, three times,
+    # extrapolated to none, std); empty when the speeds carry no notable noise
+    input_noise_corrected: dict[str, tuple[float, float, float, float, float]] = field(default_factory=dict)
 
     def motion_verdicts(self) -> dict[str, str]:
         """Per unexplained attitude or rate channel whose residual the gyro-attitude comparison
@@ -286,6 +290,8 @@ class Diagnosis:
                "null_reason": self.null_reason,
                "judged_with_disturbance": self.judged_with_disturbance,
                "rates_from_input_noise": dict(self.rates_from_input_noise),
+               "input_noise_corrected": {n: {"value": _num(z), "std": _num(sd), "fitted": _num(one)}
+                                         for n, (one, _, _, z, sd) in self.input_noise_corrected.items()} or None,
                "outside_catalogue": self.outside_catalogue or None,
                "input_timing": _clean(self.input_timing) if self.input_timing else None,
                "findings": [f.text for f in self.findings],
@@ -462,6 +468,13 @@ class Diagnosis:
         lines.append("   final model: " + ", ".join(
             f"{n} = {fm.value(n):.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "")
             for n, s in zip(fm.free_names, fm.std)))
+        moved = {n: v for n, v in self.input_noise_corrected.items()
+                 if n in ("K_T", "b") or (v[4] > 0 and abs(v[3] - v[0]) > v[4])}
+        if moved:
+            # noise on the logged speeds weakens the model's response to them (errors in variables)
+            lines.append("   with the logged speeds' noise taken out (SIMEX, extrapolated to noise-free speeds): " +
+                         ", ".join(f"{n} = {z:.4g} ± {sd:.2g} (fitted {one:.4g})"
+                                   for n, (one, _, _, z, sd) in moved.items()))
         for n, v in getattr(fm, "per_flight_", {}).items():
             # the value above is the mean over the flights, which none of them may have had
             lines.append(f"   {n} per flight (the mean above): " + ", ".join(
