@@ -469,7 +469,7 @@ class Diagnosis:
             f"{n} = {fm.value(n):.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "")
             for n, s in zip(fm.free_names, fm.std)))
         moved = {n: v for n, v in self.input_noise_corrected.items()
-                 if n in ("K_T", "b") or (v[4] > 0 and abs(v[3] - v[0]) > v[4])}
+                 if n in ("K_T", "b") or (v[4] > 0 and abs(v[3] - v[0]) > 2 * v[4])}
         if moved:
             # noise on the logged speeds weakens the model's response to them (errors in variables)
             lines.append("   with the logged speeds' noise taken out (SIMEX, extrapolated to noise-free speeds): " +

@@ -417,7 +417,9 @@ def _without_input_errors(res: FitResult, est: Sequence[FlightLog], compile: str
     if not noise.notable:
         return {}
     t0 = time.perf_counter()
-    values = simex(res, est, noise, list(res.free_names), compile)
+    # a parameter held on a bound is not where the data put it: nothing to extrapolate
+    held = set(res.certificate.held) if res.certificate is not None else set()
+    values = simex(res, est, noise, [n for n in res.free_names if n not in held], compile)
     if values is None:
         say("diagnose: errors in the inputs: the final model's noisier refits were not all certified; its "
             "parameters are given as fitted")
