@@ -250,7 +250,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             Whatever the formulation, a fit that ends with its mean rotor thrust more than
             20 % from the weight, from a start as far off, is solved again from ``K_T`` where
             the rotors carry the weight, and that fit is kept when certified and balanced (a
-            warning says so).
+            warning says so); not with ``reweight=False`` or ``initial_states`` (a refit in
+            another fit's formulation, :meth:`FitResult.settings`).
             The gaps sit at the shooting nodes (``interval``, default every 50 ms);
             ``interval=1`` makes every sample a node (an equation-error fit: it absorbs a
             model error sample by sample, but is biased on closed-loop data).
@@ -445,7 +446,9 @@ def _hover_balance_restart(model: QuadrotorModel, logs, process_noise, kw: dict,
     carries the weight (a flight that starts and ends near rest: the mean thrust is the weight,
     a little more when tilted); otherwise ``first`` is, and a warning says what the restart
     found."""
-    if "K_T" not in first.free_names or kw.get("initial_states") is not None:
+    if "K_T" not in first.free_names or kw.get("initial_states") is not None or not kw.get("reweight", True):
+        # fixed weights or given node states: a refit in another fit's formulation (a candidate's,
+        # a SIMEX draw's) whose comparison with that fit a second basin would break
         return first
     flights = [logs] if isinstance(logs, FlightLog) else list(logs)
     ratio = _thrust_ratio(model, flights, first.value("K_T"))
