@@ -20,7 +20,7 @@ from ..data import FlightLog
 from ..model import QuadrotorModel
 from ..shooting import estimate_noise
 
-__all__ = ["INPUT_NOISE_SHARE", "input_column_noise", "followed_share", "state_steps",
+__all__ = ["INPUT_NOISE_SHARE", "input_column_noise", "input_jacobian", "followed_share", "state_steps",
            "input_noise_process_scale"]
 
 INPUT_NOISE_SHARE = 0.01
@@ -50,6 +50,25 @@ def input_column_noise(model: QuadrotorModel, log: FlightLog) -> tuple[np.ndarra
     return sigma, share
 
 
+def input_jacobian(model: QuadrotorModel, log: FlightLog, p: np.ndarray, rows: np.ndarray,
+                   at: np.ndarray | None = None, states: Sequence[int] | None = None) -> np.ndarray:
+    """The state derivatives' Jacobian w.r.t. the inputs at the prepared ``log``'s ``rows``
+    (its inputs and times there), the states ``at`` (one per row; default the model's rest
+    state) and parameters ``p``: ``(len(states), nu, len(rows))``, ``states`` the rows of the
+    derivative kept (default all). One CasADi ``Function``, mapped over the rows."""
+    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
+    pp, t = ca.SX.sym("p", model.n_params), ca.SX.sym("t")
+    keep = list(range(model.nx)) if states is None else list(states)
+    jac = ca.Function("state_input_sensitivity", [x, u, pp, t], [ca.jacobian(model.rhs(x, u, pp, t)[keep], u)])
+    rows = np.asarray(rows, dtype=int)
+    if at is None:
+        at = np.repeat(np.asarray(model.initial_state(), dtype=float).reshape(1, -1), rows.size, axis=0)
+    J = jac.map(rows.size)(np.asarray(at, dtype=float).T, log.inputs[rows].T,
+                           np.repeat(np.asarray(p, dtype=float).reshape(-1, 1), rows.size, axis=1),
+                           log.t[rows].reshape(1, -1))
+    return np.asarray(J).reshape(len(keep), model.nu, rows.size, order="F")
+
+
 def state_steps(model: QuadrotorModel, log: FlightLog, p: np.ndarray, sigma_steady: np.ndarray,
                 rows: np.ndarray, states: np.ndarray | None = None) -> np.ndarray:
     """Per state, the RMS over ``rows`` of the change over one row that independent white noise
@@ -57,16 +76,8 @@ def state_steps(model: QuadrotorModel, log: FlightLog, p: np.ndarray, sigma_stea
     input column (a derived column, ``w3@next``, carries its own draw of rotor 3's noise),
     at the states ``states`` (one per row; default the model's rest state) and parameters
     ``p``, times the row's length. ``log`` is prepared (:meth:`QuadrotorModel.prepare_log`)."""
-    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
-    pp, t = ca.SX.sym("p", model.n_params), ca.SX.sym("t")
-    jac = ca.Function("state_input_sensitivity", [x, u, pp, t], [ca.jacobian(model.rhs(x, u, pp, t), u)])
     rows = np.asarray(rows, dtype=int)
-    if states is None:
-        states = np.repeat(np.asarray(model.initial_state(), dtype=float).reshape(1, -1), rows.size, axis=0)
-    J = jac.map(rows.size)(np.asarray(states, dtype=float).T, log.inputs[rows].T,
-                           np.repeat(np.asarray(p, dtype=float).reshape(-1, 1), rows.size, axis=1),
-                           log.t[rows].reshape(1, -1))
-    J = np.asarray(J).reshape(model.nx, model.nu, rows.size, order="F")
+    J = input_jacobian(model, log, p, rows, states)
     sigma = model.steady_input_map() @ sigma_steady
     dt = np.diff(log.t)[np.minimum(rows, len(log) - 2)]
     per_row = np.sqrt(np.einsum("sck,c->sk", J ** 2, sigma ** 2)) * dt
@@ -93,15 +104,7 @@ def followed_share(model: QuadrotorModel, log: FlightLog, p: np.ndarray, max_row
     rows = rows[ok]
     if rows.size < 20:
         return None
-    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
-    pp, t = ca.SX.sym("p", model.n_params), ca.SX.sym("t")
-    idx = [model.state_names.index(s) for s in rates]
-    jac = ca.Function("rate_input_sensitivity", [x, u, pp, t], [ca.jacobian(model.rhs(x, u, pp, t)[idx], u)])
-    x0 = np.asarray(model.initial_state(), dtype=float).reshape(-1, 1)
-    J = np.asarray(jac.map(rows.size)(np.repeat(x0, rows.size, axis=1), log.inputs[rows].T,
-                                      np.repeat(np.asarray(p, dtype=float).reshape(-1, 1), rows.size, axis=1),
-                                      log.t[rows].reshape(1, -1)))
-    J = J.reshape(len(idx), model.nu, rows.size, order="F")
+    J = input_jacobian(model, log, p, rows, states=[model.state_names.index(s) for s in rates])
     U = log.inputs
     fast_u = U[rows] - 0.5 * (U[rows - 1] + U[rows + 1])
     dt = log.t[rows + 1] - log.t[rows]
