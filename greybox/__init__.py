@@ -27,6 +27,7 @@ _EXPORTS = {
     "QuadrotorModel": (".model", "QuadrotorModel"),
     "FitResult": (".fitting", "FitResult"), "GreyBoxEstimator": (".fitting", "GreyBoxEstimator"),
     "fit": (".fitting", "fit"), "Solver": (".fitting", "Solver"), "GaussNewton": (".fitting", "GaussNewton"),
+    "denoise_inputs": (".fitting", "denoise_inputs"),
     "FittedModel": (".fitted", "FittedModel"), "load": (".fitted", "load"),
     "Prediction": (".validation", "Prediction"), "compare_plot": (".validation", "compare_plot"),
     "nrmse": (".validation", "nrmse"), "predict": (".validation", "predict"),

@@ -98,6 +98,7 @@ class Options:
     iterate: bool = True
     discover: bool = True
     process_noise: str | None = IF_NEEDED
+    input_noise: str = "smooth"
     import_format: str = "csv"
     pwm_map: str | None = None
     held: str = "interpolate"
@@ -113,7 +114,7 @@ class Options:
                 "effects_files": [_sha_file(p) for p in self.effects_files],
                 "candidates": list(self.candidates) if self.candidates is not None else None,
                 "iterate": self.iterate, "discover": self.discover, "process_noise": self.process_noise,
-                "import": self.import_format,
+                "input_noise": self.input_noise, "import": self.import_format,
                 "pwm_map": self.pwm_map, "held": self.held}
 
 
@@ -353,7 +354,9 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
     model, p0 = _model(opts)
     log, read_notes = _read_flight(flight.path, flight.sha, opts)
     notes += read_notes
-    log = model_log(model, log, p0, flight.path)
+    before = len(log.notes)
+    log = model_log(model, log, p0, flight.path, opts.input_noise)
+    notes += log.notes[before:]
     diag = diagnose(model, log, candidates=list(opts.candidates) if opts.candidates is not None else None,
                     iterate=opts.iterate, p0=p0, process_noise=opts.process_noise, progress=False,
                     discover=opts.discover)
@@ -406,7 +409,7 @@ def run_fleet(flights: Sequence[Flight], opts: Options, nuisance: Sequence[str] 
     logs = []
     for f in flights:
         log, _ = _read_flight(f.path, f.sha, opts)
-        logs.append(model_log(model, log, p0, f.path))
+        logs.append(model_log(model, log, p0, f.path, opts.input_noise))
     parts = [lg.split(0.8) for lg in logs]
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)
@@ -819,7 +822,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
           held: str = "interpolate", effects: str | Sequence[str] | None = None,
           without: str | Sequence[str] | None = None, sets: Mapping[str, Any] | Sequence[str] | None = None,
           effects_files: Sequence[str | Path] = (), candidates: Sequence[str] | None = None, iterate: bool = True,
-          discover: bool = True, process_noise: str | None = IF_NEEDED, workers: int = 2, scheduler: str | None = None, joint: bool = False,
+          discover: bool = True, process_noise: str | None = IF_NEEDED, input_noise: str = "smooth", workers: int = 2, scheduler: str | None = None, joint: bool = False,
           per_flight: str | Sequence[str] | None = "auto", retries: int = 1, progress: bool = True) -> BatchResult:
     """Import (if needed), fit and diagnose every flight in ``inputs`` on Dask distributed;
     results under ``out`` (see the module doc and README, "greybox batch").
@@ -830,8 +833,8 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
         airframe / model: the model to fit (an airframe TOML, or a saved fitted model).
         import_format: ``"csv"`` (greybox's flight log) or ``"nanobench"``, ``"px4"``,
             ``"crazyflie-usd"`` (read through the importer, with ``pwm_map`` and ``held``).
-        effects, without, sets, effects_files, candidates, iterate, discover, process_noise: as
-            for ``greybox fit``/``diagnose``.
+        effects, without, sets, effects_files, candidates, iterate, discover, process_noise,
+            input_noise: as for ``greybox fit``/``diagnose``.
         workers: processes of the local cluster (one thread each); ignored with ``scheduler``
             (the address of a running Dask scheduler, e.g. ``tcp://127.0.0.1:8786``).
         joint: also fit the shared parameters on all good flights at once and compare each
@@ -884,10 +887,12 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
                    effects_files=tuple(os.path.abspath(p) for p in effects_files),
                    candidates=tuple(candidates) if candidates is not None else None, iterate=bool(iterate),
                    discover=bool(discover),
-                   process_noise=process_noise, import_format=import_format, pwm_map=pwm_map, held=held,
+                   process_noise=process_noise, input_noise=input_noise, import_format=import_format, pwm_map=pwm_map, held=held,
                    per_flight=per_flight if per_flight is None or isinstance(per_flight, str) else tuple(per_flight))
     if process_noise not in (None, "auto", IF_NEEDED):
         raise GreyboxInputError(f"process_noise must be {IF_NEEDED!r}, None or 'auto', got {process_noise!r}")
+    if input_noise not in ("smooth", "keep"):
+        raise GreyboxInputError(f"input_noise must be 'smooth' or 'keep', got {input_noise!r}")
     # the model, its parameters and the candidates, checked here before any work is sent out
     from . import effects as fx
     the_model, _ = _model(opts)

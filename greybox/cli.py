@@ -204,17 +204,23 @@ def _load_fit_inputs(args: argparse.Namespace):
     """Model, starting parameters (``--set``) and the logs, each checked before any work."""
     model, brought = model_from_args(args)
     p0 = _parameters(model, brought, args.set)
-    return model, p0, [_load_model_log(model, path, p0) for path in args.log]
+    return model, p0, [_load_model_log(model, path, p0, _input_noise(args)) for path in args.log]
 
 
-def _load_model_log(model: QuadrotorModel, path: str, p0: np.ndarray):
+def _input_noise(args: argparse.Namespace) -> str:
+    return getattr(args, "input_noise", None) or "smooth"
+
+
+def _load_model_log(model: QuadrotorModel, path: str, p0: np.ndarray, input_noise: str = "smooth"):
     """A rotor-speed log checked against ``model``'s rotors (and their plausible speeds with
-    parameters ``p0``) and ready to fit."""
+    parameters ``p0``) and ready to fit; the speeds' noise that the vehicle does not follow
+    taken out unless ``input_noise`` is ``"keep"``."""
     from .data import load_log
     log = load_log(path, inputs="rotor_speeds")
+    log = model_log(model, log, p0, path, input_noise)
     for note in log.notes:
         print(f"note: {note}", file=sys.stderr)
-    return model_log(model, log, p0, path)
+    return log
 
 
 def _names(text: str | None) -> list[str] | None:
@@ -421,6 +427,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         outputs.append((out / "horizons.png", plotting.to_bytes(plotting.horizons(he))))
     if args.json:
         result = fit_json(model, res, preds, [log.source for log in logs], horizons=he)
+        result["log_notes"] = _log_notes(logs)
         outputs.append((Path(args.json), _json_text(result)))
     if args.save:
         outputs.append((Path(args.save), _json_text(res.to_dict())))
@@ -430,6 +437,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if args.save:
         print(f"model: {args.save}")
     return 0
+
+
+def _log_notes(logs) -> list[str]:
+    """What was remarked while reading the logs (ignored columns, smoothed speeds), for the JSON."""
+    return [note for log in logs for note in log.notes]
 
 
 def _json_text(obj: object) -> str:
@@ -462,7 +474,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, p0, logs = _load_fit_inputs(args)
     per_flight = _per_flight(args.per_flight, model)
-    validation = [_load_model_log(model, v, p0) for v in args.validation] if args.validation else None
+    validation = [_load_model_log(model, v, p0, _input_noise(args)) for v in args.validation] \
+        if args.validation else None
     diag = diagnose(model, logs, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=p0, progress=not args.quiet,
                     process_noise=_process_noise(args), validation=validation,
@@ -471,7 +484,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     print(diag.summary())
     outputs: list[tuple[Path, str | bytes]] = []
     if args.json:
-        outputs.append((Path(args.json), _json_text(diag.as_json())))
+        doc = {**diag.as_json(), "log_notes": _log_notes(logs + (validation or []))}
+        outputs.append((Path(args.json), _json_text(doc)))
     if args.write_effect:
         best = diag.best_discovery
         if best is None:
@@ -500,7 +514,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
                 import_format=args.import_format, pwm_map=args.pwm_map, held=args.held, effects=args.effects,
                 without=args.without, sets=args.set, effects_files=args.effects_file or (),
                 candidates=_names(args.candidates), iterate=not args.no_iterate, discover=not args.no_discover,
-                process_noise=_process_noise(args),
+                process_noise=_process_noise(args), input_noise=args.input_noise,
                 workers=args.workers or 2, scheduler=args.scheduler, joint=args.joint,
                 per_flight=_per_flight(args.per_flight), progress=not args.quiet)
     print(res.summary())
@@ -541,6 +555,10 @@ def _batch_parser(sub) -> None:
     b.add_argument("--joint", action="store_true",
                    help="also fit the shared parameters on all good flights at once and name the flights more "
                         "than 3 std from the fleet")
+    b.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
+                   help="the logged rotor speeds' white noise that the vehicle does not follow (the gyro "
+                        "tells): 'smooth' (default) takes it out before fitting, 'keep' fits the speeds as "
+                        "logged (see README)")
     b.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with --joint, what each flight gets its own value of: 'auto' (default: wind and "
                         "thrust_drift when the model or a flight's diagnosis has them), 'none' or a comma list")
@@ -672,6 +690,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="how the shooting gaps are treated: 'if_needed' (default) output error, then "
                         "process noise when output error cannot follow the data; 'auto' process noise "
                         "(real logs); 'none' output error only (see README)")
+    f.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
+                   help="the logged rotor speeds' white noise that the vehicle does not follow (the gyro "
+                        "tells): 'smooth' (default) takes it out before fitting, 'keep' fits the speeds as "
+                        "logged (see README)")
     f.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with several logs, what each flight gets its own value of: 'auto' (default: the "
                         "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
@@ -696,6 +718,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="how the shooting gaps are treated: 'if_needed' (default) output error, then "
                         "process noise when output error cannot follow the data; 'auto' process noise "
                         "(real logs); 'none' output error only (see README)")
+    g.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
+                   help="the logged rotor speeds' white noise that the vehicle does not follow (the gyro "
+                        "tells): 'smooth' (default) takes it out before fitting, 'keep' fits the speeds as "
+                        "logged (see README)")
     g.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with several logs, what each flight gets its own value of (as for fit; default auto: "
                         "wind, thrust_drift)")

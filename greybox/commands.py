@@ -131,13 +131,22 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
     return out
 
 
-def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str) -> FlightLog:
+def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
+              input_noise: str = "smooth") -> FlightLog:
     """``log`` checked against ``model``'s rotors (and their plausible speeds with parameters
-    ``p0``) and ready to fit; errors name ``where`` (also used by ``greybox batch``)."""
+    ``p0``) and ready to fit; errors name ``where`` (also used by ``greybox batch``). With
+    ``input_noise="smooth"`` the white noise on the logged speeds that the vehicle does not
+    follow is taken out (:func:`~greybox.fitting.input_errors.denoise_inputs`; a note on the
+    log says so); ``"keep"`` leaves them as logged."""
     if log.input_names != model.command_names:
         raise GreyboxInputError(f"{where}: has rotor speeds {','.join(log.input_names)} but the airframe "
                                 f"has {model.airframe.n_rotors} rotors")
     model.check_rotor_speeds(log.inputs[:, :model.airframe.n_rotors], p0, where)
+    if input_noise == "smooth":
+        from .fitting.input_errors import denoise_inputs
+        log, _ = denoise_inputs(model, log, p0)
+    elif input_noise != "keep":
+        raise GreyboxInputError(f"input noise: {input_noise!r} is neither 'smooth' nor 'keep'")
     log = model.prepare_log(log)
     from .fitting.imu import is_imu_only
     if not is_imu_only(log):      # an IMU-only log is fitted by its own equations, which check it

@@ -280,6 +280,27 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
     swapped = order_refitted([cand("cog_offset", 2, 0.839, 4000.0), cand("motor_asymmetry", 3, 0.846, 4010.0)])
     assert [c.effect for c in swapped] == ["motor_asymmetry", "cog_offset"]
     assert "it fits the estimation data better" in swapped[0].reason
+    # ... unless the weak rotors' gains are, within their noise, the CoG offset's pattern (linear
+    # in the rotors' positions: the ninth audit's hexacopter with a 15, -10 mm offset, where the
+    # estimation data preferred motor_asymmetry by 12000): the simpler effect goes first
+    from greybox import QuadrotorModel, effects
+    from conftest import make_airframe
+    model = QuadrotorModel(make_airframe("x")) + effects.MotorAsymmetry()
+    pos = np.asarray(model.airframe.rotor_positions)[:, :2]
+    names = ["K_T_dev[0]", "K_T_dev[1]", "K_T_dev[2]"]
+
+    def asym(devs, lr, std=0.02):
+        c = cand("motor_asymmetry", 3, 0.846, lr)
+        c.fit = SimpleNamespace(converged=True, model=model, free_names=names, covariance=np.diag([std ** 2] * 3),
+                                p=model.parameter_vector({"K_T_dev": list(devs)}))
+        return c
+    plane = (-0.4 * pos[:, 0] + 0.3 * pos[:, 1])[:3] + np.array([0.01, -0.01, 0.0])
+    simpler = order_refitted([cand("cog_offset", 2, 0.839, 4000.0), asym(plane, 16000.0)])
+    assert [c.effect for c in simpler] == ["cog_offset", "motor_asymmetry"]
+    weak = order_refitted([cand("cog_offset", 2, 0.839, 4000.0), asym([-0.075, 0.025, 0.025], 16000.0, 0.005)])
+    assert [c.effect for c in weak] == ["motor_asymmetry", "cog_offset"]
+    from greybox.diagnosis.ranking import tie_explanation
+    assert "in the pattern of a CoG offset" in tie_explanation(simpler[0], simpler[1], simpler)
     unrelated = order_refitted([cand("wind", 2, 0.839, 4000.0), cand("ground_effect", 1, 0.846, 12000.0)])
     assert [c.effect for c in unrelated] == ["wind", "ground_effect"]
     uncertified = cand("accel_bias", 3, 0.846, 12000.0)

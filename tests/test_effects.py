@@ -399,3 +399,59 @@ def test_effect_components_name_each_component_with_its_null(base):
     assert [(c, n) for _, c, n in m.effect_components("linear_drag")] == [("Kd[0]", 0.0), ("Kd[1]", 0.0), ("Kd[2]", 0.0)]
     assert [c for _, c, _ in m.effect_components("motor_asymmetry")] == ["K_T_dev[0]", "K_T_dev[1]", "K_T_dev[2]"]
     assert m.effect_components("wind") == []
+
+
+@pytest.mark.parametrize("frame", ["x", "hexa"])
+def test_rotor_gains_linear_in_position_are_a_cog_offset_and_a_weak_rotor_is_not(frame, tmp_path):
+    """Gains d_i = a x_i + c y_i move the thrust's centre as a CoG offset of
+    (-a sum x_i^2, -c sum y_i^2) / N does: at hover with equal speeds the two models give the
+    same body accelerations (roll, pitch, yaw, vertical), by hand from the torque -y_i T_i.
+    ``MotorAsymmetry.reduces_to("cog_offset")`` says so for such gains with noise of their own
+    covariance (20 seeded draws, x frame and the audit's hexacopter) and for the same gains known
+    to 1e-4, a hundredth of them beyond the plane; not for one rotor 7 % weak, known to 0.002."""
+    if frame == "x":
+        af = make_airframe("x")
+    else:
+        import hexa_sim
+        from greybox import load_airframe
+        hexa_sim.write_airframe(tmp_path / "hexa.toml", 1.0, 1.0, 1.0)
+        af = load_airframe(tmp_path / "hexa.toml")
+    base = QuadrotorModel(af)
+    n = af.n_rotors
+    pos = np.asarray(af.rotor_positions)[:, :2]
+    a, c = -0.4, 0.3
+    d = a * pos[:, 0] + c * pos[:, 1]
+    assert abs(d.sum()) < 1e-12
+    asym = base + effects.MotorAsymmetry()
+    cog = base + effects.CogOffset()
+    r_cog = [-a * np.sum(pos[:, 0] ** 2) / n, -c * np.sum(pos[:, 1] ** 2) / n]
+    pa = asym.parameter_vector({"K_T_dev": list(d[:-1])})
+    pc = cog.parameter_vector({"r_cog": r_cog})
+    w = base.hover_speed()
+    xa, xc = rhs(asym, hover_state(), [w] * n, pa), rhs(cog, hover_state(), [w] * n, pc)
+    assert abs(xa[9]) > 0.1 and abs(xa[10]) > 0.1
+    np.testing.assert_allclose(xa[8:12], xc[8:12], rtol=1e-9, atol=1e-12)
+
+    names = [f"K_T_dev[{i}]" for i in range(n - 1)]
+    cov = np.diag(np.full(n - 1, 0.02 ** 2))
+    e = effects.MotorAsymmetry()
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        drawn = d[:-1] + rng.multivariate_normal(np.zeros(n - 1), cov)
+        assert "pattern of a CoG offset" in e.reduces_to("cog_offset", dict(zip(names, drawn)), cov, names, af)
+    off = e.reduces_to("cog_offset", dict(zip(names, d[:-1])), cov, names, af)
+    import re
+    said = re.search(r"CoG offset of \(([-\d.e]+), ([-\d.e]+)\) mm", off)
+    np.testing.assert_allclose([float(said[1]), float(said[2])], 1e3 * np.array(r_cog), rtol=2e-3)
+    spin = np.array([r.spin for r in af.rotors], dtype=float)      # beyond the plane: the yaw's pattern
+    beyond = d + 0.01 * np.abs(d).max() * spin
+    tight = np.diag(np.full(n - 1, 1e-4 ** 2))
+    assert "pattern of a CoG offset" in e.reduces_to("cog_offset", dict(zip(names, beyond[:-1])), tight, names, af)
+    far = d + 0.3 * np.abs(d).max() * spin                         # a third of it, known to 1e-4: not the offset
+    assert e.reduces_to("cog_offset", dict(zip(names, far[:-1])), tight, names, af) == ""
+    weak = np.zeros(n)
+    weak[2] = -0.07
+    weak -= weak.mean()
+    assert e.reduces_to("cog_offset", dict(zip(names, weak[:-1])), np.diag(np.full(n - 1, 0.002 ** 2)), names,
+                        af) == ""
+    assert e.reduces_to("wind", dict(zip(names, weak[:-1])), cov, names, af) == ""

@@ -542,9 +542,34 @@ def _sensor_before_condition(group: Sequence[CandidateResult]) -> bool:
 
 def _tie_pick(group: Sequence[CandidateResult]) -> CandidateResult:
     """The tie rule's choice in ``group``: the largest :func:`aic_gain`, conditions of the
-    flight set aside when a sensor's offset ties with them."""
+    flight set aside when a sensor's offset ties with them, and an effect set aside whose
+    fitted values are, within their noise, a simpler one's of the group
+    (:func:`reduced_to_simpler`)."""
     pool = [c for c in group if not fx.per_flight(c.effect)] if _sensor_before_condition(group) else list(group)
+    pool = [c for c in pool if reduced_to_simpler(c, group) is None] or pool
     return max(pool, key=aic_gain)
+
+
+def reduced_to_simpler(c: CandidateResult, group: Sequence[CandidateResult]) -> tuple[CandidateResult, str] | None:
+    """The candidate of ``group`` with fewer parameters whose physics ``c``'s fitted values are
+    (:meth:`Effect.reduces_to <greybox.effects.Effect.reduces_to>`), and the words saying so;
+    None if there is none. Where the validation cannot tell them apart, the estimation data's
+    preference for the larger effect is its extra freedom fitting what else the model misses,
+    not physics of its own."""
+    cov = getattr(c.fit, "covariance", None)
+    if cov is None or np.size(cov) == 0:
+        return None
+    effect = next((e for e in c.fit.model.effects if e.name == c.effect), None)
+    if effect is None:
+        return None
+    values = c.fit.model.parameter_dict(c.fit.p)
+    for g in group:
+        if g is c or g.df >= c.df:
+            continue
+        words = effect.reduces_to(g.effect, values, cov, c.fit.free_names, c.fit.model.airframe)
+        if words:
+            return g, words
+    return None
 
 
 def tie_explanation(taken: CandidateResult, other: CandidateResult, group: Sequence[CandidateResult]) -> str:
@@ -556,6 +581,11 @@ def tie_explanation(taken: CandidateResult, other: CandidateResult, group: Seque
         if sensor is not taken:
             why += f"; of the rest {taken.effect} fits the estimation data best"
         return why + f" (LR less twice the parameters {aic_gain(taken):.1f} against {aic_gain(other):.1f})"
+    reduced = reduced_to_simpler(other, group)
+    if reduced is not None and reduced[0] is taken:
+        return (f"{other.effect} fitted {reduced[1]}: what {taken.effect} gives with fewer parameters, whatever "
+                f"the estimation data's preference (LR less twice the parameters {aic_gain(taken):.1f} against "
+                f"{aic_gain(other):.1f})")
     if aic_gain(taken) >= aic_gain(other):
         return (f"it fits the estimation data better (LR less twice the parameters {aic_gain(taken):.1f} against "
                 f"{aic_gain(other):.1f})")

@@ -178,6 +178,17 @@ class Effect:
         return [f"{', '.join(beyond)}: beyond what {self.name} physically does on this airframe ({lim}); "
                 f"the fit has it standing in for something the model lacks"]
 
+    def reduces_to(self, other: str, values: Mapping[str, float], covariance: np.ndarray,
+                   free_names: Sequence[str], airframe: "Airframe") -> str:
+        """Words saying that this effect's fitted values are what the effect named ``other``
+        gives with fewer parameters (within their noise, or beyond it by a physically small
+        part), or "" where they are not or nothing is known (the default). ``values``: every
+        parameter by component name; ``covariance``: the fit's, in ``free_names`` order. The
+        diagnosis's tie rule takes the simpler effect when the validation cannot tell them
+        apart and this says the larger one is it (``motor_asymmetry``'s rotor gains in the
+        pattern of a ``cog_offset``)."""
+        return ""
+
     def plausible_values(self, airframe: "Airframe", K_T: float) -> dict:
         """Physically plausible parameter magnitudes for this airframe (synthetic flights, a
         diagnosis' cold refits, the negligibility test); ``{}``: use the parameters' scales."""

@@ -7,8 +7,9 @@
   as solvers see it;
 * :class:`Certificate` (:mod:`greybox.fitting.certificate`) — whether the end point is the
   optimum and the model adequate;
-* :mod:`greybox.fitting.input_errors` — the process noise that white noise on the logged
-  inputs gives the states (a soft fit's floor);
+* :mod:`greybox.fitting.input_errors` — white noise on the logged inputs: the process noise
+  it gives the states (a soft fit's floor), and :func:`denoise_inputs`, the logged speeds with
+  the noise the vehicle does not follow taken out (what ``greybox fit`` and ``diagnose`` fit);
 * :class:`GreyBoxEstimator` (:mod:`greybox.fitting.estimator`) — scikit-learn's contract;
 * :func:`fit_imu` (:mod:`greybox.fitting.imu`) — what a log of the IMU and the rotor commands
   alone identifies (no position, no attitude): thrust, yaw torque, motor lag, torque gains.
@@ -24,8 +25,10 @@ from .certificate import Certificate
 from .estimator import GreyBoxEstimator
 from .gauss_newton import STOPPED, FitSession, GaussNewton, Solver, budget_spent
 from .imu import ImuFit, fit_imu, is_imu_only
+from .input_errors import InputDenoising, denoise_inputs
 
 __all__ = ["fit", "FitResult", "Certificate", "GreyBoxEstimator", "Solver", "GaussNewton", "FitSession",
            "estimate_noise", "sensor_noise", "initial_node_states", "DEFAULT_INTERVAL_S",
            "default_interval", "THRUST_ADVICE", "manoeuvre_advice", "MAX_RESTARTS", "TRUST_REGION", "progress_printer",
-           "per_flight_positions", "fit_imu", "ImuFit", "is_imu_only", "IF_NEEDED", "STOPPED", "budget_spent"]
+           "per_flight_positions", "fit_imu", "ImuFit", "is_imu_only", "IF_NEEDED", "STOPPED", "budget_spent",
+           "denoise_inputs", "InputDenoising"]

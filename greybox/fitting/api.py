@@ -576,6 +576,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     data = ses.data
     n_c = data.mask.sum(axis=1)
     user_sigma = np.array([n in (noise or {}) for n in OUTPUTS])
+    inputs_floor = None
 
     def residual_rms(c: np.ndarray) -> np.ndarray:
         return np.sqrt(np.where(n_c > 0, c.sum(axis=1) / np.maximum(n_c, 1), 1.0))
@@ -795,6 +796,11 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     for effect in model.effects:
         warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
     warnings += _thrust_balance_warnings(model, logs, values)
+    if inputs_floor is not None:
+        warnings.append("the logged inputs carry white noise the vehicle does not follow (the gyro tells): fed to "
+                        "the model it is a random force and torque, and the gains that pass it on come out small "
+                        "(errors in variables); smooth them first, as greybox fit and diagnose do "
+                        "(greybox.fitting.denoise_inputs)")
     if not converged:
         warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
         _warnings.warn(f"fit did not converge: {status}", ConvergenceWarning)
