@@ -220,7 +220,17 @@ def denoise_inputs(model: QuadrotorModel, log: FlightLog, p: np.ndarray | None =
     :data:`INPUT_NOISE_SHARE` of a speed's variance or more *after* the part the gyro follows is
     taken out (:func:`followed_share` at ``p``, default the model's starting values): a
     controller's fast commands logged exactly are what the rotors did and stay. Without a gyro
-    nothing tells them apart, and nothing is smoothed."""
+    nothing tells them apart, and nothing is smoothed.
+
+    Example::
+
+        from greybox import QuadrotorModel, denoise_inputs, fit, load_airframe, load_log
+        model = QuadrotorModel(load_airframe("hexa.toml"))
+        log, info = denoise_inputs(model, load_log("flight.csv"))   # what greybox fit reads
+        if info is not None:
+            print(info.note())        # the noise taken out per rotor, and why
+        res = fit(model, log.split(0.8)[0])
+    """
     if len(log) < MIN_DENOISE_ROWS:
         return log, None
     prepared = model.prepare_log(log)
