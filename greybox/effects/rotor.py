@@ -47,7 +47,9 @@ class YawTorque(Effect):
                "controller cancels through the very commands the model reads, which pulls b down: fit with "
                "a disturbance torque, model + DisturbanceTorque() with process noise (--effects "
                "disturbance_torque --process-noise auto); a torque difference "
-               "between the two spin directions, motors whose command-to-speed maps differ), or b stands in for it")
+               "between the two spin directions, motors whose command-to-speed maps differ; noise on the logged "
+               "speeds, which the model turns into a yaw torque the gyro does not see: on a flight without yaw "
+               "manoeuvres it pulls b to zero, whatever its std), or b stands in for it")
         return [f"b/K_T = {ratio:.2g} m is outside what propellers give ({lo:g}-{hi:g} m): b is not identified "
                 f"from this flight as a rotor's reaction torque; {why}; fly yaw steps, or hold b at a measured "
                 "value (--set b=... --fixed b)"]
