@@ -304,3 +304,18 @@ def test_certificate_says_how_far_white_residuals_within_twice_the_noise_are():
                      residual_over_noise={"x": 1.05, "az": 1.3}, whiteness={"x": 0.0, "az": 0.05},
                      sensor_noise={"x": 1e-3, "az": 0.05})
     assert "residuals at the sensor noise" in at.text()
+
+
+def test_a_covariance_that_is_not_all_numbers_is_said_not_raised():
+    """A candidate's cold refit on the peer simulator's weak-rotor flight once ended with NaNs in
+    its scaled covariance, and the near-singularity check's eigenvalue routine raised
+    (LinAlgError) out of the whole diagnosis; now a warning says the stds are not to be trusted."""
+    from greybox import QuadrotorModel
+    from greybox.fitting.api import _identifiability_warnings
+    from conftest import make_airframe
+    model = QuadrotorModel(make_airframe("x"))
+    names = ["K_T", "b"]
+    P = np.array([[1.0, np.nan], [np.nan, 1.0]])
+    out = _identifiability_warnings(model, names, np.array([2e-5, 5e-7]), np.array([1e-7, 1e-8]),
+                                    np.eye(2), P)
+    assert any("not all numbers" in w for w in out)

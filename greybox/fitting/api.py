@@ -946,6 +946,12 @@ def _identifiability_warnings(model: QuadrotorModel, names: list[str], values: n
             out.append(f"{names[i]} is poorly determined ({std[i]:.3g} on {values[i]:.3g}); "
                        f"fly {advice(names[i])}")
     # near-singular information: the weakest direction of the scaled covariance
+    if not np.all(np.isfinite(P)):
+        # a cold refit of the peer simulator's weak-rotor case gave one with NaNs, and the
+        # eigenvalue routine then raised
+        out.append("the covariance is not all numbers (a parameter's sensitivity overflowed or vanished): "
+                   "the stds and correlations above are not to be trusted")
+        return out
     w, V = np.linalg.eigh(0.5 * (P + P.T))
     if w.size and w[-1] > 0 and w[0] > 0 and w[-1] / w[0] > 1e10:
         v = V[:, -1]
