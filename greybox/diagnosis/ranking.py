@@ -543,8 +543,7 @@ def _sensor_before_condition(group: Sequence[CandidateResult]) -> bool:
 def _tie_pick(group: Sequence[CandidateResult]) -> CandidateResult:
     """The tie rule's choice in ``group``: the largest :func:`aic_gain`, conditions of the
     flight set aside when a sensor's offset ties with them, and an effect set aside whose
-    fitted values are, within their noise, a simpler one's of the group
-    (:func:`reduced_to_simpler`)."""
+    fitted values are what a simpler one of the group gives (:func:`reduced_to_simpler`)."""
     pool = [c for c in group if not fx.per_flight(c.effect)] if _sensor_before_condition(group) else list(group)
     pool = [c for c in pool if reduced_to_simpler(c, group) is None] or pool
     return max(pool, key=aic_gain)
