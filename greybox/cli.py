@@ -200,15 +200,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+INPUT_NOISE_HELP = ("the logged rotor speeds' white noise that the vehicle does not follow (the gyro tells): "
+                    "'smooth' (default) takes it out before fitting, 'keep' fits the speeds as logged (see README)")
+
+
 def _load_fit_inputs(args: argparse.Namespace):
     """Model, starting parameters (``--set``) and the logs, each checked before any work."""
     model, brought = model_from_args(args)
     p0 = _parameters(model, brought, args.set)
-    return model, p0, [_load_model_log(model, path, p0, _input_noise(args)) for path in args.log]
-
-
-def _input_noise(args: argparse.Namespace) -> str:
-    return getattr(args, "input_noise", None) or "smooth"
+    return model, p0, [_load_model_log(model, path, p0, args.input_noise) for path in args.log]
 
 
 def _load_model_log(model: QuadrotorModel, path: str, p0: np.ndarray, input_noise: str = "smooth"):
@@ -474,7 +474,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, p0, logs = _load_fit_inputs(args)
     per_flight = _per_flight(args.per_flight, model)
-    validation = [_load_model_log(model, v, p0, _input_noise(args)) for v in args.validation] \
+    validation = [_load_model_log(model, v, p0, args.input_noise) for v in args.validation] \
         if args.validation else None
     diag = diagnose(model, logs, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=p0, progress=not args.quiet,
@@ -556,9 +556,7 @@ def _batch_parser(sub) -> None:
                    help="also fit the shared parameters on all good flights at once and name the flights more "
                         "than 3 std from the fleet")
     b.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
-                   help="the logged rotor speeds' white noise that the vehicle does not follow (the gyro "
-                        "tells): 'smooth' (default) takes it out before fitting, 'keep' fits the speeds as "
-                        "logged (see README)")
+                   help=INPUT_NOISE_HELP)
     b.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with --joint, what each flight gets its own value of: 'auto' (default: wind and "
                         "thrust_drift when the model or a flight's diagnosis has them), 'none' or a comma list")
@@ -691,9 +689,7 @@ def _parser() -> argparse.ArgumentParser:
                         "process noise when output error cannot follow the data; 'auto' process noise "
                         "(real logs); 'none' output error only (see README)")
     f.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
-                   help="the logged rotor speeds' white noise that the vehicle does not follow (the gyro "
-                        "tells): 'smooth' (default) takes it out before fitting, 'keep' fits the speeds as "
-                        "logged (see README)")
+                   help=INPUT_NOISE_HELP)
     f.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with several logs, what each flight gets its own value of: 'auto' (default: the "
                         "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
@@ -719,9 +715,7 @@ def _parser() -> argparse.ArgumentParser:
                         "process noise when output error cannot follow the data; 'auto' process noise "
                         "(real logs); 'none' output error only (see README)")
     g.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
-                   help="the logged rotor speeds' white noise that the vehicle does not follow (the gyro "
-                        "tells): 'smooth' (default) takes it out before fitting, 'keep' fits the speeds as "
-                        "logged (see README)")
+                   help=INPUT_NOISE_HELP)
     g.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with several logs, what each flight gets its own value of (as for fit; default auto: "
                         "wind, thrust_drift)")

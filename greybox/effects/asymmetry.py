@@ -104,8 +104,11 @@ class MotorAsymmetry(Effect):
         M = np.vstack([np.eye(n - 1), -np.ones((1, n - 1))])      # d_N = -sum(d_1..d_N-1)
         pos = np.asarray(airframe.rotor_positions, dtype=float)[:, :2]
         plane = np.column_stack([pos, np.ones(n)])
-        Q = np.eye(n) - plane @ np.linalg.pinv(plane)
-        rest, cov_rest = Q @ M @ d, Q @ M @ C @ M.T @ Q.T
+        to_plane = np.linalg.pinv(plane)
+        full = M @ d
+        coef = to_plane @ full
+        Q = np.eye(n) - plane @ to_plane
+        rest, cov_rest = full - plane @ coef, Q @ M @ C @ M.T @ Q.T
         df = n - np.linalg.matrix_rank(plane)
         if df <= 0:
             return ""
@@ -113,11 +116,11 @@ class MotorAsymmetry(Effect):
         lam, V = lam[-df:], V[:, -df:]                             # the rest lives in df directions
         along = V.T @ rest
         z_crit = float(stats.norm.isf(0.005 / df))
-        in_plane = float(np.linalg.norm(M @ d - rest))
+        in_plane = float(np.linalg.norm(plane @ coef))
         standing = (np.abs(along) > z_crit * np.sqrt(np.maximum(lam, 0.0))) & (np.abs(along) > 0.1 * in_plane)
         if np.any(standing):
             return ""
-        offset = -np.linalg.lstsq(plane, M @ d, rcond=None)[0][:2] * np.sum(pos ** 2, axis=0) / n
+        offset = -coef[:2] * np.sum(pos ** 2, axis=0) / n
         return (f"rotor gains in the pattern of a CoG offset of ({1e3 * offset[0]:.3g}, {1e3 * offset[1]:.3g}) mm "
                 f"(linear in the rotors' positions; the rest, {100 * np.linalg.norm(rest) / max(in_plane, 1e-300):.0f} % "
                 "of it, within its noise or under a tenth of it in every pattern)")

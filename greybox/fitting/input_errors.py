@@ -24,7 +24,8 @@ from ..model import QuadrotorModel
 from ..shooting import estimate_noise
 
 __all__ = ["INPUT_NOISE_SHARE", "input_column_noise", "input_jacobian", "followed_share", "state_steps",
-           "input_noise_process_scale", "InputDenoising", "denoise_inputs", "wiener_smooth"]
+           "unfollowed_input_noise", "input_noise_process_scale", "InputDenoising", "denoise_inputs",
+           "wiener_smooth"]
 
 INPUT_NOISE_SHARE = 0.01
 """Share of a logged input's variance that is white noise from which that noise counts: below
@@ -120,6 +121,21 @@ def followed_share(model: QuadrotorModel, log: FlightLog, p: np.ndarray, max_row
     return float(np.sum(predicted * measured) / den)
 
 
+def unfollowed_input_noise(model: QuadrotorModel, log: FlightLog, p: np.ndarray
+                           ) -> tuple[np.ndarray, float, float | None]:
+    """:func:`input_column_noise` of the prepared ``log`` less what the vehicle follows: where
+    some input's noise makes up :data:`INPUT_NOISE_SHARE` of its variance, the fast content
+    the gyro follows (:func:`followed_share` at ``p``) is signal, not noise, and only the rest
+    counts (none without a gyro to tell). Returns the per-input noise, its largest share of
+    an input's variance, and the followed share (None where not asked or not told)."""
+    sigma, share = input_column_noise(model, log)
+    if share < INPUT_NOISE_SHARE:
+        return sigma, share, None
+    followed = followed_share(model, log, p)
+    unfollowed = 0.0 if followed is None else float(np.clip(1.0 - followed, 0.0, 1.0))
+    return sigma * math.sqrt(unfollowed), share * unfollowed, followed
+
+
 def input_noise_process_scale(model: QuadrotorModel, logs: Sequence[FlightLog], node_index: Sequence[np.ndarray],
                               X: np.ndarray, p: np.ndarray, interval: int) -> np.ndarray | None:
     """Per flight (rows) and state (columns), the random walk over one shooting interval of
@@ -134,15 +150,7 @@ def input_noise_process_scale(model: QuadrotorModel, logs: Sequence[FlightLog], 
     audit's hexacopter (speed noise 7-12 % of the speeds' variance) vz's fell to 3.5e-7 m/s
     where the noise gives 9e-4, and the fit took drag 35 % low to follow the heights; a 30 g
     vehicle with 1 % speed noise kept b 7 % low."""
-    per_flight = []
-    for log in logs:
-        sigma, share = input_column_noise(model, log)
-        if share >= INPUT_NOISE_SHARE:
-            # the fast content the vehicle follows is signal, not noise: only the rest counts
-            followed = followed_share(model, log, p)
-            unfollowed = 0.0 if followed is None else float(np.clip(1.0 - followed, 0.0, 1.0))
-            sigma, share = sigma * np.sqrt(unfollowed), share * unfollowed
-        per_flight.append((sigma, share))
+    per_flight = [unfollowed_input_noise(model, log, p)[:2] for log in logs]
     if not any(share >= INPUT_NOISE_SHARE for _, share in per_flight):
         return None
     out = np.zeros((len(logs), model.nx))
@@ -233,16 +241,9 @@ def denoise_inputs(model: QuadrotorModel, log: FlightLog, p: np.ndarray | None =
     """
     if len(log) < MIN_DENOISE_ROWS:
         return log, None
-    prepared = model.prepare_log(log)
-    sigma, share = input_column_noise(model, prepared)
-    if share < INPUT_NOISE_SHARE:
-        return log, None
     p = model.default_parameters() if p is None else np.asarray(p, dtype=float)
-    followed = followed_share(model, prepared, p)
-    if followed is None:
-        return log, None
-    unfollowed = float(np.clip(1.0 - followed, 0.0, 1.0))
-    if share * unfollowed < INPUT_NOISE_SHARE:
+    sigma, share, followed = unfollowed_input_noise(model, model.prepare_log(log), p)
+    if followed is None or share < INPUT_NOISE_SHARE:
         return log, None
     inputs = log.inputs.copy()
     noise, left = {}, {}
@@ -251,11 +252,10 @@ def denoise_inputs(model: QuadrotorModel, log: FlightLog, p: np.ndarray | None =
         if name not in log.input_names or name not in steady or sigma[steady.index(name)] <= 0:
             continue
         j = log.input_names.index(name)
-        s = float(sigma[steady.index(name)]) * math.sqrt(unfollowed)
-        inputs[:, j] = wiener_smooth(inputs[:, j], s)
-        noise[name] = s
+        noise[name] = float(sigma[steady.index(name)])
+        inputs[:, j] = wiener_smooth(inputs[:, j], noise[name])
         left[name] = float(estimate_noise(inputs[:, j]))
     if not noise:
         return log, None
-    done = InputDenoising(log.source, noise, share * unfollowed, followed, left)
+    done = InputDenoising(log.source, noise, share, followed, left)
     return replace(log, inputs=inputs, notes=list(log.notes) + [done.note()]), done
