@@ -175,6 +175,7 @@ class PeerEffects:
     """The physics beyond the rigid body, thrust and reaction torque; all off by default."""
 
     body_drag: Sequence[float] | None = None     # [Dx, Dy, Dz] N s/m, body frame, at the CoG
+    world_drag: Sequence[float] | None = None    # [Dx, Dy, Dz] N s/m on the world-frame air velocity
     rotor_drag: float = 0.0                      # k_rd: per-hub drag -k w_i P v_hub
     ground_effect: bool = False                  # Cheeseman-Bennett per rotor
     motor_gains: Sequence[float] | None = None   # per-rotor thrust and torque scale
@@ -245,6 +246,7 @@ class PeerDynamics:
         self.wind = np.zeros(3) if fx.wind is None else np.asarray(
             list(fx.wind) + [0.0] * (3 - len(fx.wind)), float)
         self.body_drag = None if fx.body_drag is None else np.asarray(fx.body_drag, float)
+        self.world_drag = None if fx.world_drag is None else np.asarray(fx.world_drag, float)
         self.rate_damping = None if fx.rate_damping is None else np.asarray(fx.rate_damping, float)
         self.ge = (veh.rotor_radius / 4.0) ** 2
         self.disturbance = np.zeros(3)          # turbulence torque, updated by the simulator
@@ -304,6 +306,9 @@ class PeerDynamics:
             M = M + np.cross(self.hubs, Fi).sum(axis=0)
         if self.body_drag is not None:
             F = F - self.body_drag * vb
+        if self.world_drag is not None:
+            # another form of the same drag: diagonal in the world's axes, not the body's
+            F = F - R.T @ (self.world_drag * (v - self.wind))
         if self.rate_damping is not None:
             M = M - self.rate_damping * om
         if fx.flapping:
@@ -585,6 +590,8 @@ def _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts) -> dict[str, Any]:
                           "J_r": veh.rotor_inertia}
     if fx.body_drag is not None:
         eq["Kd"] = [float(x) for x in fx.body_drag]
+    if fx.world_drag is not None:
+        eq["Kd"] = [float(x) for x in fx.world_drag]    # what a level flight sees of it
     if fx.rotor_drag:
         eq["k_rdh"] = fx.rotor_drag
     if fx.ground_effect:

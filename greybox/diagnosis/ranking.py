@@ -21,7 +21,7 @@ from .analysis import estimation_residuals
 from .closed_loop import controller_answer
 from .input_noise import input_noise, simex_check
 from .results import UNEXPLAINED_RATIO, CandidateResult
-from .screening import (explained_fraction, held_on_bound, lr_test, negligible_effect, null_on_bound,
+from .screening import (explained_fraction, held_on_bound, replaced_base_terms, lr_test, negligible_effect, null_on_bound,
                         physically_implausible, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
                         screen, screen_jointly, within_row_timing)
 
@@ -277,6 +277,14 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                 cand.unconfirmable = True
                 cand.reason += (f"; the validation data hardly exercise it (its predictions there move by "
                                 f"< {100 * MIN_VALIDATION_GAIN:.0f} % of the error in every channel)")
+        elif gain < MIN_VALIDATION_GAIN and (replaced := replaced_base_terms(res, fr, cand.effect)):
+            # not an addition but another form of physics the model has: one channel's gain
+            # cannot tell two forms of the same force apart, the whole prediction must
+            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) and on validation {best_ch} "
+                           f"{-100 * falls[best_ch]:+.1f} %, but its refit holds the model's own {replaced}: it "
+                           f"replaces them, another form of what the model has, which must predict the validation "
+                           f"data better in total by {100 * MIN_VALIDATION_GAIN:.0f} % to be taken (total "
+                           f"{-100 * gain:+.1f} %)")
         else:
             cand.significant = True
             cand.reason = f"p = {cand.p_value:.2g}; validation {best_ch} {-100 * falls[best_ch]:+.0f} %, " \
