@@ -222,14 +222,18 @@ def test_jittered_time_stamps_make_fit_use_process_noise(cf_flights):
     assert res.init_window in (0.05, 0.1, 0.2, 0.5)
 
 
-@pytest.mark.parametrize("k_t_factor", [1.4, pytest.param(0.6, marks=pytest.mark.slow)])
-def test_a_fit_that_lets_the_thrust_go_is_started_again_where_the_rotors_carry_the_weight(tmp_path, k_t_factor):
+@pytest.mark.parametrize("k_t_factor, duration, seed", [(1.4, 6.0, 1), pytest.param(0.6, 6.0, 1, marks=pytest.mark.slow),
+                                                          (1.4, 8.0, 3)])
+def test_a_fit_that_lets_the_thrust_go_is_started_again_where_the_rotors_carry_the_weight(tmp_path, k_t_factor,
+                                                                                          duration, seed):
     """A 6-s flight of the 30 g vehicle with 1 % noise on its logged speeds, started with K_T
     40 % off: output error cannot follow, and process noise started at the size of the vertical
     gaps that start leaves lets the noise pull K_T down (60-80 % low, certified). The fit sees
     its thrust far from the weight, starts again from K_T where the rotors carry it, and keeps
-    that fit: K_T within 2 % of the truth (the first one's value in its warning)."""
-    fl = fly(PeerVehicle.crazyflie(), duration=6.0, seed=1, sensors=PeerSensors(speed_noise=0.01))
+    that fit: K_T within 2 % of the truth (the first one's value in its warning). An 8-s flight
+    ends 19 % low, its speeds as logged (11 % low) or smoothed: inside the 20 % the restart
+    once waited for, with a validation z nrmse of 82 (tilt now counted, 10 %)."""
+    fl = fly(PeerVehicle.crazyflie(), duration=duration, seed=seed, sensors=PeerSensors(speed_noise=0.01))
     paths = write_case(fl, tmp_path, K_T_factor=k_t_factor)
     model = QuadrotorModel(load_airframe(paths["airframe"]))
     est, _ = load_log(paths["log"]).split(0.8)

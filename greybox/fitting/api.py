@@ -400,18 +400,35 @@ def _systematic_gaps(model: QuadrotorModel, ses: FitSession, X: np.ndarray, th: 
     return out
 
 
-THRUST_BALANCE = 0.2
-"""Largest relative departure of the mean rotor thrust ``K_T sum(w^2)`` over a flight from the
-weight ``m g`` that goes without a warning."""
+THRUST_BALANCE = 0.1
+"""Largest relative departure of the mean vertical rotor thrust ``K_T sum(w^2) cos(phi)
+cos(theta)`` over a flight from the weight ``m g`` that goes without a warning (and without
+the fit starting again from the balance). A flight that starts and ends near rest has a mean
+vertical acceleration near zero, whatever the mass (``K_T`` scales with it); what is left is a
+climb's change of vertical speed over the flight's length and a ground effect while low (the
+peer simulator's 1 kg and 3 kg vehicles, two hovers at 8-9 cm in 40 s, at their true K_T: 0.4 %
+low; the thrust taken as vertical read 3.4 % and 6.8 % high). It was 0.2 with the thrust
+taken as vertical: the peer 30 g vehicle's 8-s flight with 1 % speed noise, its speeds smoothed,
+ended with K_T 19 % low (certified, the validation's z nrmse 82) and was not started again;
+from the balance it ends 0.03 % from the truth."""
 
 
 def _thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], k_t: float) -> float | None:
-    """The mean rotor thrust ``K_T sum(w^2)`` over the flights over the weight ``m g``; None where
-    the inputs are not rotor speeds or the airframe has no weight."""
+    """The mean vertical rotor thrust ``K_T sum(w^2) cos(phi) cos(theta)`` over the flights
+    over the weight ``m g`` (the tilt from the measured attitude, rows without one taken
+    level); None where the inputs are not rotor speeds or the airframe has no weight."""
     if model.inputs == "controls":
         return None
     n = model.airframe.n_rotors
-    w2 = np.concatenate([np.sum(lg.inputs[:, :n] ** 2, axis=1) for lg in logs])
+    vertical = []
+    for lg in logs:
+        tilt = np.ones(lg.t.size)
+        if "phi" in lg.output_names and "theta" in lg.output_names:
+            c = (np.cos(lg.outputs[:, lg.output_names.index("phi")]) *
+                 np.cos(lg.outputs[:, lg.output_names.index("theta")]))
+            tilt = np.where(np.isfinite(c), c, 1.0)
+        vertical.append(np.sum(lg.inputs[:, :n] ** 2, axis=1) * tilt)
+    w2 = np.concatenate(vertical) if vertical else np.zeros(0)
     weight = model.airframe.mass * model.airframe.gravity
     mean = float(np.nanmean(w2)) if w2.size else 0.0
     return k_t * mean / weight if weight > 0 and mean > 0 and np.isfinite(mean) else None
