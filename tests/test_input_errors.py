@@ -128,6 +128,62 @@ def test_the_wiener_smoother_keeps_a_slow_signal_and_takes_out_white_noise():
         assert (out - 1800) @ basis / (basis @ basis) == pytest.approx(a, rel=0.01)
 
 
+def test_the_mixers_directions_are_thrust_roll_pitch_and_yaw_by_hand(tmp_path):
+    """An x quadrotor (rotors at (+-l, +-l), spins alternating): the four directions are the
+    collective, the roll and pitch differences and the spin pattern, each with entries of
+    +-1/2; a hexacopter's six are orthonormal, the yaw one along its spins (orthogonal to the
+    rest already) and the two last move no thrust, roll, pitch or yaw."""
+    from greybox.airframe import Airframe, rotors_for_layout
+    from greybox.fitting.input_errors import mixer_directions
+
+    quad = Airframe(mass=1.0, inertia=np.diag([0.01, 0.01, 0.02]), rotors=rotors_for_layout("x", 0.2))
+    d = mixer_directions(quad.allocation_matrix())
+    np.testing.assert_allclose(d.T @ d, np.eye(4), atol=1e-12)
+    A = quad.allocation_matrix()
+    for k in range(4):
+        unit = A[k] / np.linalg.norm(A[k])
+        assert abs(d[:, k] @ unit) == pytest.approx(1.0, abs=1e-12)
+        np.testing.assert_allclose(np.abs(d[:, k]), 0.5, atol=1e-12)
+    hexa_sim.write_airframe(tmp_path / "hexa.toml", 1.0, 1.0, 1.0)
+    hexa = load_airframe(tmp_path / "hexa.toml")
+    d = mixer_directions(hexa.allocation_matrix())
+    np.testing.assert_allclose(d.T @ d, np.eye(6), atol=1e-12)
+    spins = hexa.spins / np.linalg.norm(hexa.spins)
+    assert abs(d[:, 3] @ spins) == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(hexa.allocation_matrix() @ d[:, 4:], 0.0, atol=1e-12)
+
+
+def test_smoothing_along_the_mixers_directions_leaves_less_noise_in_a_small_command():
+    """Four speeds at 1800 rad/s moved together by a broadband thrust command (50 rad/s RMS up
+    to 4 Hz) and by a yaw command 40 times smaller, each with white noise of 18 rad/s. Smoothed
+    per speed, the yaw direction keeps the noise of the whole band the thrust opens; along the
+    mixer's directions, only what its own small signal lets through: 1.2-1.4x less over seeds
+    3-7 (the smoother's spectral resolution, 1/128 of the band, bounds it), the thrust as
+    well within 15 %."""
+    from greybox.fitting.input_errors import mixer_directions, wiener_smooth, wiener_smooth_along
+
+    rng = np.random.default_rng(3)
+    dt = 0.002
+    t = np.arange(0, 10, dt)
+    spectrum = np.fft.rfft(rng.normal(size=t.size))
+    spectrum[np.fft.rfftfreq(t.size, dt) > 4.0] = 0.0
+    thrust = np.fft.irfft(spectrum, t.size)
+    thrust *= 50.0 / thrust.std()
+    yaw = 1.2 * np.sin(2 * np.pi * 0.3 * t)
+    spins = np.array([1.0, -1.0, 1.0, -1.0])
+    true = 1800 + thrust[:, None] + yaw[:, None] * spins
+    sigma = np.full(4, 18.0)
+    logged = true + rng.normal(0, 18.0, true.shape)
+    alloc = np.vstack([np.ones(4), [1, -1, -1, 1], [1, 1, -1, -1], spins])
+    per = np.column_stack([wiener_smooth(logged[:, i], sigma[i]) for i in range(4)])
+    along = wiener_smooth_along(logged, sigma, mixer_directions(alloc))
+
+    def rms_along(w, direction):
+        return np.sqrt(np.mean(((w - true) @ direction / 4) ** 2))
+    assert rms_along(along, spins) < 0.85 * rms_along(per, spins)
+    assert rms_along(along, np.ones(4)) < 1.15 * rms_along(per, np.ones(4))
+
+
 def test_denoised_speeds_are_near_what_the_rotors_did_and_clean_or_followed_ones_stay(noisy_cf):
     """The peer simulator's 30 g flight with 1 % telemetry noise: smoothed, its speeds are at
     least 3x nearer the rotors' true speeds (the simulator's states) than as logged, and a note
