@@ -569,6 +569,11 @@ def physically_implausible(fr: FitResult, effect: str) -> str:
     return "; ".join(e.plausibility_warnings(fr.model.parameter_dict(fr.p), std, fr.model.airframe))
 
 
+def _nearest_bound(par, value: float) -> tuple[float, str]:
+    """The bound of ``par`` nearer ``value``, and which it is ("lower" or "upper")."""
+    return (par.lower, "lower") if abs(value - par.lower) <= abs(value - par.upper) else (par.upper, "upper")
+
+
 def held_on_bound(fr: FitResult, effect: str) -> str:
     """Words naming the parameters of ``effect`` that the refit ``fr`` holds on a bound away
     from their null value (``"k_M = 0.02 (lower bound)"``), or "". An effect whose parameter
@@ -581,7 +586,7 @@ def held_on_bound(fr: FitResult, effect: str) -> str:
         v = fr.value(comp)
         if comp not in held or np.isclose(v, null, rtol=1e-6, atol=1e-12):
             continue
-        side = "lower" if abs(v - par.lower) <= abs(v - par.upper) else "upper"
+        _, side = _nearest_bound(par, v)
         # a bound that stands for the null (a motor lag's 2 ms floor) is no stand-in
         if (side == "lower" and null <= par.lower) or (side == "upper" and null >= par.upper):
             continue
@@ -613,7 +618,7 @@ def replaced_base_terms(base: FitResult, fr: FitResult, effect: str) -> str:
             if comp not in held or comp in was_held or comp not in base_std:
                 continue
             v0, v, s0 = base.value(comp), fr.value(comp), base_std[comp]
-            bound, side = (par.lower, "lower") if abs(v - par.lower) <= abs(v - par.upper) else (par.upper, "upper")
+            bound, side = _nearest_bound(par, v)
             if not (np.isfinite(s0) and s0 > 0) or abs(v0 - bound) <= REPLACED_CLEAR_STD * s0:
                 continue
             parts.append(f"{comp} {v0:.3g} -> {v:.3g} ({side} bound)")

@@ -424,8 +424,7 @@ def _thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], k_t: float) 
     for lg in logs:
         tilt = np.ones(lg.t.size)
         if "phi" in lg.output_names and "theta" in lg.output_names:
-            c = (np.cos(lg.outputs[:, lg.output_names.index("phi")]) *
-                 np.cos(lg.outputs[:, lg.output_names.index("theta")]))
+            c = np.cos(lg.output("phi")) * np.cos(lg.output("theta"))
             tilt = np.where(np.isfinite(c), c, 1.0)
         vertical.append(np.sum(lg.inputs[:, :n] ** 2, axis=1) * tilt)
     w2 = np.concatenate(vertical) if vertical else np.zeros(0)
