@@ -10,7 +10,8 @@ import pytest
 from greybox import QuadrotorModel, effects, fit, load_airframe
 from greybox.data import FlightLog
 from greybox.synth import synthesize
-from greybox.diagnosis.screening import MIN_FORCE_SHARE, effect_accelerations, physically_small
+from greybox.diagnosis.screening import (MIN_FORCE_SHARE, effect_accelerations, physically_negligible,
+                                         physically_small)
 
 PAPER = Path(__file__).resolve().parents[1] / "greybox" / "data" / "airframes" / "paper.toml"
 
@@ -66,6 +67,21 @@ def test_a_weak_wind_behind_a_small_drag_is_physically_small():
     res2 = fit(model, log, p0=strong, free=["K_T"])
     assert physically_small(res2, "wind", [log]) == ""
 
+
+
+def test_a_hub_height_alone_does_not_make_a_rotor_drag():
+    """``h_hub`` is a shape parameter: with k_rdh and k_rdv at 1e-12 of a plausible size the
+    drag is negligible at a 5 cm hub height; at a plausible k_rdh it is not, at any height."""
+    base = QuadrotorModel(load_airframe(PAPER))
+    model = base + effects.by_name("hub_rotor_drag")
+    plausible = effects.by_name("hub_rotor_drag").plausible_values(model.airframe, 2e-5)
+    tiny = model.parameter_vector({"k_rdh": 1e-12 * plausible["k_rdh"], "k_rdv": 0.0, "h_hub": 0.05})
+    log = synthesize(model, tiny, duration=4.0, seed=5).log
+    res = fit(model, log, p0=tiny, free=["K_T"])
+    assert "k_rdh" in physically_negligible(res, "hub_rotor_drag")
+    real = model.parameter_vector({"k_rdh": plausible["k_rdh"], "k_rdv": 0.0, "h_hub": 0.0})
+    res2 = fit(model, log, p0=real, free=["K_T"])
+    assert physically_negligible(res2, "hub_rotor_drag") == ""
 
 def test_a_log_prepared_for_a_model_with_more_inputs_is_read_with_this_models_inputs(fitted):
     """A diagnosis' estimation log may carry ``vbat`` as an input (prepared for a model with

@@ -185,6 +185,38 @@ def test_hub_rotor_drag_damps_rates_by_hand():
     assert ax == pytest.approx(-1e-4 * 4 * 300 / af.mass, rel=1e-9)
 
 
+
+def test_hub_rotor_drag_above_the_centre_of_gravity_by_hand():
+    """Hubs h above the CoG (body -z): flying forward, each hub's drag -w k [v, 0, 0] acts at
+    (x_i, y_i, -h), torque (0, h w k v, y_i w k v): the nose pitches up by 4 h w k v / J_y,
+    yaw cancels. Rolling at p, each hub moves sideways at p h: F_y = -w k p h at -h, a roll
+    damping 4 w k h^2 p on top of the axial part's w k_rdv sum(y_i^2) p."""
+    af = greybox.load_airframe(AIRFRAMES / "x_quad.toml")
+    m = QuadrotorModel(af) + fx.HubRotorDrag()
+    h, k, kv, w0 = 0.02, 1e-4, 2e-4, 300.0
+    p = m.parameter_vector({"k_rdh": k, "k_rdv": kv, "h_hub": h, "b": 0.0, "Kd": 0.0, "J_r": 0.0})
+    w = np.full(4, w0)
+    x = np.zeros(m.nx)
+    x[6] = 1.0                                         # 1 m/s forward, level
+    xd = np.asarray(m.rhs(x, w, p, 0)).ravel()
+    assert xd[10] == pytest.approx(4 * h * w0 * k * 1.0 / af.inertia[1, 1], rel=1e-9)
+    assert xd[10] > 0                                   # nose up, against the airflow
+    assert xd[9] == pytest.approx(0.0, abs=1e-12) and xd[11] == pytest.approx(0.0, abs=1e-12)
+    x = np.zeros(m.nx)
+    x[9] = 3.0                                         # roll rate
+    xd = np.asarray(m.rhs(x, w, p, 0)).ravel()
+    y = af.rotor_positions[:, 1]
+    damping = w0 * 3.0 * (kv * float((y ** 2).sum()) + 4 * k * h ** 2)
+    assert xd[9] == pytest.approx(-damping / af.inertia[0, 0], rel=1e-9)
+    # the hubs' sideways drag in body y, seen in the world (level, psi = 0: y is east)
+    assert xd[7] == pytest.approx(-4 * w0 * k * 3.0 * h / af.mass, rel=1e-9)
+    # a drag of zero at any height is no drag: the height alone never makes the effect
+    q = m.parameter_vector({"k_rdh": 0.0, "k_rdv": 0.0, "h_hub": h, "b": 0.0, "Kd": 0.0, "J_r": 0.0})
+    assert np.allclose(np.asarray(m.rhs(x, w, q, 0)).ravel()[6:12],
+                       np.asarray((QuadrotorModel(af)).rhs(x[:12], w, QuadrotorModel(af).parameter_vector(
+                           {"b": 0.0, "Kd": 0.0, "J_r": 0.0}), 0)).ravel()[6:12])
+    assert fx.HubRotorDrag.shape_parameters == ("h_hub",)
+
 def test_compile_key_follows_effect_options_and_user_source(effect_file):
     """The compile cache is keyed by the function itself: another option value or an edited
     user effect is another library, the same model built twice is the same one."""

@@ -517,8 +517,12 @@ def physically_negligible(fr: FitResult, effect: str) -> str:
     if not kt > 0:
         return ""
     plausible = fx.example_values(effect, model.airframe, kt)
+    e = next((x for x in model.effects if x.name == effect), None)
+    shape = set(e.shape_parameters) if e is not None else set()
     parts = []
     for par, comp, null in model.effect_components(effect):
+        if par.name in shape:
+            continue    # a hub height does not make a drag of zero
         # the largest plausible component's size; none known: a tenth of the parameter's scale
         ref = float(np.max(np.abs(np.atleast_1d(np.asarray(plausible.get(par.name, 0.1 * par.scale), dtype=float)))))
         if abs(fr.value(comp) - null) >= NEGLIGIBLE_FRACTION * ref:

@@ -97,6 +97,10 @@ class Effect:
     whether a row's logged value holds for the whole row or is a sample of a signal varying
     within it moves them by up to half a row, beyond what their std count (a blind audit's
     200 Hz log of a 400 Hz controller: tau_m 28.7 ms for 30, tau_pos 38.9 for 40)."""
+    shape_parameters: ClassVar[tuple[str, ...]] = ()
+    """Its parameters that shape the effect but do not make it: with the others at their null
+    values it vanishes whatever these are (``hub_rotor_drag``'s hub height: a drag of zero acts
+    at any height). Their size alone never makes the effect physically non-negligible."""
     per_flight: ClassVar[bool] = False
     """Whether its parameters belong to one flight rather than to the vehicle (the day's
     wind, the battery's state): a fit of several flights with ``per_flight="auto"`` gives
