@@ -93,6 +93,26 @@ def test_crazyflie_hub_rotor_drag_discovery_reads_only_a_certified_baseline():
         assert any(rates.get(x.channel) in t.feature.split("*") for x in sig for t in x.terms), d.summary()
 
 
+
+@pytest.mark.slow
+def test_crazyflie_hub_rotor_drag_above_the_centre_of_gravity_is_named_alone():
+    """The foreign simulator's rotor drag at hubs 15 mm above the CoG, on R^T v + omega x r_i,
+    no axial part: hub_rotor_drag alone, its hub height, in-plane coefficient and (absent) axial
+    coefficient within 3 std of the truth. Without the hub height the rounds added drag_moment,
+    then thrust_curve and moment_gain for the moment's change with the rotor speeds and the
+    roll/pitch damping of the height, with k_rdv 16 std from 0 (2026-12-02)."""
+    veh = crazyflie()
+    est, val = _flights(veh, rotor_drag_hub=1e-6)
+    d = diagnose(_model(veh), est.log, validation=val.log)
+    assert d.baseline_certified and d.verdict == "hub_rotor_drag", d.summary()
+    added = set(d.final_model.effect_names) - set(_model(veh).effect_names)
+    assert added <= {"hub_rotor_drag", "sampled_inputs"}, d.summary()
+    fm = d.final_fit
+    std = dict(zip(fm.free_names, fm.std))
+    for name, truth in (("k_rdh", 1e-6), ("h_hub", -veh.hub_z), ("k_rdv", 0.0)):
+        assert abs(fm.value(name) - truth) <= 3 * std[name] + 1e-12, (name, fm.value(name), std[name])
+    assert d.final_prediction.total < 0.03
+
 @pytest.mark.slow
 def test_crazyflie_drag_above_the_centre_of_gravity_is_named_drag_moment():
     """The foreign simulator's body drag acts 3 cm above the CoG (its own form: a force
