@@ -235,3 +235,16 @@ def test_compile_key_follows_effect_options_and_user_source(effect_file):
     fx.load_effects_file(effect_file)
     k2 = lib(QuadrotorModel(af, ["rate_damping"]))
     assert k1 != k2
+
+
+def test_hub_height_bounds_follow_the_rotors_when_the_airframe_gives_no_arm():
+    """Explicit [[rotor]] tables may leave arm_length out: the airframe takes the rotors'
+    distance from the centre, and the hub height's bounds and scale follow it (never a zero
+    range)."""
+    from greybox.airframe import airframe_from_dict
+    rotors = [{"position": [0.2 * np.cos(a), 0.2 * np.sin(a), 0.0], "spin": 1 if k % 2 else -1}
+              for k, a in enumerate(np.arange(6) * np.pi / 3)]
+    af = airframe_from_dict({"airframe": {"name": "hex", "mass": 1.5, "inertia": [0.02, 0.02, 0.04]},
+                             "rotor": rotors, "parameters": {"K_T": 2e-5}})
+    h = next(p for p in fx.HubRotorDrag().parameters(af) if p.name == "h_hub")
+    assert (h.lower, h.upper) == pytest.approx((-0.2, 0.2)) and h.scale == pytest.approx(0.05)

@@ -136,7 +136,8 @@ class HubRotorDrag(Effect):
                 Parameter("k_rdv", 1, 0.0, "N s/m/(rad/s)", 0.0, np.inf, 1e-5, 0.0, True,
                           "axial (thrust-axis) drag per unit rotor speed and hub air velocity", self.name),
                 Parameter("h_hub", 1, 0.0, "m", -arm, arm, 0.25 * arm, 0.0, True,
-                          "height of the rotor hubs above the centre of gravity", self.name)]
+                          "height of the rotor hubs above the centre of gravity (beyond the airframe's "
+                          "rotor positions)", self.name)]
 
     def plausible_values(self, airframe, K_T):
         m, n = airframe.mass, airframe.n_rotors
