@@ -955,8 +955,10 @@ def _identifiability_warnings(model: QuadrotorModel, names: list[str], values: n
     for i in range(n):
         for j in range(i + 1, n):
             if abs(corr[i, j]) > 0.95:
+                # two parameters of one effect share its advice: say it once
+                fly = " / ".join(dict.fromkeys((advice(names[i]), advice(names[j]))))
                 out.append(f"{names[i]} and {names[j]} are strongly correlated (r = {corr[i, j]:+.3f}): "
-                           f"the data hardly tell them apart; fly {advice(names[i])} / {advice(names[j])}")
+                           f"the data hardly tell them apart; fly {fly}")
     for i in range(n):
         if values[i] != 0 and std[i] > 0.5 * abs(values[i]):
             out.append(f"{names[i]} is poorly determined ({std[i]:.3g} on {values[i]:.3g}); "
