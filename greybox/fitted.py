@@ -33,6 +33,7 @@ import datetime as _dt
 import json
 import math
 import tomllib
+import warnings
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -173,7 +174,8 @@ class FittedModel:
             for e in m["effects"]:
                 effects.append(fx.by_name(e["name"]).with_options(e.get("options") or {}))
             model = QuadrotorModel(af, effects, inputs=m.get("inputs", "rotor_speeds"))
-            values = doc["parameters"]
+            values = dict(doc["parameters"])
+            _fill_added_parameters(model, values, source)
             missing = [n for n in model.param_names if n not in values]
             if missing:
                 raise GreyboxInputError(f"{source}: parameters: missing {', '.join(missing)}")
@@ -191,6 +193,27 @@ class FittedModel:
         except (KeyError, TypeError, ValueError) as e:
             raise GreyboxInputError(f"{source}: malformed fitted model ({type(e).__name__}: {e})") from None
         return cls(model, p, free, cov, std, doc.get("provenance", {}))
+
+
+def _fill_added_parameters(model: Any, values: dict, source: str) -> None:
+    """Put into ``values`` (in place) the parameters an effect gained after the model was saved:
+    a missing component of an effect's parameter whose default is its null value, where the
+    effect does what it did without it (``hub_rotor_drag``'s ``h_hub``, 0: the hubs in the
+    rotor plane). It is taken at that value, held fixed, so the model predicts what it did when
+    saved; a warning says so. Anything else missing stays an error."""
+    filled = []
+    for par in model.parameters:
+        if par.effect in ("", "base"):
+            continue
+        defaults = np.broadcast_to(np.asarray(par.default, dtype=float), (par.size,))
+        for comp, d in zip(par.component_names, defaults):
+            if comp not in values and d == par.null:
+                values[comp] = float(d)
+                filled.append(f"{comp} = {d:g} ({par.effect})")
+    if filled:
+        warnings.warn(f"{source}: saved without {', '.join(filled)}, a parameter its effect gained later: taken "
+                      "at that value, where the effect is what it was when saved, and held fixed", UserWarning,
+                      stacklevel=3)
 
 
 def load(path: str | Path) -> FittedModel:

@@ -91,6 +91,28 @@ def test_bad_model_files_are_one_clear_error(tmp_path, fitted):
         FittedModel(fitted.model, [1.0, 2.0, 3.0])
 
 
+
+def test_a_model_saved_before_its_effect_gained_a_parameter_loads_and_predicts_the_same(paper_model, flight,
+                                                                                         tmp_path):
+    """hub_rotor_drag gained h_hub (2026-12-02); a model saved before has no h_hub. At its
+    default, the null, the effect is what it was: the model loads with a warning, h_hub held
+    at 0, and predicts exactly what the same model with h_hub = 0 predicts."""
+    model = paper_model + fx.HubRotorDrag()
+    p = model.parameter_vector({"K_T": 2.395e-5, "b": 6.8429e-7, "k_rdh": 2e-4, "k_rdv": 1e-4, "h_hub": 0.0})
+    fm = FittedModel(model, p, ["K_T", "k_rdh"], np.diag([1e-14, 1e-10]), [1e-7, 1e-5])
+    doc = fm.to_dict()
+    del doc["parameters"]["h_hub"]
+    (tmp_path / "old.json").write_text(json.dumps(doc))
+    with pytest.warns(UserWarning, match=r"saved without h_hub = 0 \(hub_rotor_drag\)"):
+        back = load(tmp_path / "old.json")
+    assert back.value("h_hub") == 0.0 and "h_hub" not in back.free_names
+    _, val = flight.split()
+    np.testing.assert_array_equal(back.predict(val).predicted, fm.predict(val).predicted)
+    del doc["parameters"]["K_T"]                     # the base model's own: still an error
+    (tmp_path / "broken.json").write_text(json.dumps(doc))
+    with pytest.warns(UserWarning, match="saved without h_hub"), pytest.raises(GreyboxInputError, match="missing K_T"):
+        load(tmp_path / "broken.json")
+
 def test_cli_fit_save_then_model_everywhere(flight, tmp_path, capsys):
     log = tmp_path / "f.csv"
     save_log(flight, log)
