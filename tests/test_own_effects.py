@@ -248,3 +248,12 @@ def test_hub_height_bounds_follow_the_rotors_when_the_airframe_gives_no_arm():
                              "rotor": rotors, "parameters": {"K_T": 2e-5}})
     h = next(p for p in fx.HubRotorDrag().parameters(af) if p.name == "h_hub")
     assert (h.lower, h.upper) == pytest.approx((-0.2, 0.2)) and h.scale == pytest.approx(0.05)
+
+
+def test_drag_moment_and_hub_rotor_drag_are_told_apart_by_what_the_hubs_do():
+    """With the hubs' height, hub_rotor_drag has drag_moment's moment too: what tells them apart
+    is that the hubs' drag scales with the rotor speed and damps the rates (either order)."""
+    for a, b in (("drag_moment", "hub_rotor_drag"), ("hub_rotor_drag", "drag_moment")):
+        words = fx.distinguishing_manoeuvre(a, b)
+        assert "different thrust levels" in words and "damp the rates" in words
+        assert "plane of the centre of gravity" not in words

@@ -179,8 +179,7 @@ class DragMoment(Effect):
     distinguish = {
         "cog_offset": "fly at several speeds: an offset's trim is the same at every speed, the drag "
                       "moment's grows with it",
-        "hub_rotor_drag": "fly translations: the hub drag with rotors in the plane of the centre of "
-                          "gravity changes the force, the drag moment the attitude trim",
+        # against hub_rotor_drag: its own entry (the hubs above the CoG give it this moment too)
     }
 
     def parameters(self, airframe):
