@@ -203,7 +203,7 @@ def _fill_added_parameters(model: Any, values: dict, source: str) -> None:
     saved; a warning says so. Anything else missing stays an error."""
     filled = []
     for par in model.parameters:
-        if par.effect in ("", "base"):
+        if par.effect == "base":
             continue
         defaults = np.broadcast_to(np.asarray(par.default, dtype=float), (par.size,))
         for comp, d in zip(par.component_names, defaults):

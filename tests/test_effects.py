@@ -259,6 +259,7 @@ def test_attitude_bias_offsets_roll_and_pitch_readings(base):
 def test_composition_add_and_without(base):
     lib = effects.GroundEffect() + effects.Wind()
     assert isinstance(lib, effects.EffectLibrary) and lib.names == ["ground_effect", "wind"]
+    assert isinstance(lib.get("wind"), effects.Wind) and lib.get("yaw_torque") is None
     m = base + lib
     assert m.effect_names == ["yaw_torque", "linear_drag", "gyroscopic", "ground_effect", "wind"]
     assert "k_ge" in m.param_names and "wind[1]" in m.param_names

@@ -566,7 +566,7 @@ def reduced_to_simpler(c: CandidateResult, group: Sequence[CandidateResult]) -> 
     cov = getattr(c.fit, "covariance", None)
     if cov is None or np.size(cov) == 0:
         return None
-    effect = next((e for e in c.fit.model.effects if e.name == c.effect), None)
+    effect = c.fit.model.effects.get(c.effect)
     if effect is None:
         return None
     values = c.fit.model.parameter_dict(c.fit.p)

@@ -343,7 +343,7 @@ class HeldBeyondPlausible:
 
     def __call__(self, ses: FitSession, th: np.ndarray) -> str:
         model = ses.model
-        e = next((x for x in model.effects if x.name == self.effect), None)
+        e = model.effects.get(self.effect)
         comps = {c for _, c, _ in model.effect_components(self.effect)}
         free = [model.param_names[i] for i in ses.free_idx]
         # every copy (one per flight for a per-flight parameter) of the effect's free components
@@ -517,7 +517,7 @@ def physically_negligible(fr: FitResult, effect: str) -> str:
     if not kt > 0:
         return ""
     plausible = fx.example_values(effect, model.airframe, kt)
-    e = next((x for x in model.effects if x.name == effect), None)
+    e = model.effects.get(effect)
     shape = set(e.shape_parameters) if e is not None else set()
     parts = []
     for par, comp, null in model.effect_components(effect):
@@ -543,7 +543,7 @@ def within_row_timing(model: QuadrotorModel, effect: str, values: dict[str, floa
     it: a six-rotor simulator with no lag between its logged speeds and its thrust, speeds
     logged at 200 Hz with white noise, gave ``motor_lag`` LR 312 and tau_m 1.05 ms with the
     noise's share extrapolated out (:mod:`~greybox.diagnosis.input_noise`)."""
-    e = next((x for x in model.effects if x.name == effect), None)
+    e = model.effects.get(effect)
     timed = [n for n in (e.input_timed if e is not None else ()) if n in values]
     if not timed or not logs:
         return ""
@@ -566,7 +566,7 @@ def physically_implausible(fr: FitResult, effect: str) -> str:
     """Words saying that the fitted parameters of ``effect`` are beyond what it physically
     does on the airframe (the effect's :meth:`~greybox.effects.Effect.plausibility_warnings`),
     or ""."""
-    e = next((x for x in fr.model.effects if x.name == effect), None)
+    e = fr.model.effects.get(effect)
     if e is None:
         return ""
     std = dict(zip(fr.free_names, map(float, fr.std)))

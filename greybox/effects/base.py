@@ -256,6 +256,10 @@ class EffectLibrary:
             name = name.name
         return any(e.name == name for e in self._effects)
 
+    def get(self, name: str) -> Effect | None:
+        """The effect called ``name``, or None when it is not in the library."""
+        return next((e for e in self._effects if e.name == name), None)
+
     @property
     def names(self) -> list[str]:
         return [e.name for e in self._effects]
