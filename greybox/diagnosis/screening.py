@@ -56,7 +56,8 @@ def effect_accelerations(fr: FitResult, effect: str, logs: Sequence[FlightLog]
     model = fr.model
     components = model.effect_components(effect)
     comps = [(model.param_names.index(c), null) for _, c, null in components]
-    if not comps or any(e.name == effect and e.state_names(model.airframe) for e in model.effects):
+    own = model.effects.get(effect)
+    if not comps or (own is not None and own.state_names(model.airframe)):
         return None
     if any(not par.lower <= null <= par.upper for par, _, null in components):
         return None

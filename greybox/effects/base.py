@@ -235,7 +235,7 @@ class EffectLibrary:
     def _append(self, e: Effect) -> None:
         if not isinstance(e, Effect):
             raise TypeError(f"not an effect: {e!r}")
-        if any(x.name == e.name for x in self._effects):
+        if e.name in self:
             raise GreyboxInputError(f"effect {e.name!r} is already in the model")
         self._effects.append(e)
 
