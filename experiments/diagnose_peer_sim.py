@@ -3,7 +3,7 @@ quaternions and fixed-step RK4, a geometric controller with a mismatched interna
 Crazyflie-ordered rotor tables, vision at 50-100 Hz with dropouts and a lost stretch,
 jittered time stamps, quantised ESC speed telemetry, its own forms of the effects).
 
-Each case: an estimation and a validation flight (seeds 1 and 2), written to CSV and TOML by
+Each case: an estimation and a validation flight (seeds 1 and 2, or ``--seeds EST VAL``), written to CSV and TOML by
 the simulator's own code and read back with ``greybox.load_log`` / ``load_airframe`` as a
 user's files; the airframe's starting values are 40 % off (K_T x 1.4, b x 0.6). Prints, per
 case: the baseline's formulation and certificate, K_T and b against the truth, the verdict
@@ -11,6 +11,7 @@ and the parameters of what was added; where the logged speeds carry notable nois
 the diagnosis gives them with that noise taken out (SIMEX), which the verdict's OK then judges.
 
     python experiments/diagnose_peer_sim.py [case ...]      # default: every case
+    python experiments/diagnose_peer_sim.py --seeds 5 6 cf_clean   # other draws of the same case
 """
 from __future__ import annotations
 
@@ -112,13 +113,13 @@ torque is no function of the state that discovery could find), "input noise" for
 that says the rates are missed by what the noise on the logged speeds gives."""
 
 
-def run(name: str, work: Path) -> dict:
+def run(name: str, work: Path, seeds: tuple[int, int] = (1, 2)) -> dict:
     make, fx, duration, expect, *options = CASES[name]
     airframe_options = dict(options[0]) if options else {}
     sensors = airframe_options.pop("sensors", None)
     exactly = airframe_options.pop("exactly", False)
     veh = make()
-    flights = [fly(veh, duration=duration, seed=s, effects=fx, sensors=sensors, low_hovers=True) for s in (1, 2)]
+    flights = [fly(veh, duration=duration, seed=s, effects=fx, sensors=sensors, low_hovers=True) for s in seeds]
     d = work / name
     paths = [write_case(f, d, name=f"seed{i + 1}", **airframe_options) for i, f in enumerate(flights)]
     model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
@@ -182,6 +183,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("cases", nargs="*", help=f"cases among {', '.join(CASES)} (default: all)")
     ap.add_argument("--keep", help="folder to keep the flights in (default: a temporary one)")
+    ap.add_argument("--seeds", nargs=2, type=int, default=(1, 2), metavar=("EST", "VAL"),
+                    help="the estimation and validation flights' seeds (default 1 2)")
     a = ap.parse_args()
     unknown = [c for c in a.cases if c not in CASES]
     if unknown:
@@ -190,7 +193,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(a.keep) if a.keep else Path(tmp)
         for name in a.cases or list(CASES):
-            r = run(name, work)
+            r = run(name, work, tuple(a.seeds))
             rows.append(r)
             print(f"{'OK ' if r['ok'] else 'BAD'} {name:<17} verdict {str(r['verdict']):<16} added {','.join(r['added']) or '-':<28} "
                   f"baseline {r['baseline_formulation']}, certified {r['baseline_certified']}, adequate "

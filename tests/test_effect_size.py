@@ -2,6 +2,7 @@
 non-negligible"), checked against values worked out by hand."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -137,6 +138,25 @@ def test_a_candidate_that_takes_the_place_of_a_base_term_is_named_and_one_that_a
     words = replaced_base_terms(as_given, with_rotor_drag, "rotor_drag")
     assert words.startswith("Kd[0] 0.3") and words.endswith("-> 0 (lower bound)"), words
     assert "Kd[1]" not in words
+
+    # The same refit ended off the bound but no longer told from the null (what a refit from
+    # another start gives: the hexacopter's Kd[2] 0.35 -> 0.02 +- 0.12 beside hub_rotor_drag):
+    # taken over all the same. Moved half way but still clear of 0, or moved less than half
+    # way: not.
+    i, j = with_rotor_drag.model.param_names.index("Kd[0]"), with_rotor_drag.free_names.index("Kd[0]")
+    kd0 = as_given.value("Kd[0]")
+
+    def refit_ending_at(value: float, std: float):
+        p_, std_ = with_rotor_drag.p.copy(), with_rotor_drag.std.copy()
+        p_[i], std_[j] = value, std
+        cert = dataclasses.replace(with_rotor_drag.certificate,
+                                   held=[h for h in with_rotor_drag.certificate.held if h != "Kd[0]"])
+        return dataclasses.replace(with_rotor_drag, p=p_, std=std_, certificate=cert)
+
+    words = replaced_base_terms(as_given, refit_ending_at(0.06 * kd0, 0.3 * kd0), "rotor_drag")
+    assert words.startswith("Kd[0] 0.3") and "(no longer told from 0)" in words, words
+    assert replaced_base_terms(as_given, refit_ending_at(0.4 * kd0, 0.05 * kd0), "rotor_drag") == ""
+    assert replaced_base_terms(as_given, refit_ending_at(0.6 * kd0, 0.5 * kd0), "rotor_drag") == ""
 
     plain, _ = synthesize(base, base.default_parameters(), 8.0, SensorSpec(rate=100.0), seed=2).log.split(0.8)
     as_given = fit(base, plain, progress=False)
