@@ -171,20 +171,23 @@ def test_noise_on_logged_speeds_with_every_default_candidate_is_null(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seeds", [(41, 42), (21, 22)])
-def test_a_cog_offset_with_every_default_candidate_is_all_that_is_added(tmp_path, seeds):
+@pytest.mark.parametrize("seeds, smooth", [((41, 42), False), ((21, 22), True)], ids=["as_logged", "smoothed"])
+def test_a_cog_offset_with_every_default_candidate_is_all_that_is_added(tmp_path, seeds, smooth):
     """A 15, -10 mm CoG offset, 1 % noise on the logged speeds, every default candidate, rounds
     until nothing stands: cog_offset and nothing else of the catalogue (the log's timing may be
     taken), its offset within 3 std, K_T and b the vehicle's. On the audit's own flight of this
     case, round 2 named accel_bias (acc_bias z -0.108 m/s^2 trading with K_T -1.1 %), then, with
     SIMEX, thrust_curve extrapolated across its null (k_Tw -0.167 -> +0.31 ± 0.03), then a capped
-    motor lag checked by nothing (Kd[2] 20x the truth). On the flights of seeds 21 and 22, round 2
-    named hub_rotor_drag (hubs 0.17 ± 0.08 m up, its vertical drag in Kd[2]'s place: 0.021 ± 0.12
-    for 0.35; validation q -16 %, total -3 %) until a base term taken to its null off its bound
-    counted as replaced."""
+    motor lag checked by nothing (Kd[2] 20x the truth). On the flights of seeds 21 and 22, their
+    speeds smoothed as ``greybox diagnose`` reads them, round 2 named hub_rotor_drag (hubs 0.17 ±
+    0.08 m up, its vertical drag in Kd[2]'s place: 0.021 ± 0.12 for 0.35; validation q -16 %,
+    total -3 %) until a base term taken to its null off its bound counted as replaced."""
     est, _ = hexa_flight(tmp_path, "cog", seeds[0], 36.0)
     val, _ = hexa_flight(tmp_path, "cog", seeds[1], 30.0)
     model = QuadrotorModel(load_airframe(tmp_path / "airframe.toml"))
+    if smooth:
+        (est, smoothed), (val, _) = denoise_inputs(model, est), denoise_inputs(model, val)
+        assert smoothed is not None
     d = diagnose(model, est, validation=val)
     assert d.verdict == "cog_offset", d.summary()
     added = [e for e in d.final_model.effect_names if e not in model.effect_names]
