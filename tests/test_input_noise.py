@@ -170,6 +170,24 @@ def test_noise_on_logged_speeds_with_every_default_candidate_is_null(tmp_path):
     assert d.baseline.value("K_T") == pytest.approx(hexa_sim.KT, rel=0.01)
 
 
+def diagnose_hexa_alone(directory: Path, case: str, seeds: tuple[int, int], smooth: bool, effect: str):
+    """The diagnosis with every default candidate, rounds until nothing stands, of a hexa_sim
+    estimation (36 s) and validation (30 s) flight of ``case`` (speeds smoothed as ``greybox
+    diagnose`` reads them when ``smooth``); checks that ``effect`` is the verdict and nothing
+    else of the catalogue is added (the log's timing may be), and returns the final fit."""
+    est, _ = hexa_flight(directory, case, seeds[0], 36.0)
+    val, _ = hexa_flight(directory, case, seeds[1], 30.0)
+    model = QuadrotorModel(load_airframe(directory / "airframe.toml"))
+    if smooth:
+        (est, smoothed), (val, _) = denoise_inputs(model, est), denoise_inputs(model, val)
+        assert smoothed is not None
+    d = diagnose(model, est, validation=val)
+    assert d.verdict == effect, d.summary()
+    added = [e for e in d.final_model.effect_names if e not in model.effect_names]
+    assert set(added) <= {effect, "sampled_inputs"}, d.summary()
+    return d.final_fit
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seeds, smooth", [((41, 42), False), ((21, 22), True)], ids=["as_logged", "smoothed"])
 def test_a_cog_offset_with_every_default_candidate_is_all_that_is_added(tmp_path, seeds, smooth):
@@ -182,17 +200,7 @@ def test_a_cog_offset_with_every_default_candidate_is_all_that_is_added(tmp_path
     speeds smoothed as ``greybox diagnose`` reads them, round 2 named hub_rotor_drag (hubs 0.17 ±
     0.08 m up, its vertical drag in Kd[2]'s place: 0.021 ± 0.12 for 0.35; validation q -16 %,
     total -3 %) until a base term taken to its null off its bound counted as replaced."""
-    est, _ = hexa_flight(tmp_path, "cog", seeds[0], 36.0)
-    val, _ = hexa_flight(tmp_path, "cog", seeds[1], 30.0)
-    model = QuadrotorModel(load_airframe(tmp_path / "airframe.toml"))
-    if smooth:
-        (est, smoothed), (val, _) = denoise_inputs(model, est), denoise_inputs(model, val)
-        assert smoothed is not None
-    d = diagnose(model, est, validation=val)
-    assert d.verdict == "cog_offset", d.summary()
-    added = [e for e in d.final_model.effect_names if e not in model.effect_names]
-    assert set(added) <= {"cog_offset", "sampled_inputs"}, d.summary()
-    fr = d.final_fit
+    fr = diagnose_hexa_alone(tmp_path, "cog", seeds, smooth, "cog_offset")
     for i, truth in enumerate((0.015, -0.010)):
         assert fr.value(f"r_cog[{i}]") == pytest.approx(truth, abs=3 * fr.std[fr.free_names.index(f"r_cog[{i}]")])
     assert fr.value("K_T") == pytest.approx(hexa_sim.KT, rel=0.01)
@@ -225,15 +233,7 @@ def test_a_weak_rotor_with_every_default_candidate_is_all_that_is_added(tmp_path
     total -4 %) until a base term taken to its null off its bound counted as replaced. The
     speeds are smoothed as ``greybox diagnose`` reads them (as logged, the drag's vertical
     component, the least exercised, comes out 9 % low)."""
-    logs = [hexa_flight(tmp_path, "asym", 21, 36.0)[0], hexa_flight(tmp_path, "asym", 22, 30.0)[0]]
-    model = QuadrotorModel(load_airframe(tmp_path / "airframe.toml"))
-    (est, smoothed), (val, _) = (denoise_inputs(model, log) for log in logs)
-    assert smoothed is not None
-    d = diagnose(model, est, validation=val)
-    assert d.verdict == "motor_asymmetry", d.summary()
-    added = [e for e in d.final_model.effect_names if e not in model.effect_names]
-    assert set(added) <= {"motor_asymmetry", "sampled_inputs"}, d.summary()
-    fr = d.final_fit
+    fr = diagnose_hexa_alone(tmp_path, "asym", (21, 22), True, "motor_asymmetry")
     assert fr.value("K_T_dev[2]") == pytest.approx(0.92 / (5.92 / 6) - 1, abs=3 * fr.std[fr.free_names.index("K_T_dev[2]")])
     for i, truth in enumerate(hexa_sim.KD):
         # the simulator's drag acts on the world-frame velocity, greybox's on the body's: 5 %
