@@ -8,7 +8,9 @@ McClamroch 2010) with integral action and a deliberately mismatched internal mod
 cascaded PID), explicit rotor tables in the Crazyflie firmware's order, an IMU-rate log with
 vision at 60 Hz that loses samples and whole stretches, timestamps with jitter, quantised
 ESC speed telemetry (or, ``PeerSensors(log_commands=True)``, the controller's speed commands
-as a PWM log has them, the motors' lag in between), and its own forms of the effects:
+as a PWM log has them, the motors' lag in between), optionally an attitude estimate whose level
+reference is off (``att_bias``: the controller levels the biased estimate, and the log reports it)
+and a vision latency (``pos_delay``), and its own forms of the effects:
 
 * rotor drag at every hub on the hub's own air velocity ``R^T (v - wind) + omega x r_i``
   (so it also damps the body rates), ``F_i = -k_rd w_i P (...)`` with ``P = diag(1, 1, 0)``;
@@ -176,6 +178,8 @@ class PeerEffects:
 
     body_drag: Sequence[float] | None = None     # [Dx, Dy, Dz] N s/m, body frame, at the CoG
     world_drag: Sequence[float] | None = None    # [Dx, Dy, Dz] N s/m on the world-frame air velocity
+    quad_drag: Sequence[float] | None = None     # [Cx, Cy, Cz] N s^2/m^2: F_b,j = -C_j |vb_j| vb_j per body
+                                                 # axis (greybox's quadratic_drag: world axes, |v| v)
     rotor_drag: float = 0.0                      # k_rd: per-hub drag -k w_i P v_hub
     ground_effect: bool = False                  # Cheeseman-Bennett per rotor
     motor_gains: Sequence[float] | None = None   # per-rotor thrust and torque scale
@@ -224,6 +228,15 @@ def rot_to_euler(R: np.ndarray) -> tuple[float, float, float]:
     """ZYX Euler angles (phi, theta, psi) of R = Rz(psi) Ry(theta) Rx(phi)."""
     return (math.atan2(R[2, 1], R[2, 2]), -math.asin(max(-1.0, min(1.0, R[2, 0]))),
             math.atan2(R[1, 0], R[0, 0]))
+
+
+def euler_to_rot(phi: float, theta: float, psi: float) -> np.ndarray:
+    """R = Rz(psi) Ry(theta) Rx(phi), body to world."""
+    cf, sf, ct, st, cp, sp = (math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta),
+                              math.cos(psi), math.sin(psi))
+    return np.array([[cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf],
+                     [sp * ct, sp * st * sf + cp * cf, sp * st * cf - cp * sf],
+                     [-st, ct * sf, ct * cf]])
 
 
 def vee(S: np.ndarray) -> np.ndarray:
@@ -309,6 +322,8 @@ class PeerDynamics:
         if self.world_drag is not None:
             # another form of the same drag: diagonal in the world's axes, not the body's
             F = F - R.T @ (self.world_drag * (v - self.wind))
+        if fx.quad_drag is not None:
+            F = F - np.asarray(fx.quad_drag, float) * np.abs(vb) * vb
         if self.rate_damping is not None:
             M = M - self.rate_damping * om
         if fx.flapping:
@@ -471,6 +486,11 @@ class PeerSensors:
     speed_noise: float = 0.0             # relative white noise on the logged speeds (an ESC's telemetry)
     att_correlation: float = 0.0         # s; > 0: the attitude noise (same RMS) is correlated over this time,
                                          # as an estimator's output is (AR(1) of the same draws)
+    att_bias: Sequence[float] | None = None   # rad: the estimator's roll and pitch are off by these (a
+                                         # miscalibrated level reference); the controller levels that
+                                         # estimate, and the log reports it
+    pos_delay: float = 0.0               # s: the logged position is the vehicle's this long before
+                                         # its time stamp (a vision pipeline's latency)
 
 
 @dataclass
@@ -510,6 +530,10 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
         t = k * dt
         if k % ctrl_every == 0:
             R = quat_to_rot(s[6:10])
+            if sens.att_bias is not None:
+                # the controller acts on the estimator's attitude, which is off by the bias
+                phi, theta, psi = rot_to_euler(R)
+                R = euler_to_rot(phi + sens.att_bias[0], theta + sens.att_bias[1], psi)
             w_cmd = ctrl(s[0:3], s[3:6], R, s[10:13], plan.reference(max(t, 0.0)), ctrl_every * dt)
             if fx.turbulence:
                 a = math.exp(-ctrl_every * dt / turb_tau)
@@ -540,7 +564,11 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
     for i in range(4):
         cols[f"w{i + 1}"] = w[:, i]
     eul = np.array([rot_to_euler(quat_to_rot(q)) for q in states[:, 6:10]])
-    pos = states[:, 0:3] + veh.pos_noise * rng.standard_normal((n, 3))
+    pos = states[:, 0:3]
+    if sens.pos_delay:
+        # the position of pos_delay before each row's sample instant (held at the first row before the log)
+        pos = np.column_stack([np.interp(t_log - sens.pos_delay, t_log, pos[:, j]) for j in range(3)])
+    pos = pos + veh.pos_noise * rng.standard_normal((n, 3))
     # vision: every log_rate/pos_rate-th row, some lost, stretches lost
     keep = np.zeros(n, bool)
     step = veh.log_rate / veh.pos_rate
@@ -558,6 +586,8 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
         for k in range(1, n):
             att_err[k] = rho * att_err[k - 1] + math.sqrt(1 - rho * rho) * att_err[k]
     att = eul + att_err
+    if sens.att_bias is not None:
+        att[:, :2] += np.asarray(sens.att_bias, float)
     att[:, 2] = (att[:, 2] + math.pi) % (2 * math.pi) - math.pi
     for j, name in enumerate(("phi", "theta", "psi")):
         cols[name] = att[:, j]
@@ -594,6 +624,8 @@ def _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts) -> dict[str, Any]:
         eq["Kd"] = [float(x) for x in fx.world_drag]    # what a level flight sees of it
     if fx.rotor_drag:
         eq["k_rdh"] = fx.rotor_drag
+    if fx.quad_drag is not None:
+        eq["Kq"] = [float(x) for x in fx.quad_drag]     # what a level flight sees of it, per axis
     if fx.ground_effect:
         eq["k_ge"] = (veh.rotor_radius / 4.0) ** 2
     if fx.motor_gains is not None:
@@ -613,6 +645,10 @@ def _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts) -> dict[str, Any]:
         v = float(np.mean(volts))
         slope = (math.log(dyn.hover_speed_ratio(v + 0.01)) - math.log(dyn.hover_speed_ratio(v - 0.01))) / 0.02
         eq["K_vbat"] = slope / (1.0 + slope * (4.0 - v))
+    if sens.att_bias is not None:
+        eq["att_bias"] = [float(x) for x in sens.att_bias]
+    if sens.pos_delay:
+        eq["tau_pos"] = float(sens.pos_delay)
     if sens.accel and sens.accel_bias is not None:
         eq["acc_bias"] = [float(x) for x in sens.accel_bias]
     return {"simulator": "peer_sim", "vehicle": asdict(veh), "effects": fx.active(),
