@@ -20,6 +20,7 @@ import json
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 
@@ -31,6 +32,9 @@ from peer_sim import PeerBattery, PeerEffects, PeerSensors, PeerVehicle, fly, wr
 
 from greybox import QuadrotorModel, denoise_inputs, load_airframe, load_log  # noqa: E402
 from greybox.diagnosis import diagnose  # noqa: E402
+
+OUTDOOR = dict(log_rate=250.0, pos_rate=10.0, pos_noise=0.05)
+OUTDOOR_SENSORS = PeerSensors(accel=True, att_correlation=0.1, pos_dropout=0.0, pos_gaps=())
 
 CASES = {
     "cf_clean": (PeerVehicle.crazyflie, PeerEffects(), 20.0, None),
@@ -101,6 +105,32 @@ CASES = {
                                    "motor_asymmetry", {"sensors": PeerSensors(speed_noise=0.01)}),
     "3kg_cog_speed_noise": (PeerVehicle.three_kg, PeerEffects(cog_offset=[0.015, -0.01]), 20.0, "cog_offset",
                             {"sensors": PeerSensors(speed_noise=0.01)}),
+    # sensors off in ways the catalogue's measurement effects hold: an attitude estimate whose
+    # level reference is off by 1.7 and -1.1 degrees (the controller levels it), a vision latency
+    "1kg_att_bias": (PeerVehicle.one_kg, PeerEffects(), 20.0, "attitude_bias",
+                     {"sensors": PeerSensors(att_bias=(0.03, -0.02))}),
+    "cf_att_bias_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(), 25.0, "attitude_bias",
+                          {"sensors": PeerSensors(att_bias=(0.03, -0.02))}),
+    # an outdoor sensor mix: a 250 Hz log, position at 10 Hz with 5 cm noise (a GNSS-aided
+    # estimate), the attitude estimate's noise correlated over 0.1 s, the accelerometer logged
+    "1kg_outdoor": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(), 30.0, None, {"sensors": OUTDOOR_SENSORS}),
+    "1kg_outdoor_weak_rotor": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(motor_gains=[1.0, 1.0, 0.9, 1.0]),
+                               30.0, "motor_asymmetry", {"sensors": OUTDOOR_SENSORS}),
+    "1kg_outdoor_cog": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(cog_offset=[0.01, -0.006]), 30.0,
+                        "cog_offset", {"sensors": OUTDOOR_SENSORS}),
+    "1kg_outdoor_att_bias": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(), 30.0, "attitude_bias",
+                             {"sensors": replace(OUTDOOR_SENSORS, att_bias=(0.03, -0.02))}),
+    "1kg_outdoor_gnss_delay": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(), 30.0, "position_delay",
+                               {"sensors": replace(OUTDOOR_SENSORS, pos_delay=0.15)}),
+    "3kg_outdoor_world_drag": (partial(PeerVehicle.three_kg, **OUTDOOR), PeerEffects(world_drag=[0.3, 0.3, 0.4]), 30.0,
+                               None, {"sensors": OUTDOOR_SENSORS}),
+    # quadratic drag in its own form (per body axis, |vb_j| vb_j), figure eights at up to 3 m/s
+    "1kg_quad_drag": (partial(PeerVehicle.one_kg, speed=3.0, distance=1.5), PeerEffects(quad_drag=[0.08, 0.08, 0.1]), 20.0,
+                      "quadratic_drag"),
+    "1kg_pos_delay": (PeerVehicle.one_kg, PeerEffects(), 20.0, "position_delay",
+                      {"sensors": PeerSensors(pos_delay=0.05)}),
+    "cf_pos_delay_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(), 25.0, "position_delay",
+                           {"sensors": PeerSensors(pos_delay=0.03)}),
 }
 """name: (vehicle, effects, duration s, what should be named[, options: those of
 ``peer_sim.airframe_text``, ``sensors``, a ``PeerSensors``, and ``exactly``: nothing added after the
