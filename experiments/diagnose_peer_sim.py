@@ -111,6 +111,17 @@ CASES = {
                      {"sensors": PeerSensors(att_bias=(0.03, -0.02))}),
     "cf_att_bias_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(), 25.0, "attitude_bias",
                           {"sensors": PeerSensors(att_bias=(0.03, -0.02))}),
+    # a 250 g racer flown hard (up to 70 degrees of tilt, 7.5 m/s)
+    "racer_clean": (PeerVehicle.racer, PeerEffects(), 20.0, None),
+    "racer_weak_rotor": (PeerVehicle.racer, PeerEffects(motor_gains=[1.0, 0.9, 1.0, 1.0]), 20.0, "motor_asymmetry"),
+    "racer_quad_drag": (PeerVehicle.racer, PeerEffects(quad_drag=[0.01, 0.01, 0.015]), 20.0, "quadratic_drag"),
+    # two effects at once: the CoG offset beside the attitude estimate's offset; a Crazyflie's
+    # PWM-like log (the motor commands at 100 Hz) beside a vision latency
+    "1kg_att_bias_cog": (PeerVehicle.one_kg, PeerEffects(cog_offset=[0.01, -0.006]), 20.0,
+                         ("cog_offset", "attitude_bias"), {"sensors": PeerSensors(att_bias=(0.03, -0.02))}),
+    "cf_commands_pos_delay_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(), 25.0,
+                                    ("motor_lag", "position_delay"),
+                                    {"sensors": PeerSensors(log_commands=True, pos_delay=0.03)}),
     # an outdoor sensor mix: a 250 Hz log, position at 10 Hz with 5 cm noise (a GNSS-aided
     # estimate), the attitude estimate's noise correlated over 0.1 s, the accelerometer logged
     "1kg_outdoor": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(), 30.0, None, {"sensors": OUTDOOR_SENSORS}),

@@ -47,7 +47,8 @@ Use::
     flight.columns, flight.truth
     write_case(flight, "DIR")          # DIR/flight.csv, DIR/airframe.toml, DIR/truth.json
 
-``python tests/peer_sim.py --vehicle one_kg --effects ground_effect --out DIR``.
+``python tests/peer_sim.py --vehicle one_kg --effects '{"ground_effect": true}' --out DIR``
+(``--sensors '{"pos_delay": 0.03}'`` for the sensors' options).
 """
 from __future__ import annotations
 
@@ -135,6 +136,19 @@ class PeerVehicle:
                     low_hover=0.085, cruise_height=1.0, log_rate=1000.0, pos_rate=60.0,
                     pos_noise=0.001, att_noise=0.003, gyro_noise=0.005, speed_quantum=1.0,
                     attitude_bandwidth=20.0, position_bandwidth=2.0, ctrl_rate=500.0)
+        base.update(kw)
+        return cls(**base)
+
+    @classmethod
+    def racer(cls, **kw: Any) -> "PeerVehicle":
+        """A 250 g racer with 5-inch propellers flown hard: figure eights at 6 m/s, steps of
+        3 m, a 40 Hz attitude loop (up to 70 degrees of tilt, 7 rad/s)."""
+        base = dict(name="peer_racer", mass=0.25, inertia=(1.5e-4, 1.8e-4, 2.9e-4), arm=0.08,
+                    K_T=1.5e-6, b=2.2e-8, tau_motor=0.015, rotor_radius=0.0635,
+                    rotor_inertia=1.0e-6, hub_height=0.01, distance=3.0, speed=6.0,
+                    low_hover=0.05, cruise_height=1.5, log_rate=500.0, pos_rate=100.0,
+                    pos_noise=0.002, att_noise=0.003, gyro_noise=0.01, speed_quantum=1.0,
+                    attitude_bandwidth=40.0, position_bandwidth=3.0, ctrl_rate=1000.0)
         base.update(kw)
         return cls(**base)
 
@@ -702,7 +716,7 @@ def write_case(flight: PeerFlight, directory: str | Path, name: str = "flight",
 
 
 VEHICLES = {"crazyflie": PeerVehicle.crazyflie, "one_kg": PeerVehicle.one_kg,
-            "three_kg": PeerVehicle.three_kg}
+            "three_kg": PeerVehicle.three_kg, "racer": PeerVehicle.racer}
 
 
 def _main(argv: Sequence[str] | None = None) -> int:
@@ -712,12 +726,14 @@ def _main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--effects", default="", help="JSON object of PeerEffects fields")
+    ap.add_argument("--sensors", default="", help='JSON object of PeerSensors fields, e.g. {"att_bias": [0.03, -0.02]}')
     ap.add_argument("--no-low-hovers", action="store_true")
     ap.add_argument("--out", required=True)
     ap.add_argument("--name", default="flight")
     a = ap.parse_args(argv)
     fx = PeerEffects(**json.loads(a.effects)) if a.effects else PeerEffects()
-    fl = fly(VEHICLES[a.vehicle](), a.duration, a.seed, fx, low_hovers=not a.no_low_hovers)
+    sens = PeerSensors(**json.loads(a.sensors)) if a.sensors else None
+    fl = fly(VEHICLES[a.vehicle](), a.duration, a.seed, fx, sens, low_hovers=not a.no_low_hovers)
     paths = write_case(fl, a.out, a.name)
     print(json.dumps({k: str(v) for k, v in paths.items()}))
     return 0
