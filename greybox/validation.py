@@ -6,7 +6,10 @@ start of each window is a *moving-horizon estimate* from the ``init_window`` sec
 measurements just before it (default 0.5 s): a small Gauss–Newton fit of the state at the
 start of that stretch, with the model's parameters held, propagated to the window start.
 Only past data enter the initial state; the model then predicts the whole window open loop
-from the logged inputs, and the prediction errors over the window are scored.
+from the logged inputs, and the prediction errors over the window are scored. A window whose
+stretch before it holds no measurement of a pose channel the log measures (a vision outage;
+:func:`startable`) starts instead at the next sample whose stretch does, and the samples in
+between are not scored: a state guessed across an outage tests the guess, not the model.
 
 ``nrmse`` of a channel is the RMS of its prediction errors (over every measured sample in
 every window) divided by the RMS of the measured signal's variation about its mean over the
@@ -32,7 +35,7 @@ from .integrate import Substeps, log_substeps, parallel_map, rk4_step_with_outpu
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import euler_rates_from_body_rates
 
-__all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
+__all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "POSE_CHANNELS", "startable", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
            "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options", "predict_after_fit",
            "horizon_errors_after", "horizon_errors", "HORIZON_START_EVERY", "INIT_WINDOWS",
            "choose_horizon_predictor", "HELD_MOMENT_WINDOWS",
@@ -82,10 +85,50 @@ class Prediction:
                 "horizon": self.horizon, "windows": len(self.windows)}
 
 
-def _windows(t: np.ndarray, L: int, horizon: float) -> list[tuple[int, int]]:
+POSE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi")
+"""Channels a window's start state needs measured in the stretch it is estimated from."""
+
+
+def startable(log: FlightLog, L: int) -> np.ndarray:
+    """Per sample ``k``: can a prediction start there, from the ``L`` samples before it? Each
+    pose channel the log measures at all must have a measurement in that stretch (or, for a
+    channel sampled more sparsely than the stretch is long, within 1.5 of its typical
+    spacings before ``k``). A start inside a sensor's outage has nothing to estimate that
+    state from: on a 250 g racer at 7 m/s a window started in a 0.4-s vision outage was
+    predicted 1.6 m off in y, from positions and a velocity guessed across the gap, and it
+    alone took the validation nrmse from 0.035 to 0.069. False for ``k < L``."""
+    t = log.t
+    n = t.size
+    ok = np.arange(n) >= L
+    before = t - t[np.clip(np.arange(n) - L, 0, n - 1)]     # the stretch's length up to sample k
+    for name in POSE_CHANNELS:
+        if name not in log.output_names:
+            continue
+        measured = np.isfinite(log.output(name))
+        if measured.sum() < 2:
+            continue
+        tm = t[measured]
+        reach = np.maximum(before, 1.5 * float(np.median(np.diff(tm))))
+        j = np.searchsorted(tm, t, side="left") - 1           # the last measurement before sample k
+        last = np.where(j >= 0, tm[np.maximum(j, 0)], -np.inf)
+        ok &= t - last <= reach + 1e-9
+    return ok
+
+
+def _windows(t: np.ndarray, L: int, horizon: float, can_start: np.ndarray | None = None) -> list[tuple[int, int]]:
+    """Consecutive windows of ``horizon`` seconds, each with ``L`` samples before it; a window
+    that cannot start (``can_start`` False: a sensor's outage) starts at the next sample that
+    can, and the samples between are not scored."""
     out = []
     k = L
     while k < t.size - 2:
+        if can_start is not None and not can_start[k]:
+            later = np.flatnonzero(can_start[k:])
+            if not later.size:
+                break
+            k += int(later[0])
+            if k >= t.size - 2:
+                break
         ke = int(np.searchsorted(t, t[k] + horizon - 1e-9, side="right"))
         ke = min(max(ke, k + 2), t.size)
         out.append((k, ke))
@@ -239,10 +282,14 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
     t = log.t
     dt = float(np.median(np.diff(t)))
     L = max(int(round(init_window / dt)), 3)
-    wins = _windows(t, L, horizon)
-    if not wins:
+    if not _windows(t, L, horizon):
         raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
                                 f"{init_window + 2 * dt:.3f} s")
+    wins = _windows(t, L, horizon, startable(log, L))
+    if not wins:
+        raise GreyboxInputError(f"{log.source or 'log'}: no stretch of {init_window:.3f} s measures the pose "
+                                f"({', '.join(c for c in POSE_CHANNELS if c in log.output_names)}) to start a "
+                                f"prediction from")
     starts = np.array([a for a, _ in wins])
     Yp, x0 = _predict_windows(model, p, log, starts, max(b - a for a, b in wins), L, sigma, compile,
                               measured_start)
@@ -502,6 +549,10 @@ def horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]"
                                     f"{init_window + 2 * dt:.3f} s")
         step = max(1, int(round(start_every / dt)), int(math.ceil((last - L) / HORIZON_MAX_STARTS)))
         starts = np.arange(L, last, step)
+        starts = starts[startable(log, L)[starts]]     # none inside a sensor's outage
+        if not starts.size:
+            raise GreyboxInputError(f"{log.source or 'log'}: no stretch of {init_window:.3f} s measures the pose "
+                                    f"to start a prediction from")
         Yp, x0 = _predict_windows(model, np.asarray(pk, dtype=float), log, starts, n_steps, L, sigma, compile,
                                   measured_start)
         meas = _measured(log, model.ny)

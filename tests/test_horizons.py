@@ -309,3 +309,42 @@ def test_a_start_state_the_stretch_does_not_measure_stays_at_its_guess():
     # where the stretch measures the states, the prior weighs nothing beside the data
     seen = estimate_states(m, p, log, [1000], 100)[0]
     assert seen[:3] == pytest.approx(flight.states[1000, :3], abs=0.01)
+
+
+def test_no_prediction_window_starts_inside_a_vision_outage():
+    """By hand: position at 50 Hz with a 0.4-s outage from 6.0 s, start stretches of 0.2 s:
+    a start can be made where the 0.2 s before it hold a position sample, and not from
+    6.2 s (the stretch then lies wholly in the outage) until the first sample after it. The
+    consecutive validation windows and the horizon report's overlapping ones start only there
+    (before, a window started at whatever sample the horizon reached, outage or not)."""
+    import dataclasses
+    from greybox.validation import horizon_errors, predict, startable
+    base = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
+    m, p = model_with_hidden_effects(base, [])
+    log = synthesize(m, p, 12.0, SensorSpec(rate=200.0, vision_rate=50.0, dropout=0.0, burst_dropouts=0.0),
+                     seed=3).log
+    whole, out = log, log.outputs.copy()
+    gap = (log.t >= 6.0) & (log.t < 6.4)
+    for c in "xyz":
+        out[gap, log.output_names.index(c)] = np.nan
+    log = dataclasses.replace(log, outputs=out)
+    L = 40                                                   # 0.2 s at 200 Hz
+    ok = startable(log, L)
+    assert not ok[:L].any()
+    measured_x = np.isfinite(log.output("x"))
+    last_before_gap = log.t[measured_x & (log.t < 6.0)].max()
+    first_after = log.t[measured_x & (log.t >= 6.4)].min()
+    inside = (log.t - log.t[np.maximum(np.arange(log.t.size) - L, 0)] < log.t - last_before_gap) \
+        & (log.t <= first_after)
+    assert inside.sum() > 30                                  # about 0.2 s of starts
+    assert not ok[inside].any()
+    assert ok[(np.arange(log.t.size) >= L) & ~inside].all()
+    pred = predict(m, p, log, init_window=0.2)
+    assert all(ok[a] for a, _ in pred.windows)
+    # the window the horizon reached inside the outage starts at the first sample after it
+    assert any(first_after <= log.t[a] < first_after + 0.05 for a, _ in pred.windows), \
+        [round(float(log.t[a]), 3) for a, _ in pred.windows]
+    # starts every 0.1 s: the two or three of the ~0.2 s inside are skipped
+    full = horizon_errors(m, p, whole, init_window=0.2)
+    gapped = horizon_errors(m, p, log, init_window=0.2)
+    assert 1 <= full.windows - gapped.windows <= 4, (full.windows, gapped.windows)
