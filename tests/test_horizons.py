@@ -176,13 +176,16 @@ def test_overlapping_windows_score_many_more_starts_and_reduce_to_the_consecutiv
     """``horizon_errors`` starts a window every 0.1 s: on a 3.2-s validation flight (2.7 s
     after the 0.5-s start window) that is 27 starts where the consecutive 1-s windows of a
     prediction give three, so each horizon's RMS rests on tens of samples. Started once per second instead, it scores
-    exactly the windows of ``predict`` and gives the same numbers."""
+    exactly the windows of ``predict`` and gives the same numbers (on a flight without vision
+    outages: where one stops a start, ``predict`` moves its window past it and
+    ``horizon_errors`` skips that start, see the test below)."""
     from greybox import fit
     from greybox.validation import horizon_errors, predict
 
     base = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
     m, p = model_with_hidden_effects(base, [])
-    est, val = synthesize(m, p, 16.0, SensorSpec(rate=100.0, vision_rate=50.0), seed=8).log.split(0.8)
+    est, val = synthesize(m, p, 16.0, SensorSpec(rate=100.0, vision_rate=50.0, burst_dropouts=0.0),
+                          seed=8).log.split(0.8)
     res = fit(base, est, progress=False)
     consecutive = predict(base, res.p, val).horizon_errors(horizons=[0.25, 0.5])
     same = horizon_errors(base, res.p, val, horizons=[0.25, 0.5], start_every=1.0)
@@ -312,11 +315,13 @@ def test_a_start_state_the_stretch_does_not_measure_stays_at_its_guess():
 
 
 def test_no_prediction_window_starts_inside_a_vision_outage():
-    """By hand: position at 50 Hz with a 0.4-s outage from 6.0 s, start stretches of 0.2 s:
-    a start can be made where the 0.2 s before it hold a position sample, and not from
-    6.2 s (the stretch then lies wholly in the outage) until the first sample after it. The
-    consecutive validation windows and the horizon report's overlapping ones start only there
-    (before, a window started at whatever sample the horizon reached, outage or not)."""
+    """By hand: position at 50 Hz with a 0.4-s outage from 6.0 s, start stretches of 0.2 s
+    (40 samples at 200 Hz): a start can be made where, throughout the last 0.1 s before it (the
+    stretch's second half), the last position sample is at most 0.06 s old (three 20-ms
+    spacings; a quarter of the stretch is less), so not from about 6.06 s until 0.1 s after
+    the outage. The consecutive
+    validation windows and the horizon report's overlapping ones start only there (before, a
+    window started at whatever sample the horizon reached, outage or not)."""
     import dataclasses
     from greybox.validation import horizon_errors, predict, startable
     base = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))
@@ -328,23 +333,25 @@ def test_no_prediction_window_starts_inside_a_vision_outage():
     for c in "xyz":
         out[gap, log.output_names.index(c)] = np.nan
     log = dataclasses.replace(log, outputs=out)
-    L = 40                                                   # 0.2 s at 200 Hz
+    L = 40
     ok = startable(log, L)
     assert not ok[:L].any()
     measured_x = np.isfinite(log.output("x"))
     last_before_gap = log.t[measured_x & (log.t < 6.0)].max()
     first_after = log.t[measured_x & (log.t >= 6.4)].min()
-    inside = (log.t - log.t[np.maximum(np.arange(log.t.size) - L, 0)] < log.t - last_before_gap) \
-        & (log.t <= first_after)
-    assert inside.sum() > 30                                  # about 0.2 s of starts
-    assert not ok[inside].any()
-    assert ok[(np.arange(log.t.size) >= L) & ~inside].all()
+    stale = (log.t > last_before_gap + 0.06 + 1e-9) & (log.t < first_after)   # samples whose last x is > 0.06 s old
+    c = np.concatenate([[0], np.cumsum(stale)])
+    k = np.arange(L, log.t.size)
+    expected = np.zeros(log.t.size, dtype=bool)
+    expected[L:] = c[k] - c[k - L // 2] == 0                   # no stale sample among k-L/2 .. k-1
+    assert (ok == expected).all()
+    assert (~expected[L:]).sum() > 80                          # about 0.34 + 0.1 s of starts
     pred = predict(m, p, log, init_window=0.2)
     assert all(ok[a] for a, _ in pred.windows)
-    # the window the horizon reached inside the outage starts at the first sample after it
-    assert any(first_after <= log.t[a] < first_after + 0.05 for a, _ in pred.windows), \
+    # the window the horizon reached inside the outage starts once the stretch's second half is past it
+    assert any(first_after + 0.09 <= log.t[a] < first_after + 0.15 for a, _ in pred.windows), \
         [round(float(log.t[a]), 3) for a, _ in pred.windows]
-    # starts every 0.1 s: the two or three of the ~0.2 s inside are skipped
+    # starts every 0.1 s: the four or five of the ~0.45 s that cannot start are skipped
     full = horizon_errors(m, p, whole, init_window=0.2)
     gapped = horizon_errors(m, p, log, init_window=0.2)
-    assert 1 <= full.windows - gapped.windows <= 4, (full.windows, gapped.windows)
+    assert 3 <= full.windows - gapped.windows <= 7, (full.windows, gapped.windows)

@@ -873,6 +873,26 @@ def test_attitude_bias_and_vision_latency_are_what_the_log_reports():
     assert late.truth["greybox_equivalent"]["tau_pos"] == 0.05
 
 
+SENSOR_VEHICLES = {"1kg": (PeerVehicle.one_kg, 20.0),
+                   "cf_100hz": (lambda: PeerVehicle.crazyflie(log_rate=100.0), 25.0)}
+"""The sensor tests' vehicles: (maker, flight duration s)."""
+
+
+def _diagnose_two_flights(tmp_path, veh: PeerVehicle, duration: float, sens: PeerSensors):
+    """Flights of seeds 1 (estimation) and 2 (validation) written and read back as a user's
+    files, diagnosed with every default: (the diagnosis, the truth's greybox equivalents)."""
+    flights = [fly(veh, duration=duration, seed=s, sensors=sens) for s in (1, 2)]
+    paths = [write_case(f, tmp_path, name=f"seed{i + 1}") for i, f in enumerate(flights)]
+    model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
+    d = diagnose(model, load_log(paths[0]["log"]), validation=load_log(paths[1]["log"]))
+    return d, flights[0].truth["greybox_equivalent"]
+
+
+def _assert_recovered(res, name: str, truth: float, within_std: float = 3.0) -> None:
+    std = res.std[res.free_names.index(name)]
+    assert abs(res.value(name) - truth) < within_std * std, (name, res.value(name), std, truth)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("vehicle", ["1kg", "cf_100hz"])
 def test_attitude_estimate_off_level_is_named_attitude_bias_and_recovered(tmp_path, vehicle):
@@ -880,22 +900,14 @@ def test_attitude_estimate_off_level_is_named_attitude_bias_and_recovered(tmp_pa
     biased estimate, so the vehicle hovers level while the log says it is tilted), nothing else
     missing, starting values 40 % off: the baseline is certified, the verdict is
     ``attitude_bias`` alone, its offsets are the truth's within 3 std, K_T and b within 5 %."""
-    make, duration = {"1kg": (PeerVehicle.one_kg, 20.0),
-                      "cf_100hz": (lambda: PeerVehicle.crazyflie(log_rate=100.0), 25.0)}[vehicle]
-    sens = PeerSensors(att_bias=(0.03, -0.02))
-    flights = [fly(make(), duration=duration, seed=s, sensors=sens) for s in (1, 2)]
-    paths = [write_case(f, tmp_path, name=f"seed{i + 1}") for i, f in enumerate(flights)]
-    truth = flights[0].truth["greybox_equivalent"]
-    model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
-    d = diagnose(model, load_log(paths[0]["log"]), validation=load_log(paths[1]["log"]))
+    make, duration = SENSOR_VEHICLES[vehicle]
+    d, truth = _diagnose_two_flights(tmp_path, make(), duration, PeerSensors(att_bias=(0.03, -0.02)))
     assert d.baseline_certified
     assert [r.verdict for r in d.rounds if r.verdict] == ["attitude_bias"], d.summary()
-    fm = d.final_fit
     for i in range(2):
-        std = fm.std[fm.free_names.index(f"att_bias[{i}]")]
-        assert abs(fm.value(f"att_bias[{i}]") - truth["att_bias"][i]) < 3 * std, (i, fm.value(f"att_bias[{i}]"), std)
-    assert fm.value("K_T") == pytest.approx(truth["K_T"], rel=0.05)
-    assert fm.value("b") == pytest.approx(truth["b"], rel=0.05)
+        _assert_recovered(d.final_fit, f"att_bias[{i}]", truth["att_bias"][i])
+    assert d.final_fit.value("K_T") == pytest.approx(truth["K_T"], rel=0.05)
+    assert d.final_fit.value("b") == pytest.approx(truth["b"], rel=0.05)
 
 
 @pytest.mark.slow
@@ -904,21 +916,13 @@ def test_vision_latency_is_named_position_delay_and_recovered(tmp_path, vehicle,
     """The logged position is the vehicle's 50 ms (1.2 kg, 60 Hz vision) or 30 ms (30 g, 100 Hz)
     late, nothing else missing: the baseline is certified, the verdict is ``position_delay``
     alone, ``tau_pos`` is the latency within 3 std, K_T and b within 5 %."""
-    make, duration = {"1kg": (PeerVehicle.one_kg, 20.0),
-                      "cf_100hz": (lambda: PeerVehicle.crazyflie(log_rate=100.0), 25.0)}[vehicle]
-    sens = PeerSensors(pos_delay=latency)
-    flights = [fly(make(), duration=duration, seed=s, sensors=sens) for s in (1, 2)]
-    paths = [write_case(f, tmp_path, name=f"seed{i + 1}") for i, f in enumerate(flights)]
-    truth = flights[0].truth["greybox_equivalent"]
-    model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
-    d = diagnose(model, load_log(paths[0]["log"]), validation=load_log(paths[1]["log"]))
+    make, duration = SENSOR_VEHICLES[vehicle]
+    d, truth = _diagnose_two_flights(tmp_path, make(), duration, PeerSensors(pos_delay=latency))
     assert d.baseline_certified
     assert [r.verdict for r in d.rounds if r.verdict] == ["position_delay"], d.summary()
-    fm = d.final_fit
-    std = fm.std[fm.free_names.index("tau_pos")]
-    assert abs(fm.value("tau_pos") - latency) < 3 * std, (fm.value("tau_pos"), std)
-    assert fm.value("K_T") == pytest.approx(truth["K_T"], rel=0.05)
-    assert fm.value("b") == pytest.approx(truth["b"], rel=0.05)
+    _assert_recovered(d.final_fit, "tau_pos", latency)
+    assert d.final_fit.value("K_T") == pytest.approx(truth["K_T"], rel=0.05)
+    assert d.final_fit.value("b") == pytest.approx(truth["b"], rel=0.05)
 
 
 @pytest.mark.slow
@@ -931,18 +935,13 @@ def test_outdoor_sensor_mix_is_null_or_names_its_latency(tmp_path, latency):
     receiver's latency) the verdict is ``position_delay`` alone, ``tau_pos`` within 3 std."""
     veh = PeerVehicle.one_kg(log_rate=250.0, pos_rate=10.0, pos_noise=0.05)
     sens = PeerSensors(accel=True, att_correlation=0.1, pos_dropout=0.0, pos_gaps=(), pos_delay=latency)
-    flights = [fly(veh, duration=30.0, seed=s, sensors=sens) for s in (1, 2)]
-    paths = [write_case(f, tmp_path, name=f"seed{i + 1}") for i, f in enumerate(flights)]
-    truth = flights[0].truth["greybox_equivalent"]
-    model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
-    d = diagnose(model, load_log(paths[0]["log"]), validation=load_log(paths[1]["log"]))
+    d, truth = _diagnose_two_flights(tmp_path, veh, 30.0, sens)
     assert d.baseline_certified
     added = [r.verdict for r in d.rounds if r.verdict]
     fm = d.final_fit or d.baseline
     if latency:
         assert added == ["position_delay"], d.summary()
-        std = fm.std[fm.free_names.index("tau_pos")]
-        assert abs(fm.value("tau_pos") - latency) < 3 * std, (fm.value("tau_pos"), std)
+        _assert_recovered(fm, "tau_pos", latency)
     else:
         assert d.verdict is None and added == [], d.summary()
     assert fm.value("K_T") == pytest.approx(truth["K_T"], rel=0.01)
