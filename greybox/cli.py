@@ -877,8 +877,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             _warnings.showwarning = _show_warning
             status = int(args.func(args) or 0)
         if signal_received() is not None:
-            # an interrupt some callback swallowed ("Exception ignored in ..."): still one
-            raise KeyboardInterrupt
+            # an interrupt some callback swallowed ("Exception ignored in ..."): still one, and
+            # still the signal it was (a SIGTERM swallowed while a compiler ran ended as
+            # "interrupted", 130, instead of "terminated", 143)
+            raise Terminated() if signal_received() == signal.SIGTERM else KeyboardInterrupt()
         return status
     except GreyboxInputError as e:
         print(f"greybox: error: {e}", file=sys.stderr)
