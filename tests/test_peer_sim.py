@@ -40,7 +40,7 @@ def test_hover_balances_gravity_and_torques_by_hand():
     veh = PeerVehicle.one_kg()
     dyn = PeerDynamics(veh, PeerEffects(), np.random.default_rng(0))
     acc, M = dyn.loads(_hover_state(veh))
-    assert np.allclose(acc, 0.0, atol=1e-9) and np.allclose(M, 0.0, atol=1e-9)
+    assert np.allclose(acc, 0.0, atol=1e-12) and np.allclose(M, 0.0, atol=1e-12)
     # front-left rotor (4, at (+a, -a)) faster by dT: roll moment +a dT (right side down, FRD),
     # pitch moment +a dT (nose up), yaw moment spin_4 b dw^2 = +b dw^2
     w = np.full(4, veh.w_hover)
@@ -64,7 +64,7 @@ def test_quaternion_rotation_and_euler_angles_agree_with_zyx():
     # the quaternion of R (Shepperd), back through quat_to_rot
     w = 0.5 * math.sqrt(1 + np.trace(R))
     q = np.array([w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)])
-    assert np.allclose(quat_to_rot(q), R, atol=1e-9)
+    assert np.allclose(quat_to_rot(q), R, atol=1e-12)
     assert rot_to_euler(R) == pytest.approx((phi, theta, psi), abs=1e-12)
 
 
@@ -85,7 +85,7 @@ def test_free_rotation_conserves_angular_momentum_and_energy():
     for _ in range(2000):
         s = dyn.rk4(s, np.zeros(4), 1e-3)
     L1, E1 = invariants(s)
-    assert np.allclose(L1, L0, rtol=1e-7, atol=1e-9) and E1 == pytest.approx(E0, rel=1e-7)
+    assert np.allclose(L1, L0, rtol=1e-7, atol=1e-12) and E1 == pytest.approx(E0, rel=1e-7)
 
 
 def test_rotor_drag_at_the_hubs_damps_yaw_rate():
