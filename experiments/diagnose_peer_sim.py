@@ -34,6 +34,7 @@ from greybox import QuadrotorModel, denoise_inputs, load_airframe, load_log  # n
 from greybox.diagnosis import diagnose  # noqa: E402
 
 OUTDOOR = dict(log_rate=250.0, pos_rate=10.0, pos_noise=0.05)
+ONE_KG_OUTDOOR = partial(PeerVehicle.one_kg, **OUTDOOR)
 OUTDOOR_SENSORS = PeerSensors(accel=True, att_correlation=0.1, pos_dropout=0.0, pos_gaps=())
 
 CASES = {
@@ -124,14 +125,14 @@ CASES = {
                                     {"sensors": PeerSensors(log_commands=True, pos_delay=0.03)}),
     # an outdoor sensor mix: a 250 Hz log, position at 10 Hz with 5 cm noise (a GNSS-aided
     # estimate), the attitude estimate's noise correlated over 0.1 s, the accelerometer logged
-    "1kg_outdoor": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(), 30.0, None, {"sensors": OUTDOOR_SENSORS}),
-    "1kg_outdoor_weak_rotor": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(motor_gains=[1.0, 1.0, 0.9, 1.0]),
+    "1kg_outdoor": (ONE_KG_OUTDOOR, PeerEffects(), 30.0, None, {"sensors": OUTDOOR_SENSORS}),
+    "1kg_outdoor_weak_rotor": (ONE_KG_OUTDOOR, PeerEffects(motor_gains=[1.0, 1.0, 0.9, 1.0]),
                                30.0, "motor_asymmetry", {"sensors": OUTDOOR_SENSORS}),
-    "1kg_outdoor_cog": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(cog_offset=[0.01, -0.006]), 30.0,
+    "1kg_outdoor_cog": (ONE_KG_OUTDOOR, PeerEffects(cog_offset=[0.01, -0.006]), 30.0,
                         "cog_offset", {"sensors": OUTDOOR_SENSORS}),
-    "1kg_outdoor_att_bias": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(), 30.0, "attitude_bias",
+    "1kg_outdoor_att_bias": (ONE_KG_OUTDOOR, PeerEffects(), 30.0, "attitude_bias",
                              {"sensors": replace(OUTDOOR_SENSORS, att_bias=(0.03, -0.02))}),
-    "1kg_outdoor_gnss_delay": (partial(PeerVehicle.one_kg, **OUTDOOR), PeerEffects(), 30.0, "position_delay",
+    "1kg_outdoor_gnss_delay": (ONE_KG_OUTDOOR, PeerEffects(), 30.0, "position_delay",
                                {"sensors": replace(OUTDOOR_SENSORS, pos_delay=0.15)}),
     "3kg_outdoor_world_drag": (partial(PeerVehicle.three_kg, **OUTDOOR), PeerEffects(world_drag=[0.3, 0.3, 0.4]), 30.0,
                                None, {"sensors": OUTDOOR_SENSORS}),

@@ -876,11 +876,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             # a warning reaches a CLI user as one line, not as Python's file:line form
             _warnings.showwarning = _show_warning
             status = int(args.func(args) or 0)
-        if signal_received() is not None:
+        swallowed = signal_received()
+        if swallowed is not None:
             # an interrupt some callback swallowed ("Exception ignored in ..."): still one, and
             # still the signal it was (a SIGTERM swallowed while a compiler ran ended as
             # "interrupted", 130, instead of "terminated", 143)
-            raise Terminated() if signal_received() == signal.SIGTERM else KeyboardInterrupt()
+            raise Terminated() if swallowed == signal.SIGTERM else KeyboardInterrupt()
         return status
     except GreyboxInputError as e:
         print(f"greybox: error: {e}", file=sys.stderr)

@@ -95,18 +95,19 @@ def startable(log: FlightLog, L: int) -> np.ndarray:
     pose channel the log measures at all must be measured throughout the stretch's second half
     (the samples ``k - L/2`` to ``k - 1``, which carry the velocity): nowhere in it may its
     last measurement be older than a quarter of the stretch, or three of its typical spacings
-    for a channel sampled sparsely (two frames lost are no outage). A start state estimated over a sensor's outage is a guess: on a 250 g racer
-    at 7 m/s a window started in a 0.4-s vision outage was predicted 1.6 m off in y, from
-    positions and a velocity guessed across the gap, and it alone took the validation nrmse
-    from 0.028 to 0.069; started just after the outage, from one position sample and a velocity
-    guessed across it, a window was as far off. False for ``k < L``."""
+    for a channel sampled sparsely (two frames lost are no outage). A start state estimated
+    over a sensor's outage is a guess: on a 250 g racer at 7 m/s a window started in a 0.4-s
+    vision outage was predicted 1.6 m off in y, from positions and a velocity guessed across
+    the gap, and it alone took the validation nrmse from 0.028 to 0.069; started just after
+    the outage, from one position sample and a velocity guessed across it, a window was as
+    far off. False for ``k < L``."""
     t = log.t
     n = t.size
     ok = np.arange(n) >= L
     if n <= L:
         return ok
-    first = np.clip(np.arange(n) - L, 0, n - 1)
-    stretch = t - t[first]
+    stretch = t - t[np.clip(np.arange(n) - L, 0, n - 1)]
+    h = max(L // 2, 1)                                          # the stretch's second half: k-h .. k-1
     for name in POSE_CHANNELS:
         if name not in log.output_names:
             continue
@@ -116,8 +117,7 @@ def startable(log: FlightLog, L: int) -> np.ndarray:
         tm = t[measured]
         j = np.searchsorted(tm, t, side="right") - 1            # the last measurement at or before each sample
         age = np.where(j >= 0, t - tm[np.maximum(j, 0)], np.inf)
-        # the oldest age over the stretch's second half, samples k-h .. k-1: a sliding maximum
-        h = max(L // 2, 1)
+        # the oldest age over the stretch's second half: a sliding maximum
         oldest = np.full(n, np.inf)
         oldest[h:] = np.lib.stride_tricks.sliding_window_view(age, h).max(axis=1)[:n - h]
         allowed = np.maximum(0.25 * stretch, 3.0 * float(np.median(np.diff(tm))))
@@ -137,8 +137,7 @@ def _windows(t: np.ndarray, L: int, horizon: float, can_start: np.ndarray | None
             if not later.size:
                 break
             k += int(later[0])
-            if k >= t.size - 2:
-                break
+            continue
         ke = int(np.searchsorted(t, t[k] + horizon - 1e-9, side="right"))
         ke = min(max(ke, k + 2), t.size)
         out.append((k, ke))
@@ -292,12 +291,13 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
     t = log.t
     dt = float(np.median(np.diff(t)))
     L = max(int(round(init_window / dt)), 3)
-    if not _windows(t, L, horizon):
+    anywhere = _windows(t, L, horizon)
+    if not anywhere:
         raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
                                 f"{init_window + 2 * dt:.3f} s")
     # windows that start from an outage only where nothing else can start (a log shorter than
     # an outage and a start stretch): as before, rather than no validation at all
-    wins = _windows(t, L, horizon, startable(log, L)) or _windows(t, L, horizon)
+    wins = _windows(t, L, horizon, startable(log, L)) or anywhere
     starts = np.array([a for a, _ in wins])
     Yp, x0 = _predict_windows(model, p, log, starts, max(b - a for a, b in wins), L, sigma, compile,
                               measured_start)

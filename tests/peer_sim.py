@@ -274,6 +274,7 @@ class PeerDynamics:
             list(fx.wind) + [0.0] * (3 - len(fx.wind)), float)
         self.body_drag = None if fx.body_drag is None else np.asarray(fx.body_drag, float)
         self.world_drag = None if fx.world_drag is None else np.asarray(fx.world_drag, float)
+        self.quad_drag = None if fx.quad_drag is None else np.asarray(fx.quad_drag, float)
         self.rate_damping = None if fx.rate_damping is None else np.asarray(fx.rate_damping, float)
         self.ge = (veh.rotor_radius / 4.0) ** 2
         self.disturbance = np.zeros(3)          # turbulence torque, updated by the simulator
@@ -336,8 +337,8 @@ class PeerDynamics:
         if self.world_drag is not None:
             # another form of the same drag: diagonal in the world's axes, not the body's
             F = F - R.T @ (self.world_drag * (v - self.wind))
-        if fx.quad_drag is not None:
-            F = F - np.asarray(fx.quad_drag, float) * np.abs(vb) * vb
+        if self.quad_drag is not None:
+            F = F - self.quad_drag * np.abs(vb) * vb
         if self.rate_damping is not None:
             M = M - self.rate_damping * om
         if fx.flapping:

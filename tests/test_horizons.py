@@ -319,9 +319,9 @@ def test_no_prediction_window_starts_inside_a_vision_outage():
     (40 samples at 200 Hz): a start can be made where, throughout the last 0.1 s before it (the
     stretch's second half), the last position sample is at most 0.06 s old (three 20-ms
     spacings; a quarter of the stretch is less), so not from about 6.06 s until 0.1 s after
-    the outage. The consecutive
-    validation windows and the horizon report's overlapping ones start only there (before, a
-    window started at whatever sample the horizon reached, outage or not)."""
+    the outage. The consecutive validation windows and the horizon report's overlapping ones
+    start only there (before, a window started at whatever sample the horizon reached, outage
+    or not)."""
     import dataclasses
     from greybox.validation import horizon_errors, predict, startable
     base = QuadrotorModel(load_airframe(AIRFRAMES / "paper.toml"))

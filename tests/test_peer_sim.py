@@ -279,8 +279,8 @@ def test_airframe_text_is_what_greybox_reads(tmp_path):
 def test_rate_damping_is_not_named_after_a_catalogue_stand_in(tmp_path):
     """Body-rate damping -D*omega (not in the catalogue) on the 1.2 kg vehicle. moment_gain
     (a weaker control moment absorbs part of the damping) is never significant: refitted, it
-    removes a sliver of what is missing; the verdict is null, the rates stay unexplained, and discovery
-    finds mx ~ p with the true -D_x/J_x (what is missing is outside the catalogue)."""
+    removes a sliver of what is missing; the verdict is null, the rates stay unexplained, and
+    discovery finds mx ~ p with the true -D_x/J_x (what is missing is outside the catalogue)."""
     damping = np.array([0.02, 0.02, 0.01])
     veh = PeerVehicle.one_kg()
     paths = [write_case(fly(veh, duration=20.0, seed=s, effects=PeerEffects(rate_damping=list(damping))),
@@ -851,8 +851,8 @@ def test_attitude_bias_and_vision_latency_are_what_the_log_reports():
     """By hand: with the estimator's level reference off by (0.03, -0.02) rad, the logged roll
     and pitch are the vehicle's plus the bias (their mean difference is the bias within the
     sensor noise's mean), and the controller levels the biased estimate, so the vehicle flies
-    another path than without the bias. With a 50-ms
-    latency the logged position is the state's 50 ms earlier (a 25-sample shift at 500 Hz)."""
+    another path than without the bias. With a 50-ms latency the logged position is the
+    state's 50 ms earlier (a 25-sample shift at 500 Hz)."""
     veh = PeerVehicle.crazyflie()
     bias = (0.03, -0.02)
     fl = fly(veh, duration=4.0, seed=3, sensors=PeerSensors(att_bias=bias, pos_dropout=0.0, pos_gaps=()),
