@@ -24,7 +24,9 @@ and a vision latency (``pos_delay``), and its own forms of the effects:
   battery's voltage through its own quadratic (back-EMF plus load), not a linear scale;
 * effects the greybox catalogue does not hold: aerodynamic rate damping ``-D omega``,
   blade-flapping moments ``k_f (e3 x v_b)``, thrust that falls with the inflow
-  ``T (1 - k_in v_z,b ...)`` (axial climb), a gyro bias, and turbulence (a random torque).
+  ``T (1 - k_in v_z,b ...)`` (axial climb), a gyro bias, turbulence (a random torque), and a
+  slung load (a point mass on a cable hung from the CoG, swinging as a pendulum: its own
+  states, the cable's pull on the vehicle a force no catalogue effect has).
 
 Only the contract (frames, rotor conventions, the log's columns, the airframe schema) is
 shared with greybox. The log and the airframe are written by this module's own code, and
@@ -206,6 +208,7 @@ class PeerEffects:
     gyro_bias: Sequence[float] | None = None     # rad/s, added to the logged p, q, r
     turbulence: float = 0.0                      # N m, RMS of a random torque (1-s correlation)
     battery: PeerBattery | None = None           # voltage-driven motors behind open-loop ESCs; vbat logged
+    slung_load: Sequence[float] | None = None    # [m_L kg, L m]: a point load on a cable from the CoG
 
     def active(self) -> dict[str, Any]:
         out = {}
@@ -278,6 +281,12 @@ class PeerDynamics:
         self.rate_damping = None if fx.rate_damping is None else np.asarray(fx.rate_damping, float)
         self.ge = (veh.rotor_radius / 4.0) ** 2
         self.disturbance = np.zeros(3)          # turbulence torque, updated by the simulator
+        if fx.slung_load is not None:
+            # a stiff, damped cable (0.5 % stretch under the load's weight, half-critical
+            # axial damping) and air drag on the load (its swing decays over a few seconds)
+            m_l, length = (float(x) for x in fx.slung_load)
+            k = m_l * veh.gravity / (0.005 * length)
+            self.cable = (m_l, length, k, math.sqrt(k * m_l), m_l / 2.0)
         self.charge = 0.0                       # C drawn from the battery, updated by the simulator
         if fx.battery is not None:
             w_h, lam = veh.w_hover, fx.battery.load_share
@@ -308,6 +317,16 @@ class PeerDynamics:
         if self.fx.battery is None:
             return w_cmd
         return self.motor_speed(w_cmd, self.battery_voltage(w)[0])
+
+    def cable_force(self, s: np.ndarray) -> np.ndarray:
+        """The slung load's cable's pull on the vehicle (world, N): along the cable towards the
+        load while it is taut, zero while slack."""
+        m_l, length, k, c, _ = self.cable
+        d, dv = s[17:20] - s[0:3], s[20:23] - s[3:6]
+        dist = float(np.linalg.norm(d))
+        n = d / max(dist, 1e-9)
+        tension = k * (dist - length) + c * float(n @ dv)
+        return max(tension, 0.0) * n if dist > length else np.zeros(3)
 
     def loads(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World acceleration of the CoG and the body moment (without the gyroscopic terms)."""
@@ -345,6 +364,8 @@ class PeerDynamics:
             M = M + fx.flapping * np.array([-vb[1], vb[0], 0.0])
         M = M + self.disturbance
         acc = veh.gravity * E3 + R @ F / veh.mass
+        if fx.slung_load is not None:
+            acc = acc + self.cable_force(s) / veh.mass
         return acc, M
 
     def rhs(self, s: np.ndarray, w_cmd: np.ndarray) -> np.ndarray:
@@ -354,7 +375,11 @@ class PeerDynamics:
         omdot = self.Jinv @ (M - np.cross(om, self.J @ om + h))
         qdot = 0.5 * quat_mul(q, np.array([0.0, om[0], om[1], om[2]]))
         wdot = (self.motor_target(w_cmd, w) - w) / self.veh.tau_motor
-        return np.concatenate([v, acc, qdot, omdot, wdot])
+        if self.fx.slung_load is None:
+            return np.concatenate([v, acc, qdot, omdot, wdot])
+        m_l, *_, drag = self.cable
+        acc_load = self.veh.gravity * E3 - (self.cable_force(s) + drag * s[20:23]) / m_l
+        return np.concatenate([v, acc, qdot, omdot, wdot, s[20:23], acc_load])
 
     def rk4(self, s: np.ndarray, w_cmd: np.ndarray, dt: float) -> np.ndarray:
         k1 = self.rhs(s, w_cmd)
@@ -533,10 +558,13 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
     # start in a trimmed hover at the plan's first pose
     p0 = plan.start[:3].copy()
     s = np.concatenate([p0, np.zeros(3), quat_from_yaw(0.0), np.zeros(3), np.full(4, veh.w_hover)])
+    if fx.slung_load is not None:
+        # the load hanging at rest below the vehicle, the cable stretched by its weight
+        s = np.concatenate([s, p0 + np.array([0.0, 0.0, 1.005 * fx.slung_load[1]]), np.zeros(3)])
     warm = 2.0                                   # s flown before logging: the integral settles
     n_warm = int(round(warm / dt))
     n = int(round(duration / log_dt))
-    states = np.empty((n, 17))
+    states = np.empty((n, len(s)))
     commands = np.empty((n, 4))                  # the command the motors are receiving at each logged row
     volts = np.empty(n)                          # the battery's voltage at each logged row
     w_cmd = np.full(4, veh.w_hover)
@@ -666,6 +694,8 @@ def _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts) -> dict[str, Any]:
         eq["tau_pos"] = float(sens.pos_delay)
     if sens.accel and sens.accel_bias is not None:
         eq["acc_bias"] = [float(x) for x in sens.accel_bias]
+    if fx.slung_load is not None:
+        eq["mass"] = veh.mass + float(fx.slung_load[0])    # what the user weighs: vehicle and load
     return {"simulator": "peer_sim", "vehicle": asdict(veh), "effects": fx.active(),
             "sensors": asdict(sens), "seed": seed, "duration": duration,
             "greybox_equivalent": eq,
@@ -674,14 +704,17 @@ def _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts) -> dict[str, Any]:
 
 # ============================================================================ files
 def airframe_text(veh: PeerVehicle, *, K_T_factor: float = 1.4, b_factor: float = 0.6,
-                  Kd: float | None = None, name: str | None = None, hub_heights: bool = False) -> str:
-    """The airframe a user would write: true mass, inertia, rotor tables (hubs in the
+                  Kd: float | None = None, name: str | None = None, hub_heights: bool = False,
+                  mass: float | None = None) -> str:
+    """The airframe a user would write: true mass (``mass``: what the user weighs, when it is
+    not the vehicle's alone), inertia, rotor tables (hubs in the
     rotor plane, height unknown; ``hub_heights``: at their measured height above the centre
     of gravity, body z = -hub_height) and starting guesses ``K_T * K_T_factor``,
     ``b * b_factor``, ``Kd`` (default ``0.05 * mass`` per axis)."""
-    kd = 0.05 * veh.mass if Kd is None else Kd
+    mass = veh.mass if mass is None else mass
+    kd = 0.05 * mass if Kd is None else Kd
     hub_z = -veh.hub_height if hub_heights else 0.0
-    lines = ["[airframe]", f'name = "{name or veh.name}"', f"mass = {veh.mass!r}",
+    lines = ["[airframe]", f'name = "{name or veh.name}"', f"mass = {mass!r}",
              f"inertia = [{', '.join(repr(float(x)) for x in veh.inertia)}]",
              f"arm_length = {veh.arm!r}", f"rotor_inertia = {veh.rotor_inertia!r}",
              f"gravity = {veh.gravity!r}", ""]
@@ -709,6 +742,8 @@ def write_case(flight: PeerFlight, directory: str | Path, name: str = "flight",
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     veh = PeerVehicle(**flight.truth["vehicle"])
+    # the user weighs what flies: with a slung load, vehicle and load together
+    airframe_kw.setdefault("mass", flight.truth["greybox_equivalent"].get("mass"))
     out = {"log": write_log_csv(flight.columns, d / f"{name}.csv"),
            "airframe": d / "airframe.toml", "truth": d / f"{name}_truth.json"}
     out["airframe"].write_text(airframe_text(veh, **airframe_kw))

@@ -595,9 +595,12 @@ class Diagnosis:
                 parts.append("the residuals in " + ", ".join(f"{ch} ({self.unexplained[ch]:.3g}x the sensor noise)"
                                                              for ch in rates) + " " + words.format(slopes))
         if self.unexplained_gaps:
+            # velocities are world-frame states: their gaps are a force; body rates': a torque
+            acting = " or ".join(w for w, states in (("a force", ("vx", "vy", "vz")), ("a torque", ("p", "q", "r")))
+                                 if set(states) & set(self.unexplained_gaps)) or "something the model lacks"
             parts.append("the process noise of " + ", ".join(f"{n} ({v:.3g}x its random part)"
                                                             for n, v in self.unexplained_gaps.items()) +
-                         " is mostly systematic (a force or torque acting over many intervals)")
+                         f" is mostly systematic ({acting} acting over many intervals)")
         return "; ".join(parts)
 
     def report(self, directory: str | Path) -> Path:

@@ -5,7 +5,7 @@ import math
 from dataclasses import dataclass, field
 
 __all__ = ["Certificate", "STEP_TOLERANCE", "GAP_TOLERANCE", "DECREASE_TOLERANCE", "NOISE_RATIO_ADEQUATE",
-           "NOISE_RATIO_COLOURED", "WHITENESS_ADEQUATE", "GAP_VISIBLE", "FILTERED_SENSOR_RATIO", "NOISE_RATIO_BELOW"]
+           "NOISE_RATIO_COLOURED", "WHITENESS_ADEQUATE", "GAP_VISIBLE", "GAP_FORCE_SHARE", "FILTERED_SENSOR_RATIO", "NOISE_RATIO_BELOW"]
 
 STEP_TOLERANCE = 0.1
 """A fit is at its optimum when one more undamped Gauss-Newton step would move no free
@@ -46,6 +46,13 @@ GAP_VISIBLE = 1.0
 """With process noise, a state's shooting gaps are judged only where their RMS reaches this
 multiple of the state's noise scale (what its measurements could just see over an interval):
 an exact model's gaps shrink towards zero, and their pattern then means nothing."""
+GAP_FORCE_SHARE = 0.02
+"""A velocity's gaps summed over several intervals (``systematic_gaps``) are judged only where
+the force they stand for reaches this share of the RMS acceleration the fitted states fly
+with: the share below which the diagnosis calls an effect's force physically negligible
+(:data:`greybox.diagnosis.screening.MIN_FORCE_SHARE`). Over many intervals the positions
+see a vertical force error of 0.1 % of the flight's accelerations, which is not a model
+that misses something."""
 
 
 @dataclass
