@@ -396,9 +396,10 @@ def _systematic_gaps(model: QuadrotorModel, ses: FitSession, X: np.ndarray, th: 
     RMS over ``K`` intervals' duration at least :data:`GAP_FORCE_SHARE` of the RMS
     acceleration the fitted states fly with); the ratio is then the sums' RMS over
     ``sqrt(K)`` times the random part. A 0.1-kg load swinging on a cable under the peer
-    simulator's 1.3-kg vehicle left velocity gaps below one interval's scale (0.75 of it) but
-    12 times their random part over 8 intervals; a velocity's gaps on the same flight
-    without the load stay below that force share."""
+    simulator's 1.2 kg vehicle left velocity gaps below one interval's scale (0.75 of it) but
+    13 times their random part over 8 intervals; on the same flight without the load the
+    vertical velocity's sums become visible over 16-64 intervals, 2-3 times their random
+    part, for a force far below that share."""
     gaps = ses.gaps(X, ses.evaluate(X, th, blocks=False)[0])
     scale = ses.state_noise_scale(sensor, X)
     T = ses.interval_duration

@@ -50,9 +50,8 @@ GAP_FORCE_SHARE = 0.02
 """A velocity's gaps summed over several intervals (``systematic_gaps``) are judged only where
 the force they stand for reaches this share of the RMS acceleration the fitted states fly
 with: the share below which the diagnosis calls an effect's force physically negligible
-(:data:`greybox.diagnosis.screening.MIN_FORCE_SHARE`). Over many intervals the positions
-see a vertical force error of 0.1 % of the flight's accelerations, which is not a model
-that misses something."""
+(:data:`greybox.diagnosis.screening.MIN_FORCE_SHARE`). Over a second or more the positions
+see even a force error far below that, which is not a model that misses something."""
 
 
 @dataclass
