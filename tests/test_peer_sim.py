@@ -780,10 +780,17 @@ def test_battery_voltage_is_named_when_logged_commands_drive_motors_from_a_saggi
     assert {"motor_lag", "battery_voltage"} <= set(final.model.effect_names), d.summary()
     assert "thrust_drift" not in final.model.effect_names, d.summary()
     truth = flights[0].truth["greybox_equivalent"]       # K_T and b at greybox's 4-V reference
-    # the log's timing (commands set at 500 Hz, logged at 100 Hz) is not settled here: half a
-    # row of lag goes into tau_m (15.5 ms for 20), and a warning says so
-    assert 0.012 < final.value("tau_m") < 0.022
-    assert any("counts the measurement noise only" in w for w in d.warnings), d.summary()
+    # the log's timing (commands set at 500 Hz, logged at 100 Hz) is settled after the rounds,
+    # against the model with their verdicts: the logged commands are samples of a signal that
+    # varies within each row. Until the velocities' gaps were judged over several intervals it
+    # was not (the final model's velocity gaps, the linear battery scale's misfit of the DC
+    # motors, were not seen, so the timing's refit was not tried from the airframe's guesses
+    # too): half a row of lag went into tau_m (15.5 ms for 20), and a warning said so
+    timing = d.as_json()["input_timing"]
+    assert timing and set(timing["judged_with"]) == {"motor_lag", "battery_voltage"}, d.summary()
+    assert "sampled_inputs" in final.model.effect_names
+    assert final.value("tau_m") == pytest.approx(truth["tau_m"], rel=0.1)
+    assert not any("counts the measurement noise only" in w for w in d.warnings)
     assert final.value("K_vbat") == pytest.approx(truth["K_vbat"], rel=0.03)
     assert final.value("K_T") == pytest.approx(truth["K_T"], rel=0.03)
     assert final.value("b") == pytest.approx(truth["b"], rel=0.05)
