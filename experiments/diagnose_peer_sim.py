@@ -136,7 +136,6 @@ CASES = {
                                {"sensors": replace(OUTDOOR_SENSORS, pos_delay=0.15)}),
     "3kg_outdoor_world_drag": (partial(PeerVehicle.three_kg, **OUTDOOR), PeerEffects(world_drag=[0.3, 0.3, 0.4]), 30.0,
                                None, {"sensors": OUTDOOR_SENSORS}),
-    # quadratic drag in its own form (per body axis, |vb_j| vb_j), figure eights at up to 3 m/s
     # a load of 0.1 kg on a 0.5-m cable from the CoG of the 1.2 kg vehicle (the user weighs
     # both): the pendulum's pull, a force no catalogue effect holds; no low hovers (the load
     # would touch the floor)
@@ -147,6 +146,7 @@ CASES = {
                             "a force no effect holds", {"low_hovers": False}),
     "1kg_outdoor_slung_load": (ONE_KG_OUTDOOR, PeerEffects(slung_load=[0.1, 0.5]), 30.0, "a force no effect holds",
                                {"low_hovers": False, "sensors": OUTDOOR_SENSORS}),
+    # quadratic drag in its own form (per body axis, |vb_j| vb_j), figure eights at up to 3 m/s
     "1kg_quad_drag": (partial(PeerVehicle.one_kg, speed=3.0, distance=1.5), PeerEffects(quad_drag=[0.08, 0.08, 0.1]), 20.0,
                       "quadratic_drag"),
     "1kg_pos_delay": (PeerVehicle.one_kg, PeerEffects(), 20.0, "position_delay",

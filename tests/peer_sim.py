@@ -188,6 +188,10 @@ class PeerBattery:
     vbat_quantum: float = 0.001
 
 
+CABLE_STRETCH = 0.005
+"""A slung load's cable stretches by this share of its length under the load's weight."""
+
+
 @dataclass
 class PeerEffects:
     """The physics beyond the rigid body, thrust and reaction torque; all off by default."""
@@ -282,10 +286,10 @@ class PeerDynamics:
         self.ge = (veh.rotor_radius / 4.0) ** 2
         self.disturbance = np.zeros(3)          # turbulence torque, updated by the simulator
         if fx.slung_load is not None:
-            # a stiff, damped cable (0.5 % stretch under the load's weight, half-critical
+            # a stiff, damped cable (CABLE_STRETCH under the load's weight, half-critical
             # axial damping) and air drag on the load (its swing decays over a few seconds)
             m_l, length = (float(x) for x in fx.slung_load)
-            k = m_l * veh.gravity / (0.005 * length)
+            k = m_l * veh.gravity / (CABLE_STRETCH * length)
             self.cable = (m_l, length, k, math.sqrt(k * m_l), m_l / 2.0)
         self.charge = 0.0                       # C drawn from the battery, updated by the simulator
         if fx.battery is not None:
@@ -560,7 +564,7 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
     s = np.concatenate([p0, np.zeros(3), quat_from_yaw(0.0), np.zeros(3), np.full(4, veh.w_hover)])
     if fx.slung_load is not None:
         # the load hanging at rest below the vehicle, the cable stretched by its weight
-        s = np.concatenate([s, p0 + np.array([0.0, 0.0, 1.005 * fx.slung_load[1]]), np.zeros(3)])
+        s = np.concatenate([s, p0 + np.array([0.0, 0.0, (1.0 + CABLE_STRETCH) * fx.slung_load[1]]), np.zeros(3)])
     warm = 2.0                                   # s flown before logging: the integral settles
     n_warm = int(round(warm / dt))
     n = int(round(duration / log_dt))

@@ -405,9 +405,8 @@ def _systematic_gaps(model: QuadrotorModel, ses: FitSession, X: np.ndarray, th: 
     T = ses.interval_duration
     names = model.state_names
     vel = [names.index(n) for n in ("vx", "vy", "vz")]
-    ends = np.cumsum([len(idx) for idx in ses.data.node_index])
     out: dict[str, float] = {}
-    for sl, end in zip(ses.interval_slices, ends):
+    for f, sl in enumerate(ses.interval_slices):
         g = gaps[sl]
         if g.shape[0] < 3:
             continue
@@ -415,7 +414,7 @@ def _systematic_gaps(model: QuadrotorModel, ses: FitSession, X: np.ndarray, th: 
         for j, n in enumerate(names):
             if rms[j] >= GAP_VISIBLE * scale[j] and white[j] > 0:
                 out[n] = max(out.get(n, 0.0), float(rms[j] / white[j]))
-        v = X[end - g.shape[0] - 1:end, vel]
+        v = X[sl.start + f:sl.stop + f + 1, vel]        # the flight's nodes: one more than its intervals
         flown = float(np.sqrt(np.mean(np.sum(np.diff(v, axis=0) ** 2, axis=1)))) / T
         K = 2
         while g.shape[0] // K >= 8:
