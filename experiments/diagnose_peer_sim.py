@@ -206,6 +206,9 @@ def run(name: str, work: Path, seeds: tuple[int, int] = (1, 2)) -> dict:
            "final": {n: [final.value(n), float(final.std[final.free_names.index(n)])]
                      for n in final.free_names if n not in ("K_T", "b", "s_lead") and not n.startswith("Kd")},
            "truth": truth, "warnings": diag.warnings,
+           # the forms greybox holds differently, fitted to the truth along the estimation flight
+           "truth_flown": flights[0].truth.get("greybox_flown", {}),
+           "hub_heights": bool(airframe_options.get("hub_heights", False)),
            # b with the closed-loop bias taken out, when the diagnosis's yaw check gave it
            "closed_loop_b_err": (diag.closed_loop_fit.value("b") / truth["b"] - 1
                                  if diag.closed_loop_fit is not None else None),

@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -657,7 +657,55 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
         for j, name in enumerate(("ax", "ay", "az")):
             cols[name] = acc[:, j]
     truth = _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts)
+    truth["greybox_flown"] = _flown_equivalent(veh, fx, dyn, states)
     return PeerFlight(columns=cols, truth=truth, states=states)
+
+
+def _flown_equivalent(veh: PeerVehicle, fx: PeerEffects, dyn: PeerDynamics, states: np.ndarray) -> dict[str, Any]:
+    """greybox's parameters for this simulator's effects whose form differs from greybox's, as
+    the least-squares fit of greybox's force to the true one along the flown states (the
+    truth a fit can reach on this flight; ``greybox_equivalent`` holds the nominal values):
+
+    * ``Kq`` (and ``Kd``): greybox's ``-Kd_j v_j - Kq_j |v| v_j`` on world axes (the base
+      model's linear drag beside the quadratic one) against the simulator's body-axis
+      ``-C_j |vb_j| vb_j``: ``Kq_j = C_j`` in a level straight pass along one axis, smaller
+      where the flight moves diagonally;
+    * ``k_ge`` with the hubs at their height above the CoG, and ``k_ge_hubs_at_cog`` with them
+      in the CoG's plane (an airframe without rotor heights): greybox's ``1/(1 - k/h^2)``
+      (capped at 0.5) against the simulator's (capped at 0.25), in the total thrust.
+    """
+    out: dict[str, Any] = {}
+    R = np.array([quat_to_rot(q) for q in states[:, 6:10]])
+    v = states[:, 3:6]
+    if dyn.quad_drag is not None:
+        v_air = v - dyn.wind
+        vb = np.einsum("kji,kj->ki", R, v_air)                     # R^T v per row
+        force = -np.einsum("kij,kj->ki", R, dyn.quad_drag * np.abs(vb) * vb)
+        speed = np.linalg.norm(v_air, axis=1)
+        # per world axis, greybox's linear drag beside it (the base model's Kd takes its share)
+        fits = [np.linalg.lstsq(np.column_stack([-v_air[:, j], -speed * v_air[:, j]]), force[:, j], rcond=None)[0]
+                for j in range(3)]
+        out["Kd"] = [float(f[0]) for f in fits]
+        out["Kq"] = [float(f[1]) for f in fits]
+    if fx.ground_effect:
+        from scipy.optimize import minimize_scalar
+        thrust = veh.K_T * dyn.gain * states[:, 13:17] ** 2                 # (n, 4)
+        up = R[:, 2, :]                                                      # world z of body axes
+        h_true = -(states[:, 2:3] + up @ dyn.hubs.T)
+        true_total = (thrust / (1.0 - np.minimum(dyn.ge / np.maximum(h_true, 1e-6) ** 2, 0.25))).sum(axis=1)
+
+        def fitted(hubs: np.ndarray) -> float:
+            h = np.maximum(-(states[:, 2:3] + up @ hubs.T), 1e-3)
+
+            def cost(k: float) -> float:
+                model = (thrust / (1.0 - np.minimum(k / h ** 2, 0.5))).sum(axis=1)
+                return float(np.sum((model - true_total) ** 2))
+            return float(minimize_scalar(cost, bounds=(0.0, 4.0 * dyn.ge), method="bounded",
+                                         options={"xatol": 1e-4 * dyn.ge}).x)
+        planar = veh.rotor_positions()        # the airframe's hubs: the CoG's plane, around the CoG
+        out["k_ge"] = fitted(planar + np.array([0.0, 0.0, -veh.hub_height]))
+        out["k_ge_hubs_at_cog"] = fitted(planar)
+    return out
 
 
 def _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts) -> dict[str, Any]:

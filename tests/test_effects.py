@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from greybox import QuadrotorModel, effects, simulate
+from greybox.airframe import airframe_from_dict
 from greybox.errors import GreyboxInputError
 
 from conftest import make_airframe
@@ -116,6 +117,31 @@ def test_ground_effect_cheeseman_bennett(base):
     m2 = QuadrotorModel(make_airframe("plus", ground_z=0.5)) + effects.GroundEffect()
     xd = rhs(m2, hover_state(0.5 - 0.2), [w] * 4, m2.parameter_vector({"k_ge": k}))
     assert xd[8] == pytest.approx(G * (1 - 1 / (1 - k / 0.04)), rel=1e-9)
+
+
+def test_ground_effect_reads_k_ge_against_the_rotor_heights_the_airframe_gives():
+    """Hubs dz above the CoG, a level vehicle with its CoG h above the ground: rotors at h + dz
+    with k give the thrust that rotors placed in the CoG's plane give with k (h / (h + dz))^2,
+    the factor the fit's note names. The note only where the airframe's rotors have z = 0."""
+    l, dz, h, k = 0.17, 0.03, 0.115, 0.03 ** 2
+    raised = [{"position": p, "spin": s} for p, s in
+              (([l, 0, -dz], 1), ([0, l, -dz], -1), ([-l, 0, -dz], 1), ([0, -l, -dz], -1))]
+    a_raised = airframe_from_dict({"airframe": {"mass": 1.0, "inertia": [0.0082, 0.0082, 0.0149], "arm_length": l},
+                                   "rotor": raised, "parameters": {"K_T": 2e-5, "b": 5e-7}})
+    m_raised = QuadrotorModel(a_raised) + effects.GroundEffect()
+    m_plane = QuadrotorModel(make_airframe("plus", arm_length=l)) + effects.GroundEffect()
+    w = m_plane.hover_speed()
+    acc_raised = rhs(m_raised, hover_state(-h), [w] * 4, m_raised.parameter_vector({"k_ge": k}))[8]
+    k_plane = k * (h / (h + dz)) ** 2
+    acc_plane = rhs(m_plane, hover_state(-h), [w] * 4, m_plane.parameter_vector({"k_ge": k_plane}))[8]
+    assert acc_plane == pytest.approx(acc_raised, rel=1e-12) and acc_raised < -0.05
+    ge = effects.GroundEffect()
+    note = ge.interpretation_notes({"k_ge": k_plane}, {"k_ge": 1e-5}, m_plane.airframe)
+    assert len(note) == 1 and "rotor z = 0" in note[0] and "((h + dz)/h)^2" in note[0]
+    assert ge.interpretation_notes({"k_ge": k}, {"k_ge": 1e-5}, a_raised) == []
+    assert ge.interpretation_notes({"k_ge": k_plane}, {}, m_plane.airframe) == []     # k_ge fixed: nothing to read
+    # a note is not a plausibility warning: the diagnosis never refuses a candidate for it
+    assert ge.plausibility_warnings({"k_ge": k_plane}, {"k_ge": 1e-5}, m_plane.airframe) == []
 
 
 def test_ground_effect_rights_a_vehicle_tilted_near_the_ground(base):

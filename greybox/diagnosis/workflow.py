@@ -374,6 +374,12 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     yaw = closed_loop_yaw(cur_res, est, baseline=res, halves_disagree="b" in inconsistent, compile=compile, say=say)
     if yaw.words:
         warnings.append(yaw.words)
+    if cur_res is not res:
+        # how to read what the rounds added (a value tied to a geometry the airframe leaves out)
+        values, std = cur_model.parameter_dict(cur_res.p), dict(zip(cur_res.free_names, map(float, cur_res.std)))
+        for e in cur_model.effects:
+            if e.name not in model.effect_names:
+                warnings += [f"final model: {w}" for w in e.interpretation_notes(values, std, cur_model.airframe)]
     # whether the logged commands' torque shows in the attitude at all (data only): why a model of
     # the vehicle may lose to the naive attitude predictor whatever its parameters
     predictability = command_predictability(model, logs + (val if validation is not None else []),

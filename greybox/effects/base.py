@@ -182,6 +182,14 @@ class Effect:
         return [f"{', '.join(beyond)}: beyond what {self.name} physically does on this airframe ({lim}); "
                 f"the fit has it standing in for something the model lacks"]
 
+    def interpretation_notes(self, values: dict[str, float], std: dict[str, float],
+                             airframe: "Airframe") -> list[str]:
+        """Notes, in words, on how to read this effect's fitted values on this airframe (what
+        they depend on beyond the physics, e.g. a geometry the airframe leaves out). Unlike
+        :meth:`plausibility_warnings`, a note never makes a candidate implausible. ``values``
+        and ``std`` as there. Default: none."""
+        return []
+
     def reduces_to(self, other: str, values: Mapping[str, float], covariance: np.ndarray,
                    free_names: Sequence[str], airframe: "Airframe") -> str:
         """Words saying that this effect's fitted values are what the effect named ``other``

@@ -840,6 +840,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     values, fitted_std = model.parameter_dict(p_out), dict(zip(free_names, map(float, std)))
     for effect in model.effects:
         warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
+        warnings += effect.interpretation_notes(values, fitted_std, model.airframe)
     warnings += _thrust_balance_warnings(model, logs, values)
     if inputs_floor is not None:
         warnings.append("the logged inputs carry white noise the vehicle does not follow (the gyro tells): fed to "
