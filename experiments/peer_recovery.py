@@ -12,7 +12,7 @@ the form's least-squares fit to the true force along the flown states is shown, 
 
     python experiments/peer_recovery.py [--seeds 11 12] [case ...]   # default: every such case
 
-Writes ``experiments/out/peer_recovery.json``.
+Writes ``experiments/out/peer_recovery.json`` (``--json``: elsewhere).
 """
 from __future__ import annotations
 
@@ -80,6 +80,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("cases", nargs="*", help="cases (default: every case hiding a catalogue effect)")
     ap.add_argument("--seeds", nargs=2, type=int, default=(11, 12), metavar=("EST", "VAL"))
+    ap.add_argument("--json", type=Path, default=HERE / "out" / "peer_recovery.json",
+                    help="where to write the results (default experiments/out/peer_recovery.json)")
     a = ap.parse_args()
     names = a.cases or catalogue_cases()
     results = []
@@ -102,8 +104,8 @@ def main() -> None:
             results.append({"case": name, "ok": ok, "diagnosis_ok": out["ok"], "verdict": out["verdict"],
                             "added": out["added"], "recovery": rec, "worst_z": worst, "wall_s": out["wall_s"],
                             "warnings": out["warnings"]})
-    (HERE / "out").mkdir(exist_ok=True)
-    (HERE / "out" / "peer_recovery.json").write_text(json.dumps(results, indent=1, default=float))
+    a.json.parent.mkdir(parents=True, exist_ok=True)
+    a.json.write_text(json.dumps(results, indent=1, default=float))
 
 
 if __name__ == "__main__":
