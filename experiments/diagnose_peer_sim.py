@@ -209,6 +209,8 @@ def run(name: str, work: Path, seeds: tuple[int, int] = (1, 2)) -> dict:
            # the forms greybox holds differently, fitted to the truth along the estimation flight
            "truth_flown": flights[0].truth.get("greybox_flown", {}),
            "hub_heights": bool(airframe_options.get("hub_heights", False)),
+           # the final model's parameters whose halves disagree beyond their std: (a, sa, b, sb)
+           "final_spread": dict(diag.final_spread),
            # b with the closed-loop bias taken out, when the diagnosis's yaw check gave it
            "closed_loop_b_err": (diag.closed_loop_fit.value("b") / truth["b"] - 1
                                  if diag.closed_loop_fit is not None else None),

@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from greybox import FlightLog, QuadrotorModel, load_airframe, load_log
-from greybox.effects import by_name
+from greybox import FlightLog, QuadrotorModel, denoise_inputs, load_airframe, load_log
+from greybox.effects import AttitudeBias, by_name
 from greybox.diagnosis import diagnose
+from greybox.diagnosis.consistency import half_spread
 from greybox.fitting import fit
 
 from peer_sim import (PeerBattery, PeerDynamics, PeerEffects, PeerSensors, PeerVehicle, airframe_text, fly,
@@ -1042,3 +1043,32 @@ def test_outdoor_sensor_mix_is_null_or_names_its_latency(tmp_path, latency):
         assert d.verdict is None and added == [], d.summary()
     assert fm.value("K_T") == pytest.approx(truth["K_T"], rel=0.01)
     assert fm.value("b") == pytest.approx(truth["b"], rel=0.01)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("correlation", [0.1, 0.0])
+def test_a_bias_std_that_understates_its_scatter_is_seen_by_the_halves(tmp_path, correlation):
+    """The 1.2 kg vehicle outdoors (250 Hz log, 10 Hz position with 5 cm noise) with its
+    attitude estimate off level by (0.03, -0.02) rad: with that estimate's noise an AR(1) over
+    0.1 s, the soft fit's states follow the noise and the bias's std (2e-5 rad) is far below
+    its scatter (the noise's mean over the flight, about 2.4e-4): this draw's roll is 6.5 std
+    off. Each half of the flight alone (``half_spread``) then disagrees with the other beyond
+    their std, and their spread covers the error; with white noise of the same level the std
+    is right and the halves agree."""
+    veh = PeerVehicle.one_kg(log_rate=250.0, pos_rate=10.0, pos_noise=0.05)
+    sens = PeerSensors(accel=True, att_correlation=correlation, pos_dropout=0.0, pos_gaps=(), att_bias=(0.03, -0.02))
+    paths = write_case(fly(veh, duration=30.0, seed=1, sensors=sens), tmp_path, name="est")
+    model = QuadrotorModel(load_airframe(paths["airframe"]))
+    log, _ = denoise_inputs(model, load_log(paths["log"]))
+    m = model + AttitudeBias()
+    res = fit(m, log)
+    assert res.converged and res.process_noise is not None
+    comps = ["att_bias[0]", "att_bias[1]"]
+    spread = half_spread(m, res, [log], comps, "auto", lambda s: None)
+    z = {c: (res.value(c) - t) / float(res.std[res.free_names.index(c)]) for c, t in zip(comps, (0.03, -0.02))}
+    if correlation:
+        assert abs(z["att_bias[0]"]) > 5 and "att_bias[0]" in spread, (z, spread)
+        a, _, b, _ = spread["att_bias[0]"]
+        assert abs(res.value("att_bias[0]") - 0.03) < 3 * abs(a - b) / 2     # the halves' spread covers it
+    else:
+        assert max(abs(v) for v in z.values()) < 3 and spread == {}, (z, spread)

@@ -216,7 +216,9 @@ class Diagnosis:
     unexplained_gaps: dict[str, float] = field(default_factory=dict)   # state -> gap RMS / its random part (process noise)
     inconsistent: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
     command_imbalance: "CommandImbalance | None" = None   # rotors driven unequally in steady flight
-    # parameter -> (first half, std, second half, std) where the halves disagree
+    # parameter -> (first half, std, second half, std) where the halves disagree (the baseline's
+    # `inconsistent`: beyond their std and 2 % of the size; `final_spread`, the rounds' additions
+    # in the final fit: beyond their std, which then understates the scatter)
     discovered: list[Discovered] = field(default_factory=list)   # beyond the catalogue, best first
     discovery: dict = field(default_factory=dict)   # status, text (or why it cannot tell), together
     # words for a null verdict whose catalogue best was set aside for a discovered combination
@@ -244,6 +246,7 @@ class Diagnosis:
     # diagnosis.input_noise.simex): name -> (fitted, twice the noise variance, three times,
     # extrapolated to none, std); empty when the speeds carry no notable noise
     input_noise_corrected: dict[str, tuple[float, float, float, float, float]] = field(default_factory=dict)
+    final_spread: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
 
     def motion_verdicts(self) -> dict[str, str]:
         """Per unexplained attitude or rate channel whose residual the gyro-attitude comparison
@@ -309,7 +312,10 @@ class Diagnosis:
                                           if self.command_predictability else None),
                "inconsistent_parameters": {n: {"first_half": a, "first_half_std": sa, "second_half": b,
                                                "second_half_std": sb}
-                                           for n, (a, sa, b, sb) in self.inconsistent.items()}}
+                                           for n, (a, sa, b, sb) in self.inconsistent.items()},
+               "final_parameter_spread": {n: {"first_half": a, "first_half_std": sa, "second_half": b,
+                                              "second_half_std": sb}
+                                          for n, (a, sa, b, sb) in self.final_spread.items()}}
         if self.final_model is not None and self.final_prediction is not None:
             out["added"] = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
             out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,

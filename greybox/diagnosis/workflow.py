@@ -25,7 +25,7 @@ from .analysis import command_imbalance, residual_analysis
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
-from .consistency import half_consistency
+from .consistency import half_consistency, half_spread
 from .elimination import backward_elimination, fit_without
 from .screening import negligible_effect
 from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
@@ -374,12 +374,24 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     yaw = closed_loop_yaw(cur_res, est, baseline=res, halves_disagree="b" in inconsistent, compile=compile, say=say)
     if yaw.words:
         warnings.append(yaw.words)
+    spread: dict[str, tuple[float, float, float, float]] = {}
     if cur_res is not res:
+        added_effects = [e for e in cur_model.effects if e.name not in model.effect_names]
         # how to read what the rounds added (a value tied to a geometry the airframe leaves out)
         values, std = cur_model.parameter_dict(cur_res.p), dict(zip(cur_res.free_names, map(float, cur_res.std)))
-        for e in cur_model.effects:
-            if e.name not in model.effect_names:
-                warnings += [f"final model: {w}" for w in e.interpretation_notes(values, std, cur_model.airframe)]
+        for e in added_effects:
+            warnings += [f"final model: {w}" for w in e.interpretation_notes(values, std, cur_model.airframe)]
+        # whether the added parameters' std can be believed: each half of the flight alone
+        if cur_res.converged:
+            spread = half_spread(cur_model, cur_res, est, [c for e in added_effects
+                                                           for _, c, _ in cur_model.effect_components(e.name)],
+                                 compile, say)
+        for n, (a, sa, b, sb) in spread.items():
+            warnings.append(f"final model: {n} = {cur_res.value(n):.4g} ± {std[n]:.2g}, but the two halves of the "
+                            f"estimation data give {a:.4g} ± {sa:.2g} and {b:.4g} ± {sb:.2g}: its std understates "
+                            "how it scatters (noise correlated over many samples that the fit takes as white, or "
+                            f"something the model lacks that each half sees differently); the halves put it at "
+                            f"about ± {abs(a - b) / 2:.2g}")
     # whether the logged commands' torque shows in the attitude at all (data only): why a model of
     # the vehicle may lose to the naive attitude predictor whatever its parameters
     predictability = command_predictability(model, logs + (val if validation is not None else []),
@@ -392,7 +404,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      discovered=discovered, discovery=discovery_note, outside_catalogue=outside,
                      input_timing=timing, closed_loop_fit=yaw.fit, attitude_motion=motion,
                      command_predictability=predictability, rates_from_input_noise=by_inputs,
-                     input_noise_corrected=corrected)
+                     input_noise_corrected=corrected, final_spread=spread)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile, est=est)
