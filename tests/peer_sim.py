@@ -662,7 +662,7 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
 
 
 def _flown_equivalent(veh: PeerVehicle, fx: PeerEffects, dyn: PeerDynamics, states: np.ndarray) -> dict[str, Any]:
-    """greybox's parameters for this simulator's effects whose form differs from greybox's, as
+    """greybox's parameters for this simulator's effects whose form is not greybox's, as
     the least-squares fit of greybox's force to the true one along the flown states (the
     truth a fit can reach on this flight; ``greybox_equivalent`` holds the nominal values):
 
