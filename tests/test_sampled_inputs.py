@@ -51,6 +51,36 @@ def test_each_interval_holds_the_blend_of_its_row_and_the_next_by_hand():
     assert (par.null, par.lower, par.upper) == (0.0, 0.0, 1.0)
 
 
+def test_the_linear_hold_ramps_across_the_row_by_hand():
+    """``hold="linear"``: at the fraction f of row k the model's derivatives are the base
+    model's at ``w_k + (f + s - 0.5)(w_k+1 - w_k)``: the first-order hold through the samples at
+    ``s = 0.5`` (w_k at the row's start, w_k+1 at its end), shifted by ``s - 0.5`` of the step
+    otherwise; its mean over the row is the plain blend's held value. Its options survive
+    saving (``options``/``with_options``)."""
+    base = QuadrotorModel(_airframe())
+    eff = effects.SampledInputs(hold="linear")
+    assert eff.with_options(eff.options()).hold == "linear"
+    assert effects.SampledInputs().with_options({}).hold == "mean"
+    with pytest.raises(ValueError, match="hold"):
+        effects.SampledInputs(hold="cubic")
+    model = base + eff
+    assert model.input_names[-2:] == ["t@row", "h@row"]
+    t = 3.0 + np.cumsum(np.r_[0.0, np.full(19, 0.01)])       # a log that does not start at 0
+    W = _speeds(t, 400.0)
+    log = FlightLog(t, W, ["w1", "w2", "w3", "w4"], np.full((t.size, 6), np.nan), OUT[:6])
+    prep = model.prepare_log(log)
+    x0, k, h = base.initial_state(), 7, 0.01
+    i_s = model.param_names.index("s_lead")
+    for s, f in ((0.5, 0.0), (0.5, 1.0), (0.5, 0.25), (0.2, 0.5), (0.9, 0.75)):
+        p = model.default_parameters()
+        p[i_s] = s
+        got = np.asarray(model.rhs(x0, prep.inputs[k], p, t[k] + f * h)).ravel()
+        w = W[k] + (f + s - 0.5) * (W[k + 1] - W[k])
+        want = np.asarray(base.rhs(x0, w, base.default_parameters(), t[k] + f * h)).ravel()
+        assert abs(want[9]) > 0.1
+        assert got == pytest.approx(want, rel=1e-9, abs=1e-9), (s, f)
+
+
 def test_only_for_rotor_speeds_and_a_default_candidate_there():
     """It blends logged rotor speeds: a model driven by control inputs has none (one clear
     error); the diagnosis considers it whenever the inputs are rotor speeds."""

@@ -648,14 +648,15 @@ def _encompassing(rounds: list[Round], final: FitResult, final_nrmse: float, dis
         return ""
     ranking.sort(key=lambda c: not c.significant)      # stable: the survivors first, in their order
     names = ", ".join(aside)
+    own = "its" if len(aside) == 1 else "their"
     warnings.append(f"{names} {'is' if len(aside) == 1 else 'are'} significant alone but a combination outside "
                     f"the catalogue predicts better (nrmse {found:.3f}) and {'it adds' if len(aside) == 1 else 'they add'} "
-                    f"nothing to it: standing in for physics the catalogue does not hold, set aside "
+                    f"nothing of {own} own to it: standing in for physics the catalogue does not hold, set aside "
                     f"(see 'beyond the catalogue'): {what}")
     if ranking[0].significant:
         return ""
     return (f"what is missing is outside the catalogue: {what} (nrmse {ranking[0].nrmse_before:.3f} -> {found:.3f}); "
-            f"the catalogue's best ({names}) add{'s' if len(aside) == 1 else ''} nothing once it is in")
+            f"the catalogue's best ({names}) add{'s' if len(aside) == 1 else ''} nothing of {own} own once it is in")
 
 
 FALLEN_AWAY_STD = 3.0

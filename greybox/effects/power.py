@@ -212,7 +212,20 @@ class SampledInputs(Effect):
 
     The next row's speeds are derived from the log itself (:meth:`derived_signals`:
     ``w1@next``); the last row's next is itself.
+
+    ``hold="linear"`` ramps the speeds across the row instead of holding their blend:
+    ``w_k + (f + s_lead - 0.5) (w_(k+1) - w_k)`` at the fraction ``f`` of the row (its mean over
+    the row is the held blend, so ``s_lead`` means the same; ``0.5`` is the first-order hold
+    through the samples). A command a faster controller steps several times a row is a ramp
+    seen through a lag more than a held value: on the peer simulator's 30 g vehicle (500 Hz
+    controller, commands logged at 100 Hz, 20 ms motors) the plain blend's ``tau_m`` came out
+    18.8 +- 0.3 ms. The row's time and length are derived signals (``t@row``, ``h@row``).
     """
+
+    def __init__(self, hold: str = "mean"):
+        if hold not in ("mean", "linear"):
+            raise ValueError(f"sampled_inputs: hold must be 'mean' or 'linear', not {hold!r}")
+        self.hold = hold
 
     name = "sampled_inputs"
     summary = "logged rotor speeds sampled from a varying signal: each interval holds (1-s) w_k + s w_k+1"
@@ -238,19 +251,27 @@ class SampledInputs(Effect):
 
     def derived_signals(self, commands):
         _require_rotor_speeds(commands, "sampled_inputs blends")
-        return [self._next(c) for c in commands]
+        return [self._next(c) for c in commands] + (["t@row", "h@row"] if self.hold == "linear" else [])
 
     def derive_signals(self, t, commands):
         out = {}
         for c, v in commands.items():
             v = np.asarray(v, dtype=float)
             out[self._next(c)] = np.append(v[1:], v[-1:])
+        if self.hold == "linear":
+            t = np.asarray(t, dtype=float)
+            h = np.diff(t)
+            out["t@row"] = t
+            out["h@row"] = np.append(h, h[-1:]) if len(h) else np.ones_like(t)
         return out
 
     def modify(self, ctx):
         n = ctx.airframe.n_rotors
         nxt = ca.vertcat(*[ctx.signals[self._next(f"w{i + 1}")] for i in range(n)])
         s = ctx.params["s_lead"]
+        if self.hold == "linear":
+            # the fraction of the row the integrator is at (its stages run from the row's time)
+            s = s - 0.5 + (ctx.t - ctx.signals["t@row"]) / ctx.signals["h@row"]
         w = (1 - s) * ctx.w_command + s * nxt
         ctx.w_command = w
         ctx.w = w
