@@ -61,7 +61,7 @@ def test_the_linear_hold_ramps_across_the_row_by_hand():
     eff = effects.SampledInputs(hold="linear")
     assert eff.with_options(eff.options()).hold == "linear"
     assert effects.SampledInputs().with_options({}).hold == "mean"
-    with pytest.raises(ValueError, match="hold"):
+    with pytest.raises(GreyboxInputError, match="hold"):
         effects.SampledInputs(hold="cubic")
     model = base + eff
     assert model.input_names[-2:] == ["t@row", "h@row"]
