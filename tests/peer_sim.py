@@ -86,6 +86,9 @@ class PeerVehicle:
     rotor_inertia: float = 0.0
     hub_height: float = 0.0           # hubs this far above the CoG (body -z), m
     spins: tuple[int, int, int, int] = (-1, 1, -1, 1)
+    # the hubs' (x, y) in the rotors' order, m, for a frame that is no square X (a dead cat, an
+    # H); None: the square X of ``arm``. ``arm`` is then the airframe's informative arm length
+    rotor_xy: Sequence[Sequence[float]] | None = None
     gravity: float = 9.81
     # flight envelope and flight plan scale
     distance: float = 1.0             # m, step size
@@ -110,6 +113,8 @@ class PeerVehicle:
         return np.diag(self.inertia)
 
     def rotor_positions(self) -> np.ndarray:
+        if self.rotor_xy is not None:
+            return np.array([[float(x), float(y), 0.0] for x, y in self.rotor_xy])
         a = self.arm / math.sqrt(2.0)
         return np.array([[a, a, 0.0], [-a, a, 0.0], [-a, -a, 0.0], [a, -a, 0.0]])
 

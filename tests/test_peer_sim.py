@@ -316,6 +316,80 @@ def test_airframe_text_is_what_greybox_reads(tmp_path):
     assert af.mass == veh.mass
 
 
+# frames that are no square X (experiments/diagnose_peer_sim.py has the same three)
+DEADCAT_XY = ((0.075, 0.10), (-0.075, 0.06), (-0.075, -0.06), (0.075, -0.10))
+_A = 0.225 / math.sqrt(2.0)
+PX4_X_XY, PX4_X_SPINS = ((_A, _A), (-_A, -_A), (_A, -_A), (-_A, _A)), (-1, -1, 1, 1)
+FRAMES = {"deadcat_racer": lambda: PeerVehicle.racer(rotor_xy=DEADCAT_XY, arm=0.11),
+          "h_frame_1kg": lambda: PeerVehicle.one_kg(rotor_xy=((0.13, 0.22), (-0.13, 0.22), (-0.13, -0.22),
+                                                             (0.13, -0.22)), arm=0.2555),
+          "px4_order_1kg": lambda: PeerVehicle.one_kg(rotor_xy=PX4_X_XY, spins=PX4_X_SPINS)}
+
+
+@pytest.mark.parametrize("frame", list(FRAMES))
+def test_a_frame_that_is_no_square_x_turns_as_its_rotor_tables_say(tmp_path, frame):
+    """The airframe the simulator writes puts each rotor where the simulator flies it: the body
+    rates' derivatives of greybox's model equal the simulator's for the same rotor speeds, and
+    by hand, one rotor spun up from hover on the dead cat's wide front-right arm (0.10 m out)
+    rolls the vehicle left at K_T dw^2 0.10 / J_x and yaws it by its spin's sign."""
+    veh = FRAMES[frame]()
+    p = tmp_path / "a.toml"
+    p.write_text(airframe_text(veh, K_T_factor=1.0, b_factor=1.0))
+    model = QuadrotorModel(load_airframe(p))
+    assert np.allclose(model.airframe.rotor_positions[:, :2], np.asarray(veh.rotor_xy))
+    dyn = PeerDynamics(veh, PeerEffects(), np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        w = veh.w_hover * (1 + 0.2 * rng.standard_normal(4))
+        s = np.zeros(17)
+        s[2], s[6], s[13:17] = -1.0, 1.0, w            # level, at rest, the rotors at w
+        peer_omdot = dyn.rhs(s, w)[10:13]
+        x = np.zeros(model.nx)
+        x[2] = -1.0
+        gb = np.asarray(model.rhs(x, w, model.default_parameters(), 0.0)).ravel()
+        assert np.allclose(gb[9:12], peer_omdot, rtol=1e-9, atol=1e-9 * np.abs(peer_omdot).max())
+    if frame == "deadcat_racer":
+        w = np.full(4, veh.w_hover)
+        w[0] = veh.w_hover * 1.1
+        x = np.zeros(model.nx)
+        x[2] = -1.0
+        gb = np.asarray(model.rhs(x, w, model.default_parameters(), 0.0)).ravel()
+        dw2 = (1.21 - 1.0) * veh.w_hover ** 2
+        assert gb[9] == pytest.approx(-veh.K_T * dw2 * 0.10 / veh.inertia[0], rel=1e-9)   # right arm up: roll left
+        assert gb[10] == pytest.approx(veh.K_T * dw2 * 0.075 / veh.inertia[1], rel=1e-9)  # front arm up: nose up
+        assert gb[11] == pytest.approx(-veh.b * dw2 / veh.inertia[2], rel=1e-9)            # spin -1
+
+
+@pytest.mark.slow
+def test_frames_that_are_no_square_x_are_diagnosed_as_flown(tmp_path):
+    """The dead-cat racer with nothing missing is null with K_T and b exact; the 1.2 kg square X
+    with its rotors in PX4's order (front-right, back-left, front-left, back-right) and the
+    third of them, front-left, at 90 % is ``motor_asymmetry`` with that rotor the weak one (its
+    deviation -0.077 from the rotors' mean, every deviation within 3 std of the truth's)."""
+    for frame, effects, seeds in (("deadcat_racer", PeerEffects(), (1, 2)),
+                                  ("px4_order_1kg", PeerEffects(motor_gains=[1.0, 1.0, 0.9, 1.0]), (1, 2))):
+        veh = FRAMES[frame]()
+        flights = [fly(veh, duration=20.0, seed=s, effects=effects) for s in seeds]
+        paths = [write_case(f, tmp_path / frame, name=f"seed{s}") for f, s in zip(flights, seeds)]
+        model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
+        (est, _), (val, _) = (denoise_inputs(model, load_log(p["log"])) for p in paths)
+        d = diagnose(model, est, validation=val)
+        truth = flights[0].truth["greybox_equivalent"]
+        final = d.final_fit or d.baseline
+        assert d.baseline_certified, (frame, d.summary())
+        assert final.value("K_T") == pytest.approx(truth["K_T"], rel=0.01), frame
+        assert final.value("b") == pytest.approx(truth["b"], rel=0.01), frame
+        if frame == "deadcat_racer":
+            assert d.verdict is None and not d.unexplained, d.summary()
+            continue
+        assert d.verdict == "motor_asymmetry", d.summary()
+        devs = [final.value(f"K_T_dev[{i}]") for i in range(3)]
+        assert int(np.argmin(devs + [-sum(devs)])) == 2
+        for i in range(3):
+            std = final.std[final.free_names.index(f"K_T_dev[{i}]")]
+            assert abs(devs[i] - truth["K_T_dev"][i]) < 3 * std, (i, devs[i], truth["K_T_dev"][i], std)
+
+
 def test_a_swinging_slung_load_leaves_systematic_velocity_gaps(tmp_path):
     """A 0.1-kg load on a 0.5-m cable under the 1.2 kg vehicle (logged at 200 Hz; the airframe
     carries both masses, as a user weighs them): the cable's pull is a force no effect holds.
