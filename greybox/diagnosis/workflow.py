@@ -27,7 +27,7 @@ from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_no
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency, half_spread
 from .elimination import backward_elimination, fit_without
-from .screening import negligible_effect, physically_small
+from .screening import negligible_effect
 from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
                       rank_round, tie_explanation, validation_ties)
 from .results import UNEXPLAINED_RATIO, Diagnosis, Round
@@ -670,8 +670,10 @@ grows more says the joint model cannot tell the effect from the terms beside it 
 
 def _fallen_away(effect: str, own: FitResult, joint: FitResult, logs: Sequence[FlightLog]) -> str:
     """Words saying that ``effect``, fitted in ``own``, falls away in ``joint`` (``own``'s
-    model with more terms, refitted): its force physically negligible there
-    (:func:`~greybox.diagnosis.screening.physically_small`), or its components all within
+    model with more terms, refitted): physically negligible there by the rule that keeps any
+    effect from being the verdict (:func:`~greybox.diagnosis.screening.negligible_effect`: its
+    parameters below a hundredth of a plausible size, or its force below
+    :data:`~greybox.diagnosis.screening.MIN_FORCE_SHARE`), or its components all within
     :data:`FALLEN_AWAY_STD` of their null; else "". Only while its std stays determined
     (:data:`FALLEN_AWAY_INFLATION`): terms that hold the effect's own cannot say which of them
     carries it. An effect that is really missing keeps its size when other terms join it; one
@@ -694,7 +696,7 @@ def _fallen_away(effect: str, own: FitResult, joint: FitResult, logs: Sequence[F
         parts.append(f"{comp} {v_own:.3g} +- {s_own:.2g} -> {v_joint:.3g} +- {s_joint:.2g}")
     if not parts:
         return ""
-    small = physically_small(joint, effect, logs)
+    small = negligible_effect(joint, effect, logs)
     if small:
         return f"{effect} is physically negligible ({'; '.join(parts)}): {small}"
     if within:
