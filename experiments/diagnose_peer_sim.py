@@ -39,11 +39,12 @@ ONE_KG_OUTDOOR = partial(PeerVehicle.one_kg, **OUTDOOR)
 OUTDOOR_SENSORS = PeerSensors(accel=True, att_correlation=0.1, pos_dropout=0.0, pos_gaps=())
 # frames that are no square X, each rotor where the airframe's [[rotor]] table puts it: a
 # 250 g dead cat (front arms wider than the back ones), a 1.2 kg H, and the square X with its
-# rotors in PX4's order (front-right, back-left, front-left, back-right) and spins
+# rotors in PX4's order (front-right, back-left, front-left, back-right) and spins (the first
+# two counter-clockwise: greybox's layout "x")
 DEADCAT_XY = ((0.075, 0.10), (-0.075, 0.06), (-0.075, -0.06), (0.075, -0.10))
 H_FRAME_XY = ((0.13, 0.22), (-0.13, 0.22), (-0.13, -0.22), (0.13, -0.22))
 _A = 0.225 / 2 ** 0.5
-PX4_X_XY, PX4_X_SPINS = ((_A, _A), (-_A, -_A), (_A, -_A), (-_A, _A)), (-1, -1, 1, 1)
+PX4_X_XY, PX4_X_SPINS = ((_A, _A), (-_A, -_A), (_A, -_A), (-_A, _A)), (1, 1, -1, -1)
 DEADCAT_RACER = partial(PeerVehicle.racer, rotor_xy=DEADCAT_XY, arm=0.11)
 H_FRAME_1KG = partial(PeerVehicle.one_kg, rotor_xy=H_FRAME_XY, arm=0.2555)
 PX4_ORDER_1KG = partial(PeerVehicle.one_kg, rotor_xy=PX4_X_XY, spins=PX4_X_SPINS)

@@ -17,13 +17,15 @@ user told so would read it.
 
 Writes ``experiments/out/peer_recovery.json`` (``--json``: elsewhere).
 
-Measured 2026-12-03 (seeds 11 12, two halves of the cases at a time): every verdict the hidden
+Measured 2026-12-03 (seeds 11 12, the 32 cases of then, two halves at a time): every verdict the hidden
 effect; 47 of the 52 parameters judged within 3 std (worst 2.1); not: ``tau_m`` with a 500-Hz
 controller's commands logged at 100 Hz (three cases, 4.1-4.5 std: the input held over a row
 where it changes five times; the timing and the lag trade along a ridge, their sum right), the
 attitude bias under AR(1) attitude noise (7.5 and 20 std; the halves agree on this draw). The
-ground effect under a random torque fails the K_T, b check (b +7.6 % +- 4.3 %). README, the
-peer section.
+ground effect under a random torque fails the K_T, b check (b +7.6 % +- 4.3 %). The three
+cases of frames that are no square X, added since (a dead cat's and PX4's order's weak rotor, an
+H's hub drag): every verdict right, the seven parameters within 1.1 std. README, the peer
+section.
 """
 from __future__ import annotations
 

@@ -5,7 +5,8 @@ fit or a diagnosis tuned against it could still pass by luck of one generator's 
 This one shares none of them: attitude as a unit quaternion, a fixed-step classical RK4
 integrator (not ``solve_ivp``), a geometric SE(3) tracking controller (Lee, Leok and
 McClamroch 2010) with integral action and a deliberately mismatched internal model (not a
-cascaded PID), explicit rotor tables in the Crazyflie firmware's order, an IMU-rate log with
+cascaded PID), explicit rotor tables in the Crazyflie firmware's order (or any other frame,
+``PeerVehicle(rotor_xy=..., spins=...)``), an IMU-rate log with
 vision at 60 Hz that loses samples and whole stretches, timestamps with jitter, quantised
 ESC speed telemetry (or, ``PeerSensors(log_commands=True)``, the controller's speed commands
 as a PWM log has them, the motors' lag in between), optionally an attitude estimate whose level
@@ -71,9 +72,11 @@ E3 = np.array([0.0, 0.0, 1.0])
 # ============================================================================ vehicle
 @dataclass
 class PeerVehicle:
-    """The true vehicle. Rotors in the Crazyflie firmware's order (front-right, back-right,
-    back-left, front-left) with spins (-1, +1, -1, +1) ... as the airframe's [[rotor]] tables
-    give them; ``arm`` is the hub's distance from the centre."""
+    """The true vehicle. Rotors by default a square X in the Crazyflie firmware's order
+    (front-right, back-right, back-left, front-left) with spins (-1, +1, -1, +1) ... as the
+    airframe's [[rotor]] tables give them, ``arm`` the hub's distance from the centre; any other
+    frame with ``rotor_xy`` (four hubs' x, y in the rotors' order) and ``spins``, ``arm`` then
+    only the airframe's informative arm length."""
 
     name: str
     mass: float
@@ -107,6 +110,11 @@ class PeerVehicle:
     ctrl_rate: float = 500.0
     attitude_bandwidth: float = 25.0  # rad/s, the controller's attitude loop
     position_bandwidth: float = 2.5   # rad/s
+
+    def __post_init__(self) -> None:
+        if len(self.spins) != 4 or (self.rotor_xy is not None
+                                    and (len(self.rotor_xy) != 4 or any(len(h) != 2 for h in self.rotor_xy))):
+            raise ValueError("a quadrotor: four spins and, if given, four (x, y) hubs")
 
     @property
     def J(self) -> np.ndarray:
