@@ -71,7 +71,8 @@ class Airframe:
         rotor_inertia: J_r, kg m^2, of one rotor about its axis.
         gravity: m/s^2.
         ground_z: world NED z of the ground plane (height above ground is ground_z - z).
-        arm_length: m (informative when explicit rotors are given).
+        arm_length: m (informative when explicit rotors are given; without it, the hubs' mean
+            distance from the centre: the effects' plausible sizes scale with it).
         layout: "plus", "x" or "custom".
         parameters: initial guesses of model parameters by name (values or lists).
         source: file the airframe was read from, if any.
@@ -96,6 +97,13 @@ class Airframe:
     layout: str = "custom"
     parameters: dict[str, Any] = field(default_factory=dict)
     source: str | None = None
+
+    def __post_init__(self) -> None:
+        # The effects' plausible sizes scale with the arm (a CoG offset's 15 %, a drag moment's
+        # lever): one built in Python from rotors alone gets the hubs' mean distance from the
+        # centre, as load_airframe gives rotor tables without arm_length, not a 1-mm floor.
+        if not self.arm_length > 0 and self.rotors:
+            self.arm_length = float(np.mean([math.hypot(r.position[0], r.position[1]) for r in self.rotors]))
 
     @property
     def n_rotors(self) -> int:

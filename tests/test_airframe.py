@@ -36,6 +36,21 @@ def test_x_layout_geometry():
     np.testing.assert_array_equal(af.spins, [1, 1, -1, -1])
 
 
+def test_an_airframe_built_from_rotors_alone_has_their_arm():
+    """Built in Python without arm_length, the arm is the hubs' mean distance from the centre
+    (0.2 m for an x layout of 0.2, 0.125 m for hubs at 0.1 and 0.15), as a file's rotor tables
+    give it: the plausible CoG offset is 15 % of it (30 mm), not of a 1-mm floor."""
+    from greybox.airframe import Airframe, Rotor, rotors_for_layout
+    from greybox.effects import CogOffset
+    af = Airframe(mass=1.0, inertia=np.diag([0.01, 0.01, 0.02]), rotors=rotors_for_layout("x", 0.2))
+    assert af.arm_length == pytest.approx(0.2)
+    assert CogOffset().plausible_limits(af)["r_cog"] == pytest.approx(0.03)
+    odd = [Rotor((0.1, 0.0, 0.0), 1), Rotor((0.0, 0.1, 0.0), -1), Rotor((-0.15, 0.0, 0.0), 1), Rotor((0.0, -0.15, 0.0), -1)]
+    assert Airframe(mass=1.0, inertia=np.diag([0.01, 0.01, 0.02]), rotors=odd).arm_length == pytest.approx(0.125)
+    given = Airframe(mass=1.0, inertia=np.diag([0.01, 0.01, 0.02]), rotors=odd, arm_length=0.3)
+    assert given.arm_length == 0.3
+
+
 def test_explicit_hexarotor(tmp_path):
     text = GOOD.replace('layout = "plus"\n', "")
     for k in range(6):
