@@ -37,17 +37,6 @@ from greybox.diagnosis import diagnose  # noqa: E402
 OUTDOOR = dict(log_rate=250.0, pos_rate=10.0, pos_noise=0.05)
 ONE_KG_OUTDOOR = partial(PeerVehicle.one_kg, **OUTDOOR)
 OUTDOOR_SENSORS = PeerSensors(accel=True, att_correlation=0.1, pos_dropout=0.0, pos_gaps=())
-# frames that are no square X, each rotor where the airframe's [[rotor]] table puts it: a
-# 250 g dead cat (front arms wider than the back ones), a 1.2 kg H, and the square X with its
-# rotors in PX4's order (front-right, back-left, front-left, back-right) and spins (the first
-# two counter-clockwise: greybox's layout "x")
-DEADCAT_XY = ((0.075, 0.10), (-0.075, 0.06), (-0.075, -0.06), (0.075, -0.10))
-H_FRAME_XY = ((0.13, 0.22), (-0.13, 0.22), (-0.13, -0.22), (0.13, -0.22))
-_A = 0.225 / 2 ** 0.5
-PX4_X_XY, PX4_X_SPINS = ((_A, _A), (-_A, -_A), (_A, -_A), (-_A, _A)), (1, 1, -1, -1)
-DEADCAT_RACER = partial(PeerVehicle.racer, rotor_xy=DEADCAT_XY, arm=0.11)
-H_FRAME_1KG = partial(PeerVehicle.one_kg, rotor_xy=H_FRAME_XY, arm=0.2555)
-PX4_ORDER_1KG = partial(PeerVehicle.one_kg, rotor_xy=PX4_X_XY, spins=PX4_X_SPINS)
 
 CASES = {
     "cf_clean": (PeerVehicle.crazyflie, PeerEffects(), 20.0, None),
@@ -161,11 +150,12 @@ CASES = {
     # quadratic drag in its own form (per body axis, |vb_j| vb_j), figure eights at up to 3 m/s
     "1kg_quad_drag": (partial(PeerVehicle.one_kg, speed=3.0, distance=1.5), PeerEffects(quad_drag=[0.08, 0.08, 0.1]), 20.0,
                       "quadratic_drag"),
-    "racer_deadcat": (DEADCAT_RACER, PeerEffects(), 20.0, None),
-    "racer_deadcat_weak_rotor": (DEADCAT_RACER, PeerEffects(motor_gains=[1.0, 1.0, 1.0, 0.9]), 20.0, "motor_asymmetry"),
-    "1kg_hframe": (H_FRAME_1KG, PeerEffects(), 20.0, None),
-    "1kg_hframe_drag": (H_FRAME_1KG, PeerEffects(rotor_drag=1.5e-4), 20.0, "hub_rotor_drag"),
-    "1kg_px4_order_weak_rotor": (PX4_ORDER_1KG, PeerEffects(motor_gains=[1.0, 1.0, 0.9, 1.0]), 20.0, "motor_asymmetry"),
+    # frames that are no square X (PeerVehicle.deadcat_racer, h_frame_1kg, px4_order_1kg)
+    "racer_deadcat": (PeerVehicle.deadcat_racer, PeerEffects(), 20.0, None),
+    "racer_deadcat_weak_rotor": (PeerVehicle.deadcat_racer, PeerEffects(motor_gains=[1.0, 1.0, 1.0, 0.9]), 20.0, "motor_asymmetry"),
+    "1kg_hframe": (PeerVehicle.h_frame_1kg, PeerEffects(), 20.0, None),
+    "1kg_hframe_drag": (PeerVehicle.h_frame_1kg, PeerEffects(rotor_drag=1.5e-4), 20.0, "hub_rotor_drag"),
+    "1kg_px4_order_weak_rotor": (PeerVehicle.px4_order_1kg, PeerEffects(motor_gains=[1.0, 1.0, 0.9, 1.0]), 20.0, "motor_asymmetry"),
     "1kg_pos_delay": (PeerVehicle.one_kg, PeerEffects(), 20.0, "position_delay",
                       {"sensors": PeerSensors(pos_delay=0.05)}),
     "cf_pos_delay_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(), 25.0, "position_delay",

@@ -263,9 +263,7 @@ def airframe_from_dict(doc: Mapping[str, Any], source: str = "<airframe>") -> Ai
             if spin not in (-1, 1) or isinstance(spin, bool):
                 raise GreyboxInputError(f"{where}: spin must be +1 or -1, got {spin!r}")
             rotors.append(Rotor(tuple(pos), int(spin)))
-        layout = "custom"
-        if arm <= 0:
-            arm = float(np.mean([np.hypot(r.position[0], r.position[1]) for r in rotors]))
+        layout = "custom"   # an arm not given is the hubs' mean distance (Airframe.__post_init__)
     else:
         raise GreyboxInputError(f"{source}: give airframe.layout ('plus' or 'x') or [[rotor]] tables")
 

@@ -70,6 +70,11 @@ E3 = np.array([0.0, 0.0, 1.0])
 
 
 # ============================================================================ vehicle
+#: hubs' (x, y) of frames that are no square X, in the Crazyflie's rotor order
+DEADCAT_XY = ((0.075, 0.10), (-0.075, 0.06), (-0.075, -0.06), (0.075, -0.10))
+H_FRAME_XY = ((0.13, 0.22), (-0.13, 0.22), (-0.13, -0.22), (0.13, -0.22))
+
+
 @dataclass
 class PeerVehicle:
     """The true vehicle. Rotors by default a square X in the Crazyflie firmware's order
@@ -166,6 +171,24 @@ class PeerVehicle:
                     attitude_bandwidth=40.0, position_bandwidth=3.0, ctrl_rate=1000.0)
         base.update(kw)
         return cls(**base)
+
+    @classmethod
+    def deadcat_racer(cls, **kw: Any) -> "PeerVehicle":
+        """The racer on a dead-cat frame: front hubs 10 cm to either side, back hubs 6 cm,
+        7.5 cm fore and aft (Crazyflie order, spins as the square X's)."""
+        return cls.racer(**{"rotor_xy": DEADCAT_XY, "arm": 0.11, **kw})
+
+    @classmethod
+    def h_frame_1kg(cls, **kw: Any) -> "PeerVehicle":
+        """The 1.2 kg vehicle on an H: hubs at +-13 cm fore and aft, +-22 cm to the sides."""
+        return cls.one_kg(**{"rotor_xy": H_FRAME_XY, "arm": 0.2555, **kw})
+
+    @classmethod
+    def px4_order_1kg(cls, **kw: Any) -> "PeerVehicle":
+        """The 1.2 kg square X with its rotors in PX4's order (front-right, back-left,
+        front-left, back-right) and spins (the first two counter-clockwise: +1)."""
+        a = 0.225 / math.sqrt(2.0)
+        return cls.one_kg(**{"rotor_xy": ((a, a), (-a, -a), (a, -a), (-a, a)), "spins": (1, 1, -1, -1), **kw})
 
     @classmethod
     def three_kg(cls, **kw: Any) -> "PeerVehicle":

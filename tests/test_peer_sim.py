@@ -317,14 +317,9 @@ def test_airframe_text_is_what_greybox_reads(tmp_path):
     assert af.mass == veh.mass
 
 
-# frames that are no square X (experiments/diagnose_peer_sim.py has the same three)
-DEADCAT_XY = ((0.075, 0.10), (-0.075, 0.06), (-0.075, -0.06), (0.075, -0.10))
-_A = 0.225 / math.sqrt(2.0)
-PX4_X_XY, PX4_X_SPINS = ((_A, _A), (-_A, -_A), (_A, -_A), (-_A, _A)), (1, 1, -1, -1)
-FRAMES = {"deadcat_racer": lambda: PeerVehicle.racer(rotor_xy=DEADCAT_XY, arm=0.11),
-          "h_frame_1kg": lambda: PeerVehicle.one_kg(rotor_xy=((0.13, 0.22), (-0.13, 0.22), (-0.13, -0.22),
-                                                             (0.13, -0.22)), arm=0.2555),
-          "px4_order_1kg": lambda: PeerVehicle.one_kg(rotor_xy=PX4_X_XY, spins=PX4_X_SPINS)}
+# frames that are no square X (experiments/diagnose_peer_sim.py flies the same three)
+FRAMES = {"deadcat_racer": PeerVehicle.deadcat_racer, "h_frame_1kg": PeerVehicle.h_frame_1kg,
+          "px4_order_1kg": PeerVehicle.px4_order_1kg}
 
 
 @pytest.mark.parametrize("frame", list(FRAMES))
