@@ -1,5 +1,6 @@
 """The diagnosis on flights of the second independent simulator (``tests/peer_sim.py``:
-quaternions and fixed-step RK4, a geometric controller with a mismatched internal model,
+quaternions and fixed-step RK4, a geometric controller with a mismatched internal model
+(the ``pid_`` cases: an autopilot's cascaded PID on the measured state),
 Crazyflie-ordered rotor tables (and frames that are no square X: a dead cat, an H, the X in
 PX4's rotor order), vision at 50-100 Hz with dropouts and a lost stretch,
 jittered time stamps, quantised ESC speed telemetry, its own forms of the effects).
@@ -160,10 +161,31 @@ CASES = {
                       {"sensors": PeerSensors(pos_delay=0.05)}),
     "cf_pos_delay_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(), 25.0, "position_delay",
                            {"sensors": PeerSensors(pos_delay=0.03)}),
+    # another controller: an autopilot's cascade (position P, velocity PID, attitude P, rate PID
+    # with D on the gyro) run on what the vehicle measures, a noisy filtered gyro and a slowly
+    # wandering position estimate (peer_sim.CascadedPID); the rate integral trims a steady torque
+    "pid_cf_clean": (PeerVehicle.crazyflie, PeerEffects(), 20.0, None, {"controller": "cascaded_pid"}),
+    "pid_1kg_clean": (PeerVehicle.one_kg, PeerEffects(), 20.0, None, {"controller": "cascaded_pid"}),
+    "pid_3kg_clean": (PeerVehicle.three_kg, PeerEffects(), 20.0, None, {"controller": "cascaded_pid"}),
+    "pid_racer_clean": (PeerVehicle.racer, PeerEffects(), 20.0, None, {"controller": "cascaded_pid"}),
+    "pid_1kg_weak_rotor": (PeerVehicle.one_kg, PeerEffects(motor_gains=[1.0, 1.0, 0.9, 1.0]), 20.0, "motor_asymmetry",
+                           {"controller": "cascaded_pid"}),
+    "pid_cf_weak_rotor": (PeerVehicle.crazyflie, PeerEffects(motor_gains=[1.0, 0.9, 1.0, 1.0]), 20.0, "motor_asymmetry",
+                          {"controller": "cascaded_pid"}),
+    "pid_1kg_cog": (PeerVehicle.one_kg, PeerEffects(cog_offset=[0.01, -0.006]), 20.0, "cog_offset",
+                    {"controller": "cascaded_pid"}),
+    "pid_1kg_ground": (PeerVehicle.one_kg, PeerEffects(ground_effect=True), 40.0, "ground_effect",
+                       {"controller": "cascaded_pid"}),
+    "pid_cf_rotor_drag": (PeerVehicle.crazyflie, PeerEffects(rotor_drag=1.0e-6), 20.0, "hub_rotor_drag",
+                          {"controller": "cascaded_pid"}),
+    "pid_cf_commands_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(), 25.0, "motor_lag",
+                              {"sensors": PeerSensors(log_commands=True), "controller": "cascaded_pid"}),
+    "pid_1kg_outdoor": (ONE_KG_OUTDOOR, PeerEffects(), 30.0, None,
+                        {"sensors": OUTDOOR_SENSORS, "controller": "cascaded_pid"}),
 }
 """name: (vehicle, effects, duration s, what should be named[, options: those of
-``peer_sim.airframe_text``, ``sensors``, a ``PeerSensors``, and ``exactly``: nothing added after the
-expected effect]); what should be named: an effect, or a tuple of effects
+``peer_sim.airframe_text``, ``sensors``, a ``PeerSensors``, ``controller``, ``fly``'s, and ``exactly``:
+nothing added after the expected effect]); what should be named: an effect, or a tuple of effects
 that must all be added (the first round's verdict among them), None for a null verdict,
 "outside" for an effect the catalogue does not hold, "no catalogue effect" for a null verdict of
 any kind (outside the catalogue or unexplained), "random torque" for a null verdict that says
@@ -178,8 +200,10 @@ def run(name: str, work: Path, seeds: tuple[int, int] = (1, 2)) -> dict:
     sensors = airframe_options.pop("sensors", None)
     exactly = airframe_options.pop("exactly", False)
     low_hovers = airframe_options.pop("low_hovers", True)
+    controller = airframe_options.pop("controller", "geometric")
     veh = make()
-    flights = [fly(veh, duration=duration, seed=s, effects=fx, sensors=sensors, low_hovers=low_hovers) for s in seeds]
+    flights = [fly(veh, duration=duration, seed=s, effects=fx, sensors=sensors, low_hovers=low_hovers,
+                   controller=controller) for s in seeds]
     d = work / name
     paths = [write_case(f, d, name=f"seed{i + 1}", **airframe_options) for i, f in enumerate(flights)]
     model = QuadrotorModel(load_airframe(paths[0]["airframe"]))

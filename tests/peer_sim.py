@@ -4,8 +4,9 @@
 fit or a diagnosis tuned against it could still pass by luck of one generator's choices.
 This one shares none of them: attitude as a unit quaternion, a fixed-step classical RK4
 integrator (not ``solve_ivp``), a geometric SE(3) tracking controller (Lee, Leok and
-McClamroch 2010) with integral action and a deliberately mismatched internal model (not a
-cascaded PID), explicit rotor tables in the Crazyflie firmware's order (or any other frame,
+McClamroch 2010) with integral action and a deliberately mismatched internal model on the true
+state (or, ``fly(..., controller="cascaded_pid")``, an autopilot's cascade of PID loops on the
+measured state: a noisy filtered gyro, a wandering position estimate), explicit rotor tables in the Crazyflie firmware's order (or any other frame,
 ``PeerVehicle(rotor_xy=..., spins=...)``), an IMU-rate log with
 vision at 60 Hz that loses samples and whole stretches, timestamps with jitter, quantised
 ESC speed telemetry (or, ``PeerSensors(log_commands=True)``, the controller's speed commands
@@ -501,7 +502,8 @@ class GeometricController:
     """Lee-Leok-McClamroch tracking on SE(3), NED: ``-f R e3 = m (a_d - g e3) - k_x e_x -
     k_v e_v - k_i int e_x``; attitude ``M = -k_R e_R - k_W omega + omega x J omega``. Its
     internal model (mass, inertia, K_T, b) is off by a few per cent: a controller knows its
-    vehicle only roughly, and the integral trims the rest."""
+    vehicle only roughly, and the integral trims the rest. It reads the true state (the
+    attitude as the estimator reports it when that is biased)."""
 
     def __init__(self, veh: PeerVehicle, rng: np.random.Generator):
         self.veh = veh
@@ -532,15 +534,25 @@ class GeometricController:
         ex, ev = p - pd, v - vd
         self.ix = np.clip(self.ix + ex * dt, -0.5, 0.5)
         A = -self.kx * ex - self.kv * ev - self.ki * self.ix + self.m * (ad - self.veh.gravity * E3)
+        f, eR = self.thrust_and_attitude_error(A, R, psid)
+        M = -self.kR * eR - self.kW * om + np.cross(om, self.J @ om)
+        return self.mix(f, M)
+
+    @staticmethod
+    def thrust_and_attitude_error(A: np.ndarray, R: np.ndarray, psid: float) -> tuple[float, np.ndarray]:
+        """The collective thrust along the body's z for the force ``-A`` wanted (N, NED),
+        and the attitude error to the attitude that points it with heading ``psid``."""
         b3d = -A / np.linalg.norm(A)
         f = float(-A @ R[:, 2])
         b1c = np.array([math.cos(psid), math.sin(psid), 0.0])
         b2d = np.cross(b3d, b1c)
         b2d /= np.linalg.norm(b2d)
         Rd = np.column_stack([np.cross(b2d, b3d), b2d, b3d])
-        eR = 0.5 * vee(Rd.T @ R - R.T @ Rd)
-        M = -self.kR * eR - self.kW * om + np.cross(om, self.J @ om)
-        # yaw has the lowest priority: its moment is scaled down until no rotor saturates
+        return f, 0.5 * vee(Rd.T @ R - R.T @ Rd)
+
+    def mix(self, f: float, M: np.ndarray) -> np.ndarray:
+        """Rotor speeds for thrust ``f`` and moment ``M``; yaw has the lowest priority: its
+        moment is scaled down until no rotor saturates."""
         T0 = self.Ainv @ np.array([f, M[0], M[1], 0.0])
         Ty = self.Ainv[:, 3] * M[2]
         k = 1.0
@@ -551,6 +563,71 @@ class GeometricController:
                 k = min(k, max((self.T_min - t0) / ty, 0.0))
         T = np.clip(T0 + k * Ty, self.T_min, self.T_max)
         return np.sqrt(T / self.K_T)
+
+
+class CascadedPID(GeometricController):
+    """The cascade of PX4's and the Crazyflie firmware's multicopter controllers, run on what
+    the vehicle *measures*: position P -> velocity PID (with the reference's velocity and
+    acceleration fed forward) -> the thrust vector and the attitude pointing it -> attitude P
+    -> body-rate PID (integral; D on the measured rate) -> the same mixer.
+
+    What differs from :class:`GeometricController`, on purpose: the gyro it reads is noisy
+    (the log's ``gyro_noise``, its own draws at the control rate) and low-pass filtered, and
+    the rate loop's D term differentiates it, so the commands carry the gyro's noise; the
+    position and velocity it reads are an estimate off by slow errors (AR(1), 0.2 s: position
+    by ``pos_noise``, velocity by ten times that per second, at most 5 cm/s); the integral
+    sits on the body rates, so a steady torque (a weak rotor, a CoG offset) is trimmed by the
+    rate loop, not through the position; no ``omega x J omega`` feed-forward. Its linear loop
+    (rate gain ``1.6 w_a``, attitude gain ``w_a / 1.6``) has the geometric controller's
+    bandwidth, so both fly every vehicle. The same four draws of the controller's model error
+    are taken from ``rng`` (a flight's other draws stay those of its seed); its sensor noise
+    comes from ``noise_rng``."""
+
+    def __init__(self, veh: PeerVehicle, rng: np.random.Generator, noise_rng: np.random.Generator):
+        super().__init__(veh, rng)
+        self.noise = noise_rng
+        wa, wp = veh.attitude_bandwidth, veh.position_bandwidth
+        band = np.array([wa, wa, wa / 3])
+        self.k_rate = 1.6 * band                      # 1/s
+        self.k_rate_i = 0.1 * self.k_rate ** 2        # 1/s^2
+        self.k_rate_d = 0.05                          # s/s: D on the measured rate
+        self.k_att = band / 1.6                       # 1/s
+        self.k_pos = wp / 1.8                         # 1/s
+        self.k_vel = 1.8 * wp                         # 1/s
+        self.k_vel_i = 0.54 * wp ** 2                 # 1/s^2
+        self.gyro_cutoff = min(2 * math.pi * 80.0, 2 * math.pi * veh.ctrl_rate / 6)   # rad/s
+        self.om_f: np.ndarray | None = None
+        self.i_rate = np.zeros(3)
+        self.i_vel = np.zeros(3)
+        self.e_pos = np.zeros(3)
+        self.e_vel = np.zeros(3)
+
+    def __call__(self, p, v, R, om, ref, dt: float) -> np.ndarray:
+        veh, rng = self.veh, self.noise
+        # the estimate: slow errors on position and velocity, a noisy gyro through its low-pass
+        a = math.exp(-dt / 0.2)
+        s_v = min(10.0 * veh.pos_noise, 0.05)
+        self.e_pos = a * self.e_pos + math.sqrt(1 - a * a) * veh.pos_noise * rng.standard_normal(3)
+        self.e_vel = a * self.e_vel + math.sqrt(1 - a * a) * s_v * rng.standard_normal(3)
+        gyro = om + veh.gyro_noise * rng.standard_normal(3)
+        prev = self.om_f if self.om_f is not None else gyro
+        self.om_f = prev + (1 - math.exp(-self.gyro_cutoff * dt)) * (gyro - prev)
+        dom = (self.om_f - prev) / dt
+        pd, vd, ad, psid = ref
+        v_sp = vd + self.k_pos * (pd - (p + self.e_pos))
+        e_v = v_sp - (v + self.e_vel)
+        self.i_vel = np.clip(self.i_vel + e_v * dt, -1.0, 1.0)
+        acc = ad + self.k_vel * e_v + self.k_vel_i * self.i_vel
+        A = self.m * (acc - veh.gravity * E3)
+        f, eR = self.thrust_and_attitude_error(A, R, psid)
+        om_sp = -self.k_att * eR
+        e_om = om_sp - self.om_f
+        self.i_rate = np.clip(self.i_rate + e_om * dt, -1.0, 1.0)
+        alpha = self.k_rate * e_om + self.k_rate_i * self.i_rate - self.k_rate_d * dom
+        return self.mix(f, np.diag(self.J) * alpha)
+
+
+CONTROLLERS = ("geometric", "cascaded_pid")
 
 
 # ============================================================================ flight
@@ -582,13 +659,17 @@ class PeerFlight:
 
 def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
         effects: PeerEffects | None = None, sensors: PeerSensors | None = None,
-        low_hovers: bool = True) -> PeerFlight:
-    """Fly ``vehicle`` along its flight plan under the geometric controller and log it."""
+        low_hovers: bool = True, controller: str = "geometric") -> PeerFlight:
+    """Fly ``vehicle`` along its flight plan under ``controller`` (``"geometric"``: on the true
+    state; ``"cascaded_pid"``: an autopilot's cascade on the measured state) and log it."""
+    if controller not in CONTROLLERS:
+        raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
     veh, fx = vehicle, effects or PeerEffects()
     sens = sensors or PeerSensors()
     rng = np.random.default_rng(seed)
     dyn = PeerDynamics(veh, fx, rng)
-    ctrl = GeometricController(veh, rng)
+    ctrl = (GeometricController(veh, rng) if controller == "geometric"
+            else CascadedPID(veh, rng, np.random.default_rng([seed, 11])))
     plan = FlightPlan(veh, duration, rng, low_hovers)
     # integration step: the log's period split so that steps stay below 1 ms
     log_dt = 1.0 / veh.log_rate
@@ -693,6 +774,7 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
         for j, name in enumerate(("ax", "ay", "az")):
             cols[name] = acc[:, j]
     truth = _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts)
+    truth["controller"] = controller
     truth["greybox_flown"] = _flown_equivalent(veh, fx, dyn, states)
     return PeerFlight(columns=cols, truth=truth, states=states)
 

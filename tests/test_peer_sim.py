@@ -56,6 +56,29 @@ def test_hover_balances_gravity_and_torques_by_hand():
     assert acc[2] == pytest.approx(-dT / veh.mass, rel=1e-9)
 
 
+def test_the_cascaded_pid_flies_on_what_the_vehicle_measures_and_holds_a_weak_rotor_where_its_moment_cancels():
+    """The second controller (an autopilot's cascade) reads the gyro with its noise, so its
+    commands carry that noise (the geometric controller's do not: it reads the true state);
+    in the first 1.5-s hold a rotor at 90 % thrust is driven 1/sqrt(0.9) = 1.054 times as fast
+    as its opposite (zero moment: its thrust equals theirs), whichever controller trims it; an
+    unknown controller is refused."""
+    weak = PeerEffects(motor_gains=[1.0, 1.0, 0.9, 1.0])
+    speeds = {}
+    for controller in ("geometric", "cascaded_pid"):
+        for noise in (0.0, 0.005):
+            veh = PeerVehicle.one_kg(log_rate=250.0, gyro_noise=noise)
+            f = fly(veh, duration=3.0, seed=3, effects=weak, low_hovers=False, controller=controller)
+            speeds[controller, noise] = w = np.column_stack([f.columns[f"w{i}"] for i in range(1, 5)])
+            hold = f.columns["t"] < 1.4
+            assert np.median(w[hold, 2] / w[hold, 0]) == pytest.approx(1 / math.sqrt(0.9), rel=0.003)
+            assert np.median(w[hold, 2] / w[hold, 1]) == pytest.approx(1 / math.sqrt(0.9), rel=0.003)
+            assert f.truth["controller"] == controller
+    assert np.array_equal(speeds["geometric", 0.0], speeds["geometric", 0.005])
+    assert not np.allclose(speeds["cascaded_pid", 0.0], speeds["cascaded_pid", 0.005], rtol=1e-6, atol=0)
+    with pytest.raises(ValueError, match="controller"):
+        fly(PeerVehicle.one_kg(), duration=1.0, controller="lqr")
+
+
 def test_slung_load_hangs_on_its_weight_and_swings_as_a_pendulum():
     """By hand: hanging at rest below a hovering vehicle, the cable pulls it down by the load's
     weight (the rotors at the hover speed of vehicle and load together hold both still); under
