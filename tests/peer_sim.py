@@ -540,8 +540,9 @@ class GeometricController:
 
     @staticmethod
     def thrust_and_attitude_error(A: np.ndarray, R: np.ndarray, psid: float) -> tuple[float, np.ndarray]:
-        """The collective thrust along the body's z for the force ``-A`` wanted (N, NED),
-        and the attitude error to the attitude that points it with heading ``psid``."""
+        """The collective thrust ``f`` for the thrust force ``A`` wanted (N, NED: ``-f R e3``
+        is the rotors' force, so the body's -z must point along ``A``), and the attitude error
+        to the attitude that points it so with heading ``psid``."""
         b3d = -A / np.linalg.norm(A)
         f = float(-A @ R[:, 2])
         b1c = np.array([math.cos(psid), math.sin(psid), 0.0])
@@ -567,25 +568,31 @@ class GeometricController:
 
 class CascadedPID(GeometricController):
     """The cascade of PX4's and the Crazyflie firmware's multicopter controllers, run on what
-    the vehicle *measures*: position P -> velocity PID (with the reference's velocity and
+    the vehicle *measures*: position P -> velocity PI (with the reference's velocity and
     acceleration fed forward) -> the thrust vector and the attitude pointing it -> attitude P
     -> body-rate PID (integral; D on the measured rate) -> the same mixer.
 
     What differs from :class:`GeometricController`, on purpose: the gyro it reads is noisy
-    (the log's ``gyro_noise``, its own draws at the control rate) and low-pass filtered, and
+    (the log's ``gyro_noise``, its own draws at the control rate; a ``gyro_bias`` as the log
+    has it) and low-pass filtered, and
     the rate loop's D term differentiates it, so the commands carry the gyro's noise; the
     position and velocity it reads are an estimate off by slow errors (AR(1), 0.2 s: position
     by ``pos_noise``, velocity by ten times that per second, at most 5 cm/s); the integral
     sits on the body rates, so a steady torque (a weak rotor, a CoG offset) is trimmed by the
-    rate loop, not through the position; no ``omega x J omega`` feed-forward. Its linear loop
-    (rate gain ``1.6 w_a``, attitude gain ``w_a / 1.6``) has the geometric controller's
-    bandwidth, so both fly every vehicle. The same four draws of the controller's model error
+    rate loop, not through the position; no ``omega x J omega`` feed-forward. Its attitude
+    loop without the rate integral and D (rate gain ``1.6 w_a``, attitude gain ``w_a / 1.6``)
+    is the geometric controller's linear one, so both fly every vehicle; its position loop
+    has the same proportional and damping gains, its integral on the velocity. The attitude it
+    reads is the true one (with ``att_bias``, as the geometric controller's), not the log's
+    noisy one. The same four draws of the controller's model error
     are taken from ``rng`` (a flight's other draws stay those of its seed); its sensor noise
     comes from ``noise_rng``."""
 
-    def __init__(self, veh: PeerVehicle, rng: np.random.Generator, noise_rng: np.random.Generator):
+    def __init__(self, veh: PeerVehicle, rng: np.random.Generator, noise_rng: np.random.Generator,
+                 gyro_bias: Sequence[float] | None = None):
         super().__init__(veh, rng)
         self.noise = noise_rng
+        self.gyro_bias = np.zeros(3) if gyro_bias is None else np.asarray(gyro_bias, float)
         wa, wp = veh.attitude_bandwidth, veh.position_bandwidth
         band = np.array([wa, wa, wa / 3])
         self.k_rate = 1.6 * band                      # 1/s
@@ -609,7 +616,7 @@ class CascadedPID(GeometricController):
         s_v = min(10.0 * veh.pos_noise, 0.05)
         self.e_pos = a * self.e_pos + math.sqrt(1 - a * a) * veh.pos_noise * rng.standard_normal(3)
         self.e_vel = a * self.e_vel + math.sqrt(1 - a * a) * s_v * rng.standard_normal(3)
-        gyro = om + veh.gyro_noise * rng.standard_normal(3)
+        gyro = om + self.gyro_bias + veh.gyro_noise * rng.standard_normal(3)
         prev = self.om_f if self.om_f is not None else gyro
         self.om_f = prev + (1 - math.exp(-self.gyro_cutoff * dt)) * (gyro - prev)
         dom = (self.om_f - prev) / dt
@@ -669,7 +676,7 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
     rng = np.random.default_rng(seed)
     dyn = PeerDynamics(veh, fx, rng)
     ctrl = (GeometricController(veh, rng) if controller == "geometric"
-            else CascadedPID(veh, rng, np.random.default_rng([seed, 11])))
+            else CascadedPID(veh, rng, np.random.default_rng([seed, 11]), fx.gyro_bias))
     plan = FlightPlan(veh, duration, rng, low_hovers)
     # integration step: the log's period split so that steps stay below 1 ms
     log_dt = 1.0 / veh.log_rate
@@ -934,12 +941,14 @@ def _main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--effects", default="", help="JSON object of PeerEffects fields")
     ap.add_argument("--sensors", default="", help='JSON object of PeerSensors fields, e.g. {"att_bias": [0.03, -0.02]}')
     ap.add_argument("--no-low-hovers", action="store_true")
+    ap.add_argument("--controller", choices=CONTROLLERS, default="geometric")
     ap.add_argument("--out", required=True)
     ap.add_argument("--name", default="flight")
     a = ap.parse_args(argv)
     fx = PeerEffects(**json.loads(a.effects)) if a.effects else PeerEffects()
     sens = PeerSensors(**json.loads(a.sensors)) if a.sensors else None
-    fl = fly(VEHICLES[a.vehicle](), a.duration, a.seed, fx, sens, low_hovers=not a.no_low_hovers)
+    fl = fly(VEHICLES[a.vehicle](), a.duration, a.seed, fx, sens, low_hovers=not a.no_low_hovers,
+             controller=a.controller)
     paths = write_case(fl, a.out, a.name)
     print(json.dumps({k: str(v) for k, v in paths.items()}))
     return 0

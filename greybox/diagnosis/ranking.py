@@ -222,7 +222,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     def judge(cand: CandidateResult, ext: QuadrotorModel, fr: FitResult, pr: Prediction) -> None:
         """The candidate's statistics at its refit ``fr`` (validation ``pr``), and the verdict
         on it in words."""
-        cand.significant = cand.unconfirmable = False
+        cand.significant = cand.unconfirmable = cand.validation_tie = False
         E = estimation_residuals(ext, fr, est)
         cand.lr, cand.p_value = lr_test(res, fr, E, cand.df, null_on_bound(ext, cand.effect), n_tests)
         cand.fit, cand.prediction = fr, pr
@@ -270,6 +270,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         elif falls[best_ch] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS:
             cand.reason = (f"significant in the fit but not confirmed on validation (best channel {best_ch} "
                            f"{-100 * falls[best_ch]:+.1f} %, total {-100 * gain:+.1f} %)")
+            cand.validation_tie = gain >= -MAX_VALIDATION_LOSS
             moved = prediction_change(pred, pr)
             if max(moved.values(), default=0.0) < MIN_VALIDATION_GAIN:
                 # the refit moves the validation predictions too little to be judged there:

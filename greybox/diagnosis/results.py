@@ -46,6 +46,10 @@ class CandidateResult:
     prediction: Prediction | None = None
     reason: str = ""
     unconfirmable: bool = False         # significant in the fit, validation data without power
+    # significant in the fit, past the rules of size and plausibility, and the validation neither
+    # confirms it nor predicts worse with it (total within MAX_VALIDATION_LOSS): a tie (the
+    # input-noise check a verdict-to-be gets has not run)
+    validation_tie: bool = False
     explained: float | None = None      # fraction of the baseline's excess residual (above noise) removed
 
     def as_dict(self) -> dict:
