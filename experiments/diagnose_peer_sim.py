@@ -161,7 +161,7 @@ CASES = {
                       {"sensors": PeerSensors(pos_delay=0.05)}),
     "cf_pos_delay_100hz": (partial(PeerVehicle.crazyflie, log_rate=100.0), PeerEffects(), 25.0, "position_delay",
                            {"sensors": PeerSensors(pos_delay=0.03)}),
-    # another controller: an autopilot's cascade (position P, velocity PID, attitude P, rate PID
+    # another controller: an autopilot's cascade (position P, velocity PI, attitude P, rate PID
     # with D on the gyro) run on what the vehicle measures, a noisy filtered gyro and a slowly
     # wandering position estimate (peer_sim.CascadedPID); the rate integral trims a steady torque
     "pid_cf_clean": (PeerVehicle.crazyflie, PeerEffects(), 20.0, None, {"controller": "cascaded_pid"}),

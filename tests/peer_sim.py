@@ -513,7 +513,7 @@ class GeometricController:
         self.K_T = veh.K_T * off(0.08)
         self.b = veh.b * off(0.2)
         wa, wp = veh.attitude_bandwidth, veh.position_bandwidth
-        band = np.array([wa, wa, wa / 3])            # yaw: a third of the bandwidth
+        self.band = band = np.array([wa, wa, wa / 3])   # yaw: a third of the bandwidth
         self.kR = np.diag(self.J) * band ** 2
         self.kW = np.diag(self.J) * 2 * 0.8 * band
         self.kx = self.m * wp ** 2
@@ -593,8 +593,7 @@ class CascadedPID(GeometricController):
         super().__init__(veh, rng)
         self.noise = noise_rng
         self.gyro_bias = np.zeros(3) if gyro_bias is None else np.asarray(gyro_bias, float)
-        wa, wp = veh.attitude_bandwidth, veh.position_bandwidth
-        band = np.array([wa, wa, wa / 3])
+        band, wp = self.band, veh.position_bandwidth
         self.k_rate = 1.6 * band                      # 1/s
         self.k_rate_i = 0.1 * self.k_rate ** 2        # 1/s^2
         self.k_rate_d = 0.05                          # s/s: D on the measured rate

@@ -501,16 +501,15 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
                          refit_anyway=bool(against))
     cand = ranking[0] if ranking else None
     # Judged again against the model with the verdicts, when it holds a lag or a delay (its own or
-    # a verdict's), the timing trades with them along
-    # a ridge that the validation flight predicts alike (a tie: no gain, no loss beyond
+    # a verdict's), the timing trades with them along a ridge that the validation flight predicts alike (a tie: no gain, no loss beyond
     # MAX_VALIDATION_LOSS); the estimation data can tell, and the log's timing, one parameter of
     # the log and no physics, is theirs to settle then (another simulator's 30 g vehicle under a
     # cascaded PID, commands logged at 100 Hz: LR 1204, validation total +0.1 %; the held rows
     # left tau_m at 15.6 ms for the motors' 20, the timing free gives 18.9). Without a lag there
     # is no ridge, and a tie is no confirmation (a real flight's final model of a CoG offset,
     # drag moment, battery and accelerometer bias: LR 1694, validation 8.207 -> 8.203).
-    lagged = any(n in res.free_names for e in model.effects for n in e.input_timed)
-    settled_by_fit = bool(against) and lagged and cand is not None and cand.validation_tie
+    settled_by_fit = bool(against) and bool(_free_input_timed(model, res)) and cand is not None \
+        and cand.validation_tie
     if cand is None or not (cand.significant or settled_by_fit) or cand.fit is None or not cand.fit.converged:
         if cand is not None:
             say(f"diagnose: the held rows stand ({cand.reason or 'its refit is not certified'})")
@@ -536,6 +535,11 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     return fit_t.model, fit_t, cand.prediction, timing, fit_t
 
 
+def _free_input_timed(model: QuadrotorModel, fr) -> list[str]:
+    """The lags and delays (:attr:`~greybox.effects.Effect.input_timed`) ``fr`` fits."""
+    return [n for e in model.effects for n in e.input_timed if n in fr.free_names]
+
+
 SETTLED_SHARE = 0.1
 """A lag's std with the log's timing free, as a share of half a row, below which the data
 settle the timing for it (:func:`_timing_caveat` then says nothing, when the lag also stays
@@ -552,7 +556,7 @@ def _timing_caveat(model: QuadrotorModel, fr, est: Sequence[FlightLog], timing_r
     no words (a blind audit's 100 Hz log of commands held at the controller's rate: tau_m
     24.99 ms for 25, yet the words said 5 ms). A lag the timing moves further is not settled,
     however small its std: the words give both values. "" when the final model has none."""
-    names = [n for e in model.effects for n in e.input_timed if n in fr.free_names]
+    names = _free_input_timed(model, fr)
     if not names:
         return ""
     half = 0.5 * median_row_interval(est)
