@@ -130,6 +130,9 @@ def run(path: Path, out: Path) -> dict:
         "b_over_K_T_closed_loop": (diag.closed_loop_fit.value("b") / diag.closed_loop_fit.value("K_T")
                                    if diag.closed_loop_fit is not None else None),
         "horizons_final": _at(diag.final_horizons or diag.baseline_horizons, (0.25, 0.5)),
+        # the final model flown by its controller's law fitted to the log (greybox.controller_law)
+        "horizons_closed_loop": _at(diag.closed_loop.horizons, (0.25, 0.5)) if diag.closed_loop else None,
+        "closed_loop_law": diag.closed_loop.as_dict()["law"] if diag.closed_loop else None,
         "final_effects": (diag.final_model or model).effect_names,
         "warnings": diag.warnings,
         "report": str(report),
@@ -197,6 +200,24 @@ def markdown(rows: list[dict]) -> str:
             cells = [f"{hz[f'{c}@{h}']['model']:.3f} / {hz[f'{c}@{h}']['naive']:.3f}" if f"{c}@{h}" in hz else "-"
                      for c in pose]
             lines.append(f"| {r['flight']} | {h} s | " + " | ".join(cells) + " |")
+    closed = [r for r in rows if r.get("horizons_closed_loop")]
+    if closed:
+        lines.append("")
+        lines.append("The final model flown by its controller's law (fitted to the logged commands and "
+                     "setpoints; greybox.controller_law): RMS prediction error / the naive predictor's, and "
+                     "the channels where it is below:")
+        lines.append("")
+        lines.append("| flight | law delay, R² roll/pitch | ahead | " + " | ".join(pose) + " | beats naive |")
+        lines.append("|---|---|---|" + "---|" * len(pose) + "---|")
+        for r in closed:
+            hz, law = r["horizons_closed_loop"], r["closed_loop_law"]
+            for h in ("0.25", "0.5"):
+                cells = [f"{hz[f'{c}@{h}']['model']:.3f} / {hz[f'{c}@{h}']['naive']:.3f}" if f"{c}@{h}" in hz
+                         else "-" for c in pose]
+                beat = [c for c in pose if f"{c}@{h}" in hz and hz[f"{c}@{h}"]["beats"]]
+                lines.append(f"| {r['flight']} | {1e3 * law['delay']:.0f} ms, {law['r2']['roll']:.2f}/"
+                             f"{law['r2']['pitch']:.2f} | {h} s | " + " | ".join(cells)
+                             + f" | {', '.join(beat) or 'none'} |")
     lines.append("")
     lines.append(f"Per-channel {HORIZON:g}-s nrmse (validation, last 20 %):")
     lines.append("")

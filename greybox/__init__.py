@@ -32,6 +32,8 @@ _EXPORTS = {
     "Prediction": (".validation", "Prediction"), "compare_plot": (".validation", "compare_plot"),
     "nrmse": (".validation", "nrmse"), "predict": (".validation", "predict"),
     "residual_plot": (".validation", "residual_plot"),
+    "ControllerLaw": (".controller_law", "ControllerLaw"),
+    "closed_loop_horizon_errors": (".controller_law", "closed_loop_horizon_errors"),
     "Diagnosis": (".diagnosis", "Diagnosis"), "diagnose": (".diagnosis", "diagnose"),
     "LinearModel": (".linearize", "LinearModel"), "hover_trim": (".linearize", "hover_trim"),
     "linearize": (".linearize", "linearize"),

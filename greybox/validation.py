@@ -36,7 +36,7 @@ from .integrate import Substeps, log_substeps, parallel_map, rk4_step_with_outpu
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import euler_rates_from_body_rates
 
-__all__ = ["Prediction", "HorizonErrors", "DEFAULT_HORIZONS", "POSE_CHANNELS", "startable", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
+__all__ = ["Prediction", "HorizonErrors", "HorizonAccumulator", "measured_outputs", "DEFAULT_HORIZONS", "POSE_CHANNELS", "startable", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
            "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options", "predict_after_fit",
            "horizon_errors_after", "horizon_errors", "HORIZON_START_EVERY", "INIT_WINDOWS",
            "choose_horizon_predictor", "HELD_MOMENT_WINDOWS",
@@ -225,7 +225,7 @@ def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts
         xe[ok] = np.asarray(xe_t).T[ok]
         mu = np.where(ok, np.maximum(mu / 5, 1e-9), mu * 10)
     if measured_start:
-        meas = _measured(log, model.ny)
+        meas = measured_outputs(log, model.ny)
         for i, a in enumerate(starts):
             _, eul, _, om = naive_start(log, meas, int(a), xe[i])
             xe[i, 3:6], xe[i, 9:12] = eul, om
@@ -304,7 +304,7 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
     pred = np.full((t.size, model.ny), np.nan)
     for w, (a, b) in enumerate(wins):
         pred[a:b] = Yp[w, :b - a]
-    meas = _measured(log, model.ny)
+    meas = measured_outputs(log, model.ny)
     err = meas - pred
     err[:, PSI] = np.arctan2(np.sin(err[:, PSI]), np.cos(err[:, PSI]))
     # a prediction that diverged (NaN, inf) where there is a measurement is an infinite error,
@@ -437,17 +437,17 @@ class HorizonErrors:
         parts = pred.parts or [pred]
         dt = float(np.median(np.diff(parts[0].log.t)))
         hs = sorted({round(dt, 9), *[h for h in (horizons or DEFAULT_HORIZONS) if h <= pred.horizon + 1e-9]})
-        acc = _HorizonSums(hs, pred.channels, dt)
+        acc = HorizonAccumulator(hs, pred.channels, dt)
         for part in parts:
             if part.start_states is None:
                 raise GreyboxInputError("horizon errors need a prediction made by greybox.predict")
-            meas = _measured(part.log, part.predicted.shape[1])
+            meas = measured_outputs(part.log, part.predicted.shape[1])
             for w, (a, b) in enumerate(part.windows):
                 acc.add(part.log, meas, a, part.errors[a:b], part.start_states[w])
         return acc.result()
 
 
-def _measured(log: FlightLog, ny: int) -> np.ndarray:
+def measured_outputs(log: FlightLog, ny: int) -> np.ndarray:
     """The log's outputs as an (n, ny) array in ``OUTPUTS`` order, NaN where not measured."""
     meas = np.full((len(log.t), ny), np.nan)
     for c, name in enumerate(OUTPUTS[:ny]):
@@ -456,8 +456,10 @@ def _measured(log: FlightLog, ny: int) -> np.ndarray:
     return meas
 
 
-class _HorizonSums:
-    """Squared model and naive errors at each horizon, summed over prediction windows."""
+class HorizonAccumulator:
+    """Squared model and naive errors at each horizon, summed over prediction windows: the
+    scoring of :class:`HorizonErrors` for any predictor that gives its errors per window
+    (:func:`horizon_errors`, :func:`greybox.controller_law.closed_loop_horizon_errors`)."""
 
     def __init__(self, hs: Sequence[float], channels: Sequence[str], dt: float):
         self.hs, self.channels, self.dt = list(hs), list(channels), dt
@@ -548,7 +550,7 @@ def horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]"
         if acc is None:
             hs = sorted({round(dt, 9), *hs_req})
             channels = [name for name in OUTPUTS if name in log.output_names]
-            acc = _HorizonSums(hs, channels, dt)
+            acc = HorizonAccumulator(hs, channels, dt)
         L = max(int(round(init_window / dt)), 3)
         n_steps = int(np.searchsorted(t - t[0], max(acc.hs) * 1.2 + dt, side="right")) + 1
         last = t.size - 2
@@ -561,7 +563,7 @@ def horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]"
         starts = starts[can] if can.any() else starts     # none from a sensor's outage, where others can
         Yp, x0 = _predict_windows(model, np.asarray(pk, dtype=float), log, starts, n_steps, L, sigma, compile,
                                   measured_start)
-        meas = _measured(log, model.ny)
+        meas = measured_outputs(log, model.ny)
         for w, a in enumerate(starts):
             b = min(a + n_steps, t.size)
             err = meas[a:b] - Yp[w, :b - a]

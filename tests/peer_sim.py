@@ -654,6 +654,8 @@ class PeerSensors:
                                          # estimate, and the log reports it
     pos_delay: float = 0.0               # s: the logged position is the vehicle's this long before
                                          # its time stamp (a vision pipeline's latency)
+    log_setpoints: bool = False          # log the flight plan's position and yaw (x_ref, y_ref, z_ref,
+                                         # psi_ref), as an autopilot logs its targets
 
 
 @dataclass
@@ -779,6 +781,11 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
             acc += np.asarray(sens.accel_bias, float)
         for j, name in enumerate(("ax", "ay", "az")):
             cols[name] = acc[:, j]
+    if sens.log_setpoints:
+        # the plan draws nothing at this point: the flight is the same with or without them
+        refs = np.array([np.append(plan.reference(tk)[0], plan.reference(tk)[3]) for tk in t_log])
+        for j, name in enumerate(("x_ref", "y_ref", "z_ref", "psi_ref")):
+            cols[name] = refs[:, j]
     truth = _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts)
     truth["controller"] = controller
     truth["greybox_flown"] = _flown_equivalent(veh, fx, dyn, states)

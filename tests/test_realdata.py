@@ -80,6 +80,21 @@ def test_import_frames_units_and_trimming(path):
     # position: x stays, y and z flip
     np.testing.assert_allclose(log.output("y")[:50], -raw["py"][k0:k0 + 50], atol=1e-12)
     np.testing.assert_allclose(log.output("z")[:50], -raw["pz"][k0:k0 + 50], atol=1e-12)
+    # the controller's setpoint, where logged, in the same NED world: the vehicle follows it
+    # (0.5-0.8 s behind on these flights) about the same mean, moving with it (a sign error
+    # in y or z would anticorrelate them); the yaw target in rad, not degrees
+    if "sp_ctrltarget_x" in raw.dtype.names:
+        for ch in ("x", "y", "z"):
+            y, ref = log.output(ch), log.extras[f"{ch}_ref"]
+            k = np.isfinite(y)
+            assert abs(np.mean(y[k] - ref[k])) < 0.05, ch
+            if np.ptp(y[k]) > 0.5:
+                yi = np.interp(log.t, log.t[k], y[k])
+                lead = max(np.corrcoef(yi[m:], ref[:ref.size - m])[0, 1] for m in range(0, 101, 5))
+                assert lead > 0.3, ch          # 0.43-0.99 here; a flipped axis gives about -1
+        assert np.max(np.abs(log.extras["psi_ref"])) < 0.2
+    else:
+        assert "x_ref" not in log.extras
 
 
 def test_pwm_map_and_held_samples(tmp_path):

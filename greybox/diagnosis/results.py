@@ -16,6 +16,7 @@ from ..fitting import FitResult
 from ..fitting.certificate import FILTERED_SENSOR_RATIO
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import ANGLE_OF_RATE, AttitudeMotion
+from ..controller_law import ClosedLoopReport
 from ..validation import HorizonErrors, Prediction
 from .analysis import CommandImbalance, Finding
 from .closed_loop import rate_levels
@@ -236,6 +237,9 @@ class Diagnosis:
     # error against horizon of the baseline and the final model (validation.horizon_errors_after)
     baseline_horizons: HorizonErrors | None = None
     final_horizons: HorizonErrors | None = None
+    # the final model flown by its controller's law fitted to the log (greybox.controller_law),
+    # where the logs carry setpoints; None otherwise
+    closed_loop: ClosedLoopReport | None = None
     # whether the final fit's attitude and rate residuals are motion (residuals.attitude_motion),
     # computed when some of those channels are unexplained
     attitude_motion: dict[str, AttitudeMotion] = field(default_factory=dict)
@@ -332,6 +336,8 @@ class Diagnosis:
         out["horizons_predictor"] = {k: dict(he.predictor) for k, he in
                                      (("baseline", self.baseline_horizons), ("final", self.final_horizons))
                                      if he is not None and he.predictor}
+        # the final model flown by its controller's law (logs with setpoints only)
+        out["closed_loop"] = self.closed_loop.as_dict() if self.closed_loop is not None else None
         out["model"] = {"effects": self.fitted_model.model.effect_names, "parameters": self.parameter_table(),
                         "certified": bool(self.fitted_model.converged)}
         if getattr(self.fitted_model, "per_flight_", None):
@@ -490,6 +496,8 @@ class Diagnosis:
             lines.append(f"   {n} per flight (the mean above): " + ", ".join(
                 f"{x:.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "") for x, s in zip(v["value"], v["std"])))
         lines += self.horizon_lines()
+        if self.closed_loop is not None:
+            lines.append(self.closed_loop.line())
         lines += self._discovery_lines()
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)

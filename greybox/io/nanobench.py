@@ -28,6 +28,9 @@ Built on the shared parts in :mod:`greybox.io.base`:
   force); ``keep_ground=True`` keeps everything. An ``on_ground`` column (1/0) flags contact.
 * **Battery voltage** ``pwr_pm_vbat`` (held at about 10 Hz) is interpolated between fresh
   samples and kept as the ``vbat`` column, the signal the ``battery_voltage`` effect reads.
+* **Setpoints** ``sp_ctrltarget_x, _y, _z`` (m, the Vicon's world) and ``sp_ctrltarget_yaw``
+  (degrees, as the firmware logs it) become ``x_ref, y_ref, z_ref`` (NED) and ``psi_ref``
+  (rad), the columns a closed-loop model reads (:mod:`greybox.controller_law`).
 * The IMU specific force becomes the accelerometer channels ``ax, ay, az`` (m/s^2, FRD),
   fitted like any output (it measures thrust and drag directly; see
   ``experiments/real_crazyflie.py``).
@@ -58,6 +61,7 @@ _EULER = ["roll", "pitch", "yaw"]
 _GYRO = ["imu_gyro_x", "imu_gyro_y", "imu_gyro_z"]
 _ACC = ["imu_acc_x", "imu_acc_y", "imu_acc_z"]
 _VBAT = "pwr_pm_vbat"
+_SETPOINT = ["sp_ctrltarget_x", "sp_ctrltarget_y", "sp_ctrltarget_z", "sp_ctrltarget_yaw"]
 
 
 def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_PWM_MAP,
@@ -193,6 +197,18 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
     if all(h in col for h in _ACC):
         acc = flu_to_frd(np.column_stack([column(n, required=False) for n in _ACC]) * G0)
         outputs["ax"], outputs["ay"], outputs["az"] = acc[:, 0], acc[:, 1], acc[:, 2]
+    if all(h in col for h in _SETPOINT):
+        # the controller's target: the same world as the Vicon pose, yaw in degrees (firmware)
+        sp = np.column_stack([column(n, required=False) for n in _SETPOINT])
+        fin = np.isfinite(sp).all(1)
+        if fin.any():
+            sp = np.column_stack([np.interp(t_all, t_all[fin], sp[fin, j]) for j in range(4)])
+            sp_ned = zup_to_ned(sp[:, :3])
+            for j, name in enumerate(("x_ref", "y_ref", "z_ref")):
+                extras[name] = sp_ned[:, j]
+            extras["psi_ref"] = -np.radians(sp[:, 3])
+            notes.append("setpoints sp_ctrltarget_x..yaw kept as x_ref, y_ref, z_ref (m, NED), psi_ref (rad): "
+                         "what a closed-loop model reads")
     for i in range(4):
         extras[f"pwm{i + 1}"] = pwm[:, i]
     extras["motor_fresh"] = motor_fresh.astype(float)

@@ -1,0 +1,529 @@
+"""A model of the closed loop: the vehicle model flown by its controller's law, fitted to the log.
+
+On a slow flight the logged commands carry the attitude's next half second *through the
+controller*: the command moves as the measured rate does (the rate loop read backwards), and a
+torque model driven by the logged commands predicts roll and pitch no better than the naive
+predictor (README, "What the logged commands can tell"). What the vehicle was *asked* to do
+does carry it: an autopilot's cascade (position P, velocity PI, attitude P, rate PID) turns the
+setpoint and the state into the commands, and the vehicle then follows its law. This module
+fits that law to the log and predicts with the vehicle model and the law in one loop.
+
+**The law** (:class:`ControllerLaw`): the cascade linearised about hover, in the yaw-aligned
+frame, one row per mixer axis of the airframe's allocation (``Airframe.allocation_matrix``:
+the sum of ``w_i^2``, the roll, pitch and yaw combinations of ``w_i^2``, i.e. thrust and torque
+per ``K_T`` or ``b``)::
+
+    thrust  ~ e_z, v_z
+    roll    ~ e_y, v_y, phi,   p        (e, v: position error to the setpoint and velocity,
+    pitch   ~ e_x, v_x, theta, q         rotated by -psi into the yaw-aligned frame)
+    yaw     ~ psi - psi_ref, r
+
+plus a trim per axis, acting ``delay_`` after the state it reads (chosen by least squares
+among 0 .. ``max_delay``). The gains are fitted to the logged commands against the measured
+states (positions, their derivative, attitude, gyro); a log needs the setpoint columns
+:data:`SETPOINTS` (``x_ref, y_ref, z_ref`` in m, NED, ``psi_ref`` in rad; the NanoBench importer
+writes them from ``sp_ctrltarget_*``). The law is the structure of a cascade, not its exact
+gains: integrators are held over a window (``held_trim``: the law's mean residual over the
+:data:`TRIM_WINDOW` before the start, i.e. the integrators' current output and whatever else
+the law misses just then), derivative filters and saturations are not modelled (the rotor
+speeds are clipped to the range the log flew).
+
+**Closed-loop prediction** (:func:`closed_loop_horizon_errors`): each window starts like the
+open-loop one (:func:`greybox.validation.estimate_states`), the commands already on their way
+(``delay_``) are the logged ones, and from then on the law computes the commands from the
+*predicted* state and the logged setpoints. It is scored beside the naive predictor as in
+:func:`greybox.validation.horizon_errors`. It answers a different question from the open-loop
+prediction: not "what does the vehicle do with these commands" but "what does the vehicle do,
+flown by its controller, asked for these setpoints" — the prediction an engineer planning a
+manoeuvre needs, and the one a controller's gains can be checked against.
+
+Example::
+
+    law = ControllerLaw().fit(model, est)             # est: logs with x_ref..psi_ref
+    law.gains_["roll"], law.delay_, law.r2_
+    he = closed_loop_horizon_errors(model, res.p, law, val)
+    he.beats_naive("phi", 0.25)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+
+from .data import FlightLog
+from .errors import GreyboxInputError
+from .integrate import log_substeps, parallel_map, rk4_step
+from .linearize import hover_trim
+from .model import OUTPUTS, QuadrotorModel
+from .validation import (DEFAULT_HORIZONS, DEFAULT_INIT_WINDOW, HORIZON_MAX_STARTS, HORIZON_START_EVERY,
+                         HorizonAccumulator, HorizonErrors, estimate_states, measured_outputs, naive_start,
+                         startable)
+
+__all__ = ["ControllerLaw", "closed_loop_horizon_errors", "SETPOINTS", "LAW_AXES", "LAW_FEATURES",
+           "TRIM_WINDOW", "has_setpoints", "setpoint_signals", "measured_law_states", "loop_parameters",
+           "ClosedLoopReport", "closed_loop_report"]
+
+SETPOINTS = ("x_ref", "y_ref", "z_ref", "psi_ref")
+"""The log's extra columns a closed-loop model reads: the position setpoint (m, NED) and the
+yaw setpoint (rad)."""
+LAW_AXES = ("thrust", "roll", "pitch", "yaw")
+LAW_FEATURES = {"thrust": ("e_z", "v_z"), "roll": ("e_y", "v_y", "phi", "p"),
+                "pitch": ("e_x", "v_x", "theta", "q"), "yaw": ("e_psi", "r")}
+"""Which of the state's errors each mixer axis of the law reads (module doc)."""
+_ORDER = [f for axis in LAW_AXES for f in LAW_FEATURES[axis]]
+TRIM_WINDOW = 0.25
+"""s before a window's start over which the law's residual is averaged into its held trim."""
+VELOCITY_WINDOW = 0.05
+"""s: the positions' derivative for the fit is a straight line through this much of them on
+each side (5 samples of a 100-Hz motion-capture log each way)."""
+
+
+def has_setpoints(log: FlightLog) -> bool:
+    """Whether ``log`` carries the setpoint columns :data:`SETPOINTS` a closed-loop model reads."""
+    return all(name in log.extras for name in SETPOINTS)
+
+
+def _feature_function() -> ca.Function:
+    """``phi(x12, ref) -> features`` in :data:`_ORDER`: the errors the law reads; ``ref`` is
+    the setpoint (:data:`SETPOINTS`) and the setpoint's velocity (:func:`setpoint_signals`)."""
+    x = ca.SX.sym("x", 12)
+    ref = ca.SX.sym("ref", 7)
+    psi = x[5]
+    c, s = ca.cos(psi), ca.sin(psi)
+    e = x[0:3] - ref[0:3]
+    v = x[6:9] - ref[4:7]
+    # world -> yaw-aligned frame: rotate by -psi about z
+    e_h = ca.vertcat(c * e[0] + s * e[1], -s * e[0] + c * e[1])
+    v_h = ca.vertcat(c * v[0] + s * v[1], -s * v[0] + c * v[1])
+    d = psi - ref[3]
+    vals = {"e_z": e[2], "v_z": v[2], "e_y": e_h[1], "v_y": v_h[1], "phi": x[3], "p": x[9],
+            "e_x": e_h[0], "v_x": v_h[0], "theta": x[4], "q": x[10], "e_psi": ca.atan2(ca.sin(d), ca.cos(d)),
+            "r": x[11]}
+    return ca.Function("law_features", [x, ref], [ca.vertcat(*[vals[f] for f in _ORDER])])
+
+
+_FEATURES = _feature_function()
+
+
+def _check_log(log: FlightLog, model: QuadrotorModel) -> None:
+    where = log.source or "log"
+    missing = [s for s in SETPOINTS if s not in log.extras]
+    if missing:
+        raise GreyboxInputError(f"{where}: a closed-loop model needs the setpoint column(s) {', '.join(missing)} "
+                                f"(m, NED; psi_ref in rad)")
+    if model.inputs == "controls":
+        raise GreyboxInputError(f"{where}: a closed-loop model needs rotor-speed inputs w1..wN")
+    for s in SETPOINTS:
+        if not np.isfinite(log.extras[s]).all():
+            k = int(np.flatnonzero(~np.isfinite(log.extras[s]))[0])
+            raise GreyboxInputError(f"{where}: row {k + 2}, column {s!r}: a setpoint may not be missing")
+
+
+def setpoint_signals(log: FlightLog) -> np.ndarray:
+    """(n, 7): the setpoint :data:`SETPOINTS` and its velocity (the slope of a straight line
+    through :data:`VELOCITY_WINDOW` of it on each side), which a trajectory's commander sends
+    with it: the velocity loop acts on ``v - v_ref``."""
+    ref = np.column_stack([log.extras[s] for s in SETPOINTS])
+    dt = float(np.median(np.diff(log.t)))
+    m = max(1, int(round(VELOCITY_WINDOW / dt)))
+    vel = np.column_stack([_local_slope(log.t, ref[:, j], m) for j in range(3)])
+    return np.hstack([ref, vel])
+
+
+def measured_law_states(log: FlightLog) -> np.ndarray:
+    """The 12 rigid-body states from the measurements (n, 12; NaN where they cannot be had):
+    positions and angles interpolated across gaps, velocities the slope of a straight line
+    through :data:`VELOCITY_WINDOW` of positions on each side, rates from the gyro (from the
+    angles' derivative without one)."""
+    t = log.t
+    n = t.size
+    S = np.full((n, 12), np.nan)
+
+    def filled(name):
+        y = log.output(name).astype(float)
+        k = np.isfinite(y)
+        if k.sum() < 2:
+            return np.full(n, np.nan)
+        if name == "psi":
+            yk = np.unwrap(y[k])
+            return np.interp(t, t[k], yk)
+        return np.interp(t, t[k], y[k])
+
+    for j, name in enumerate(("x", "y", "z", "phi", "theta", "psi")):
+        if log.measures(name):
+            S[:, j] = filled(name)
+    dt = float(np.median(np.diff(t)))
+    m = max(1, int(round(VELOCITY_WINDOW / dt)))
+    for j in range(3):
+        S[:, 6 + j] = _local_slope(t, S[:, j], m)
+    for j, name in enumerate(("p", "q", "r")):
+        if log.measures(name):
+            S[:, 9 + j] = filled(name)
+        else:
+            S[:, 9 + j] = _local_slope(t, S[:, 3 + j], m)
+    return S
+
+
+def _local_slope(t: np.ndarray, y: np.ndarray, m: int) -> np.ndarray:
+    """Least-squares slope of ``y`` over samples ``k-m .. k+m`` at every ``k`` (edges: shorter)."""
+    n = t.size
+    out = np.full(n, np.nan)
+    if not np.isfinite(y).any():
+        return out
+    # windowed sums by cumulative sums: no loop over samples
+    def wsum(a):
+        c = np.concatenate([[0.0], np.cumsum(a)])
+        lo = np.clip(np.arange(n) - m, 0, n)
+        hi = np.clip(np.arange(n) + m + 1, 0, n)
+        return c[hi] - c[lo]
+    tc = t - t[0]
+    N = wsum(np.ones(n))
+    St, Sy, Stt, Sty = wsum(tc), wsum(y), wsum(tc * tc), wsum(tc * y)
+    den = N * Stt - St * St
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(den > 0, (N * Sty - St * Sy) / den, np.nan)
+    return out
+
+
+@dataclass
+class ControllerLaw:
+    """A cascaded position and attitude controller's law, linear about hover, fitted to the
+    commands of logs with setpoints (module doc).
+
+    Parameters:
+        delay: the law's delay in s; ``None`` chooses it among 0 .. ``max_delay`` in steps
+            of the log's sample time by the least-squares residual.
+        max_delay: s.
+
+    Fitted attributes: ``gains_`` (axis -> gains on :data:`LAW_FEATURES` [axis]), ``trims_``
+    (4,), ``delay_`` (s), ``delay_samples_``, ``r2_`` (axis -> share of the commands' variance
+    the law explains), ``allocation_`` (4 x N), ``w_range_`` (the rotor speeds the log flew).
+    """
+
+    delay: float | None = None
+    max_delay: float = 0.08
+    gains_: dict = field(default_factory=dict, init=False)
+    trims_: np.ndarray = field(default=None, init=False)
+    delay_: float = field(default=float("nan"), init=False)
+    delay_samples_: int = field(default=0, init=False)
+    r2_: dict = field(default_factory=dict, init=False)
+    allocation_: np.ndarray = field(default=None, init=False)
+    w_range_: tuple = field(default=(0.0, math.inf), init=False)
+
+    # ------------------------------------------------------------------ fitting
+    def fit(self, model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]") -> "ControllerLaw":
+        """Fit the law's gains and trims to the logged commands of ``logs`` (each with the
+        setpoint columns :data:`SETPOINTS`)."""
+        logs = [logs] if isinstance(logs, FlightLog) else list(logs)
+        if not logs:
+            raise GreyboxInputError("ControllerLaw.fit needs at least one log")
+        A = model.airframe.allocation_matrix()
+        nr = model.airframe.n_rotors
+        parts = []
+        for log in logs:
+            _check_log(log, model)
+            dt = float(np.median(np.diff(log.t)))
+            phi = self._features_measured(log)
+            c = (A @ (log.inputs[:, :nr] ** 2).T).T
+            air = np.ones(log.t.size, dtype=bool)
+            if "on_ground" in log.extras:
+                air = log.extras["on_ground"] < 0.5
+            parts.append((phi, c, air, dt))
+        dt = parts[0][3]
+        max_d = int(round(self.max_delay / dt))
+        cands = [int(round(self.delay / dt))] if self.delay is not None else list(range(max_d + 1))
+        best = None
+        for d in cands:
+            fitd = self._regress(parts, d)
+            if fitd is not None and (best is None or fitd[0] < best[0]):
+                best = fitd + (d,)
+        if best is None:
+            raise GreyboxInputError("ControllerLaw.fit: too few samples with every state measured")
+        _, gains, trims, r2, d = best
+        self.gains_, self.trims_, self.r2_ = gains, trims, r2
+        self.delay_samples_, self.delay_ = d, d * dt
+        self.allocation_ = A
+        w = np.concatenate([log.inputs[:, :nr].ravel() for log in logs])
+        self.w_range_ = (float(np.min(w)), float(np.max(w)))
+        return self
+
+    @staticmethod
+    def _features_measured(log: FlightLog) -> np.ndarray:
+        S = measured_law_states(log)
+        ref = setpoint_signals(log)
+        ok = np.isfinite(S).all(1)
+        out = np.full((log.t.size, len(_ORDER)), np.nan)
+        if ok.any():
+            out[ok] = np.asarray(_FEATURES.map(int(ok.sum()))(S[ok].T, ref[ok].T)).T
+        return out
+
+    @staticmethod
+    def _regress(parts, d: int):
+        """Least squares of each axis' command on its features ``d`` samples earlier; returns
+        (summed normalised residual, gains, trims, r2) or None."""
+        rows_f, rows_c = [], []
+        for phi, c, air, _ in parts:
+            n = c.shape[0]
+            if n <= d + 1:
+                continue
+            f = phi[:n - d]
+            cc = c[d:]
+            k = np.isfinite(f).all(1) & air[d:] & air[:n - d]
+            rows_f.append(f[k])
+            rows_c.append(cc[k])
+        if not rows_f:
+            return None
+        F = np.vstack(rows_f)
+        C = np.vstack(rows_c)
+        if F.shape[0] < 10 * len(_ORDER):
+            return None
+        gains, trims, r2, score = {}, np.zeros(4), {}, 0.0
+        for i, axis in enumerate(LAW_AXES):
+            cols = [_ORDER.index(f) for f in LAW_FEATURES[axis]]
+            X = np.column_stack([F[:, cols], np.ones(F.shape[0])])
+            coef, *_ = np.linalg.lstsq(X, C[:, i], rcond=None)
+            res = C[:, i] - X @ coef
+            var = float(np.var(C[:, i]))
+            share = float(np.mean(res ** 2)) / var if var > 0 else 0.0
+            gains[axis], trims[i], r2[axis] = coef[:-1], coef[-1], 1.0 - share
+            score += share
+        return score, gains, trims, r2
+
+    # ------------------------------------------------------------------ the law
+    @property
+    def gain_matrix_(self) -> np.ndarray:
+        """(4, 12) gains on the features in the order of :data:`LAW_FEATURES`."""
+        G = np.zeros((4, len(_ORDER)))
+        for i, axis in enumerate(LAW_AXES):
+            for g, f in zip(self.gains_[axis], LAW_FEATURES[axis]):
+                G[i, _ORDER.index(f)] = g
+        return G
+
+    def mixer_commands(self, states: np.ndarray, setpoints: np.ndarray) -> np.ndarray:
+        """The law's commands in mixer coordinates (n, 4) for rigid-body ``states`` (n, 12)
+        and setpoints with their velocity (n, 7; :func:`setpoint_signals`), with the fitted trims (no delay)."""
+        self._check_fitted()
+        phi = np.asarray(_FEATURES.map(states.shape[0])(states.T, setpoints.T)).T
+        return phi @ self.gain_matrix_.T + self.trims_
+
+    def residual_trims(self, log: FlightLog, model: QuadrotorModel, starts: Sequence[int],
+                       window: float = TRIM_WINDOW) -> np.ndarray:
+        """Held trims (len(starts), 4): the fitted trims plus the law's mean residual over
+        ``window`` seconds before each start (the integrators' output just then)."""
+        self._check_fitted()
+        phi = self._features_measured(log)
+        nr = model.airframe.n_rotors
+        c = (self.allocation_ @ (log.inputs[:, :nr] ** 2).T).T
+        d = self.delay_samples_
+        pred = np.full_like(c, np.nan)
+        pred[d:] = phi[:c.shape[0] - d] @ self.gain_matrix_.T + self.trims_
+        res = c - pred
+        dt = float(np.median(np.diff(log.t)))
+        m = max(1, int(round(window / dt)))
+        out = np.tile(self.trims_, (len(starts), 1))
+        for w, a in enumerate(starts):
+            r = res[max(0, a - m):a]
+            r = r[np.isfinite(r).all(1)]
+            if r.size:
+                out[w] += r.mean(0)
+        return out
+
+    def _check_fitted(self) -> None:
+        if not self.gains_:
+            raise GreyboxInputError("the ControllerLaw is not fitted: call .fit(model, logs) first")
+
+    def __repr__(self) -> str:
+        if not self.gains_:
+            return "ControllerLaw(not fitted)"
+        r2 = ", ".join(f"{a} {self.r2_[a]:.2f}" for a in LAW_AXES)
+        return f"ControllerLaw(delay {1e3 * self.delay_:.0f} ms; R^2 {r2})"
+
+    # ------------------------------------------------------------------ closed-loop step
+    def closed_loop_step(self, model: QuadrotorModel, n_sub, extra_delay: int = 0) -> ca.Function:
+        """``F(xb, ref, trim, sig, p, t, h) -> (xb_next, y)``: one sample of the vehicle model
+        flown by the law; ``xb`` is the model's state and the law's commands on their way
+        (``4 * (delay_samples_ + extra_delay)``, oldest first), ``sig`` the model's other inputs
+        (logged signals)."""
+        self._check_fitted()
+        nr = model.airframe.n_rotors
+        d = self.delay_samples_ + extra_delay
+        step = rk4_step(model, n_sub)
+        nsig = model.nu - nr
+        xb = ca.MX.sym("xb", model.nx + 4 * d)
+        ref = ca.MX.sym("ref", 7)
+        trim = ca.MX.sym("trim", 4)
+        sig = ca.MX.sym("sig", nsig)
+        p = ca.MX.sym("p", model.n_params)
+        t = ca.MX.sym("t")
+        h = ca.MX.sym("h")
+        x = xb[:model.nx]
+        c_new = ca.mtimes(ca.DM(self.gain_matrix_), _FEATURES(x[:12], ref)) + trim
+        c_now = xb[model.nx:model.nx + 4] if d else c_new
+        w2 = ca.mtimes(ca.DM(np.linalg.pinv(self.allocation_)), c_now)
+        lo, hi = self.w_range_
+        w = ca.fmin(ca.sqrt(ca.fmax(w2, lo * lo)), hi)
+        u = ca.vertcat(w, sig)
+        x_next = step(x, u, p, t, h)
+        buf_next = ca.vertcat(xb[model.nx + 4:], c_new) if d else ca.MX(0, 1)
+        y = model.output(x, u, p, t)
+        return ca.Function("closed_loop_step", [xb, ref, trim, sig, p, t, h], [ca.vertcat(x_next, buf_next), y],
+                           ["xb", "ref", "trim", "sig", "p", "t", "h"], ["xb_next", "y"])
+
+
+def loop_parameters(model: QuadrotorModel, p: np.ndarray, dt: float) -> tuple[np.ndarray, int, list[str]]:
+    """The parameters the closed loop flies with, the extra samples its commands wait, and the
+    effects it holds at their null values.
+
+    Effects that read the log's earlier or later commands (derived signals: a command delay,
+    sampled inputs) describe how the *logged* commands reach the rotors; the loop's own
+    commands are held values it computes itself, so these effects go to their null values, and
+    a delay among their input-timed parameters (in s) is added to the law's delay, rounded to
+    the log's samples."""
+    names = model.param_names
+    p = np.array(p, dtype=float)
+    extra, held = 0.0, []
+    for e in model.effects:
+        if not e.derived_signals(model.command_names):
+            continue
+        held.append(e.name)
+        for par, comp, null in model.effect_components(e.name):
+            i = names.index(comp)
+            if par.name in e.input_timed and par.unit == "s":
+                extra += p[i] - null
+            p[i] = null
+    return p, int(round(extra / dt)), held
+
+
+def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]", law: ControllerLaw,
+                               logs: "FlightLog | Sequence[FlightLog]", horizons: Sequence[float] | None = None,
+                               start_every: float = HORIZON_START_EVERY, init_window: float = DEFAULT_INIT_WINDOW,
+                               held_trim: bool = False, trim: str = "model", measured_start: bool = True,
+                               compile: str = "auto") -> HorizonErrors:
+    """Prediction error against horizon of ``model`` (parameters ``p``, one vector or one per
+    log) flown by the fitted ``law`` from the logged setpoints, beside the naive predictor's,
+    over windows started every ``start_every`` s (as :func:`greybox.validation.horizon_errors`;
+    module doc). ``held_trim``: each window's trims are the law's residual before it
+    (:meth:`ControllerLaw.residual_trims`), else the fitted constants."""
+    law._check_fitted()
+    logs = [logs] if isinstance(logs, FlightLog) else list(logs)
+    ps = [p] * len(logs) if isinstance(p, np.ndarray) and p.ndim == 1 else list(p)
+    hs_req = sorted(horizons or DEFAULT_HORIZONS)
+    nr = model.airframe.n_rotors
+    acc = None
+    held: list[str] = []
+    d = law.delay_samples_
+    for pk, log in zip(ps, logs):
+        _check_log(log, model)
+        log = model.prepare_log(log)
+        t = log.t
+        dt = float(np.median(np.diff(t)))
+        if acc is None:
+            channels = [name for name in OUTPUTS if name in log.output_names]
+            acc = HorizonAccumulator(sorted({round(dt, 9), *hs_req}), channels, dt)
+        pk = np.asarray(pk, dtype=float)
+        p_loop, extra, held = loop_parameters(model, pk, dt)
+        d = law.delay_samples_ + extra
+        L = max(int(round(init_window / dt)), 3, d)
+        n_steps = int(np.searchsorted(t - t[0], max(acc.hs) * 1.2 + dt, side="right")) + 1
+        last = t.size - 2
+        if last <= L:
+            raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
+                                    f"{init_window + 2 * dt:.3f} s")
+        step = max(1, int(round(start_every / dt)), int(math.ceil((last - L) / HORIZON_MAX_STARTS)))
+        starts = np.arange(L, last, step)
+        can = startable(log, L)[starts]
+        starts = starts[can] if can.any() else starts
+        x0 = estimate_states(model, pk, log, starts, L, None, compile=compile, measured_start=measured_start)
+        meas = measured_outputs(log, model.ny)
+        if measured_start:
+            # the rigid body entirely from the measurements, as the naive predictor takes it (the
+            # effects' states from the estimate): a closed loop forgives a start, not a wrong one
+            for w, a in enumerate(starts):
+                pv, eul, _, om = naive_start(log, meas, a, x0[w])
+                x0[w, 0:3], x0[w, 6:9], x0[w, 3:6], x0[w, 9:12] = pv[:3], pv[3:], eul, om
+        A = law.allocation_
+        c_logged = (A @ (log.inputs[:, :nr] ** 2).T).T
+        # the commands acting in the first d samples were computed from states before the start:
+        # the logged ones, the rotors' delay (extra) after they were logged
+        buf0 = np.zeros((len(starts), 4 * d))
+        for j in range(d):
+            buf0[:, 4 * j:4 * j + 4] = c_logged[np.clip(starts + j - extra, 0, t.size - 1)]
+        trims = law.residual_trims(log, model, starts) if held_trim else np.tile(law.trims_, (len(starts), 1))
+        if trim == "model":
+            # the integrators hold the model in its hover: the law's trims are the model's, not
+            # the vehicle's (which trim out what the model may lack, e.g. a CoG offset)
+            _, u_trim = hover_trim(model, p_loop)
+            trims = trims - law.trims_ + A @ (np.asarray(u_trim)[:nr] ** 2)
+        F = law.closed_loop_step(model, log_substeps([log]), extra)
+        acc_f = F.mapaccum("closed_loop", n_steps, [0], [0])
+        nW = len(starts)
+        G = parallel_map(acc_f, nW)
+        idx = np.minimum(starts[:, None] + np.arange(n_steps)[None, :], t.size - 1)
+        nxt = np.minimum(idx + 1, t.size - 1)
+        h = (t[nxt] - t[idx]).ravel()[None, :]
+        ref = setpoint_signals(log)[idx.ravel()].T
+        sig = log.inputs[idx.ravel(), nr:].T
+        trim_rep = np.repeat(trims, n_steps, axis=0).T
+        _, Y = G(np.hstack([x0, buf0]).T, ref, trim_rep, sig, np.tile(p_loop[:, None], (1, nW * n_steps)),
+                 t[idx.ravel()][None, :], h)
+        Yp = np.asarray(Y).reshape(model.ny, nW, n_steps).transpose(1, 2, 0)
+        psi = OUTPUTS.index("psi")
+        for w, a in enumerate(starts):
+            b = min(a + n_steps, t.size)
+            err = meas[a:b] - Yp[w, :b - a]
+            err[:, psi] = np.arctan2(np.sin(err[:, psi]), np.cos(err[:, psi]))
+            acc.add(log, meas, a, err, x0[w])
+    out = acc.result()
+    out.predictor = {"init_window": float(init_window), "measured_start": bool(measured_start),
+                     "closed_loop": True, "held_trim": bool(held_trim), "law_delay": float(law.delay_),
+                     "loop_delay_samples": int(d), "held_at_null": held}
+    return out
+
+
+@dataclass
+class ClosedLoopReport:
+    """A fitted model flown by its controller's law on the validation flights: the law
+    (:class:`ControllerLaw`, fitted to the estimation flights) and the prediction error against
+    horizon (:class:`~greybox.validation.HorizonErrors`, beside the naive predictor)."""
+
+    law: ControllerLaw
+    horizons: HorizonErrors
+
+    def beats(self, horizon: float) -> list[str]:
+        """The position and attitude channels where the closed loop beats the naive predictor."""
+        return [ch for ch in OUTPUTS[:6] if ch in self.horizons.model and self.horizons.beats_naive(ch, horizon)]
+
+    def as_dict(self) -> dict:
+        law = self.law
+        return {"horizons": self.horizons.as_dict(),
+                "law": {"delay": float(law.delay_),
+                        "gains": {a: {f: float(g) for f, g in zip(LAW_FEATURES[a], law.gains_[a])} for a in LAW_AXES},
+                        "trims": {a: float(v) for a, v in zip(LAW_AXES, law.trims_)},
+                        "r2": {a: float(law.r2_[a]) for a in LAW_AXES}},
+                "predictor": dict(self.horizons.predictor)}
+
+    def line(self) -> str:
+        """One line for a summary: what the closed loop beats the naive predictor on."""
+        law = self.law
+        beats = "; ".join(f"{h:g} s: {', '.join(self.beats(h)) or 'none'}" for h in (0.25, 0.5)
+                          if any(abs(x - h) < 1e-9 for x in self.horizons.horizons))
+        return (f"   flown by its controller's law (fitted to the logged commands and setpoints: delay "
+                f"{1e3 * law.delay_:.0f} ms, R² roll {law.r2_['roll']:.2f}, pitch {law.r2_['pitch']:.2f}), "
+                f"the model beats the naive predictor on {beats}")
+
+
+def closed_loop_report(model: QuadrotorModel, ps: Sequence[np.ndarray], est: Sequence[FlightLog],
+                       val: Sequence[FlightLog], horizons: Sequence[float] | None = None,
+                       compile: str = "auto") -> ClosedLoopReport | None:
+    """The closed-loop prediction of a fitted model (``ps``: its parameters per validation
+    flight) on ``val`` with a law fitted to ``est``, or None when a log has no setpoints or
+    the model's inputs are no rotor speeds (nothing to fly it with)."""
+    logs = list(est) + list(val)
+    if not logs or not all(has_setpoints(log) for log in logs) or model.inputs == "controls":
+        return None
+    law = ControllerLaw().fit(model, list(est))
+    return ClosedLoopReport(law, closed_loop_horizon_errors(model, list(ps), law, list(val), horizons=horizons,
+                                                            compile=compile))
