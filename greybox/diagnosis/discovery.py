@@ -57,6 +57,7 @@ import casadi as ca
 import numpy as np
 from scipy import sparse, stats
 
+from ..controller_law import SETPOINTS
 from ..data import FlightLog
 from ..effects.base import EffectLibrary
 from ..effects.discovered import (BASE_FEATURES, FORCE_CHANNELS, MOMENT_CHANNELS, discovered_effect_class,
@@ -99,11 +100,12 @@ gain in disguise, not a missing force. On a real Crazyflie flight (B6_linear_ram
 ``fz ∝ w2sum*vbat`` took the weight off the rotors and its refit cut the validation nrmse
 57.6 -> 1.2 by shrinking the roll moment, which the catalogue's own moment gain (0.02) had
 been refused for. The rule applies to a joint refit of several combinations as well."""
-NOT_SIGNALS = frozenset({"ax", "ay", "az", "t"})
+NOT_SIGNALS = frozenset({"ax", "ay", "az", "t", *SETPOINTS})
 """Extra log columns never offered as features: the accelerometer measures the very forces
 discovery estimates (a feature made of the answer), ``t`` is a feature already; nor are
 commands kept beside the inputs (``u1..u4``, ``w1..wN``): a commanded torque "explains" any
-torque the controller had to produce."""
+torque the controller had to produce; nor the controller's setpoints (``x_ref .. psi_ref``),
+which act on the vehicle only through those commands."""
 
 
 # ------------------------------------------------------------------------ residual forces
