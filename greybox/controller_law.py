@@ -204,7 +204,7 @@ class ControllerLaw:
     """
 
     delay: float | None = None
-    max_delay: float = 0.08
+    max_delay: float = 0.15
     gains_: dict = field(default_factory=dict, init=False)
     trims_: np.ndarray = field(default=None, init=False)
     delay_: float = field(default=float("nan"), init=False)
@@ -405,9 +405,18 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
     """Prediction error against horizon of ``model`` (parameters ``p``, one vector or one per
     log) flown by the fitted ``law`` from the logged setpoints, beside the naive predictor's,
     over windows started every ``start_every`` s (as :func:`greybox.validation.horizon_errors`;
-    module doc). ``held_trim``: each window's trims are the law's residual before it
-    (:meth:`ControllerLaw.residual_trims`), else the fitted constants."""
+    module doc).
+
+    ``measured_start``: each window's rigid-body state from the measurements as the naive
+    predictor takes it (the effects' states from the moving-horizon estimate), else all from the
+    estimate. ``trim``: ``"model"`` (the integrators hold the model in its own hover trim) or
+    ``"law"`` (the law's fitted trims, which also cancel what the vehicle has and the model may
+    lack). ``held_trim``: add the law's mean residual over :data:`TRIM_WINDOW` before each start
+    (:meth:`ControllerLaw.residual_trims`: the integrators' state then). The defaults are the
+    best of these on the ten NanoBench flights (README)."""
     law._check_fitted()
+    if trim not in ("model", "law"):
+        raise GreyboxInputError(f"closed_loop_horizon_errors: trim must be 'model' or 'law', not {trim!r}")
     logs = [logs] if isinstance(logs, FlightLog) else list(logs)
     ps = [p] * len(logs) if isinstance(p, np.ndarray) and p.ndim == 1 else list(p)
     hs_req = sorted(horizons or DEFAULT_HORIZONS)

@@ -96,8 +96,8 @@ def test_the_cascade_of_an_autopilot_is_read_as_a_stabilising_law_that_predicts_
     """On a controller greybox did not write: the law restores (roll torque against roll and
     roll rate, pitch likewise, more thrust when below the setpoint: NED z - z_ref > 0), and the
     model flown by it predicts roll and pitch 0.5 s ahead better than constant rates do (measured
-    once: 0.084 and 0.048 rad against 0.23 and 0.13; the law's delay came out 68 ms, the
-    cascade's filters and its 250-Hz log)."""
+    once: 0.084 and 0.048 rad against 0.23 and 0.13 with the law's delay at 68 ms: the
+    cascade's filters and the motors' lag on the logged speeds)."""
     model, log, _ = cascade_flight
     assert set(SETPOINTS) <= set(log.extras)
     est, val = log.split(0.75)
