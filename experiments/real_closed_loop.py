@@ -3,7 +3,7 @@ controller's law fitted to the log (greybox.controller_law), predicting 0.25 and
 beside the naive predictor and beside the same model open loop.
 
     python experiments/real_closed_loop.py [FILES...] [--effects cog_offset,drag_moment,moment_gain]
-                                           [--variants] [--out experiments/out/real_closed_loop.md]
+                                           [--models DIR] [--variants] [--out experiments/out/real_closed_loop.md]
 
 For each NanoBench flight (default: every ``../shared/realdata/nanobench/*.csv``): import (the
 setpoints ``sp_ctrltarget_*`` become ``x_ref .. psi_ref``), split 80/20, fit the model (the base
@@ -12,7 +12,10 @@ so: the CoG offset, the drag moment, the moment gain) on the first part with
 ``process_noise="auto"``, fit the controller's law on the same part, and score on the last 20 %:
 the open-loop prediction (:func:`greybox.validation.horizon_errors`, windows from the
 measurements' attitude) and the closed-loop one (:func:`greybox.closed_loop_horizon_errors`,
-its defaults), both beside the naive predictor, windows every 0.1 s. ``--variants`` also
+its defaults), both beside the naive predictor, windows every 0.1 s. ``--models DIR``: fly
+each flight's final model of a diagnosis instead (``DIR/<flight>_final_model.json``, saved by
+``experiments/real_crazyflie.py``), as fitted, with its open-loop prediction as the diagnosis
+makes it (:func:`greybox.validation.horizon_errors_after`). ``--variants`` also
 scores the closed loop with the held trim and with the estimated start (the choices its
 defaults make). Writes the markdown tables to ``--out``.
 """
@@ -23,11 +26,11 @@ import time
 import tomllib
 from pathlib import Path
 
-from greybox import ControllerLaw, QuadrotorModel, closed_loop_horizon_errors
+from greybox import ControllerLaw, QuadrotorModel, closed_loop_horizon_errors, load, predict
 from greybox.airframe import airframe_from_dict
 from greybox.fitting import fit
 from greybox.importers import crazyflie_airframe_toml, import_nanobench
-from greybox.validation import horizon_errors
+from greybox.validation import horizon_errors, horizon_errors_after, prediction_options
 
 HERE = Path(__file__).resolve().parent
 REAL = HERE.parents[1] / "shared" / "realdata" / "nanobench"
@@ -46,30 +49,38 @@ def beats(he, h: float) -> list[str]:
     return [ch for ch in CHANNELS if he.beats_naive(ch, h)]
 
 
-def run(path: Path, effects: list[str], variants: bool) -> dict:
+def run(path: Path, effects: list[str], variants: bool, models: Path | None = None) -> dict:
     t0 = time.perf_counter()
     imp = import_nanobench(path)
-    toml = crazyflie_airframe_toml(MASS, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))
-    af = airframe_from_dict(tomllib.loads(toml), f"{path.stem} airframe")
-    model = QuadrotorModel(af, effects)
     est, val = imp.log.split(0.8)
-    res = fit(model, est, process_noise="auto")
+    if models is not None:
+        res = load(models / f"{path.stem}_final_model.json")
+        model = res.model
+        open_loop = horizon_errors_after(res, [predict(model, res.p, val, horizon=0.5, **prediction_options(res))],
+                                         [res.p], est=[est])
+    else:
+        toml = crazyflie_airframe_toml(MASS, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))
+        af = airframe_from_dict(tomllib.loads(toml), f"{path.stem} airframe")
+        model = QuadrotorModel(af, effects)
+        res = fit(model, est, process_noise="auto")
+        open_loop = horizon_errors(model, res.p, val, horizons=HORIZONS, measured_start=True)
     law = ControllerLaw().fit(model, est)
-    out = {"flight": path.stem, "certified": bool(res.converged), "law": law,
-           "open": horizon_errors(model, res.p, val, horizons=HORIZONS, measured_start=True),
+    out = {"flight": path.stem, "certified": bool(res.converged), "law": law, "open": open_loop,
            "closed": closed_loop_horizon_errors(model, res.p, law, val, horizons=HORIZONS)}
     if variants:
         out["closed, held trim"] = closed_loop_horizon_errors(model, res.p, law, val, horizons=HORIZONS,
                                                               held_trim=True)
         out["closed, estimated start"] = closed_loop_horizon_errors(model, res.p, law, val, horizons=HORIZONS,
                                                                     measured_start=False)
+    out["what"] = ("each flight's final model of its diagnosis" if models is not None else
+                   "the base model with " + ", ".join(effects) + ", fitted on the first 80 %")
     out["seconds"] = time.perf_counter() - t0
     return out
 
 
 def markdown(rows: list[dict]) -> str:
     preds = [k for k in rows[0] if k == "open" or k.startswith("closed")]
-    lines = ["Channels of x, y, z, phi, theta, psi where the prediction beats the naive predictor "
+    lines = [f"Model: {rows[0]['what']}.", "", "Channels of x, y, z, phi, theta, psi where the prediction beats the naive predictor "
              "(last 20 % of each flight, windows every 0.1 s):", "",
              "| flight | base certified | law: delay, R² roll/pitch | predictor | at 0.25 s | at 0.5 s |",
              "|---|---|---|---|---|---|"]
@@ -101,13 +112,14 @@ def main() -> None:
     ap.add_argument("files", nargs="*", type=Path)
     ap.add_argument("--effects", default=EFFECTS, help="effects added to the base model (comma separated)")
     ap.add_argument("--variants", action="store_true", help="also the held trim and the estimated start")
+    ap.add_argument("--models", type=Path, help="fly the diagnoses' final models saved in this folder")
     ap.add_argument("--out", type=Path, default=HERE / "out" / "real_closed_loop.md")
     a = ap.parse_args()
     files = a.files or sorted(REAL.glob("*.csv"))
     effects = [e for e in a.effects.split(",") if e]
     rows = []
     for f in files:
-        r = run(f, effects, a.variants)
+        r = run(f, effects, a.variants, a.models)
         rows.append(r)
         print(f"{r['flight']}: {r['law']}; " + "; ".join(
             f"{k} beats naive on {len(beats(r[k], 0.25))}+{len(beats(r[k], 0.5))}/12"

@@ -5,7 +5,7 @@ validate on the last 20 %, diagnose, add what is found; cross-check drag with th
 
 Default files: ``../shared/realdata/nanobench/*.csv``. Writes per flight a diagnosis report
 (HTML + PNG), ``imu_drag_<flight>.png``, and ``summary.json`` / ``summary.md`` (the table in
-the README). Fits use ``process_noise="auto"``: the logged PWM (sampled from a 500 Hz
+the README) and each flight's final fitted model ``<flight>_final_model.json``. Fits use ``process_noise="auto"``: the logged PWM (sampled from a 500 Hz
 controller) is not the whole input truth, and an output-error fit of such data shrinks
 the parameters until the model stops moving (see README, "Real flights").
 """
@@ -102,6 +102,8 @@ def run(path: Path, out: Path) -> dict:
         thrust = res.value("K_T") * np.mean((w2 * scale).sum(axis=1))
         return float(thrust / (af.mass * af.gravity))
 
+    # the final fitted model, for analyses after the run (experiments/real_closed_loop.py --models)
+    diag.fitted_model.save(out / f"{name}_final_model.json")
     drag = imu_drag(est, out / f"imu_drag_{name}.png", name)
     report = diag.report(out / name)
     row = {

@@ -56,7 +56,6 @@ import numpy as np
 from .data import FlightLog
 from .errors import GreyboxInputError
 from .integrate import log_substeps, parallel_map, rk4_step
-from .linearize import hover_trim
 from .model import OUTPUTS, QuadrotorModel
 from .validation import (DEFAULT_HORIZONS, DEFAULT_INIT_WINDOW, HORIZON_MAX_STARTS, HORIZON_START_EVERY,
                          HorizonAccumulator, HorizonErrors, estimate_states, measured_outputs, naive_start,
@@ -64,7 +63,7 @@ from .validation import (DEFAULT_HORIZONS, DEFAULT_INIT_WINDOW, HORIZON_MAX_STAR
 
 __all__ = ["ControllerLaw", "closed_loop_horizon_errors", "SETPOINTS", "LAW_AXES", "LAW_FEATURES",
            "TRIM_WINDOW", "has_setpoints", "setpoint_signals", "measured_law_states", "loop_parameters",
-           "ClosedLoopReport", "closed_loop_report"]
+           "ClosedLoopReport", "closed_loop_report", "hover_commands"]
 
 SETPOINTS = ("x_ref", "y_ref", "z_ref", "psi_ref")
 """The log's extra columns a closed-loop model reads: the position setpoint (m, NED) and the
@@ -397,6 +396,50 @@ def loop_parameters(model: QuadrotorModel, p: np.ndarray, dt: float) -> tuple[np
     return p, int(round(extra / dt)), held
 
 
+HOVER_NEWTON_STEPS = 4
+"""Newton steps of :func:`hover_commands` (the model's forces are nearly linear in ``w^2``:
+two reach a millionth of the weight)."""
+
+
+def hover_commands(model: QuadrotorModel, p: np.ndarray, allocation: np.ndarray, start: np.ndarray,
+                   log: FlightLog, samples: Sequence[int], positions: np.ndarray) -> np.ndarray:
+    """The mixer commands (len(samples), 4) that hold ``model`` still and level at each of the
+    log's ``samples``: at its time, its logged signals (battery voltage) and ``positions``
+    (height: a ground effect), with the effects' states steady at those speeds (a motor lag).
+    Newton's method on the vertical and angular accelerations from ``start`` (4,), with a
+    finite-difference Jacobian (an effect's steady state is no symbolic function of the
+    commands). Which commands are the trim depends on time and signals: a thrust that drifts
+    or follows the battery needs more command later in a flight."""
+    nr = model.airframe.n_rotors
+    pinv = np.linalg.pinv(allocation)
+    rhs = model.rhs
+    held = [8, 9, 10, 11]                      # vz, p, q, r: their derivatives vanish in a hover
+    scale = np.maximum(np.abs(start), 1e-3 * abs(start[0]) + 1e-12)
+    out = np.empty((len(samples), 4))
+
+    def accelerations(c, x12, sig, t):
+        w = np.sqrt(np.maximum(pinv @ c, 0.0))
+        u = np.concatenate([w, sig])
+        x = model.initial_state(x12, u, p)
+        return np.asarray(rhs(x, u, p, t)).ravel()[held]
+
+    for k, a in enumerate(samples):
+        x12 = np.zeros(12)
+        x12[0:3] = positions[k]
+        sig, t = log.inputs[a, nr:], float(log.t[a])
+        c = np.array(start, dtype=float)
+        for _ in range(HOVER_NEWTON_STEPS):
+            r0 = accelerations(c, x12, sig, t)
+            J = np.empty((4, 4))
+            for j in range(4):
+                dc = np.zeros(4)
+                dc[j] = 1e-6 * scale[j]
+                J[:, j] = (accelerations(c + dc, x12, sig, t) - r0) / dc[j]
+            c = c - np.linalg.lstsq(J, r0, rcond=None)[0]
+        out[k] = c
+    return out
+
+
 def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]", law: ControllerLaw,
                                logs: "FlightLog | Sequence[FlightLog]", horizons: Sequence[float] | None = None,
                                start_every: float = HORIZON_START_EVERY, init_window: float = DEFAULT_INIT_WINDOW,
@@ -464,8 +507,8 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
         if trim == "model":
             # the integrators hold the model in its hover: the law's trims are the model's, not
             # the vehicle's (which trim out what the model may lack, e.g. a CoG offset)
-            _, u_trim = hover_trim(model, p_loop)
-            trims = trims - law.trims_ + A @ (np.asarray(u_trim)[:nr] ** 2)
+            trims = trims - law.trims_ + hover_commands(model, p_loop, law.allocation_, law.trims_, log,
+                                                        starts, x0[:, :3])
         F = law.closed_loop_step(model, log_substeps([log]), extra)
         acc_f = F.mapaccum("closed_loop", n_steps, [0], [0])
         nW = len(starts)
