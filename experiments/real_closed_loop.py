@@ -10,8 +10,9 @@ setpoints ``sp_ctrltarget_*`` become ``x_ref .. psi_ref``), split 80/20, fit the
 model plus ``--effects``; default the three every diagnosis of these flights holds or nearly
 so: the CoG offset, the drag moment, the moment gain) on the first part with
 ``process_noise="auto"``, fit the controller's law on the same part, and score on the last 20 %:
-the open-loop prediction (:func:`greybox.validation.horizon_errors`, windows from the
-measurements' attitude) and the closed-loop one (:func:`greybox.closed_loop_horizon_errors`,
+the open-loop prediction as the fit reports it (:func:`greybox.validation.horizon_errors_after`:
+its start options, a held moment where that predicts the estimation data better) and the
+closed-loop one (:func:`greybox.closed_loop_horizon_errors`,
 its defaults), both beside the naive predictor, windows every 0.1 s. ``--models DIR``: fly
 each flight's final model of a diagnosis instead (``DIR/<flight>_final_model.json``, saved by
 ``experiments/real_crazyflie.py``), as fitted, with its open-loop prediction as the diagnosis
@@ -30,7 +31,7 @@ from greybox import ControllerLaw, QuadrotorModel, closed_loop_horizon_errors, l
 from greybox.airframe import airframe_from_dict
 from greybox.fitting import fit
 from greybox.importers import crazyflie_airframe_toml, import_nanobench
-from greybox.validation import horizon_errors, horizon_errors_after, prediction_options
+from greybox.validation import horizon_errors_after, prediction_options
 
 HERE = Path(__file__).resolve().parent
 REAL = HERE.parents[1] / "shared" / "realdata" / "nanobench"
@@ -56,14 +57,15 @@ def run(path: Path, effects: list[str], variants: bool, models: Path | None = No
     if models is not None:
         res = load(models / f"{path.stem}_final_model.json")
         model = res.model
-        open_loop = horizon_errors_after(res, [predict(model, res.p, val, horizon=0.5, **prediction_options(res))],
-                                         [res.p], est=[est])
     else:
         toml = crazyflie_airframe_toml(MASS, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))
         af = airframe_from_dict(tomllib.loads(toml), f"{path.stem} airframe")
         model = QuadrotorModel(af, effects)
         res = fit(model, est, process_noise="auto")
-        open_loop = horizon_errors(model, res.p, val, horizons=HORIZONS, measured_start=True)
+    # the open-loop report as the fit or diagnosis makes it (its start options, a held moment
+    # where that predicts the estimation data better)
+    open_loop = horizon_errors_after(res, [predict(model, res.p, val, horizon=0.5, **prediction_options(res))],
+                                     [res.p], est=[est])
     law = ControllerLaw().fit(model, est)
     out = {"flight": path.stem, "certified": bool(res.converged), "law": law, "open": open_loop,
            "closed": closed_loop_horizon_errors(model, res.p, law, val, horizons=HORIZONS)}

@@ -388,7 +388,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting import fit
     from .fitting.imu import is_imu_only
     from . import plotting
-    from .controller_law import closed_loop_report
+    from .controller_law import closed_loop_or_why
     from .validation import horizon_errors_after, predict, prediction_options
     model, p0, logs = _load_fit_inputs(args)
     if any(is_imu_only(log) for log in logs):
@@ -416,15 +416,16 @@ def cmd_fit(args: argparse.Namespace) -> int:
         if args.json or args.plots else None
     if len(logs) > 1:
         print(f"validation, mean over {len(logs)} flights: nrmse {float(np.mean([pr.total for pr in preds])):.4f}")
-    # the model flown by its controller's law, where the logs carry setpoints (controller_law)
-    try:
-        closed = closed_loop_report(model, [res.flight_p(i) for i in range(len(preds))], [e for e, _ in parts],
-                                    [v for _, v in parts], horizons=he.horizons if he is not None else None)
-    except GreyboxInputError as err:     # the fit stands; the log cannot fly the loop
-        closed = None
-        print(f"warning: the model flown by its controller's law was not predicted: {err}")
-    if closed is not None:
-        print(closed.line().strip())
+    # the model flown by its controller's law, where the logs carry setpoints (controller_law):
+    # like the horizon report, only when a file shows it
+    closed = None
+    if args.json:
+        closed, why = closed_loop_or_why(model, [res.flight_p(i) for i in range(len(preds))],
+                                         [e for e, _ in parts], [v for _, v in parts], horizons=he.horizons)
+        if why:
+            print(f"greybox: warning: {why}", file=sys.stderr)
+        if closed is not None:
+            print(closed.line().strip())
     # everything is computed before the first file is written, and the files go together
     # (an interrupt while they are written removes the ones already there)
     outputs: list[tuple[Path, str | bytes]] = []
@@ -436,8 +437,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             outputs.append((out / f"residuals{suffix}.png", plotting.to_bytes(plotting.residuals(pred))))
         outputs.append((out / "horizons.png", plotting.to_bytes(plotting.horizons(he))))
     if args.json:
-        result = fit_json(model, res, preds, [log.source for log in logs], horizons=he)
-        result["closed_loop"] = closed.as_dict() if closed is not None else None
+        result = fit_json(model, res, preds, [log.source for log in logs], horizons=he, closed_loop=closed)
         result["log_notes"] = _log_notes(logs)
         outputs.append((Path(args.json), _json_text(result)))
     if args.save:

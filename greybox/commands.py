@@ -154,17 +154,27 @@ def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
     return log
 
 
-def fit_json(model: QuadrotorModel, res, preds, sources, horizons=None, est=None) -> dict:
+def fit_json(model: QuadrotorModel, res, preds, sources, horizons=None, est=None, closed_loop=None) -> dict:
     """The whole ``greybox fit --json`` document of a fit validated by ``preds`` (one
     prediction per flight, named by ``sources``): parameters, validation, horizons (``horizons``,
     a :class:`~greybox.validation.HorizonErrors`, when already computed; else computed, with
-    the fit's estimation flights ``est`` when given) and the extra keys (also written by
-    ``greybox batch``)."""
+    the fit's estimation flights ``est`` when given), the model flown by its controller's law
+    (``closed_loop``, a :class:`~greybox.controller_law.ClosedLoopReport`, when already computed;
+    else computed when ``est`` is given and the logs hold setpoints) and the extra keys (also
+    written by ``greybox batch``)."""
+    from .controller_law import closed_loop_or_why
     from .validation import horizon_errors_after
+    ps = [res.flight_p(i) for i in range(len(preds))]
     if horizons is None:
-        horizons = horizon_errors_after(res, preds, [res.flight_p(i) for i in range(len(preds))], est=est)
-    return {**fit_result_json(model, res, _combined_validation(preds, sources)), "horizons": horizons.as_dict(),
-            "horizons_predictor": dict(horizons.predictor)}
+        horizons = horizon_errors_after(res, preds, ps, est=est)
+    out = {**fit_result_json(model, res, _combined_validation(preds, sources)), "horizons": horizons.as_dict(),
+           "horizons_predictor": dict(horizons.predictor)}
+    if closed_loop is None and est is not None:
+        closed_loop, why = closed_loop_or_why(model, ps, est, [pred.log for pred in preds], horizons=horizons.horizons)
+        if why:
+            out["warnings"] = list(out.get("warnings") or []) + [why]
+    out["closed_loop"] = closed_loop.as_dict() if closed_loop is not None else None
+    return out
 
 
 def _combined_validation(preds, sources) -> dict:

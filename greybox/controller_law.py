@@ -19,19 +19,24 @@ per ``K_T`` or ``b``)::
     yaw     ~ psi - psi_ref, r
 
 plus a trim per axis, acting ``delay_`` after the state it reads (chosen by least squares
-among 0 .. ``max_delay``). The gains are fitted to the logged commands against the measured
-states (positions, their derivative, attitude, gyro); a log needs the setpoint columns
-:data:`SETPOINTS` (``x_ref, y_ref, z_ref`` in m, NED, ``psi_ref`` in rad; the NanoBench importer
-writes them from ``sp_ctrltarget_*``). The law is the structure of a cascade, not its exact
-gains: integrators are held over a window (``held_trim``: the law's mean residual over the
-:data:`TRIM_WINDOW` before the start, i.e. the integrators' current output and whatever else
-the law misses just then), derivative filters and saturations are not modelled (the rotor
-speeds are clipped to the range the log flew).
+among 0 .. ``max_delay``, one for all axes). The gains are fitted to the logged commands (the
+commands the fit sees: the CLI's are smoothed where they carry white noise, ``--input-noise``)
+against the measured states (positions, a straight line through them for the velocity,
+attitude, gyro; samples bridging a sensor's outage left out); a log needs the setpoint columns
+:data:`SETPOINTS` (``x_ref, y_ref, z_ref`` in m, NED, ``psi_ref`` in rad; the NanoBench
+importer writes them from ``sp_ctrltarget_*``). The setpoint's velocity, which a trajectory's
+commander sends with it, is the slope of the logged setpoint (a centred line, so it reads
+50 ms of the setpoint ahead: the setpoints are the loop's inputs over the whole window anyway).
+The law is the structure of a cascade, not its exact gains: derivative filters, saturations
+and the law's nonlinearity are not modelled (the rotor speeds are clipped to the range the log
+flew), and the integrators are taken to hold the model in its hover (:func:`hover_commands`).
 
-**Closed-loop prediction** (:func:`closed_loop_horizon_errors`): each window starts like the
-open-loop one (:func:`greybox.validation.estimate_states`), the commands already on their way
-(``delay_``) are the logged ones, and from then on the law computes the commands from the
-*predicted* state and the logged setpoints. It is scored beside the naive predictor as in
+**Closed-loop prediction** (:func:`closed_loop_horizon_errors`): each window's rigid-body
+state is taken from the measurements as the naive predictor takes it (position and velocity
+from the last 50 ms, attitude, gyro; the effects' states from the moving-horizon estimate,
+:func:`greybox.validation.estimate_states`); the commands already on their way (``delay_``)
+are the logged ones; from then on the law computes the commands from the *predicted* state and
+the logged setpoints. It is scored beside the naive predictor as in
 :func:`greybox.validation.horizon_errors`. It answers a different question from the open-loop
 prediction: not "what does the vehicle do with these commands" but "what does the vehicle do,
 flown by its controller, asked for these setpoints" — the prediction an engineer planning a
@@ -48,22 +53,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import casadi as ca
 import numpy as np
 
 from .data import FlightLog
-from .errors import GreyboxInputError
-from .integrate import log_substeps, parallel_map, rk4_step
+from .errors import GreyboxError, GreyboxInputError
+from .integrate import Substeps, log_substeps, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
 from .validation import (DEFAULT_HORIZONS, DEFAULT_INIT_WINDOW, HORIZON_MAX_STARTS, HORIZON_START_EVERY,
                          HorizonAccumulator, HorizonErrors, estimate_states, measured_outputs, naive_start,
                          startable)
 
 __all__ = ["ControllerLaw", "closed_loop_horizon_errors", "SETPOINTS", "LAW_AXES", "LAW_FEATURES",
-           "TRIM_WINDOW", "has_setpoints", "setpoint_signals", "measured_law_states", "loop_parameters",
-           "ClosedLoopReport", "closed_loop_report", "hover_commands"]
+           "TRIM_WINDOW", "has_setpoints", "setpoint_signals", "measured_law_states", "loop_model",
+           "ClosedLoopReport", "closed_loop_report", "closed_loop_or_why", "hover_commands"]
 
 SETPOINTS = ("x_ref", "y_ref", "z_ref", "psi_ref")
 """The log's extra columns a closed-loop model reads: the position setpoint (m, NED) and the
@@ -72,12 +77,17 @@ LAW_AXES = ("thrust", "roll", "pitch", "yaw")
 LAW_FEATURES = {"thrust": ("e_z", "v_z"), "roll": ("e_y", "v_y", "phi", "p"),
                 "pitch": ("e_x", "v_x", "theta", "q"), "yaw": ("e_psi", "r")}
 """Which of the state's errors each mixer axis of the law reads (module doc)."""
-_ORDER = [f for axis in LAW_AXES for f in LAW_FEATURES[axis]]
+_FEATURE_ORDER = [f for axis in LAW_AXES for f in LAW_FEATURES[axis]]
 TRIM_WINDOW = 0.25
 """s before a window's start over which the law's residual is averaged into its held trim."""
 VELOCITY_WINDOW = 0.05
 """s: the positions' derivative for the fit is a straight line through this much of them on
 each side (5 samples of a 100-Hz motion-capture log each way)."""
+
+
+OUTAGE_SPACINGS = 3.0
+"""A measured state is interpolated for the law's fit only between measurements at most this
+many of the channel's median spacings apart."""
 
 
 def has_setpoints(log: FlightLog) -> bool:
@@ -86,7 +96,7 @@ def has_setpoints(log: FlightLog) -> bool:
 
 
 def _feature_function() -> ca.Function:
-    """``phi(x12, ref) -> features`` in :data:`_ORDER`: the errors the law reads; ``ref`` is
+    """``features(x12, ref)`` in :data:`_FEATURE_ORDER`: the errors the law reads; ``ref`` is
     the setpoint (:data:`SETPOINTS`) and the setpoint's velocity (:func:`setpoint_signals`)."""
     x = ca.SX.sym("x", 12)
     ref = ca.SX.sym("ref", 7)
@@ -101,7 +111,7 @@ def _feature_function() -> ca.Function:
     vals = {"e_z": e[2], "v_z": v[2], "e_y": e_h[1], "v_y": v_h[1], "phi": x[3], "p": x[9],
             "e_x": e_h[0], "v_x": v_h[0], "theta": x[4], "q": x[10], "e_psi": ca.atan2(ca.sin(d), ca.cos(d)),
             "r": x[11]}
-    return ca.Function("law_features", [x, ref], [ca.vertcat(*[vals[f] for f in _ORDER])])
+    return ca.Function("law_features", [x, ref], [ca.vertcat(*[vals[f] for f in _FEATURE_ORDER])])
 
 
 _FEATURES = _feature_function()
@@ -118,7 +128,10 @@ def _check_log(log: FlightLog, model: QuadrotorModel) -> None:
     for s in SETPOINTS:
         if not np.isfinite(log.extras[s]).all():
             k = int(np.flatnonzero(~np.isfinite(log.extras[s]))[0])
-            raise GreyboxInputError(f"{where}: row {k + 2}, column {s!r}: a setpoint may not be missing")
+            raise GreyboxInputError(f"{where}: column {s!r} at t = {log.t[k]:.3f} s: a setpoint may not be missing")
+    if model.command_names != list(log.input_names[:model.airframe.n_rotors]):
+        raise GreyboxInputError(f"{where}: inputs {','.join(log.input_names)} do not start with the model's "
+                                f"rotor speeds {','.join(model.command_names)}")
 
 
 def setpoint_signals(log: FlightLog) -> np.ndarray:
@@ -134,7 +147,8 @@ def setpoint_signals(log: FlightLog) -> np.ndarray:
 
 def measured_law_states(log: FlightLog) -> np.ndarray:
     """The 12 rigid-body states from the measurements (n, 12; NaN where they cannot be had):
-    positions and angles interpolated across gaps, velocities the slope of a straight line
+    positions and angles interpolated between measurements (not across an outage: longer than
+    :data:`OUTAGE_SPACINGS` of the channel's spacing), velocities the slope of a straight line
     through :data:`VELOCITY_WINDOW` of positions on each side, rates from the gyro (from the
     angles' derivative without one)."""
     t = log.t
@@ -146,10 +160,16 @@ def measured_law_states(log: FlightLog) -> np.ndarray:
         k = np.isfinite(y)
         if k.sum() < 2:
             return np.full(n, np.nan)
-        if name == "psi":
-            yk = np.unwrap(y[k])
-            return np.interp(t, t[k], yk)
-        return np.interp(t, t[k], y[k])
+        tk = t[k]
+        yk = np.unwrap(y[k]) if name == "psi" else y[k]
+        out = np.interp(t, tk, yk)
+        # only between measurements at most OUTAGE_SPACINGS of the channel's own spacing apart
+        # (np.interp would bridge a vision outage with a straight line, and hold the ends)
+        j = np.clip(np.searchsorted(tk, t), 1, tk.size - 1)
+        span = tk[j] - tk[j - 1]
+        inside = (t >= tk[0]) & (t <= tk[-1])
+        out[~inside | (span > OUTAGE_SPACINGS * float(np.median(np.diff(tk))) + 1e-12)] = np.nan
+        return out
 
     for j, name in enumerate(("x", "y", "z", "phi", "theta", "psi")):
         if log.measures(name):
@@ -187,30 +207,38 @@ def _local_slope(t: np.ndarray, y: np.ndarray, m: int) -> np.ndarray:
     return out
 
 
-@dataclass
+class _LawData(NamedTuple):
+    """One log's rows for the law's regression."""
+    features: np.ndarray      # (n, 12) in _FEATURE_ORDER, NaN where a state is not had
+    commands: np.ndarray      # (n, 4) mixer coordinates
+    airborne: np.ndarray      # (n,) bool
+    dt: float                 # the log's median sample time
+
+
+@dataclass(eq=False)
 class ControllerLaw:
     """A cascaded position and attitude controller's law, linear about hover, fitted to the
     commands of logs with setpoints (module doc).
 
     Parameters:
         delay: the law's delay in s; ``None`` chooses it among 0 .. ``max_delay`` in steps
-            of the log's sample time by the least-squares residual.
+            of the (first) log's sample time by the least-squares residual. Each log reads it
+            in its own samples.
         max_delay: s.
 
     Fitted attributes: ``gains_`` (axis -> gains on :data:`LAW_FEATURES` [axis]), ``trims_``
-    (4,), ``delay_`` (s), ``delay_samples_``, ``r2_`` (axis -> share of the commands' variance
-    the law explains), ``allocation_`` (4 x N), ``w_range_`` (the rotor speeds the log flew).
+    (4,), ``delay_`` (s), ``r2_`` (axis -> share of the commands' variance the law explains),
+    ``allocation_`` (4 x N), ``w_range_`` (the rotor speeds the logs flew).
     """
 
     delay: float | None = None
     max_delay: float = 0.15
-    gains_: dict = field(default_factory=dict, init=False)
-    trims_: np.ndarray = field(default=None, init=False)
+    gains_: dict[str, np.ndarray] = field(default_factory=dict, init=False)
+    trims_: np.ndarray | None = field(default=None, init=False)
     delay_: float = field(default=float("nan"), init=False)
-    delay_samples_: int = field(default=0, init=False)
-    r2_: dict = field(default_factory=dict, init=False)
-    allocation_: np.ndarray = field(default=None, init=False)
-    w_range_: tuple = field(default=(0.0, math.inf), init=False)
+    r2_: dict[str, float] = field(default_factory=dict, init=False)
+    allocation_: np.ndarray | None = field(default=None, init=False)
+    w_range_: tuple[float, float] = field(default=(0.0, math.inf), init=False)
 
     # ------------------------------------------------------------------ fitting
     def fit(self, model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]") -> "ControllerLaw":
@@ -219,69 +247,74 @@ class ControllerLaw:
         logs = [logs] if isinstance(logs, FlightLog) else list(logs)
         if not logs:
             raise GreyboxInputError("ControllerLaw.fit needs at least one log")
+        for name, v in (("delay", self.delay), ("max_delay", self.max_delay)):
+            if v is not None and not (math.isfinite(v) and v >= 0):
+                raise GreyboxInputError(f"ControllerLaw: {name} must be a time >= 0 s, got {v!r}")
         A = model.airframe.allocation_matrix()
         nr = model.airframe.n_rotors
-        parts = []
+        data = []
         for log in logs:
             _check_log(log, model)
-            dt = float(np.median(np.diff(log.t)))
-            phi = self._features_measured(log)
-            c = (A @ (log.inputs[:, :nr] ** 2).T).T
-            air = np.ones(log.t.size, dtype=bool)
+            airborne = np.ones(log.t.size, dtype=bool)
             if "on_ground" in log.extras:
-                air = log.extras["on_ground"] < 0.5
-            parts.append((phi, c, air, dt))
-        dt = parts[0][3]
-        max_d = int(round(self.max_delay / dt))
-        cands = [int(round(self.delay / dt))] if self.delay is not None else list(range(max_d + 1))
+                airborne = log.extras["on_ground"] < 0.5
+            data.append(_LawData(self._features_measured(log), (A @ (log.inputs[:, :nr] ** 2).T).T, airborne,
+                                 float(np.median(np.diff(log.t)))))
+        dt = data[0].dt
+        delays = [self.delay] if self.delay is not None else \
+            [k * dt for k in range(int(round(self.max_delay / dt)) + 1)]
         best = None
-        for d in cands:
-            fitd = self._regress(parts, d)
+        for delay in delays:
+            fitd = self._regress(data, delay)
             if fitd is not None and (best is None or fitd[0] < best[0]):
-                best = fitd + (d,)
+                best = fitd + (delay,)
         if best is None:
-            raise GreyboxInputError("ControllerLaw.fit: too few samples with every state measured")
-        _, gains, trims, r2, d = best
-        self.gains_, self.trims_, self.r2_ = gains, trims, r2
-        self.delay_samples_, self.delay_ = d, d * dt
+            raise GreyboxInputError("ControllerLaw.fit: too few airborne samples with every state measured "
+                                    f"{'(is the delay longer than the logs?)' if self.delay else ''}")
+        _, gains, trims, r2, delay = best
+        self.gains_, self.trims_, self.r2_, self.delay_ = gains, trims, r2, float(delay)
         self.allocation_ = A
         w = np.concatenate([log.inputs[:, :nr].ravel() for log in logs])
         self.w_range_ = (float(np.min(w)), float(np.max(w)))
         return self
 
+    def delay_samples(self, dt: float) -> int:
+        """The law's delay in samples of a log with sample time ``dt``."""
+        self._check_fitted()
+        return int(round(self.delay_ / dt))
+
     @staticmethod
     def _features_measured(log: FlightLog) -> np.ndarray:
-        S = measured_law_states(log)
+        states = measured_law_states(log)
         ref = setpoint_signals(log)
-        ok = np.isfinite(S).all(1)
-        out = np.full((log.t.size, len(_ORDER)), np.nan)
+        ok = np.isfinite(states).all(1) & np.isfinite(ref).all(1)
+        out = np.full((log.t.size, len(_FEATURE_ORDER)), np.nan)
         if ok.any():
-            out[ok] = np.asarray(_FEATURES.map(int(ok.sum()))(S[ok].T, ref[ok].T)).T
+            out[ok] = np.asarray(_FEATURES.map(int(ok.sum()))(states[ok].T, ref[ok].T)).T
         return out
 
     @staticmethod
-    def _regress(parts, d: int):
-        """Least squares of each axis' command on its features ``d`` samples earlier; returns
-        (summed normalised residual, gains, trims, r2) or None."""
+    def _regress(data: Sequence[_LawData], delay: float):
+        """Least squares of each axis' command on its features ``delay`` s earlier (each log in
+        its own samples); returns (summed unexplained shares, gains, trims, r2) or None."""
         rows_f, rows_c = [], []
-        for phi, c, air, _ in parts:
-            n = c.shape[0]
+        for feats, c, air, dt in data:
+            n, d = c.shape[0], int(round(delay / dt))
             if n <= d + 1:
                 continue
-            f = phi[:n - d]
-            cc = c[d:]
+            f = feats[:n - d]
             k = np.isfinite(f).all(1) & air[d:] & air[:n - d]
             rows_f.append(f[k])
-            rows_c.append(cc[k])
+            rows_c.append(c[d:][k])
         if not rows_f:
             return None
         F = np.vstack(rows_f)
         C = np.vstack(rows_c)
-        if F.shape[0] < 10 * len(_ORDER):
+        if F.shape[0] < 10 * len(_FEATURE_ORDER):
             return None
         gains, trims, r2, score = {}, np.zeros(4), {}, 0.0
         for i, axis in enumerate(LAW_AXES):
-            cols = [_ORDER.index(f) for f in LAW_FEATURES[axis]]
+            cols = [_FEATURE_ORDER.index(f) for f in LAW_FEATURES[axis]]
             X = np.column_stack([F[:, cols], np.ones(F.shape[0])])
             coef, *_ = np.linalg.lstsq(X, C[:, i], rcond=None)
             res = C[:, i] - X @ coef
@@ -295,32 +328,33 @@ class ControllerLaw:
     @property
     def gain_matrix_(self) -> np.ndarray:
         """(4, 12) gains on the features in the order of :data:`LAW_FEATURES`."""
-        G = np.zeros((4, len(_ORDER)))
+        gm = np.zeros((4, len(_FEATURE_ORDER)))
         for i, axis in enumerate(LAW_AXES):
             for g, f in zip(self.gains_[axis], LAW_FEATURES[axis]):
-                G[i, _ORDER.index(f)] = g
-        return G
+                gm[i, _FEATURE_ORDER.index(f)] = g
+        return gm
 
     def mixer_commands(self, states: np.ndarray, setpoints: np.ndarray) -> np.ndarray:
         """The law's commands in mixer coordinates (n, 4) for rigid-body ``states`` (n, 12)
-        and setpoints with their velocity (n, 7; :func:`setpoint_signals`), with the fitted trims (no delay)."""
+        and setpoints with their velocity (n, 7; :func:`setpoint_signals`), with the fitted
+        trims (no delay)."""
         self._check_fitted()
-        phi = np.asarray(_FEATURES.map(states.shape[0])(states.T, setpoints.T)).T
-        return phi @ self.gain_matrix_.T + self.trims_
+        feats = np.asarray(_FEATURES.map(states.shape[0])(states.T, setpoints.T)).T
+        return feats @ self.gain_matrix_.T + self.trims_
 
     def residual_trims(self, log: FlightLog, model: QuadrotorModel, starts: Sequence[int],
                        window: float = TRIM_WINDOW) -> np.ndarray:
         """Held trims (len(starts), 4): the fitted trims plus the law's mean residual over
         ``window`` seconds before each start (the integrators' output just then)."""
         self._check_fitted()
-        phi = self._features_measured(log)
+        feats = self._features_measured(log)
         nr = model.airframe.n_rotors
         c = (self.allocation_ @ (log.inputs[:, :nr] ** 2).T).T
-        d = self.delay_samples_
-        pred = np.full_like(c, np.nan)
-        pred[d:] = phi[:c.shape[0] - d] @ self.gain_matrix_.T + self.trims_
-        res = c - pred
         dt = float(np.median(np.diff(log.t)))
+        d = self.delay_samples(dt)
+        pred = np.full_like(c, np.nan)
+        pred[d:] = feats[:c.shape[0] - d] @ self.gain_matrix_.T + self.trims_
+        res = c - pred
         m = max(1, int(round(window / dt)))
         out = np.tile(self.trims_, (len(starts), 1))
         for w, a in enumerate(starts):
@@ -341,14 +375,14 @@ class ControllerLaw:
         return f"ControllerLaw(delay {1e3 * self.delay_:.0f} ms; R^2 {r2})"
 
     # ------------------------------------------------------------------ closed-loop step
-    def closed_loop_step(self, model: QuadrotorModel, n_sub, extra_delay: int = 0) -> ca.Function:
+    def closed_loop_step(self, model: QuadrotorModel, n_sub: "int | Substeps", delay_samples: int) -> ca.Function:
         """``F(xb, ref, trim, sig, p, t, h) -> (xb_next, y)``: one sample of the vehicle model
-        flown by the law; ``xb`` is the model's state and the law's commands on their way
-        (``4 * (delay_samples_ + extra_delay)``, oldest first), ``sig`` the model's other inputs
-        (logged signals)."""
+        flown by the law; ``xb`` is the model's state and the commands on their way to the
+        rotors (``4 * delay_samples``, oldest first), ``ref`` the setpoint and its velocity,
+        ``sig`` the model's other inputs (logged signals)."""
         self._check_fitted()
         nr = model.airframe.n_rotors
-        d = self.delay_samples_ + extra_delay
+        d = int(delay_samples)
         step = rk4_step(model, n_sub)
         nsig = model.nu - nr
         xb = ca.MX.sym("xb", model.nx + 4 * d)
@@ -372,28 +406,29 @@ class ControllerLaw:
                            ["xb", "ref", "trim", "sig", "p", "t", "h"], ["xb_next", "y"])
 
 
-def loop_parameters(model: QuadrotorModel, p: np.ndarray, dt: float) -> tuple[np.ndarray, int, list[str]]:
-    """The parameters the closed loop flies with, the extra samples its commands wait, and the
-    effects it holds at their null values.
+def loop_model(model: QuadrotorModel, p: np.ndarray) -> tuple[QuadrotorModel, np.ndarray, float, list[str]]:
+    """The model the closed loop flies, its parameters, the delay (s) added to the law's, and
+    the effects left out.
 
     Effects that read the log's earlier or later commands (derived signals: a command delay,
-    sampled inputs) describe how the *logged* commands reach the rotors; the loop's own
-    commands are held values it computes itself, so these effects go to their null values, and
-    a delay among their input-timed parameters (in s) is added to the law's delay, rounded to
-    the log's samples."""
+    sampled inputs) describe how the *logged* commands reach the rotors; the loop's commands
+    are held values it computes itself, so these effects are left out, and a delay among their
+    input-timed parameters (in s) is added to the law's (the rotors act on the loop's commands
+    that much later)."""
     names = model.param_names
-    p = np.array(p, dtype=float)
-    extra, held = 0.0, []
+    p = np.asarray(p, dtype=float)
+    extra, left_out = 0.0, []
     for e in model.effects:
         if not e.derived_signals(model.command_names):
             continue
-        held.append(e.name)
+        left_out.append(e.name)
         for par, comp, null in model.effect_components(e.name):
-            i = names.index(comp)
             if par.name in e.input_timed and par.unit == "s":
-                extra += p[i] - null
-            p[i] = null
-    return p, int(round(extra / dt)), held
+                extra += float(p[names.index(comp)]) - null
+    if not left_out:
+        return model, p, 0.0, []
+    flown = model.without(*left_out)
+    return flown, np.array([p[names.index(n)] for n in flown.param_names]), extra, left_out
 
 
 HOVER_NEWTON_STEPS = 4
@@ -464,9 +499,10 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
     ps = [p] * len(logs) if isinstance(p, np.ndarray) and p.ndim == 1 else list(p)
     hs_req = sorted(horizons or DEFAULT_HORIZONS)
     nr = model.airframe.n_rotors
+    flown, _, _, left_out = loop_model(model, ps[0] if ps else model.default_parameters())
+    keep = [model.state_names.index(n) for n in flown.state_names]
     acc = None
-    held: list[str] = []
-    d = law.delay_samples_
+    loop_delays = []
     for pk, log in zip(ps, logs):
         _check_log(log, model)
         log = model.prepare_log(log)
@@ -476,9 +512,11 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
             channels = [name for name in OUTPUTS if name in log.output_names]
             acc = HorizonAccumulator(sorted({round(dt, 9), *hs_req}), channels, dt)
         pk = np.asarray(pk, dtype=float)
-        p_loop, extra, held = loop_parameters(model, pk, dt)
-        d = law.delay_samples_ + extra
-        L = max(int(round(init_window / dt)), 3, d)
+        _, p_loop, extra_s, _ = loop_model(model, pk)
+        extra = int(round(extra_s / dt))
+        d = law.delay_samples(dt) + extra
+        loop_delays.append(d)
+        L = max(int(round(init_window / dt)), 3)
         n_steps = int(np.searchsorted(t - t[0], max(acc.hs) * 1.2 + dt, side="right")) + 1
         last = t.size - 2
         if last <= L:
@@ -488,14 +526,17 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
         starts = np.arange(L, last, step)
         can = startable(log, L)[starts]
         starts = starts[can] if can.any() else starts
-        x0 = estimate_states(model, pk, log, starts, L, None, compile=compile, measured_start=measured_start)
+        # the effects' states from the moving-horizon estimate of the model as fitted
+        x0 = estimate_states(model, pk, log, starts, L, None, compile=compile)
         meas = measured_outputs(log, model.ny)
         if measured_start:
-            # the rigid body entirely from the measurements, as the naive predictor takes it (the
-            # effects' states from the estimate): a closed loop forgives a start, not a wrong one
+            # the rigid body entirely from the measurements, as the naive predictor takes it: a
+            # closed loop forgives a start, not a wrong one
             for w, a in enumerate(starts):
                 pv, eul, _, om = naive_start(log, meas, a, x0[w])
                 x0[w, 0:3], x0[w, 6:9], x0[w, 3:6], x0[w, 9:12] = pv[:3], pv[3:], eul, om
+        x0 = x0[:, keep]
+        flown_log = flown.prepare_log(log)
         A = law.allocation_
         c_logged = (A @ (log.inputs[:, :nr] ** 2).T).T
         # the commands acting in the first d samples were computed from states before the start:
@@ -507,21 +548,19 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
         if trim == "model":
             # the integrators hold the model in its hover: the law's trims are the model's, not
             # the vehicle's (which trim out what the model may lack, e.g. a CoG offset)
-            trims = trims - law.trims_ + hover_commands(model, p_loop, law.allocation_, law.trims_, log,
-                                                        starts, x0[:, :3])
-        F = law.closed_loop_step(model, log_substeps([log]), extra)
-        acc_f = F.mapaccum("closed_loop", n_steps, [0], [0])
+            trims = trims - law.trims_ + hover_commands(flown, p_loop, A, law.trims_, flown_log, starts, x0[:, :3])
+        step_fn = law.closed_loop_step(flown, log_substeps([log]), d)
         nW = len(starts)
-        G = parallel_map(acc_f, nW)
+        windows = parallel_map(step_fn.mapaccum("closed_loop", n_steps, [0], [0]), nW)
         idx = np.minimum(starts[:, None] + np.arange(n_steps)[None, :], t.size - 1)
         nxt = np.minimum(idx + 1, t.size - 1)
         h = (t[nxt] - t[idx]).ravel()[None, :]
         ref = setpoint_signals(log)[idx.ravel()].T
-        sig = log.inputs[idx.ravel(), nr:].T
+        sig = flown_log.inputs[idx.ravel(), nr:].T
         trim_rep = np.repeat(trims, n_steps, axis=0).T
-        _, Y = G(np.hstack([x0, buf0]).T, ref, trim_rep, sig, np.tile(p_loop[:, None], (1, nW * n_steps)),
-                 t[idx.ravel()][None, :], h)
-        Yp = np.asarray(Y).reshape(model.ny, nW, n_steps).transpose(1, 2, 0)
+        _, Y = windows(np.hstack([x0, buf0]).T, ref, trim_rep, sig, np.tile(p_loop[:, None], (1, nW * n_steps)),
+                       t[idx.ravel()][None, :], h)
+        Yp = np.asarray(Y).reshape(flown.ny, nW, n_steps).transpose(1, 2, 0)
         psi = OUTPUTS.index("psi")
         for w, a in enumerate(starts):
             b = min(a + n_steps, t.size)
@@ -531,7 +570,7 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
     out = acc.result()
     out.predictor = {"init_window": float(init_window), "measured_start": bool(measured_start),
                      "closed_loop": True, "held_trim": bool(held_trim), "law_delay": float(law.delay_),
-                     "loop_delay_samples": int(d), "held_at_null": held}
+                     "loop_delay_samples": loop_delays, "left_out": left_out}
     return out
 
 
@@ -549,6 +588,9 @@ class ClosedLoopReport:
         return [ch for ch in OUTPUTS[:6] if ch in self.horizons.model and self.horizons.beats_naive(ch, horizon)]
 
     def as_dict(self) -> dict:
+        """The JSON's ``closed_loop``: ``horizons`` (as the contract's ``horizons``), the
+        ``law`` (delay in s, gains per axis and feature, trims and R² per axis) and how the
+        windows were flown (``predictor``)."""
         law = self.law
         return {"horizons": self.horizons.as_dict(),
                 "law": {"delay": float(law.delay_),
@@ -579,3 +621,16 @@ def closed_loop_report(model: QuadrotorModel, ps: Sequence[np.ndarray], est: Seq
     law = ControllerLaw().fit(model, list(est))
     return ClosedLoopReport(law, closed_loop_horizon_errors(model, list(ps), law, list(val), horizons=horizons,
                                                             compile=compile))
+
+
+def closed_loop_or_why(model: QuadrotorModel, ps: Sequence[np.ndarray], est: Sequence[FlightLog],
+                       val: Sequence[FlightLog], horizons: Sequence[float] | None = None,
+                       compile: str = "auto") -> tuple[ClosedLoopReport | None, str]:
+    """:func:`closed_loop_report` for the commands that add it to a finished fit or diagnosis:
+    the report, or None and why not in words ("" when the logs simply have no setpoints). The
+    closed loop is an extra: a law the logs cannot give or a loop that cannot be flown (a
+    solver's failure) must not cost the user the fit itself."""
+    try:
+        return closed_loop_report(model, ps, est, val, horizons=horizons, compile=compile), ""
+    except (GreyboxError, RuntimeError, np.linalg.LinAlgError) as err:
+        return None, f"the model flown by its controller's law was not predicted: {err}"

@@ -16,7 +16,7 @@ import numpy as np
 from .. import effects as fx
 from ..data import FlightLog, median_row_interval
 from ..errors import ConvergenceWarning, GreyboxInputError
-from ..controller_law import closed_loop_report
+from ..controller_law import closed_loop_or_why
 from ..fitting import IF_NEEDED, FitResult, fit, progress_printer
 from ..fitting.input_errors import followed_share
 from ..model import QuadrotorModel
@@ -413,11 +413,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     diag.final_horizons = diag.baseline_horizons if cur_res is res else \
         horizon_errors_after(cur_res, cur_pred.parts or [cur_pred], validation_vectors(cur_res, est, val),
                              compile=compile, est=est)
-    try:
-        diag.closed_loop = closed_loop_report(cur_model, validation_vectors(cur_res, est, val), est, val,
-                                              horizons=diag.final_horizons.horizons, compile=compile)
-    except GreyboxInputError as err:
-        diag.warnings.append(f"the model flown by its controller's law was not predicted: {err}")
+    # the final model flown by its controller's law, where the logs hold setpoints
+    diag.closed_loop, why = closed_loop_or_why(cur_model, validation_vectors(cur_res, est, val), est, val,
+                                               horizons=diag.final_horizons.horizons, compile=compile)
+    if why:
+        diag.warnings.append(why)
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
