@@ -156,6 +156,9 @@ def _at(he, horizons) -> dict:
         for ch in ("x", "y", "z", "phi", "theta", "psi"):
             if ch in he["model"]:
                 m, n = he["model"][ch][k], he["naive"][ch][k]
+                # None: a prediction that blew up (an infinite error) or nothing to score
+                m = float("inf") if m is None else m
+                n = float("nan") if n is None else n
                 out[f"{ch}@{h:g}"] = {"model": m, "naive": n, "beats": bool(m < n)}
     return out
 

@@ -783,7 +783,7 @@ def fly(vehicle: PeerVehicle, duration: float = 20.0, seed: int = 0,
             cols[name] = acc[:, j]
     if sens.log_setpoints:
         # the plan draws nothing at this point: the flight is the same with or without them
-        refs = np.array([np.append(plan.reference(tk)[0], plan.reference(tk)[3]) for tk in t_log])
+        refs = np.array([np.append(ref[0], ref[3]) for ref in map(plan.reference, t_log)])
         for j, name in enumerate(("x_ref", "y_ref", "z_ref", "psi_ref")):
             cols[name] = refs[:, j]
     truth = _truth(veh, fx, sens, seed, duration, dyn, ctrl, volts)

@@ -178,3 +178,18 @@ def test_fit_json_holds_the_closed_loop_where_the_log_has_setpoints(cascade_flig
     out2 = tmp_path / "plain.json"
     assert main(["fit", str(plain), "--airframe", str(paths["airframe"]), "--json", str(out2)]) == 0
     assert json.loads(out2.read_text())["closed_loop"] is None
+
+
+@pytest.mark.slow
+def test_the_diagnosis_flies_its_final_model_with_the_law_where_the_log_has_setpoints(cascade_flight):
+    """``diagnose`` on a log with setpoints: its JSON's ``closed_loop`` is the final model
+    flown by the law fitted to the estimation part, its summary says what that beats, and the
+    loop beats the naive predictor on roll and pitch half a second ahead."""
+    from greybox.diagnosis import diagnose
+    model, log, _ = cascade_flight
+    diag = diagnose(model, log, candidates=["motor_lag"], iterate=False, discover=False, progress=False)
+    cl = diag.as_json()["closed_loop"]
+    assert cl is not None and cl["predictor"]["closed_loop"] is True
+    assert "flown by its controller's law" in diag.summary()
+    he = diag.closed_loop.horizons
+    assert he.beats_naive("phi", 0.5) and he.beats_naive("theta", 0.5)

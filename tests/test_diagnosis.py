@@ -71,6 +71,7 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert r["baseline"]["horizon"] == 0.5              # the validation that confirms: 0.5 s ahead
     assert set(r["baseline"]["horizons"]) == {"horizons", "model", "naive"}
     assert set(r["horizons_predictor"]["baseline"]) == {"init_window", "measured_start", "held_moment"}
+    assert r["closed_loop"] is None                    # no setpoints in the log: no closed loop
     assert r["verdict"] == "yaw_torque" and r["null_reason"] is None
     assert r["input_noise_corrected"] is None          # exact logged speeds: nothing to take out
     first = r["ranking"][0]

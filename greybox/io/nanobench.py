@@ -202,13 +202,18 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
         sp = np.column_stack([column(n, required=False) for n in _SETPOINT])
         fin = np.isfinite(sp).all(1)
         if fin.any():
-            sp = np.column_stack([np.interp(t_all, t_all[fin], sp[fin, j]) for j in range(4)])
+            # yaw unwrapped before it is interpolated across a gap (179 -> -179 degrees)
+            yaw = np.unwrap(np.radians(sp[fin, 3]))
+            sp = np.column_stack([np.interp(t_all, t_all[fin], sp[fin, j]) for j in range(3)]
+                                 + [np.interp(t_all, t_all[fin], yaw)])
             sp_ned = zup_to_ned(sp[:, :3])
             for j, name in enumerate(("x_ref", "y_ref", "z_ref")):
                 extras[name] = sp_ned[:, j]
-            extras["psi_ref"] = -np.radians(sp[:, 3])
+            extras["psi_ref"] = -sp[:, 3]
             notes.append("setpoints sp_ctrltarget_x..yaw kept as x_ref, y_ref, z_ref (m, NED), psi_ref (rad): "
                          "what a closed-loop model reads")
+        else:
+            notes.append("setpoint columns sp_ctrltarget_* hold no values: no closed-loop model")
     for i in range(4):
         extras[f"pwm{i + 1}"] = pwm[:, i]
     extras["motor_fresh"] = motor_fresh.astype(float)
