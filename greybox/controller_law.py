@@ -62,9 +62,8 @@ from .data import FlightLog
 from .errors import GreyboxError, GreyboxInputError
 from .integrate import Substeps, log_substeps, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
-from .validation import (DEFAULT_HORIZONS, DEFAULT_INIT_WINDOW, HORIZON_MAX_STARTS, HORIZON_START_EVERY,
-                         HorizonAccumulator, HorizonErrors, estimate_states, measured_outputs, naive_start,
-                         startable)
+from .validation import (DEFAULT_HORIZONS, DEFAULT_INIT_WINDOW, HORIZON_START_EVERY, HorizonAccumulator,
+                         HorizonErrors, estimate_states, horizon_windows, measured_outputs, naive_start)
 
 __all__ = ["ControllerLaw", "closed_loop_horizon_errors", "SETPOINTS", "LAW_AXES", "LAW_FEATURES",
            "TRIM_WINDOW", "has_setpoints", "setpoint_signals", "measured_law_states", "loop_model",
@@ -516,16 +515,7 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
         extra = int(round(extra_s / dt))
         d = law.delay_samples(dt) + extra
         loop_delays.append(d)
-        L = max(int(round(init_window / dt)), 3)
-        n_steps = int(np.searchsorted(t - t[0], max(acc.hs) * 1.2 + dt, side="right")) + 1
-        last = t.size - 2
-        if last <= L:
-            raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
-                                    f"{init_window + 2 * dt:.3f} s")
-        step = max(1, int(round(start_every / dt)), int(math.ceil((last - L) / HORIZON_MAX_STARTS)))
-        starts = np.arange(L, last, step)
-        can = startable(log, L)[starts]
-        starts = starts[can] if can.any() else starts
+        L, n_steps, starts = horizon_windows(log, max(acc.hs), init_window, start_every)
         # the effects' states from the moving-horizon estimate of the model as fitted
         x0 = estimate_states(model, pk, log, starts, L, None, compile=compile)
         meas = measured_outputs(log, model.ny)

@@ -41,7 +41,7 @@ __all__ = ["Prediction", "HorizonErrors", "HorizonAccumulator", "measured_output
            "horizon_errors_after", "horizon_errors", "HORIZON_START_EVERY", "INIT_WINDOWS",
            "choose_horizon_predictor", "HELD_MOMENT_WINDOWS",
            "INIT_WINDOW_HORIZON", "choose_init_window", "choose_measured_start",
-           "choose_start", "STATE_PRIOR_SCALE"]
+           "choose_start", "STATE_PRIOR_SCALE", "horizon_windows"]
 
 DEFAULT_HORIZON = 1.0
 DEFAULT_INIT_WINDOW = 0.5
@@ -516,6 +516,26 @@ HORIZON_MAX_STARTS = 200
 """at most this many window starts per flight (spread evenly) in :func:`horizon_errors`."""
 
 
+def horizon_windows(log: FlightLog, longest: float, init_window: float = DEFAULT_INIT_WINDOW,
+                    start_every: float = HORIZON_START_EVERY) -> tuple[int, int, np.ndarray]:
+    """The overlapping windows of an error-against-horizon report on ``log``: ``(L, n_steps,
+    starts)`` — the samples of the start window before each start, the samples each window is
+    predicted (``longest`` horizon and a margin) and the starts (every ``start_every`` s, at
+    most :data:`HORIZON_MAX_STARTS`, none from a sensor's outage where others can start)."""
+    t = log.t
+    dt = float(np.median(np.diff(t)))
+    L = max(int(round(init_window / dt)), 3)
+    n_steps = int(np.searchsorted(t - t[0], longest * 1.2 + dt, side="right")) + 1
+    last = t.size - 2
+    if last <= L:
+        raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
+                                f"{init_window + 2 * dt:.3f} s")
+    step = max(1, int(round(start_every / dt)), int(math.ceil((last - L) / HORIZON_MAX_STARTS)))
+    starts = np.arange(L, last, step)
+    can = startable(log, L)[starts]
+    return L, n_steps, (starts[can] if can.any() else starts)
+
+
 def horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]",
                    logs: "FlightLog | Sequence[FlightLog]", horizons: Sequence[float] | None = None,
                    start_every: float = HORIZON_START_EVERY, init_window: float = DEFAULT_INIT_WINDOW,
@@ -551,16 +571,7 @@ def horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]"
             hs = sorted({round(dt, 9), *hs_req})
             channels = [name for name in OUTPUTS if name in log.output_names]
             acc = HorizonAccumulator(hs, channels, dt)
-        L = max(int(round(init_window / dt)), 3)
-        n_steps = int(np.searchsorted(t - t[0], max(acc.hs) * 1.2 + dt, side="right")) + 1
-        last = t.size - 2
-        if last <= L:
-            raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
-                                    f"{init_window + 2 * dt:.3f} s")
-        step = max(1, int(round(start_every / dt)), int(math.ceil((last - L) / HORIZON_MAX_STARTS)))
-        starts = np.arange(L, last, step)
-        can = startable(log, L)[starts]
-        starts = starts[can] if can.any() else starts     # none from a sensor's outage, where others can
+        L, n_steps, starts = horizon_windows(log, max(acc.hs), init_window, start_every)
         Yp, x0 = _predict_windows(model, np.asarray(pk, dtype=float), log, starts, n_steps, L, sigma, compile,
                                   measured_start)
         meas = measured_outputs(log, model.ny)
