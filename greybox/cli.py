@@ -419,7 +419,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     # the model flown by its controller's law, where the logs carry setpoints (controller_law):
     # like the horizon report, only when a file shows it
     closed = None
-    if args.json:
+    if args.json or args.plots:
         closed, why = closed_loop_or_why(model, [res.flight_p(i) for i in range(len(preds))],
                                          [e for e, _ in parts], [v for _, v in parts], horizons=he.horizons)
         if why:
@@ -435,7 +435,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
             suffix = f"_{k + 1}" if len(preds) > 1 else ""
             outputs.append((out / f"compare{suffix}.png", plotting.to_bytes(plotting.compare(pred))))
             outputs.append((out / f"residuals{suffix}.png", plotting.to_bytes(plotting.residuals(pred))))
-        outputs.append((out / "horizons.png", plotting.to_bytes(plotting.horizons(he))))
+        outputs.append((out / "horizons.png", plotting.to_bytes(plotting.horizons(
+            he, closed_loop=closed.horizons if closed is not None else None))))
     if args.json:
         result = fit_json(model, res, preds, [log.source for log in logs], horizons=he, closed_loop=closed)
         result["log_notes"] = _log_notes(logs)

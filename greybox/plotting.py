@@ -241,11 +241,13 @@ def residuals(pred: "Prediction", ax: "Axes | None" = None, path: str | Path | N
 
 def horizons(he: "HorizonErrors | Prediction", ax: "Axes | None" = None, path: str | Path | None = None, *,
              channels: str | Sequence[str] | None = None, axes=None, fig: Figure | None = None,
-             dpi: float = DPI) -> Figure:
+             dpi: float = DPI, closed_loop: "HorizonErrors | None" = None) -> Figure:
     """RMS prediction error against horizon per channel, the model (solid) beside the naive
     constant-velocity / constant-rate predictor (dashed), log-log. ``he``: a
     :class:`~greybox.validation.HorizonErrors` or a prediction (its ``horizon_errors()``).
-    ``ax=``: one channel (default the one where the model gains least on the naive one)."""
+    ``ax=``: one channel (default the one where the model gains least on the naive one).
+    ``closed_loop``: the model flown by its controller's law as well (dotted;
+    :func:`greybox.closed_loop_horizon_errors`)."""
     if hasattr(he, "horizon_errors"):
         he = he.horizon_errors()
     ratio = {}
@@ -263,6 +265,8 @@ def horizons(he: "HorizonErrors | Prediction", ax: "Axes | None" = None, path: s
     for a, ch in zip(flat, chans):
         a.loglog(he.horizons, he.model[ch], "o-", color="C0", label=label)
         a.loglog(he.horizons, he.naive[ch], "s--", color="C3", label="naive")
+        if closed_loop is not None and ch in closed_loop.model:
+            a.loglog(closed_loop.horizons, closed_loop.model[ch], "^:", color="C2", label="model, closed loop")
         a.set_title(ch, fontsize=9)
         a.set_xlabel("horizon (s)")
     for a in flat[len(chans):]:

@@ -163,7 +163,9 @@ def test_fit_json_holds_the_closed_loop_where_the_log_has_setpoints(cascade_flig
     from greybox.cli import main
     _, log, paths = cascade_flight
     out = tmp_path / "fit.json"
-    assert main(["fit", str(paths["log"]), "--airframe", str(paths["airframe"]), "--json", str(out)]) == 0
+    assert main(["fit", str(paths["log"]), "--airframe", str(paths["airframe"]), "--json", str(out),
+                 "--plots", str(tmp_path / "plots")]) == 0
+    assert (tmp_path / "plots" / "horizons.png").stat().st_size > 1000
     said = capsys.readouterr().out
     assert "flown by its controller's law" in said
     cl = json.loads(out.read_text())["closed_loop"]

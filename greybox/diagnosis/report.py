@@ -38,7 +38,8 @@ def write_report(d: "Diagnosis", out: Path) -> Path:  # noqa: F821 - Diagnosis: 
     img = lambda k: f'<img src="data:image/png;base64,{images[k]}"/>' if k in images else ""
     imbalance = (f"<li>{esc(d.command_imbalance.text())}</li>"
                  if d.command_imbalance is not None and d.command_imbalance.notable else "")
-    horizons = "".join(f"<p>{esc(line.strip())}</p>" for line in d.horizon_lines())
+    horizons = "".join(f"<p>{esc(line.strip())}</p>" for line in d.horizon_lines()
+                       + ([d.closed_loop.line()] if d.closed_loop is not None else []))
     param_rows = "".join(
         f"<tr><td>{esc(n)}</td><td>{v['value']:.6g}</td>"
         f"<td>{'fixed' if v['std'] is None else format(v['std'], '.3g')}</td></tr>"
