@@ -67,7 +67,8 @@ def run(path: Path, effects: list[str], variants: bool, models: Path | None = No
     open_loop = horizon_errors_after(res, [predict(model, res.p, val, horizon=0.5, **prediction_options(res))],
                                      [res.p], est=[est])
     law = ControllerLaw().fit(model, est)
-    out = {"flight": path.stem, "certified": bool(res.converged), "law": law, "open": open_loop,
+    # a saved model keeps no certificate: None
+    out = {"flight": path.stem, "certified": getattr(res, "converged", None), "law": law, "open": open_loop,
            "closed": closed_loop_horizon_errors(model, res.p, law, val, horizons=HORIZONS)}
     if variants:
         out["closed, held trim"] = closed_loop_horizon_errors(model, res.p, law, val, horizons=HORIZONS,
@@ -84,12 +85,12 @@ def markdown(rows: list[dict]) -> str:
     preds = [k for k in rows[0] if k == "open" or k.startswith("closed")]
     lines = [f"Model: {rows[0]['what']}.", "", "Channels of x, y, z, phi, theta, psi where the prediction beats the naive predictor "
              "(last 20 % of each flight, windows every 0.1 s):", "",
-             "| flight | base certified | law: delay, R² roll/pitch | predictor | at 0.25 s | at 0.5 s |",
+             "| flight | fit certified | law: delay, R² roll/pitch | predictor | at 0.25 s | at 0.5 s |",
              "|---|---|---|---|---|---|"]
     for r in rows:
         law = r["law"]
         for k in preds:
-            lines.append(f"| {r['flight']} | {'yes' if r['certified'] else 'no'} | "
+            lines.append(f"| {r['flight']} | {'-' if r['certified'] is None else 'yes' if r['certified'] else 'no'} | "
                          f"{1e3 * law.delay_:.0f} ms, {law.r2_['roll']:.2f}/{law.r2_['pitch']:.2f} | {k} | "
                          + " | ".join(", ".join(beats(r[k], h)) or "-" for h in HORIZONS) + " |")
     lines += ["", "RMS prediction error, closed loop / open loop / naive (m, rad):", "",
