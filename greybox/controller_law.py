@@ -186,24 +186,27 @@ def measured_law_states(log: FlightLog) -> np.ndarray:
 
 
 def _local_slope(t: np.ndarray, y: np.ndarray, m: int) -> np.ndarray:
-    """Least-squares slope of ``y`` over samples ``k-m .. k+m`` at every ``k`` (edges: shorter)."""
+    """Least-squares slope of ``y`` over its finite samples among ``k-m .. k+m`` at every ``k``
+    (NaN where ``y[k]`` is missing or fewer than ``m + 1`` samples are finite there)."""
     n = t.size
-    out = np.full(n, np.nan)
-    if not np.isfinite(y).any():
-        return out
-    # windowed sums by cumulative sums: no loop over samples
+    fin = np.isfinite(y)
+    if not fin.any():
+        return np.full(n, np.nan)
+    lo = np.clip(np.arange(n) - m, 0, n)
+    hi = np.clip(np.arange(n) + m + 1, 0, n)
+
+    # windowed sums by cumulative sums (a missing sample weighs nothing): no loop over samples
     def wsum(a):
         c = np.concatenate([[0.0], np.cumsum(a)])
-        lo = np.clip(np.arange(n) - m, 0, n)
-        hi = np.clip(np.arange(n) + m + 1, 0, n)
         return c[hi] - c[lo]
     tc = t - t[0]
-    N = wsum(np.ones(n))
-    St, Sy, Stt, Sty = wsum(tc), wsum(y), wsum(tc * tc), wsum(tc * y)
+    w = fin.astype(float)
+    y0 = np.where(fin, y, 0.0)
+    N, St, Sy, Stt, Sty = wsum(w), wsum(w * tc), wsum(y0), wsum(w * tc * tc), wsum(tc * y0)
     den = N * Stt - St * St
+    ok = fin & (N >= m + 1) & (den > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.where(den > 0, (N * Sty - St * Sy) / den, np.nan)
-    return out
+        return np.where(ok, (N * Sty - St * Sy) / np.where(ok, den, 1.0), np.nan)
 
 
 class _LawData(NamedTuple):
