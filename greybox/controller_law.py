@@ -231,6 +231,12 @@ class ControllerLaw:
     Fitted attributes: ``gains_`` (axis -> gains on :data:`LAW_FEATURES` [axis]), ``trims_``
     (4,), ``delay_`` (s), ``r2_`` (axis -> share of the commands' variance the law explains),
     ``allocation_`` (4 x N), ``w_range_`` (the rotor speeds the logs flew).
+
+    Example::
+
+        est, val = log.split(0.8)                  # a log with x_ref, y_ref, z_ref, psi_ref
+        law = ControllerLaw().fit(model, est)
+        law.gains_["roll"], law.delay_, law.r2_    # gains on e_y, v_y, phi, p
     """
 
     delay: float | None = None
@@ -493,7 +499,15 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
     ``"law"`` (the law's fitted trims, which also cancel what the vehicle has and the model may
     lack). ``held_trim``: add the law's mean residual over :data:`TRIM_WINDOW` before each start
     (:meth:`ControllerLaw.residual_trims`: the integrators' state then). The defaults are the
-    best of these on the ten NanoBench flights (README)."""
+    best of these on the ten NanoBench flights (README).
+
+    Example::
+
+        res = fit(model, est)
+        law = ControllerLaw().fit(model, est)
+        he = closed_loop_horizon_errors(model, res.p, law, val)
+        he.beats_naive("phi", 0.5), he.as_dict()
+    """
     law._check_fitted()
     if trim not in ("model", "law"):
         raise GreyboxInputError(f"closed_loop_horizon_errors: trim must be 'model' or 'law', not {trim!r}")
