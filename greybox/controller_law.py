@@ -67,7 +67,8 @@ from .validation import (DEFAULT_HORIZONS, DEFAULT_INIT_WINDOW, HORIZON_START_EV
 
 __all__ = ["ControllerLaw", "closed_loop_horizon_errors", "SETPOINTS", "LAW_AXES", "LAW_FEATURES",
            "TRIM_WINDOW", "has_setpoints", "setpoint_signals", "measured_law_states", "loop_model",
-           "ClosedLoopReport", "closed_loop_report", "closed_loop_or_why", "hover_commands"]
+           "ClosedLoopReport", "closed_loop_report", "closed_loop_or_why", "hover_commands",
+           "logged_mixer_commands"]
 
 SETPOINTS = ("x_ref", "y_ref", "z_ref", "psi_ref")
 """The log's extra columns a closed-loop model reads: the position setpoint (m, NED) and the
@@ -87,6 +88,12 @@ each side (5 samples of a 100-Hz motion-capture log each way)."""
 OUTAGE_SPACINGS = 3.0
 """A measured state is interpolated for the law's fit only between measurements at most this
 many of the channel's median spacings apart."""
+
+
+def logged_mixer_commands(allocation: np.ndarray, log: FlightLog) -> np.ndarray:
+    """The log's rotor commands in the law's coordinates (n, 4): ``allocation @ w^2`` of the
+    first ``allocation.shape[1]`` inputs (the rotor speeds)."""
+    return log.inputs[:, :allocation.shape[1]] ** 2 @ allocation.T
 
 
 def has_setpoints(log: FlightLog) -> bool:
@@ -266,7 +273,7 @@ class ControllerLaw:
             airborne = np.ones(log.t.size, dtype=bool)
             if "on_ground" in log.extras:
                 airborne = log.extras["on_ground"] < 0.5
-            data.append(_LawData(self._features_measured(log), (A @ (log.inputs[:, :nr] ** 2).T).T, airborne,
+            data.append(_LawData(self._features_measured(log), logged_mixer_commands(A, log), airborne,
                                  float(np.median(np.diff(log.t)))))
         dt = data[0].dt
         delays = [self.delay] if self.delay is not None else \
@@ -350,14 +357,13 @@ class ControllerLaw:
         feats = np.asarray(_FEATURES.map(states.shape[0])(states.T, setpoints.T)).T
         return feats @ self.gain_matrix_.T + self.trims_
 
-    def residual_trims(self, log: FlightLog, model: QuadrotorModel, starts: Sequence[int],
+    def residual_trims(self, log: FlightLog, starts: Sequence[int],
                        window: float = TRIM_WINDOW) -> np.ndarray:
         """Held trims (len(starts), 4): the fitted trims plus the law's mean residual over
         ``window`` seconds before each start (the integrators' output just then)."""
         self._check_fitted()
         feats = self._features_measured(log)
-        nr = model.airframe.n_rotors
-        c = (self.allocation_ @ (log.inputs[:, :nr] ** 2).T).T
+        c = logged_mixer_commands(self.allocation_, log)
         dt = float(np.median(np.diff(log.t)))
         d = self.delay_samples(dt)
         pred = np.full_like(c, np.nan)
@@ -515,9 +521,8 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
     ps = [p] * len(logs) if isinstance(p, np.ndarray) and p.ndim == 1 else list(p)
     hs_req = sorted(horizons or DEFAULT_HORIZONS)
     nr = model.airframe.n_rotors
-    flown, _, _, left_out = loop_model(model, ps[0] if ps else model.default_parameters())
-    keep = [model.state_names.index(n) for n in flown.state_names]
     acc = None
+    left_out: list[str] = []
     loop_delays = []
     for pk, log in zip(ps, logs):
         _check_log(log, model)
@@ -528,7 +533,7 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
             channels = [name for name in OUTPUTS if name in log.output_names]
             acc = HorizonAccumulator(sorted({round(dt, 9), *hs_req}), channels, dt)
         pk = np.asarray(pk, dtype=float)
-        _, p_loop, extra_s, _ = loop_model(model, pk)
+        flown, p_loop, extra_s, left_out = loop_model(model, pk)
         extra = int(round(extra_s / dt))
         d = law.delay_samples(dt) + extra
         loop_delays.append(d)
@@ -542,16 +547,16 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
             for w, a in enumerate(starts):
                 pv, eul, _, om = naive_start(log, meas, a, x0[w])
                 x0[w, 0:3], x0[w, 6:9], x0[w, 3:6], x0[w, 9:12] = pv[:3], pv[3:], eul, om
-        x0 = x0[:, keep]
+        x0 = x0[:, [model.state_names.index(n) for n in flown.state_names]]
         flown_log = flown.prepare_log(log)
         A = law.allocation_
-        c_logged = (A @ (log.inputs[:, :nr] ** 2).T).T
+        c_logged = logged_mixer_commands(A, log)
         # the commands acting in the first d samples were computed from states before the start:
         # the logged ones, the rotors' delay (extra) after they were logged
         buf0 = np.zeros((len(starts), 4 * d))
         for j in range(d):
             buf0[:, 4 * j:4 * j + 4] = c_logged[np.clip(starts + j - extra, 0, t.size - 1)]
-        trims = law.residual_trims(log, model, starts) if held_trim else np.tile(law.trims_, (len(starts), 1))
+        trims = law.residual_trims(log, starts) if held_trim else np.tile(law.trims_, (len(starts), 1))
         if trim == "model":
             # the integrators hold the model in its hover: the law's trims are the model's, not
             # the vehicle's (which trim out what the model may lack, e.g. a CoG offset)
@@ -567,13 +572,7 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
         trim_rep = np.repeat(trims, n_steps, axis=0).T
         _, Y = windows(np.hstack([x0, buf0]).T, ref, trim_rep, sig, np.tile(p_loop[:, None], (1, nW * n_steps)),
                        t[idx.ravel()][None, :], h)
-        Yp = np.asarray(Y).reshape(flown.ny, nW, n_steps).transpose(1, 2, 0)
-        psi = OUTPUTS.index("psi")
-        for w, a in enumerate(starts):
-            b = min(a + n_steps, t.size)
-            err = meas[a:b] - Yp[w, :b - a]
-            err[:, psi] = np.arctan2(np.sin(err[:, psi]), np.cos(err[:, psi]))
-            acc.add(log, meas, a, err, x0[w])
+        acc.add_windows(log, meas, starts, np.asarray(Y).reshape(flown.ny, nW, n_steps).transpose(1, 2, 0), x0)
     out = acc.result()
     out.predictor = {"init_window": float(init_window), "measured_start": bool(measured_start),
                      "closed_loop": True, "held_trim": bool(held_trim), "law_delay": float(law.delay_),

@@ -503,6 +503,17 @@ class HorizonAccumulator:
                 self.sq_n[ch][i] += en * en
                 self.cnt[ch][i] += 1
 
+    def add_windows(self, log: FlightLog, meas: np.ndarray, starts: Sequence[int], predicted: np.ndarray,
+                    start_states: np.ndarray) -> None:
+        """Windows starting at samples ``starts`` with their predicted outputs ``predicted``
+        (windows, steps, ny; cut at the log's end) and start states: each window's errors,
+        measured minus predicted with psi wrapped, :meth:`add`-ed."""
+        for w, a in enumerate(starts):
+            b = min(a + predicted.shape[1], log.t.size)
+            err = meas[a:b] - predicted[w, :b - a]
+            err[:, PSI] = np.arctan2(np.sin(err[:, PSI]), np.cos(err[:, PSI]))
+            self.add(log, meas, a, err, start_states[w])
+
     def result(self) -> HorizonErrors:
         rms = lambda sq, n: [float(math.sqrt(s / c)) if c else float("nan") for s, c in zip(sq, n)]  # noqa: E731
         return HorizonErrors([float(h) for h in self.hs],
@@ -574,12 +585,7 @@ def horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]"
         L, n_steps, starts = horizon_windows(log, max(acc.hs), init_window, start_every)
         Yp, x0 = _predict_windows(model, np.asarray(pk, dtype=float), log, starts, n_steps, L, sigma, compile,
                                   measured_start)
-        meas = measured_outputs(log, model.ny)
-        for w, a in enumerate(starts):
-            b = min(a + n_steps, t.size)
-            err = meas[a:b] - Yp[w, :b - a]
-            err[:, PSI] = np.arctan2(np.sin(err[:, PSI]), np.cos(err[:, PSI]))
-            acc.add(log, meas, a, err, x0[w])
+        acc.add_windows(log, measured_outputs(log, model.ny), starts, Yp, x0)
     out = acc.result()
     out.predictor = {"init_window": float(init_window), "measured_start": bool(measured_start),
                      "held_moment": bool(held_moment)}
