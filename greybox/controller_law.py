@@ -30,13 +30,18 @@ commander sends with it, is the slope of the logged setpoint (a centred line, so
 The law is the structure of a cascade, not its exact gains: derivative filters, saturations
 and the law's nonlinearity are not modelled (the rotor speeds are clipped to the range the log
 flew), and the integrators are taken to hold the model in its hover (:func:`hover_commands`).
+The law also has a level (``level_``, :meth:`ControllerLaw.measured_level`): the measured roll
+and pitch at which the thrust is vertical. An attitude estimate's level is off (the IMU's
+mounting, the accelerometer's bias; 5-28 mrad on the real Crazyflie flights) and the controller
+levels the estimate, so the vehicle hovers where the estimate reads ``level_``.
 
 **Closed-loop prediction** (:func:`closed_loop_horizon_errors`): each window's rigid-body
 state is taken from the measurements as the naive predictor takes it (position and velocity
 from the last 50 ms, attitude, gyro; the effects' states from the moving-horizon estimate,
 :func:`greybox.validation.estimate_states`); the commands already on their way (``delay_``)
 are the logged ones; from then on the law computes the commands from the *predicted* state and
-the logged setpoints. It is scored beside the naive predictor as in
+the logged setpoints. The model's attitude is the thrust's: the measured one less ``level_``;
+the law reads, and the prediction reports, the model's plus ``level_``. It is scored beside the naive predictor as in
 :func:`greybox.validation.horizon_errors`. It answers a different question from the open-loop
 prediction: not "what does the vehicle do with these commands" but "what does the vehicle do,
 flown by its controller, asked for these setpoints" — the prediction an engineer planning a
@@ -62,6 +67,7 @@ from .data import FlightLog
 from .errors import GreyboxError, GreyboxInputError
 from .integrate import Substeps, log_substeps, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
+from .rotations import rotation_matrices
 from .validation import (DEFAULT_HORIZONS, DEFAULT_INIT_WINDOW, HORIZON_START_EVERY, HorizonAccumulator,
                          HorizonErrors, estimate_states, horizon_windows, measured_outputs, naive_start)
 
@@ -84,6 +90,11 @@ VELOCITY_WINDOW = 0.05
 """s: the positions' derivative for the fit is a straight line through this much of them on
 each side (5 samples of a 100-Hz motion-capture log each way)."""
 
+
+ACCELERATION_WINDOW = 0.1
+"""s: the accelerations for the law's level (:attr:`ControllerLaw.level_`) are a straight line
+through this much of the velocities on each side."""
+GRAVITY = 9.81
 
 OUTAGE_SPACINGS = 3.0
 """A measured state is interpolated for the law's fit only between measurements at most this
@@ -234,10 +245,14 @@ class ControllerLaw:
             of the (first) log's sample time by the least-squares residual. Each log reads it
             in its own samples.
         max_delay: s.
+        fit_level: estimate the attitude estimate's level (``level_``); False: take the
+            measured attitude for the thrust's.
 
     Fitted attributes: ``gains_`` (axis -> gains on :data:`LAW_FEATURES` [axis]), ``trims_``
     (4,), ``delay_`` (s), ``r2_`` (axis -> share of the commands' variance the law explains),
-    ``allocation_`` (4 x N), ``w_range_`` (the rotor speeds the logs flew).
+    ``level_`` (2,: the measured roll and pitch, rad, at which the thrust is vertical:
+    :meth:`measured_level`), ``allocation_`` (4 x N), ``w_range_`` (the rotor speeds the logs
+    flew).
 
     Example::
 
@@ -248,10 +263,12 @@ class ControllerLaw:
 
     delay: float | None = None
     max_delay: float = 0.15
+    fit_level: bool = True
     gains_: dict[str, np.ndarray] = field(default_factory=dict, init=False)
     trims_: np.ndarray | None = field(default=None, init=False)
     delay_: float = field(default=float("nan"), init=False)
     r2_: dict[str, float] = field(default_factory=dict, init=False)
+    level_: np.ndarray = field(default_factory=lambda: np.zeros(2), init=False)
     allocation_: np.ndarray | None = field(default=None, init=False)
     w_range_: tuple[float, float] = field(default=(0.0, math.inf), init=False)
 
@@ -288,6 +305,7 @@ class ControllerLaw:
                                     f"{'(is the delay longer than the logs?)' if self.delay else ''}")
         _, gains, trims, r2, delay = best
         self.gains_, self.trims_, self.r2_, self.delay_ = gains, trims, r2, float(delay)
+        self.level_ = self.measured_level(logs) if self.fit_level else np.zeros(2)
         self.allocation_ = A
         w = np.concatenate([log.inputs[:, :nr].ravel() for log in logs])
         self.w_range_ = (float(np.min(w)), float(np.max(w)))
@@ -297,6 +315,44 @@ class ControllerLaw:
         """The law's delay in samples of a log with sample time ``dt``."""
         self._check_fitted()
         return int(round(self.delay_ / dt))
+
+    @staticmethod
+    def measured_level(logs: Sequence[FlightLog]) -> np.ndarray:
+        """The measured roll and pitch (rad) at which the thrust is vertical: an attitude
+        estimate's level is off by its IMU's mounting and its accelerometer's bias (on the ten
+        NanoBench flights by 5-28 mrad), and the controller levels the estimate, so the vehicle
+        hovers at the measured attitude ``level_``. From the specific force the positions give,
+        ``f = a - g e3`` in the measured body frame: a thrust along the true body axis reads
+        ``f_x = |f| theta_0``, ``f_y = -|f| phi_0`` there, less a drag on the body velocity
+        (its own coefficient per axis, so that a flight with a mean speed does not put its drag
+        into the level); least squares over the airborne samples of all ``logs``."""
+        rows = {0: [], 1: []}
+        for log in logs:
+            S = measured_law_states(log)
+            m = max(1, int(round(ACCELERATION_WINDOW / float(np.median(np.diff(log.t))))))
+            acc = np.column_stack([_local_slope(log.t, S[:, 6 + j], m) for j in range(3)])
+            k = np.isfinite(acc).all(1) & np.isfinite(S[:, :9]).all(1)
+            if "on_ground" in log.extras:
+                k &= log.extras["on_ground"] < 0.5
+            if not k.any():
+                continue
+            R = rotation_matrices(S[k, 3], S[k, 4], S[k, 5])
+            f_world = acc[k] - np.array([0.0, 0.0, GRAVITY])
+            f_body = np.einsum("nji,nj->ni", R, f_world)
+            v_body = np.einsum("nji,nj->ni", R, S[k, 6:9])
+            size = np.linalg.norm(f_world, axis=1)
+            for j in (0, 1):
+                rows[j].append(np.column_stack([size, v_body[:, j], f_body[:, j]]))
+        level = np.zeros(2)
+        for j, sign, out in ((0, 1.0, 1), (1, -1.0, 0)):
+            if not rows[j]:
+                continue
+            X = np.vstack(rows[j])
+            if X.shape[0] < 10:
+                continue
+            coef, *_ = np.linalg.lstsq(X[:, :2], X[:, 2], rcond=None)
+            level[out] = sign * coef[0]
+        return level
 
     @staticmethod
     def _features_measured(log: FlightLog) -> np.ndarray:
@@ -386,14 +442,18 @@ class ControllerLaw:
         if not self.gains_:
             return "ControllerLaw(not fitted)"
         r2 = ", ".join(f"{a} {self.r2_[a]:.2f}" for a in LAW_AXES)
-        return f"ControllerLaw(delay {1e3 * self.delay_:.0f} ms; R^2 {r2})"
+        return (f"ControllerLaw(delay {1e3 * self.delay_:.0f} ms; R^2 {r2}; level {1e3 * self.level_[0]:.1f}, "
+                f"{1e3 * self.level_[1]:.1f} mrad)")
 
     # ------------------------------------------------------------------ closed-loop step
     def closed_loop_step(self, model: QuadrotorModel, n_sub: "int | Substeps", delay_samples: int) -> ca.Function:
-        """``F(xb, ref, trim, sig, p, t, h) -> (xb_next, y)``: one sample of the vehicle model
-        flown by the law; ``xb`` is the model's state and the commands on their way to the
+        """``F(xb, ref, trim, sig, p, t, h, shift) -> (xb_next, y)``: one sample of the vehicle
+        model flown by the law; ``xb`` is the model's state and the commands on their way to the
         rotors (``4 * delay_samples``, oldest first), ``ref`` the setpoint and its velocity,
-        ``sig`` the model's other inputs (logged signals)."""
+        ``sig`` the model's other inputs (logged signals), ``shift`` (2) what is added to the
+        model's measured roll and pitch to make them the estimate's (``level_`` less the model's
+        own offset, e.g. an ``attitude_bias``). The law reads the estimate: the model's attitude
+        plus ``level_``."""
         self._check_fitted()
         nr = model.airframe.n_rotors
         d = int(delay_samples)
@@ -406,8 +466,10 @@ class ControllerLaw:
         p = ca.MX.sym("p", model.n_params)
         t = ca.MX.sym("t")
         h = ca.MX.sym("h")
+        shift = ca.MX.sym("shift", 2)
         x = xb[:model.nx]
-        c_new = ca.mtimes(ca.DM(self.gain_matrix_), _FEATURES(x[:12], ref)) + trim
+        read = x[:12] + ca.DM(np.concatenate([np.zeros(3), self.level_, np.zeros(7)]))
+        c_new = ca.mtimes(ca.DM(self.gain_matrix_), _FEATURES(read, ref)) + trim
         c_now = xb[model.nx:model.nx + 4] if d else c_new
         w2 = ca.mtimes(ca.DM(np.linalg.pinv(self.allocation_)), c_now)
         lo, hi = self.w_range_
@@ -416,8 +478,19 @@ class ControllerLaw:
         x_next = step(x, u, p, t, h)
         buf_next = ca.vertcat(xb[model.nx + 4:], c_new) if d else ca.MX(0, 1)
         y = model.output(x, u, p, t)
-        return ca.Function("closed_loop_step", [xb, ref, trim, sig, p, t, h], [ca.vertcat(x_next, buf_next), y],
-                           ["xb", "ref", "trim", "sig", "p", "t", "h"], ["xb_next", "y"])
+        i = OUTPUTS.index("phi")
+        y = ca.vertcat(y[:i], y[i:i + 2] + shift, y[i + 2:])
+        return ca.Function("closed_loop_step", [xb, ref, trim, sig, p, t, h, shift],
+                           [ca.vertcat(x_next, buf_next), y], ["xb", "ref", "trim", "sig", "p", "t", "h", "shift"],
+                           ["xb_next", "y"])
+
+    def level_trims(self) -> np.ndarray:
+        """(4,): the law's commands at its level (:attr:`level_`) with every error nil: what
+        the integrators cancel so that the vehicle holds a hover the estimate reads as level_."""
+        self._check_fitted()
+        feats = np.zeros(len(_FEATURE_ORDER))
+        feats[_FEATURE_ORDER.index("phi")], feats[_FEATURE_ORDER.index("theta")] = self.level_
+        return self.gain_matrix_ @ feats
 
 
 def loop_model(model: QuadrotorModel, p: np.ndarray) -> tuple[QuadrotorModel, np.ndarray, float, list[str]]:
@@ -548,7 +621,16 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
                 pv, eul, _, om = naive_start(log, meas, a, x0[w])
                 x0[w, 0:3], x0[w, 6:9], x0[w, 3:6], x0[w, 9:12] = pv[:3], pv[3:], eul, om
         x0 = x0[:, [model.state_names.index(n) for n in flown.state_names]]
+        naive_x0 = x0.copy()
         flown_log = flown.prepare_log(log)
+        # the estimate's level: the model's attitude is the thrust's, the measured one is off by
+        # level_ (the model's own measured offset, an attitude_bias, is replaced by it)
+        model_level = np.asarray(flown.output(flown.initial_state(np.zeros(12), flown_log.inputs[starts[0]], p_loop),
+                                              flown_log.inputs[starts[0]], p_loop, 0.0)).ravel()[3:5]
+        shift = law.level_ - model_level
+        # measured start: the model's attitude is the measured one less level_; estimated: the
+        # model's estimate (its outputs: its attitude plus model_level) less the shift
+        x0[:, 3:5] -= law.level_ if measured_start else shift
         A = law.allocation_
         c_logged = logged_mixer_commands(A, log)
         # the commands acting in the first d samples were computed from states before the start:
@@ -560,7 +642,9 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
         if trim == "model":
             # the integrators hold the model in its hover: the law's trims are the model's, not
             # the vehicle's (which trim out what the model may lack, e.g. a CoG offset)
-            trims = trims - law.trims_ + hover_commands(flown, p_loop, A, law.trims_, flown_log, starts, x0[:, :3])
+            # (at the level the law reads, level_)
+            trims = (trims - law.trims_ - law.level_trims()
+                     + hover_commands(flown, p_loop, A, law.trims_, flown_log, starts, x0[:, :3]))
         step_fn = law.closed_loop_step(flown, log_substeps([log]), d)
         nW = len(starts)
         windows = parallel_map(step_fn.mapaccum("closed_loop", n_steps, [0], [0]), nW)
@@ -571,12 +655,13 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
         sig = flown_log.inputs[idx.ravel(), nr:].T
         trim_rep = np.repeat(trims, n_steps, axis=0).T
         _, Y = windows(np.hstack([x0, buf0]).T, ref, trim_rep, sig, np.tile(p_loop[:, None], (1, nW * n_steps)),
-                       t[idx.ravel()][None, :], h)
-        acc.add_windows(log, meas, starts, np.asarray(Y).reshape(flown.ny, nW, n_steps).transpose(1, 2, 0), x0)
+                       t[idx.ravel()][None, :], h, np.tile(shift[:, None], (1, nW * n_steps)))
+        acc.add_windows(log, meas, starts, np.asarray(Y).reshape(flown.ny, nW, n_steps).transpose(1, 2, 0), naive_x0)
     out = acc.result()
     out.predictor = {"init_window": float(init_window), "measured_start": bool(measured_start),
                      "closed_loop": True, "held_trim": bool(held_trim), "law_delay": float(law.delay_),
-                     "loop_delay_samples": loop_delays, "left_out": left_out}
+                     "loop_delay_samples": loop_delays, "left_out": left_out,
+                     "level": [float(v) for v in law.level_]}
     return out
 
 
@@ -595,14 +680,16 @@ class ClosedLoopReport:
 
     def as_dict(self) -> dict:
         """The JSON's ``closed_loop``: ``horizons`` (as the contract's ``horizons``), the
-        ``law`` (delay in s, gains per axis and feature, trims and R² per axis) and how the
+        ``law`` (delay in s, gains per axis and feature, trims and R² per axis, the level: the
+        measured roll and pitch in rad at which the thrust is vertical) and how the
         windows were flown (``predictor``)."""
         law = self.law
         return {"horizons": self.horizons.as_dict(),
                 "law": {"delay": float(law.delay_),
                         "gains": {a: {f: float(g) for f, g in zip(LAW_FEATURES[a], law.gains_[a])} for a in LAW_AXES},
                         "trims": {a: float(v) for a, v in zip(LAW_AXES, law.trims_)},
-                        "r2": {a: float(law.r2_[a]) for a in LAW_AXES}},
+                        "r2": {a: float(law.r2_[a]) for a in LAW_AXES},
+                        "level": [float(v) for v in law.level_]},
                 "predictor": dict(self.horizons.predictor)}
 
     def line(self) -> str:

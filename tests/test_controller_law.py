@@ -21,6 +21,10 @@ from greybox.fitting import fit
 from peer_sim import PeerSensors, PeerVehicle, fly, write_case
 
 
+ATT_LEVEL = (0.03, -0.02)
+"""rad: the cascade flight's attitude estimate reads this roll and pitch when the thrust is vertical."""
+
+
 def _airframe() -> Airframe:
     return Airframe(name="law", mass=0.03, inertia=np.array([1.4e-5, 1.4e-5, 2.2e-5]), arm_length=0.046,
                     rotors=rotors_for_layout("x", 0.046))
@@ -90,11 +94,14 @@ def test_a_known_linear_law_is_recovered_with_its_delay_in_the_yaw_aligned_frame
 
 @pytest.fixture(scope="module")
 def cascade_flight(tmp_path_factory):
-    """A 30 g vehicle flown by the peer simulator's autopilot cascade (on its noisy gyro and a
-    wandering position estimate), 24 s logged at 250 Hz with its setpoints."""
+    """A 30 g vehicle flown by the peer simulator's autopilot cascade (on its noisy gyro, a
+    wandering position estimate and an attitude estimate whose level is off by (30, -20) mrad,
+    which the log reports as the controller reads it), 24 s logged at 250 Hz with its
+    setpoints."""
     from greybox import load_airframe, load_log
     veh = PeerVehicle.crazyflie(log_rate=250.0)
-    fl = fly(veh, duration=24.0, seed=5, controller="cascaded_pid", sensors=PeerSensors(log_setpoints=True))
+    fl = fly(veh, duration=24.0, seed=5, controller="cascaded_pid",
+             sensors=PeerSensors(log_setpoints=True, att_bias=ATT_LEVEL))
     paths = write_case(fl, tmp_path_factory.mktemp("law"))
     return QuadrotorModel(load_airframe(paths["airframe"])), load_log(paths["log"]), paths
 
@@ -102,10 +109,12 @@ def cascade_flight(tmp_path_factory):
 def test_the_cascade_of_an_autopilot_is_read_as_a_stabilising_law_that_predicts_attitude(cascade_flight):
     """On a controller greybox did not write: the law restores (roll torque against roll and
     against an error to the right, pitch likewise, more thrust when below the setpoint: NED
-    z - z_ref > 0, yaw torque against a yaw error), and the
-    model flown by it predicts roll and pitch 0.5 s ahead better than constant rates do (measured
-    once: 0.084 and 0.048 rad against 0.23 and 0.13 with the law's delay at 68 ms, 96 ms when
-    it may choose up to 150: the cascade's filters and the motors' lag on the logged speeds)."""
+    z - z_ref > 0, yaw torque against a yaw error), its level is the attitude estimate's
+    (measured once: 30.3, -19.4 mrad for 30, -20), and the model flown by it predicts roll and
+    pitch 0.5 s ahead better than constant rates do (measured once: 0.075 and 0.104 rad against
+    0.23 and 0.14, the law's delay 64 ms: the cascade's filters and the motors' lag on the
+    logged speeds). Without the level the loop's model hovers tilted by it and drifts: x and y
+    0.5 s ahead 39 and 40 mm against 27 and 26 with it."""
     model, log, _ = cascade_flight
     assert set(SETPOINTS) <= set(log.extras)
     est, val = log.split(0.75)
@@ -118,10 +127,38 @@ def test_the_cascade_of_an_autopilot_is_read_as_a_stabilising_law_that_predicts_
     assert g["pitch"][0] > 0 and g["pitch"][2] < 0         # e_x (ahead: pitch up), theta
     assert g["thrust"][0] > 0                              # e_z: below the setpoint -> more thrust
     assert g["yaw"][0] < 0                                 # psi - psi_ref
+    np.testing.assert_allclose(law.level_, ATT_LEVEL, atol=0.003)
     he = closed_loop_horizon_errors(model, res.p, law, val)
     assert he.predictor["closed_loop"] and he.windows > 20
     for ch in ("phi", "theta"):
         assert he.beats_naive(ch, 0.5), (ch, he.model[ch], he.naive[ch])
+    unlevelled = closed_loop_horizon_errors(model, res.p, ControllerLaw(fit_level=False).fit(model, est), val,
+                                            horizons=(0.5,))
+    i, j = he.horizons.index(0.5), unlevelled.horizons.index(0.5)
+    for ch in ("x", "y"):
+        assert he.model[ch][i] < 0.8 * unlevelled.model[ch][j], (ch, he.model[ch][i], unlevelled.model[ch][j])
+
+
+def test_the_level_of_a_known_attitude_offset_is_read_from_the_positions():
+    """By hand: a vehicle whose thrust is vertical (it hovers, positions still but for 1 mm of
+    noise) while its estimate reads roll 0.02, pitch -0.01 has that level; flown at a steady
+    0.5 m/s forward against a drag (the thrust tilted forward by the drag's share, the
+    estimate 0.02 rad further), the level is still the offset, not the drag's tilt."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0, 20, 0.01)
+    off = np.array([0.02, -0.01])
+    g, k_drag = 9.81, 0.4
+    speed = 0.5 * (1 - np.cos(2 * np.pi * t / 20))               # 0 .. 1 m/s and back forward
+    pos_x = 0.5 * (t - 20 / (2 * np.pi) * np.sin(2 * np.pi * t / 20))
+    acc_x = 0.5 * 2 * np.pi / 20 * np.sin(2 * np.pi * t / 20)
+    theta_true = -np.arctan2(acc_x + k_drag * speed, g)         # pitch down to push forward
+    n = t.size
+    outputs = np.column_stack([pos_x + 1e-3 * rng.standard_normal(n), 1e-3 * rng.standard_normal(n),
+                               -1 + 1e-3 * rng.standard_normal(n), np.full(n, off[0]), theta_true + off[1],
+                               np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)])
+    log = FlightLog(t, np.full((n, 4), 2000.0), ["w1", "w2", "w3", "w4"], outputs,
+                    ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"])
+    np.testing.assert_allclose(ControllerLaw.measured_level([log]), off, atol=1e-3)
 
 
 def test_a_closed_loop_model_asks_for_setpoints_and_a_fitted_law_and_flies_a_command_delay_as_its_own(cascade_flight):
@@ -179,6 +216,7 @@ def test_fit_json_holds_the_closed_loop_where_the_log_has_setpoints(cascade_flig
     assert 0.25 in cl["horizons"]["horizons"] and 0.5 in cl["horizons"]["horizons"]
     assert set(cl["horizons"]["model"]) == set(cl["horizons"]["naive"]) >= {"x", "phi", "p"}
     assert cl["law"]["gains"]["roll"]["phi"] < 0 and set(cl["law"]["r2"]) == set(LAW_AXES)
+    np.testing.assert_allclose(cl["law"]["level"], ATT_LEVEL, atol=0.003)
     i = cl["horizons"]["horizons"].index(0.5)
     assert cl["horizons"]["model"]["phi"][i] < cl["horizons"]["naive"]["phi"][i]
     plain = tmp_path / "plain.csv"
