@@ -41,8 +41,8 @@ from the last 50 ms, attitude, gyro; the effects' states from the moving-horizon
 :func:`greybox.validation.estimate_states`); the commands already on their way (``delay_``)
 are the logged ones; from then on the law computes the commands from the *predicted* state and
 the logged setpoints. The model's attitude is the thrust's: the measured one less ``level_``;
-the law reads, and the prediction reports, the model's plus ``level_``. It is scored beside the naive predictor as in
-:func:`greybox.validation.horizon_errors`. It answers a different question from the open-loop
+the law reads, and the prediction reports, the model's plus ``level_``. It is scored beside
+the naive predictor as in :func:`greybox.validation.horizon_errors`. It answers a different question from the open-loop
 prediction: not "what does the vehicle do with these commands" but "what does the vehicle do,
 flown by its controller, asked for these setpoints" — the prediction an engineer planning a
 manoeuvre needs, and the one a controller's gains can be checked against.
@@ -94,7 +94,9 @@ each side (5 samples of a 100-Hz motion-capture log each way)."""
 ACCELERATION_WINDOW = 0.1
 """s: the accelerations for the law's level (:attr:`ControllerLaw.level_`) are a straight line
 through this much of the velocities on each side."""
-GRAVITY = 9.81
+LEVEL_MIN_SAMPLES = 100
+"""Airborne samples with positions and attitude :meth:`ControllerLaw.measured_level` needs (a
+second at 100 Hz: the level is a mean over the flight's accelerations)."""
 
 OUTAGE_SPACINGS = 3.0
 """A measured state is interpolated for the law's fit only between measurements at most this
@@ -247,9 +249,14 @@ class ControllerLaw:
         max_delay: s.
         fit_level: estimate the attitude estimate's level (``level_``); False: take the
             measured attitude for the thrust's.
+        axis_delays: each axis' delay chosen by its own least squares (``delays_``); False:
+            one for all (the default: on the ten NanoBench flights the thrust axis then takes
+            the longest allowed and predicts height better, but B6_linear_ramp's roll takes
+            90 ms and its loop swings; README).
 
     Fitted attributes: ``gains_`` (axis -> gains on :data:`LAW_FEATURES` [axis]), ``trims_``
-    (4,), ``delay_`` (s), ``r2_`` (axis -> share of the commands' variance the law explains),
+    (4,), ``delay_`` (s; the joint one), ``delays_`` (4,: each axis', s), ``r2_`` (axis ->
+    share of the commands' variance the law explains),
     ``level_`` (2,: the measured roll and pitch, rad, at which the thrust is vertical:
     :meth:`measured_level`), ``allocation_`` (4 x N), ``w_range_`` (the rotor speeds the logs
     flew).
@@ -264,9 +271,11 @@ class ControllerLaw:
     delay: float | None = None
     max_delay: float = 0.15
     fit_level: bool = True
+    axis_delays: bool = False
     gains_: dict[str, np.ndarray] = field(default_factory=dict, init=False)
     trims_: np.ndarray | None = field(default=None, init=False)
     delay_: float = field(default=float("nan"), init=False)
+    delays_: np.ndarray = field(default_factory=lambda: np.full(4, np.nan), init=False)
     r2_: dict[str, float] = field(default_factory=dict, init=False)
     level_: np.ndarray = field(default_factory=lambda: np.zeros(2), init=False)
     allocation_: np.ndarray | None = field(default=None, init=False)
@@ -296,16 +305,24 @@ class ControllerLaw:
         delays = [self.delay] if self.delay is not None else \
             [k * dt for k in range(int(round(self.max_delay / dt)) + 1)]
         best = None
+        fits = []
         for delay in delays:
             fitd = self._regress(data, delay)
+            if fitd is not None:
+                fits.append(fitd + (delay,))
             if fitd is not None and (best is None or fitd[0] < best[0]):
                 best = fitd + (delay,)
         if best is None:
             raise GreyboxInputError("ControllerLaw.fit: too few airborne samples with every state measured "
                                     f"{'(is the delay longer than the logs?)' if self.delay else ''}")
         _, gains, trims, r2, delay = best
-        self.gains_, self.trims_, self.r2_, self.delay_ = gains, trims, r2, float(delay)
-        self.level_ = self.measured_level(logs) if self.fit_level else np.zeros(2)
+        self.gains_, self.trims_, self.r2_, self.delay_ = dict(gains), trims.copy(), dict(r2), float(delay)
+        self.delays_ = np.full(4, float(delay))
+        if self.axis_delays:
+            for i, axis in enumerate(LAW_AXES):
+                _, g, tr, r, dl = max(fits, key=lambda f: f[3][axis])
+                self.gains_[axis], self.trims_[i], self.r2_[axis], self.delays_[i] = g[axis], tr[i], r[axis], dl
+        self.level_ = self.measured_level(logs, model.airframe.gravity) if self.fit_level else np.zeros(2)
         self.allocation_ = A
         w = np.concatenate([log.inputs[:, :nr].ravel() for log in logs])
         self.w_range_ = (float(np.min(w)), float(np.max(w)))
@@ -316,8 +333,13 @@ class ControllerLaw:
         self._check_fitted()
         return int(round(self.delay_ / dt))
 
+    def axis_delay_samples(self, dt: float) -> np.ndarray:
+        """Each axis' delay (:data:`LAW_AXES`) in samples of a log with sample time ``dt``."""
+        self._check_fitted()
+        return np.rint(self.delays_ / dt).astype(int)
+
     @staticmethod
-    def measured_level(logs: Sequence[FlightLog]) -> np.ndarray:
+    def measured_level(logs: "FlightLog | Sequence[FlightLog]", gravity: float = 9.81) -> np.ndarray:
         """The measured roll and pitch (rad) at which the thrust is vertical: an attitude
         estimate's level is off by its IMU's mounting and its accelerometer's bias (on the ten
         NanoBench flights by 5-28 mrad), and the controller levels the estimate, so the vehicle
@@ -325,8 +347,10 @@ class ControllerLaw:
         ``f = a - g e3`` in the measured body frame: a thrust along the true body axis reads
         ``f_x = |f| theta_0``, ``f_y = -|f| phi_0`` there, less a drag on the body velocity
         (its own coefficient per axis, so that a flight with a mean speed does not put its drag
-        into the level); least squares over the airborne samples of all ``logs``."""
-        rows = {0: [], 1: []}
+        into the level; a flight at one steady speed cannot tell the two apart); least squares
+        over the airborne samples of all ``logs``."""
+        logs = [logs] if isinstance(logs, FlightLog) else list(logs)
+        rows = []
         for log in logs:
             S = measured_law_states(log)
             m = max(1, int(round(ACCELERATION_WINDOW / float(np.median(np.diff(log.t))))))
@@ -337,20 +361,17 @@ class ControllerLaw:
             if not k.any():
                 continue
             R = rotation_matrices(S[k, 3], S[k, 4], S[k, 5])
-            f_world = acc[k] - np.array([0.0, 0.0, GRAVITY])
+            f_world = acc[k] - np.array([0.0, 0.0, gravity])
             f_body = np.einsum("nji,nj->ni", R, f_world)
             v_body = np.einsum("nji,nj->ni", R, S[k, 6:9])
-            size = np.linalg.norm(f_world, axis=1)
-            for j in (0, 1):
-                rows[j].append(np.column_stack([size, v_body[:, j], f_body[:, j]]))
+            rows.append(np.column_stack([np.linalg.norm(f_world, axis=1), v_body[:, :2], f_body[:, :2]]))
+        X = np.vstack(rows) if rows else np.zeros((0, 5))
+        if X.shape[0] < LEVEL_MIN_SAMPLES:
+            raise GreyboxInputError(f"the attitude estimate's level needs {LEVEL_MIN_SAMPLES} airborne samples with "
+                                    f"positions and attitude measured; the log(s) have {X.shape[0]}")
         level = np.zeros(2)
-        for j, sign, out in ((0, 1.0, 1), (1, -1.0, 0)):
-            if not rows[j]:
-                continue
-            X = np.vstack(rows[j])
-            if X.shape[0] < 10:
-                continue
-            coef, *_ = np.linalg.lstsq(X[:, :2], X[:, 2], rcond=None)
+        for j, sign, out in ((0, 1.0, 1), (1, -1.0, 0)):       # f_x -> pitch, f_y -> -roll
+            coef, *_ = np.linalg.lstsq(X[:, [0, 1 + j]], X[:, 3 + j], rcond=None)
             level[out] = sign * coef[0]
         return level
 
@@ -456,7 +477,8 @@ class ControllerLaw:
         plus ``level_``."""
         self._check_fitted()
         nr = model.airframe.n_rotors
-        d = int(delay_samples)
+        d_axes = np.broadcast_to(np.asarray(delay_samples, dtype=int), (4,))
+        d = int(d_axes.max())
         step = rk4_step(model, n_sub)
         nsig = model.nu - nr
         xb = ca.MX.sym("xb", model.nx + 4 * d)
@@ -470,7 +492,9 @@ class ControllerLaw:
         x = xb[:model.nx]
         read = x[:12] + ca.DM(np.concatenate([np.zeros(3), self.level_, np.zeros(7)]))
         c_new = ca.mtimes(ca.DM(self.gain_matrix_), _FEATURES(read, ref)) + trim
-        c_now = xb[model.nx:model.nx + 4] if d else c_new
+        # axis i acts on the command computed d_i samples ago: buffer entry d - d_i (oldest first)
+        c_now = ca.vertcat(*[c_new[i] if d_axes[i] == 0 else xb[model.nx + 4 * (d - int(d_axes[i])) + i]
+                             for i in range(4)])
         w2 = ca.mtimes(ca.DM(np.linalg.pinv(self.allocation_)), c_now)
         lo, hi = self.w_range_
         w = ca.fmin(ca.sqrt(ca.fmax(w2, lo * lo)), hi)
@@ -608,7 +632,8 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
         pk = np.asarray(pk, dtype=float)
         flown, p_loop, extra_s, left_out = loop_model(model, pk)
         extra = int(round(extra_s / dt))
-        d = law.delay_samples(dt) + extra
+        d_axes = law.axis_delay_samples(dt) + extra
+        d = int(d_axes.max())
         loop_delays.append(d)
         L, n_steps, starts = horizon_windows(log, max(acc.hs), init_window, start_every)
         # the effects' states from the moving-horizon estimate of the model as fitted
@@ -635,9 +660,12 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
         c_logged = logged_mixer_commands(A, log)
         # the commands acting in the first d samples were computed from states before the start:
         # the logged ones, the rotors' delay (extra) after they were logged
+        # (entry j stands for the command computed j - d samples from the start; axis i acts on
+        # it at sample j - d + d_i, where the logged command is the one acting)
         buf0 = np.zeros((len(starts), 4 * d))
         for j in range(d):
-            buf0[:, 4 * j:4 * j + 4] = c_logged[np.clip(starts + j - extra, 0, t.size - 1)]
+            for i in range(4):
+                buf0[:, 4 * j + i] = c_logged[np.clip(starts + j - d + d_axes[i] - extra, 0, t.size - 1), i]
         trims = law.residual_trims(log, starts) if held_trim else np.tile(law.trims_, (len(starts), 1))
         if trim == "model":
             # the integrators hold the model in its hover: the law's trims are the model's, not
@@ -645,7 +673,7 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
             # (at the level the law reads, level_)
             trims = (trims - law.trims_ - law.level_trims()
                      + hover_commands(flown, p_loop, A, law.trims_, flown_log, starts, x0[:, :3]))
-        step_fn = law.closed_loop_step(flown, log_substeps([log]), d)
+        step_fn = law.closed_loop_step(flown, log_substeps([log]), d_axes)
         nW = len(starts)
         windows = parallel_map(step_fn.mapaccum("closed_loop", n_steps, [0], [0]), nW)
         idx = np.minimum(starts[:, None] + np.arange(n_steps)[None, :], t.size - 1)
@@ -680,12 +708,13 @@ class ClosedLoopReport:
 
     def as_dict(self) -> dict:
         """The JSON's ``closed_loop``: ``horizons`` (as the contract's ``horizons``), the
-        ``law`` (delay in s, gains per axis and feature, trims and R² per axis, the level: the
-        measured roll and pitch in rad at which the thrust is vertical) and how the
-        windows were flown (``predictor``)."""
+        ``law`` (delay in s, each axis' delay, gains per axis and feature, trims and R² per
+        axis, the level: the measured roll and pitch in rad at which the thrust is vertical) and
+        how the windows were flown (``predictor``)."""
         law = self.law
         return {"horizons": self.horizons.as_dict(),
                 "law": {"delay": float(law.delay_),
+                        "delays": {a: float(v) for a, v in zip(LAW_AXES, law.delays_)},
                         "gains": {a: {f: float(g) for f, g in zip(LAW_FEATURES[a], law.gains_[a])} for a in LAW_AXES},
                         "trims": {a: float(v) for a, v in zip(LAW_AXES, law.trims_)},
                         "r2": {a: float(law.r2_[a]) for a in LAW_AXES},
