@@ -42,10 +42,11 @@ from the last 50 ms, attitude, gyro; the effects' states from the moving-horizon
 are the logged ones; from then on the law computes the commands from the *predicted* state and
 the logged setpoints. The model's attitude is the thrust's: the measured one less ``level_``;
 the law reads, and the prediction reports, the model's plus ``level_``. It is scored beside
-the naive predictor as in :func:`greybox.validation.horizon_errors`. It answers a different question from the open-loop
-prediction: not "what does the vehicle do with these commands" but "what does the vehicle do,
-flown by its controller, asked for these setpoints" — the prediction an engineer planning a
-manoeuvre needs, and the one a controller's gains can be checked against.
+the naive predictor as in :func:`greybox.validation.horizon_errors`. It answers a different
+question from the open-loop prediction: not "what does the vehicle do with these commands" but
+"what does the vehicle do, flown by its controller, asked for these setpoints" — the prediction
+an engineer planning a manoeuvre needs, and the one a controller's gains can be checked
+against.
 
 Example::
 
@@ -442,9 +443,9 @@ class ControllerLaw:
         feats = self._features_measured(log)
         c = logged_mixer_commands(self.allocation_, log)
         dt = float(np.median(np.diff(log.t)))
-        d = self.delay_samples(dt)
         pred = np.full_like(c, np.nan)
-        pred[d:] = feats[:c.shape[0] - d] @ self.gain_matrix_.T + self.trims_
+        for i, d in enumerate(self.axis_delay_samples(dt)):
+            pred[d:, i] = feats[:c.shape[0] - d] @ self.gain_matrix_[i] + self.trims_[i]
         res = c - pred
         m = max(1, int(round(window / dt)))
         out = np.tile(self.trims_, (len(starts), 1))
@@ -467,10 +468,13 @@ class ControllerLaw:
                 f"{1e3 * self.level_[1]:.1f} mrad)")
 
     # ------------------------------------------------------------------ closed-loop step
-    def closed_loop_step(self, model: QuadrotorModel, n_sub: "int | Substeps", delay_samples: int) -> ca.Function:
+    def closed_loop_step(self, model: QuadrotorModel, n_sub: "int | Substeps",
+                         delay_samples: "int | Sequence[int]") -> ca.Function:
         """``F(xb, ref, trim, sig, p, t, h, shift) -> (xb_next, y)``: one sample of the vehicle
-        model flown by the law; ``xb`` is the model's state and the commands on their way to the
-        rotors (``4 * delay_samples``, oldest first), ``ref`` the setpoint and its velocity,
+        model flown by the law with its axes ``delay_samples`` late (one for all or one per
+        axis of :data:`LAW_AXES`); ``xb`` is the model's state and the commands computed in the
+        last ``d = max(delay_samples)`` samples (``4 d``, oldest first; axis ``i`` acts on the
+        one computed ``delay_samples[i]`` ago), ``ref`` the setpoint and its velocity,
         ``sig`` the model's other inputs (logged signals), ``shift`` (2) what is added to the
         model's measured roll and pitch to make them the estimate's (``level_`` less the model's
         own offset, e.g. an ``attitude_bias``). The law reads the estimate: the model's attitude

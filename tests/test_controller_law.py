@@ -212,7 +212,8 @@ def _level_log(speed_peak: float, course: float, heading: float, off, rng) -> Fl
     n = t.size
     turn = rotation_matrices(np.array([off[0]]), np.array([off[1]]), np.zeros(1))[0]
     R = rotation_matrices(phi, theta, np.full(n, heading)) @ turn
-    est = np.column_stack([np.arctan2(R[:, 2, 1], R[:, 2, 2]), -np.arcsin(R[:, 2, 0]), np.arctan2(R[:, 1, 0], R[:, 0, 0])])
+    est = np.column_stack([np.arctan2(R[:, 2, 1], R[:, 2, 2]), -np.arcsin(R[:, 2, 0]),
+                           np.arctan2(R[:, 1, 0], R[:, 0, 0])])
     pos = dist[:, None] * along + np.array([0.0, 0.0, -1.0]) + 1e-3 * rng.standard_normal((n, 3))
     outputs = np.column_stack([pos, est, np.zeros((n, 3))])
     return FlightLog(t, np.full((n, 4), 2000.0), ["w1", "w2", "w3", "w4"], outputs,
