@@ -242,6 +242,10 @@ def run(name: str, work: Path, seeds: tuple[int, int] = (1, 2)) -> dict:
            "hub_heights": bool(airframe_options.get("hub_heights", False)),
            # the final model's parameters whose halves disagree beyond their std: (a, sa, b, sb)
            "final_spread": dict(diag.final_spread),
+           # ...and whose fit on the validation flight alone disagrees beyond it: (est, s, val, s)
+           "final_validation_spread": dict(diag.final_validation_spread),
+           # lags whose std counts the noise only, with how far the unsettled timing moves them (s)
+           "timing_bound": dict(diag.timing_bound),
            # b with the closed-loop bias taken out, when the diagnosis's yaw check gave it
            "closed_loop_b_err": (diag.closed_loop_fit.value("b") / truth["b"] - 1
                                  if diag.closed_loop_fit is not None else None),

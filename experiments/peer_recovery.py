@@ -10,8 +10,11 @@ Where greybox holds the simulator's effect in another form (quadratic drag on wo
 |v| v; the ground effect when the airframe gives no rotor heights) there is no single truth:
 the form's least-squares fit to the true force along the flown states is shown, not judged.
 Where the diagnosis says a std understates the parameter's scatter (its two halves of the
-flight disagree beyond it: ``Diagnosis.final_spread``), z is taken on the halves' spread, as a
-user told so would read it.
+flight, or the validation flight fitted alone, disagree beyond it: ``Diagnosis.final_spread``,
+``final_validation_spread``), z is taken on that spread, and where it says a lag's std counts
+the noise only and the log's unsettled timing moves it by up to half a row
+(``Diagnosis.timing_bound``), that bound's std (half a row / sqrt 3, a uniform error) is added:
+as a user told so would read it.
 
     python experiments/peer_recovery.py [--seeds 11 12] [case ...]   # default: every such case
 
@@ -31,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import sys
@@ -72,13 +76,21 @@ def reference(out: dict, key: str) -> tuple[object, bool]:
 
 def recovery(out: dict) -> list[tuple[str, float, float, float, bool]]:
     """(name, fitted, std, truth, exact) of every fitted parameter the truth holds; ``std`` the
-    halves' spread instead where the diagnosis said the fit's std understates it (larger)."""
+    halves' spread (or the estimation's and validation's) instead where the diagnosis said the
+    fit's std understates it (larger)."""
     rows = []
     spread = out.get("final_spread", {})
+    val_spread = out.get("final_validation_spread", {})
     for name, (value, std) in out["final"].items():
         if name in spread:
             a, _, b, _ = spread[name]
             std = max(std, abs(a - b) / 2)
+        if name in val_spread:
+            a, _, b, _ = val_spread[name]
+            std = max(std, abs(a - b) / math.sqrt(2))
+        if name in out.get("timing_bound", {}):
+            # "moves a lag by up to half a row": a uniform bound, its std added (GUM type B)
+            std = math.hypot(std, out["timing_bound"][name] / math.sqrt(3))
         m = re.fullmatch(r"(\w+)\[(\d+)\]", name)
         key, idx = (m.group(1), int(m.group(2))) if m else (name, None)
         t, exact = reference(out, key)
@@ -118,8 +130,11 @@ def main() -> None:
                 z = (v - t) / s if s > 0 else float("inf")
                 label = "truth    " if exact else "projected"
                 print(f"     {pname:<12} {v:.4g} ± {s:.2g}  {label} {t:.4g}  z {z:+.1f}"
-                      + ("  (± the halves' spread: the diagnosis says the std understates it)"
-                         if pname in out["final_spread"] else "")
+                      + ("  (± the spread of its halves or of the validation flight: the diagnosis says "
+                         "the std understates it)"
+                         if pname in out["final_spread"] or pname in out.get("final_validation_spread", {}) else "")
+                      + ("  (± half a row for the log's unsettled timing, as the diagnosis says)"
+                         if pname in out.get("timing_bound", {}) else "")
                       + ("" if exact else "  (another form: not judged)"), flush=True)
             results.append({"case": name, "ok": ok, "diagnosis_ok": out["ok"], "verdict": out["verdict"],
                             "added": out["added"], "recovery": rec, "worst_z": worst, "wall_s": out["wall_s"],

@@ -17,7 +17,7 @@ from ..fitting import FitResult, fit
 from ..model import QuadrotorModel
 from ..residuals import residual_widening
 
-__all__ = ["CONSISTENCY_Z", "CONSISTENCY_MIN_CHANGE", "half_consistency", "half_spread"]
+__all__ = ["CONSISTENCY_Z", "CONSISTENCY_MIN_CHANGE", "half_consistency", "half_spread", "validation_spread"]
 
 
 CONSISTENCY_Z = 3.0
@@ -93,6 +93,42 @@ def half_spread(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog],
             out[n] = (a.value(n), sa, b.value(n), sb)
     say("diagnose: the final model's halves " +
         (f"disagree beyond their std on {', '.join(out)}" if out else f"agree on {', '.join(wanted)}"))
+    return out
+
+
+def validation_spread(model: QuadrotorModel, res: FitResult, val: Sequence[FlightLog], components: Sequence[str],
+                      compile: str, say: Callable[[str], None]) -> dict[str, tuple[float, float, float, float]]:
+    """Fit the validation flights alone (warm-started at ``res``, the first estimation
+    flight's weights and process noise) and return those of ``components`` whose estimate
+    there differs from ``res``'s by more than :data:`CONSISTENCY_Z` of the difference's
+    standard deviation: ``{name: (estimation, std, validation, std)}``. The same question as
+    :func:`half_spread` asked of independent data: the halves of one flight can agree by
+    chance on a mean they both take from slow noise (the peer simulator's attitude bias
+    outdoors, seed 5: roll 23 std off, halves within theirs), another flight's noise is
+    another draw."""
+    out: dict[str, tuple[float, float, float, float]] = {}
+    wanted = [n for n in components if n in res.free_names and n not in res.per_flight_]
+    if not wanted or not val:
+        return out
+    try:
+        with _warnings.catch_warnings():
+            _warnings.simplefilter("ignore", ConvergenceWarning)
+            other = fit(model, list(val), p0=res.p, free=res.free_names, compile=compile, max_iter=100,
+                        **res.settings(states=False, flights=[0] * len(val)))
+    except GreyboxError as e:
+        say(f"diagnose: the validation flights not fitted alone ({e})")
+        return out
+    if not other.converged:
+        say("diagnose: the validation flights' own fit is not certified: not compared")
+        return out
+    for n in wanted:
+        s_est, s_val = float(res.std[res.free_names.index(n)]), float(other.std[other.free_names.index(n)])
+        if not (np.isfinite(s_est) and np.isfinite(s_val)) or s_est + s_val <= 0:
+            continue
+        if abs(res.value(n) - other.value(n)) / math.hypot(s_est, s_val) > CONSISTENCY_Z:
+            out[n] = (res.value(n), s_est, other.value(n), s_val)
+    say("diagnose: the final model on the validation flights " +
+        (f"disagrees beyond its std on {', '.join(out)}" if out else f"agrees on {', '.join(wanted)}"))
     return out
 
 

@@ -27,7 +27,7 @@ from .analysis import command_imbalance, residual_analysis
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
-from .consistency import half_consistency, half_spread
+from .consistency import half_consistency, half_spread, validation_spread
 from .elimination import backward_elimination, fit_without
 from .screening import negligible_effect
 from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
@@ -338,6 +338,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             warnings.insert(0, timing["text"])
             cur_model, cur_res, cur_pred = _drop_stand_ins(cur_model, cur_res, cur_pred, added, est, val, compile,
                                                            horizon, say, warnings)
+    timing_bound: dict[str, float] = {}
     if timing_candidate and timing is None:
         # the refit with the timing free tells how much it moves the lags when it is of this model
         same = timing_refit is not None and \
@@ -345,6 +346,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         timed = _timing_caveat(cur_model, cur_res, est, timing_refit if same else None)
         if timed:
             warnings.append(timed)
+            timing_bound = {n: 0.5 * median_row_interval(est) for n in _free_input_timed(cur_model, cur_res)}
     if iterate and cur_res is not res:
         # backward elimination: does each earlier verdict still stand with the later ones in?
         found = [(rd.verdict, len(rd.ranking)) for rd in rounds
@@ -377,23 +379,29 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     if yaw.words:
         warnings.append(yaw.words)
     spread: dict[str, tuple[float, float, float, float]] = {}
+    val_spread: dict[str, tuple[float, float, float, float]] = {}
     if cur_res is not res:
         added_effects = [e for e in cur_model.effects if e.name not in model.effect_names]
         # how to read what the rounds added (a value tied to a geometry the airframe leaves out)
         values, std = cur_model.parameter_dict(cur_res.p), dict(zip(cur_res.free_names, map(float, cur_res.std)))
         for e in added_effects:
             warnings += [f"final model: {w}" for w in e.interpretation_notes(values, std, cur_model.airframe)]
-        # whether the added parameters' std can be believed: each half of the flight alone
+        # whether the added parameters' std can be believed: each half of the flight alone, and
+        # the validation flights alone (the halves can agree by chance)
         if cur_res.converged:
-            spread = half_spread(cur_model, cur_res, est, [c for e in added_effects
-                                                           for _, c, _ in cur_model.effect_components(e.name)],
-                                 compile, say)
+            added = [c for e in added_effects for _, c, _ in cur_model.effect_components(e.name)]
+            spread = half_spread(cur_model, cur_res, est, added, compile, say)
+            val_spread = validation_spread(cur_model, cur_res, val, added, compile, say)
+        why = ("noise correlated over many samples that the fit takes as white, or something the model lacks that "
+               "each part sees differently")
         for n, (a, sa, b, sb) in spread.items():
             warnings.append(f"final model: {n} = {cur_res.value(n):.4g} ± {std[n]:.2g}, but the two halves of the "
                             f"estimation data give {a:.4g} ± {sa:.2g} and {b:.4g} ± {sb:.2g}: its std understates "
-                            "how it scatters (noise correlated over many samples that the fit takes as white, or "
-                            f"something the model lacks that each half sees differently); the halves put it at "
-                            f"about ± {abs(a - b) / 2:.2g}")
+                            f"how it scatters ({why}); the halves put it at about ± {abs(a - b) / 2:.2g}")
+        for n, (a, sa, b, sb) in val_spread.items():
+            warnings.append(f"final model: {n} = {a:.4g} ± {sa:.2g}, but the validation data alone give {b:.4g} ± "
+                            f"{sb:.2g}: its std understates how it scatters ({why}); the two put it at about "
+                            f"± {abs(a - b) / math.sqrt(2):.2g}")
     # whether the logged commands' torque shows in the attitude at all (data only): why a model of
     # the vehicle may lose to the naive attitude predictor whatever its parameters
     predictability = command_predictability(model, logs + (val if validation is not None else []),
@@ -406,7 +414,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      discovered=discovered, discovery=discovery_note, outside_catalogue=outside,
                      input_timing=timing, closed_loop_fit=yaw.fit, attitude_motion=motion,
                      command_predictability=predictability, rates_from_input_noise=by_inputs,
-                     input_noise_corrected=corrected, final_spread=spread)
+                     input_noise_corrected=corrected, final_spread=spread, final_validation_spread=val_spread,
+                     timing_bound={n: v for n, v in timing_bound.items() if n in cur_res.free_names})
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile, est=est)
