@@ -76,21 +76,11 @@ def half_spread(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog],
     fit takes from noise correlated over many samples, when the states follow that noise (the
     peer simulator's attitude bias outdoors, AR(1) attitude noise over 0.1 s: 2e-5 rad where
     the error scatters by 2.4e-4)."""
-    out: dict[str, tuple[float, float, float, float]] = {}
     wanted = [n for n in components if n in res.free_names and n not in res.per_flight_]
-    if not wanted:
-        return out
-    fits = _half_fits(model, res, est, compile, say)
+    fits = _half_fits(model, res, est, compile, say) if wanted else None
     if fits is None:
-        return out
-    a, b = fits
-    for n in wanted:
-        i = a.free_names.index(n)
-        sa, sb = float(a.std[i]), float(b.std[i])
-        if not (np.isfinite(sa) and np.isfinite(sb)) or sa + sb <= 0:
-            continue
-        if abs(a.value(n) - b.value(n)) / math.hypot(sa, sb) > CONSISTENCY_Z:
-            out[n] = (a.value(n), sa, b.value(n), sb)
+        return {}
+    out = _disagreeing(*fits, wanted)
     say("diagnose: the final model's halves " +
         (f"disagree beyond their std on {', '.join(out)}" if out else f"agree on {', '.join(wanted)}"))
     return out
@@ -106,10 +96,9 @@ def validation_spread(model: QuadrotorModel, res: FitResult, val: Sequence[Fligh
     chance on a mean they both take from slow noise (the peer simulator's attitude bias
     outdoors, seed 5: roll 23 std off, halves within theirs), another flight's noise is
     another draw."""
-    out: dict[str, tuple[float, float, float, float]] = {}
     wanted = [n for n in components if n in res.free_names and n not in res.per_flight_]
     if not wanted or not val:
-        return out
+        return {}
     try:
         with _warnings.catch_warnings():
             _warnings.simplefilter("ignore", ConvergenceWarning)
@@ -117,18 +106,26 @@ def validation_spread(model: QuadrotorModel, res: FitResult, val: Sequence[Fligh
                         **res.settings(states=False, flights=[0] * len(val)))
     except GreyboxError as e:
         say(f"diagnose: the validation flights not fitted alone ({e})")
-        return out
+        return {}
     if not other.converged:
         say("diagnose: the validation flights' own fit is not certified: not compared")
-        return out
-    for n in wanted:
-        s_est, s_val = float(res.std[res.free_names.index(n)]), float(other.std[other.free_names.index(n)])
-        if not (np.isfinite(s_est) and np.isfinite(s_val)) or s_est + s_val <= 0:
-            continue
-        if abs(res.value(n) - other.value(n)) / math.hypot(s_est, s_val) > CONSISTENCY_Z:
-            out[n] = (res.value(n), s_est, other.value(n), s_val)
+        return {}
+    out = _disagreeing(res, other, wanted)
     say("diagnose: the final model on the validation flights " +
         (f"disagrees beyond its std on {', '.join(out)}" if out else f"agrees on {', '.join(wanted)}"))
+    return out
+
+
+def _disagreeing(a: FitResult, b: FitResult, names: Sequence[str]) -> dict[str, tuple[float, float, float, float]]:
+    """Those of ``names`` whose estimates in the fits ``a`` and ``b`` differ by more than
+    :data:`CONSISTENCY_Z` of the difference's std (their reported ones): ``{name: (a, std, b, std)}``."""
+    out: dict[str, tuple[float, float, float, float]] = {}
+    for n in names:
+        sa, sb = float(a.std[a.free_names.index(n)]), float(b.std[b.free_names.index(n)])
+        if not (np.isfinite(sa) and np.isfinite(sb)) or sa + sb <= 0:
+            continue
+        if abs(a.value(n) - b.value(n)) / math.hypot(sa, sb) > CONSISTENCY_Z:
+            out[n] = (a.value(n), sa, b.value(n), sb)
     return out
 
 
