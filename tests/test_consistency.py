@@ -47,3 +47,26 @@ def test_a_difference_too_small_to_matter_is_not_flagged(paper):
     assert "K_T" not in d.inconsistent, d.warnings
     fits = d.baseline
     assert CONSISTENCY_MIN_CHANGE == 0.02 and fits.converged
+
+
+def test_a_flights_own_conditions_are_not_compared_with_another_flights():
+    """The final model's parameters against a fit on the validation data alone
+    (``validation_spread``), on another simulator's 1 kg vehicle (tests/foreign_sim.py) flown
+    in a wind of (2, 0) m/s, validated on a flight in (-1, 1.5): a wind is a condition of its
+    flight (``Effect.per_flight``), so another flight's is not compared with it; compared as
+    if the validation were the flight's own tail, the two winds are flagged, 3 m/s apart."""
+    from greybox.airframe import airframe_from_dict
+    from greybox.diagnosis.consistency import validation_spread
+    from greybox.fitting import fit
+    from foreign_sim import airframe_dict, one_kg, simulate_flight
+    veh = one_kg()
+    flights = [simulate_flight(veh, duration=8.0, seed=10 + i, linear_drag=[0.3, 0.3, 0.15], wind=[*w, 0.0],
+                               log_rate=200.0) for i, w in enumerate([(2.0, 0.0), (-1.0, 1.5)])]
+    model = QuadrotorModel(airframe_from_dict(airframe_dict(veh))) + effects.Wind()
+    res = fit(model, [flights[0].log])
+    assert res.converged and res.value("wind[0]") == pytest.approx(2.0, abs=0.3)
+    wind = ["wind[0]", "wind[1]"]
+    assert validation_spread(model, res, [flights[1].log], wind, "auto", lambda s: None) == {}
+    as_tail = validation_spread(model, res, [flights[1].log], wind, "auto", lambda s: None, tails=True)
+    assert set(as_tail) == set(wind)
+    assert as_tail["wind[0]"][2] == pytest.approx(-1.0, abs=0.3)

@@ -13,7 +13,7 @@ import numpy as np
 from .. import effects as fx
 from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxError
-from ..fitting import FitResult, fit
+from ..fitting import FitResult, fit, per_flight_positions
 from ..model import QuadrotorModel
 from ..residuals import residual_widening
 
@@ -87,23 +87,31 @@ def half_spread(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog],
 
 
 def validation_spread(model: QuadrotorModel, res: FitResult, val: Sequence[FlightLog], components: Sequence[str],
-                      compile: str, say: Callable[[str], None]) -> dict[str, tuple[float, float, float, float]]:
-    """Fit the validation flights alone (warm-started at ``res``, the first estimation
-    flight's weights and process noise) and return those of ``components`` whose estimate
-    there differs from ``res``'s by more than :data:`CONSISTENCY_Z` of the difference's
-    standard deviation: ``{name: (estimation, std, validation, std)}``. The same question as
-    :func:`half_spread` asked of independent data: the halves of one flight can agree by
-    chance on a mean they both take from slow noise (the peer simulator's attitude bias
-    outdoors, seed 5: roll 23 std off, halves within theirs), another flight's noise is
-    another draw."""
+                      compile: str, say: Callable[[str], None],
+                      tails: bool = False) -> dict[str, tuple[float, float, float, float]]:
+    """Fit the validation flights alone (warm-started at ``res``, its weights) and return
+    those of ``components`` whose estimate there differs from ``res``'s by more than
+    :data:`CONSISTENCY_Z` of the difference's standard deviation: ``{name: (estimation, std,
+    validation, std)}``. The same question as :func:`half_spread` asked of independent data:
+    the halves of one flight can agree by chance on a mean they both take from slow noise (the
+    peer simulator's attitude bias outdoors, seed 5: roll 23 std off, halves within theirs),
+    another flight's noise is another draw. ``tails``: the validation logs are the estimation
+    flights' own tails (a split), each fitted with its flight's process noise; otherwise they
+    are other flights, fitted with the first estimation flight's, and the parameters of a
+    flight's conditions (:attr:`~greybox.effects.Effect.per_flight`: a wind, a battery's sag)
+    are not compared (another flight has its own)."""
     wanted = [n for n in components if n in res.free_names and n not in res.per_flight_]
+    if not tails:
+        conditions = {res.free_names[j] for j in per_flight_positions(model, list(res.free_names), "auto")}
+        wanted = [n for n in wanted if n not in conditions]
     if not wanted or not val:
         return {}
+    flights = list(range(len(val))) if tails else [0] * len(val)
     try:
         with _warnings.catch_warnings():
             _warnings.simplefilter("ignore", ConvergenceWarning)
             other = fit(model, list(val), p0=res.p, free=res.free_names, compile=compile, max_iter=100,
-                        **res.settings(states=False, flights=[0] * len(val)))
+                        **res.settings(states=False, flights=flights))
     except GreyboxError as e:
         say(f"diagnose: the validation flights not fitted alone ({e})")
         return {}

@@ -389,18 +389,19 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # whether the added parameters' std can be believed: each half of the flight alone, and
         # the validation flights alone (the halves can agree by chance)
         if cur_res.converged:
-            added = [c for e in added_effects for _, c, _ in cur_model.effect_components(e.name)]
-            spread = half_spread(cur_model, cur_res, est, added, compile, say)
-            val_spread = validation_spread(cur_model, cur_res, val, added, compile, say)
-        why = ("noise correlated over many samples that the fit takes as white, or something the model lacks that "
-               "each part sees differently")
+            components = [c for e in added_effects for _, c, _ in cur_model.effect_components(e.name)]
+            spread = half_spread(cur_model, cur_res, est, components, compile, say)
+            val_spread = validation_spread(cur_model, cur_res, val, components, compile, say,
+                                           tails=validation is None)
+        scatter_why = ("noise correlated over many samples that the fit takes as white, or something the model lacks "
+                       "that each part sees differently")
         for n, (a, sa, b, sb) in spread.items():
             warnings.append(f"final model: {n} = {cur_res.value(n):.4g} ± {std[n]:.2g}, but the two halves of the "
                             f"estimation data give {a:.4g} ± {sa:.2g} and {b:.4g} ± {sb:.2g}: its std understates "
-                            f"how it scatters ({why}); the halves put it at about ± {abs(a - b) / 2:.2g}")
+                            f"how it scatters ({scatter_why}); the halves put it at about ± {abs(a - b) / 2:.2g}")
         for n, (a, sa, b, sb) in val_spread.items():
             warnings.append(f"final model: {n} = {a:.4g} ± {sa:.2g}, but the validation data alone give {b:.4g} ± "
-                            f"{sb:.2g}: its std understates how it scatters ({why}); the two put it at about "
+                            f"{sb:.2g}: its std understates how it scatters ({scatter_why}); the two put it at about "
                             f"± {abs(a - b) / math.sqrt(2):.2g}")
     # whether the logged commands' torque shows in the attitude at all (data only): why a model of
     # the vehicle may lose to the naive attitude predictor whatever its parameters
