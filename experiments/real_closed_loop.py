@@ -24,9 +24,12 @@ Writes the markdown tables to ``--out``.
 from __future__ import annotations
 
 import argparse
+import copy
 import time
 import tomllib
 from pathlib import Path
+
+import numpy as np
 
 from greybox import ControllerLaw, QuadrotorModel, closed_loop_horizon_errors, load, predict
 from greybox.airframe import airframe_from_dict
@@ -76,8 +79,10 @@ def run(path: Path, effects: list[str], variants: bool, models: Path | None = No
                                                               held_trim=True)
         out["closed, estimated start"] = closed_loop_horizon_errors(model, res.p, law, val, horizons=HORIZONS,
                                                                     measured_start=False)
-        out["closed, no level"] = closed_loop_horizon_errors(
-            model, res.p, ControllerLaw(fit_level=False).fit(model, est), val, horizons=HORIZONS)
+        # the gains and trims do not depend on the level (ControllerLaw.fit): the same law, level zero
+        unlevelled = copy.copy(law)
+        unlevelled.level_ = np.zeros(2)
+        out["closed, no level"] = closed_loop_horizon_errors(model, res.p, unlevelled, val, horizons=HORIZONS)
     out["what"] = ("each flight's final model of its diagnosis" if models is not None else
                    "the base model with " + ", ".join(effects) + ", fitted on the first 80 %")
     out["seconds"] = time.perf_counter() - t0

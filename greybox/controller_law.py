@@ -305,18 +305,12 @@ class ControllerLaw:
         dt = data[0].dt
         delays = [self.delay] if self.delay is not None else \
             [k * dt for k in range(int(round(self.max_delay / dt)) + 1)]
-        best = None
-        fits = []
-        for delay in delays:
-            fitd = self._regress(data, delay)
-            if fitd is not None:
-                fits.append(fitd + (delay,))
-            if fitd is not None and (best is None or fitd[0] < best[0]):
-                best = fitd + (delay,)
-        if best is None:
+        fits = [fitd + (delay,) for delay in delays if (fitd := self._regress(data, delay)) is not None]
+        if not fits:
             raise GreyboxInputError("ControllerLaw.fit: too few airborne samples with every state measured "
                                     f"{'(is the delay longer than the logs?)' if self.delay else ''}")
-        _, gains, trims, r2, delay = best
+        # the first of equal scores: the shortest delay, as a strict '<' over the delays in order
+        _, gains, trims, r2, delay = min(fits, key=lambda f: f[0])
         self.gains_, self.trims_, self.r2_, self.delay_ = dict(gains), trims.copy(), dict(r2), float(delay)
         self.delays_ = np.full(4, float(delay))
         if self.axis_delays:

@@ -338,15 +338,6 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             warnings.insert(0, timing["text"])
             cur_model, cur_res, cur_pred = _drop_stand_ins(cur_model, cur_res, cur_pred, added, est, val, compile,
                                                            horizon, say, warnings)
-    timing_bound: dict[str, float] = {}
-    if timing_candidate and timing is None:
-        # the refit with the timing free tells how much it moves the lags when it is of this model
-        same = timing_refit is not None and \
-            set(timing_refit.model.effect_names) - {timing_candidate} == set(cur_model.effect_names)
-        timed = _timing_caveat(cur_model, cur_res, est, timing_refit if same else None)
-        if timed:
-            warnings.append(timed)
-            timing_bound = {n: 0.5 * median_row_interval(est) for n in _free_input_timed(cur_model, cur_res)}
     if iterate and cur_res is not res:
         # backward elimination: does each earlier verdict still stand with the later ones in?
         found = [(rd.verdict, len(rd.ranking)) for rd in rounds
@@ -368,6 +359,15 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             top.reason += "; no longer stands once the later verdicts are in (backward elimination)"
             rounds[0].ranking.sort(key=lambda c: not c.significant)    # stable: the survivors first
             verdict = next((rd.verdict for rd in rounds if rd.verdict and rd.verdict not in gone), None)
+    timing_bound: dict[str, float] = {}
+    if timing_candidate and timing is None:
+        # of the final model (after backward elimination: a lag it dropped has no caveat); the
+        # refit with the timing free tells how much it moves the lags when it is of this model
+        same = timing_refit is not None and \
+            set(timing_refit.model.effect_names) - {timing_candidate} == set(cur_model.effect_names)
+        timed, timing_bound = _timing_caveat(cur_model, cur_res, est, timing_refit if same else None)
+        if timed:
+            warnings.append(timed)
     corrected = _without_input_errors(cur_res, est, compile, say)
     unexplained, unexplained_gaps = _unexplained(cur_res)
     motion = {}
@@ -416,7 +416,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      input_timing=timing, closed_loop_fit=yaw.fit, attitude_motion=motion,
                      command_predictability=predictability, rates_from_input_noise=by_inputs,
                      input_noise_corrected=corrected, final_spread=spread, final_validation_spread=val_spread,
-                     timing_bound={n: v for n, v in timing_bound.items() if n in cur_res.free_names})
+                     timing_bound=timing_bound)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile, est=est)
@@ -562,7 +562,8 @@ settle the timing for it (:func:`_timing_caveat` then says nothing, when the lag
 within 3 combined std of its value with the rows held)."""
 
 
-def _timing_caveat(model: QuadrotorModel, fr, est: Sequence[FlightLog], timing_refit=None) -> str:
+def _timing_caveat(model: QuadrotorModel, fr, est: Sequence[FlightLog],
+                   timing_refit=None) -> tuple[str, dict[str, float]]:
     """Words for the final fit's lags and delays (:attr:`~greybox.effects.Effect.input_timed`)
     when the log's timing was not found (the held rows stood): their std count the noise, not
     whether a row's logged value holds for the whole row; that moves them by up to half a
@@ -571,10 +572,12 @@ def _timing_caveat(model: QuadrotorModel, fr, est: Sequence[FlightLog], timing_r
     row and every lag stays within 3 combined std of ``fr``'s, the data settle it and there are
     no words (a blind audit's 100 Hz log of commands held at the controller's rate: tau_m
     24.99 ms for 25, yet the words said 5 ms). A lag the timing moves further is not settled,
-    however small its std: the words give both values. "" when the final model has none."""
+    however small its std: the words give both values. Returns the words and the bound they
+    give, half a row per lag they name (:attr:`Diagnosis.timing_bound`); ``("", {})`` when the
+    final model has none or the data settle them."""
     names = _free_input_timed(model, fr)
     if not names:
-        return ""
+        return "", {}
     half = 0.5 * median_row_interval(est)
 
     def ms(f, n):
@@ -589,12 +592,13 @@ def _timing_caveat(model: QuadrotorModel, fr, est: Sequence[FlightLog], timing_r
                  <= 3 * math.hypot(v, float(fr.std[fr.free_names.index(n)]))
                  for n, v in zip(names, free_std)]
         if all(np.isfinite(v) and v < SETTLED_SHARE * half for v in free_std) and not any(moved):
-            return ""
+            return "", {}
         values += f" (with the log's timing free as well: {', '.join(ms(timing_refit, n) for n in names)})"
-    return (f"{values} count{'s' if len(names) == 1 else ''} the measurement noise only: whether each row's "
+    return ((f"{values} count{'s' if len(names) == 1 else ''} the measurement noise only: whether each row's "
             f"rotor speeds hold for the whole row or are samples of a signal that varies within it (the log's "
             f"timing, which these data do not settle) moves a lag or a delay by up to half a row, "
-            f"{1e3 * half:.2g} ms here; log the rotor speeds at the rate the controller sets them to remove it")
+            f"{1e3 * half:.2g} ms here; log the rotor speeds at the rate the controller sets them to remove it"),
+            {n: half for n in names})
 
 
 def _unexplained(fr) -> tuple[dict[str, float], dict[str, float]]:
