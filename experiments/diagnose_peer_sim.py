@@ -240,10 +240,12 @@ def run(name: str, work: Path, seeds: tuple[int, int] = (1, 2)) -> dict:
            # the forms greybox holds differently, fitted to the truth along the estimation flight
            "truth_flown": flights[0].truth.get("greybox_flown", {}),
            "hub_heights": bool(airframe_options.get("hub_heights", False)),
-           # the final model's parameters whose halves disagree beyond their std: (a, sa, b, sb)
-           "final_spread": dict(diag.final_spread),
+           # the final model's parameters whose halves disagree beyond their std: (a, sa, b, sb);
+           # None: not compared (a fit failed or is not certified)
+           "final_spread": None if diag.final_spread is None else dict(diag.final_spread),
            # ...and whose fit on the validation flight alone disagrees beyond it: (est, s, val, s)
-           "final_validation_spread": dict(diag.final_validation_spread),
+           "final_validation_spread": (None if diag.final_validation_spread is None
+                                       else dict(diag.final_validation_spread)),
            # lags whose std counts the noise only, with how far the unsettled timing moves them (s)
            "timing_bound": dict(diag.timing_bound),
            # b with the closed-loop bias taken out, when the diagnosis's yaw check gave it

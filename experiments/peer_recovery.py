@@ -79,8 +79,8 @@ def recovery(out: dict) -> list[tuple[str, float, float, float, bool]]:
     halves' spread (or the estimation's and validation's) instead where the diagnosis said the
     fit's std understates it (larger)."""
     rows = []
-    spread = out.get("final_spread", {})
-    val_spread = out.get("final_validation_spread", {})
+    spread = out.get("final_spread") or {}            # None: not compared
+    val_spread = out.get("final_validation_spread") or {}
     for name, (value, std) in out["final"].items():
         if name in spread:
             a, _, b, _ = spread[name]
@@ -132,7 +132,8 @@ def main() -> None:
                 print(f"     {pname:<12} {v:.4g} ± {s:.2g}  {label} {t:.4g}  z {z:+.1f}"
                       + ("  (± the spread of its halves or of the validation flight: the diagnosis says "
                          "the std understates it)"
-                         if pname in out["final_spread"] or pname in out.get("final_validation_spread", {}) else "")
+                         if pname in (out["final_spread"] or {}) or pname in (out.get("final_validation_spread") or {})
+                         else "")
                       + ("  (± half a row for the log's unsettled timing, as the diagnosis says)"
                          if pname in out.get("timing_bound", {}) else "")
                       + ("" if exact else "  (another form: not judged)"), flush=True)

@@ -70,3 +70,37 @@ def test_a_flights_own_conditions_are_not_compared_with_another_flights():
     as_tail = validation_spread(model, res, [flights[1].log], wind, "auto", lambda s: None, tails=True)
     assert set(as_tail) == set(wind)
     assert as_tail["wind[0]"][2] == pytest.approx(-1.0, abs=0.3)
+
+
+def test_a_comparison_that_cannot_be_made_says_so():
+    """When the validation data cannot be fitted alone (here: a validation flight of 5
+    samples, below what a fit takes), nothing is compared and ``validation_spread`` says so
+    with None, which the JSON writes as null; ``{}`` is kept for "compared, and agreeing"
+    (the flight's own tail of 2 s: the wind agrees with itself)."""
+    from greybox.airframe import airframe_from_dict
+    from greybox.diagnosis.consistency import half_spread, validation_spread
+    from greybox.fitting import fit
+    from foreign_sim import airframe_dict, one_kg, simulate_flight
+    veh = one_kg()
+    log = simulate_flight(veh, duration=10.0, seed=10, linear_drag=[0.3, 0.3, 0.15], wind=[2.0, 0.0, 0.0],
+                          log_rate=200.0).log
+    est, tail = log.split(0.8)
+    model = QuadrotorModel(airframe_from_dict(airframe_dict(veh))) + effects.Wind()
+    res = fit(model, [est])
+    assert res.converged
+    wind = ["wind[0]", "wind[1]"]
+    said = []
+    assert validation_spread(model, res, [tail.slice(0, 5)], wind, "auto", said.append, tails=True) is None
+    assert any("not fitted alone" in s for s in said), said
+    assert validation_spread(model, res, [tail], wind, "auto", lambda s: None, tails=True) == {}
+    assert half_spread(model, res, [est.slice(0, 9)], wind, "auto", lambda s: None) is None
+
+
+
+def test_a_spread_not_compared_is_null_in_the_json(paper):
+    """The JSON tells "not compared" (null) from "compared, nothing disagrees" ({})."""
+    import dataclasses
+    d = _halves(paper, 5e-4)
+    assert d.as_json()["final_parameter_validation_spread"] == {}
+    unchecked = dataclasses.replace(d, final_spread=None, final_validation_spread=None).as_json()
+    assert unchecked["final_parameter_spread"] is None and unchecked["final_parameter_validation_spread"] is None

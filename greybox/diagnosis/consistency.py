@@ -31,7 +31,7 @@ gyro bias: b 1.697e-7 ± 7e-11 against 1.700e-7 ± 6e-11 had been flagged)."""
 
 
 def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], E: np.ndarray,
-                     compile: str, say: Callable[[str], None]) -> dict[str, tuple[float, float, float, float]]:
+                     compile: str, say: Callable[[str], None]) -> "dict[str, tuple[float, float, float, float]] | None":
     """Fit each half of the estimation data (warm-started at the baseline, its weights) and
     return the parameters whose two estimates differ by more than :data:`CONSISTENCY_Z`
     standard deviations: a constant of the vehicle is the same in both halves; a parameter
@@ -66,7 +66,7 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
 
 
 def half_spread(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], components: Sequence[str],
-                compile: str, say: Callable[[str], None]) -> dict[str, tuple[float, float, float, float]]:
+                compile: str, say: Callable[[str], None]) -> "dict[str, tuple[float, float, float, float]] | None":
     """Fit each half of the estimation data (warm-started at ``res``, its weights) and return
     those of ``components`` whose two estimates differ by more than :data:`CONSISTENCY_Z` of
     the difference's standard deviation (the half fits' reported ones, sandwich included):
@@ -75,11 +75,15 @@ def half_spread(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog],
     is a constant of the vehicle. A std that counts the noise as white understates a mean the
     fit takes from noise correlated over many samples, when the states follow that noise (the
     peer simulator's attitude bias outdoors, AR(1) attitude noise over 0.1 s: 2e-5 rad where
-    the error scatters by 2.4e-4)."""
+    the error scatters by 2.4e-4). None when a half cannot be fitted or its fit is not
+    certified (nothing was compared: no word on whether the std can be believed)."""
     wanted = [n for n in components if n in res.free_names and n not in res.per_flight_]
-    fits = _half_fits(model, res, est, compile, say) if wanted else None
-    if fits is None:
+    if not wanted:
         return {}
+    fits = _half_fits(model, res, est, compile, say)
+    if fits is None:
+        say("diagnose: the final model's halves not compared (a half's fit failed or is not certified)")
+        return None
     out = _disagreeing(*fits, wanted)
     say("diagnose: the final model's halves " +
         (f"disagree beyond their std on {', '.join(out)}" if out else f"agree on {', '.join(wanted)}"))
@@ -88,7 +92,7 @@ def half_spread(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog],
 
 def validation_spread(model: QuadrotorModel, res: FitResult, val: Sequence[FlightLog], components: Sequence[str],
                       compile: str, say: Callable[[str], None],
-                      tails: bool = False) -> dict[str, tuple[float, float, float, float]]:
+                      tails: bool = False) -> "dict[str, tuple[float, float, float, float]] | None":
     """Fit the validation flights alone (warm-started at ``res``, its weights) and return
     those of ``components`` whose estimate there differs from ``res``'s by more than
     :data:`CONSISTENCY_Z` of the difference's standard deviation: ``{name: (estimation, std,
@@ -99,7 +103,8 @@ def validation_spread(model: QuadrotorModel, res: FitResult, val: Sequence[Fligh
     flights' own tails (a split), each fitted with its flight's process noise; otherwise they
     are other flights, fitted with the first estimation flight's, and the parameters of a
     flight's conditions (:attr:`~greybox.effects.Effect.per_flight`: a wind, a battery's sag)
-    are not compared (another flight has its own)."""
+    are not compared (another flight has its own). None when the validation flights cannot be
+    fitted alone or their fit is not certified (nothing was compared)."""
     wanted = [n for n in components if n in res.free_names and n not in res.per_flight_]
     if not tails:
         conditions = {res.free_names[j] for j in per_flight_positions(model, list(res.free_names), "auto")}
@@ -114,10 +119,10 @@ def validation_spread(model: QuadrotorModel, res: FitResult, val: Sequence[Fligh
                         **res.settings(states=False, flights=flights))
     except GreyboxError as e:
         say(f"diagnose: the validation flights not fitted alone ({e})")
-        return {}
+        return None
     if not other.converged:
         say("diagnose: the validation flights' own fit is not certified: not compared")
-        return {}
+        return None
     out = _disagreeing(res, other, wanted)
     say("diagnose: the final model on the validation flights " +
         (f"disagrees beyond its std on {', '.join(out)}" if out else f"agrees on {', '.join(wanted)}"))

@@ -254,11 +254,13 @@ class Diagnosis:
     # diagnosis.input_noise.simex): name -> (fitted, twice the noise variance, three times,
     # extrapolated to none, std); empty when the speeds carry no notable noise
     input_noise_corrected: dict[str, tuple[float, float, float, float, float]] = field(default_factory=dict)
-    final_spread: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
+    # None: not compared (a half's fit, or the validation flights' own, failed or is not
+    # certified; or the final fit is not): unlike {}, no word that the std can be believed
+    final_spread: dict[str, tuple[float, float, float, float]] | None = field(default_factory=dict)
     # the rounds' additions in the final fit against the same model fitted on the validation
     # flights alone: parameter -> (estimation, std, validation, std) where they disagree beyond
     # their std (consistency.validation_spread)
-    final_validation_spread: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
+    final_validation_spread: dict[str, tuple[float, float, float, float]] | None = field(default_factory=dict)
     # the final fit's lags and delays (s) whose std counts the measurement noise only, with how
     # far the log's unsettled timing can move them (half a row; the warning's words)
     timing_bound: dict[str, float] = field(default_factory=dict)
@@ -328,12 +330,12 @@ class Diagnosis:
                "inconsistent_parameters": {n: {"first_half": a, "first_half_std": sa, "second_half": b,
                                                "second_half_std": sb}
                                            for n, (a, sa, b, sb) in self.inconsistent.items()},
-               "final_parameter_spread": {n: {"first_half": a, "first_half_std": sa, "second_half": b,
-                                              "second_half_std": sb}
-                                          for n, (a, sa, b, sb) in self.final_spread.items()},
-               "final_parameter_validation_spread": {n: {"estimation": a, "estimation_std": sa, "validation": b,
-                                                         "validation_std": sb}
-                                                     for n, (a, sa, b, sb) in self.final_validation_spread.items()},
+               "final_parameter_spread": None if self.final_spread is None else
+               {n: {"first_half": a, "first_half_std": sa, "second_half": b, "second_half_std": sb}
+                for n, (a, sa, b, sb) in self.final_spread.items()},
+               "final_parameter_validation_spread": None if self.final_validation_spread is None else
+               {n: {"estimation": a, "estimation_std": sa, "validation": b, "validation_std": sb}
+                for n, (a, sa, b, sb) in self.final_validation_spread.items()},
                "timing_bound": dict(self.timing_bound)}
         if self.final_model is not None and self.final_prediction is not None:
             out["added"] = [e for e in self.final_model.effect_names if e not in self.model.effect_names]

@@ -378,8 +378,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     yaw = closed_loop_yaw(cur_res, est, baseline=res, halves_disagree="b" in inconsistent, compile=compile, say=say)
     if yaw.words:
         warnings.append(yaw.words)
-    spread: dict[str, tuple[float, float, float, float]] = {}
-    val_spread: dict[str, tuple[float, float, float, float]] = {}
+    spread: dict[str, tuple[float, float, float, float]] | None = {}
+    val_spread: dict[str, tuple[float, float, float, float]] | None = {}
     if cur_res is not res:
         added_effects = [e for e in cur_model.effects if e.name not in model.effect_names]
         # how to read what the rounds added (a value tied to a geometry the airframe leaves out)
@@ -388,18 +388,28 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             warnings += [f"final model: {w}" for w in e.interpretation_notes(values, std, cur_model.airframe)]
         # whether the added parameters' std can be believed: each half of the flight alone, and
         # the validation flights alone (the halves can agree by chance)
+        components = [c for e in added_effects for _, c, _ in cur_model.effect_components(e.name)]
         if cur_res.converged:
-            components = [c for e in added_effects for _, c, _ in cur_model.effect_components(e.name)]
             spread = half_spread(cur_model, cur_res, est, components, compile, say)
             val_spread = validation_spread(cur_model, cur_res, val, components, compile, say,
                                            tails=validation is None)
+        else:
+            spread = val_spread = None
+        unchecked = [what for what, got in (("the estimation data's halves", spread),
+                                            ("the validation data alone", val_spread)) if got is None]
+        if unchecked and components:
+            warnings.append(f"final model: whether the std of {', '.join(components)} can be believed was not checked "
+                            f"against {' nor '.join(unchecked)} (" +
+                            ("the final fit is not certified" if not cur_res.converged else
+                             "their fit failed or is not certified") +
+                            "): they count the noise as the fit sees it, nothing more")
         scatter_why = ("noise correlated over many samples that the fit takes as white, or something the model lacks "
                        "that each part sees differently")
-        for n, (a, sa, b, sb) in spread.items():
+        for n, (a, sa, b, sb) in (spread or {}).items():
             warnings.append(f"final model: {n} = {cur_res.value(n):.4g} ± {std[n]:.2g}, but the two halves of the "
                             f"estimation data give {a:.4g} ± {sa:.2g} and {b:.4g} ± {sb:.2g}: its std understates "
                             f"how it scatters ({scatter_why}); the halves put it at about ± {abs(a - b) / 2:.2g}")
-        for n, (a, sa, b, sb) in val_spread.items():
+        for n, (a, sa, b, sb) in (val_spread or {}).items():
             warnings.append(f"final model: {n} = {a:.4g} ± {sa:.2g}, but the validation data alone give {b:.4g} ± "
                             f"{sb:.2g}: its std understates how it scatters ({scatter_why}); the two put it at about "
                             f"± {abs(a - b) / math.sqrt(2):.2g}")
