@@ -104,3 +104,20 @@ def test_a_spread_not_compared_is_null_in_the_json(paper):
     assert d.as_json()["final_parameter_validation_spread"] == {}
     unchecked = dataclasses.replace(d, final_spread=None, final_validation_spread=None).as_json()
     assert unchecked["final_parameter_spread"] is None and unchecked["final_parameter_validation_spread"] is None
+
+
+def test_a_diagnosis_whose_validation_comparison_failed_says_which_std_went_unchecked(paper, monkeypatch):
+    """The diagnosis of a drifting thrust coefficient adds ``thrust_drift``; when the
+    validation fit that would check its std cannot be made (stood in for by a failing one),
+    the diagnosis says which parameters went unchecked, and the JSON holds null, not {}."""
+    from greybox.diagnosis import workflow
+    monkeypatch.setattr(workflow, "validation_spread", lambda *a, **k: None)
+    truth = paper + effects.ThrustDrift()
+    log = synthesize(truth, truth.parameter_vector({"K_T_drift": 5e-3}), duration=20.0, seed=21, sensors=SENSORS,
+                     manoeuvres=MANOEUVRES).log
+    d = diagnose(paper, log, candidates=["thrust_drift"], discover=False, iterate=False)
+    assert d.verdict == "thrust_drift" and d.final_fit.converged, d.summary()
+    assert d.final_validation_spread is None and d.as_json()["final_parameter_validation_spread"] is None
+    said = [w for w in d.warnings if "can be believed was not checked" in w]
+    assert len(said) == 1 and "K_T_drift" in said[0] and "the validation data alone" in said[0], d.warnings
+    assert "halves" not in said[0] and d.final_spread is not None
