@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import warnings as _warnings
 from importlib import resources
@@ -62,7 +63,8 @@ _seed = _number_type("zero or a positive integer", 0, integer=True)
 
 OUTPUT_OPTIONS = {"json": ("--json", "file"), "out": ("--out", "file"), "save": ("--save", "file"),
                   "airframe_out": ("--airframe-out", "file"), "plots": ("--plots", "folder"),
-                  "report": ("--report", "folder"), "out_dir": ("--out-dir", "folder")}
+                  "report": ("--report", "folder"), "out_dir": ("--out-dir", "folder"),
+                  "write_effect": ("--write-effect", "file")}
 """Options that name something the command writes: checked before any computation."""
 
 
@@ -86,8 +88,12 @@ def _parse_x0(text: str | None) -> list[float] | None:
 
 
 def _read_inputs(path: str, model: QuadrotorModel, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    header, data, lines = read_csv_table(path, line_numbers=True)
     names = ["t"] + model.input_names
+    text: list[str] = []
+    header, data, lines = read_csv_table(path, line_numbers=True, must_be_numeric=lambda h: h in names,
+                                         text_columns=text)
+    if text:
+        print(f"note: {path}: ignored text column(s) {', '.join(text)}", file=sys.stderr)
     for n in names:
         if n not in header:
             raise GreyboxInputError(f"{path}: missing required column {n!r}")
@@ -862,6 +868,34 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _check_outputs_are_not_inputs(args: argparse.Namespace) -> None:
+    """Refuse an output file that is also one of the command's inputs (any other option or
+    argument naming an existing file): writing it would destroy the input."""
+    outputs = {attr: getattr(args, attr) for attr, (_, kind) in OUTPUT_OPTIONS.items()
+               if kind == "file" and getattr(args, attr, None) is not None}
+    if not outputs:
+        return
+    inputs = []
+    for attr, value in vars(args).items():
+        if attr in OUTPUT_OPTIONS or attr == "func":
+            continue
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if isinstance(v, str) and v and os.path.isfile(v):
+                inputs.append(v)
+    seen: dict[str, str] = {}
+    for attr, out in outputs.items():
+        other = seen.setdefault(os.path.realpath(out), attr)
+        if other != attr:
+            raise GreyboxInputError(f"{OUTPUT_OPTIONS[attr][0]} {out}: is also {OUTPUT_OPTIONS[other][0]}'s file; "
+                                    "each output needs its own")
+        if not os.path.exists(out):
+            continue
+        for src in inputs:
+            if os.path.samefile(out, src):
+                raise GreyboxInputError(f"{OUTPUT_OPTIONS[attr][0]} {out}: is also an input of this command "
+                                        f"({src}); writing it would overwrite that input: give another file name")
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     print(f"greybox: warning: {message}", file=sys.stderr)
 
@@ -882,6 +916,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for attr, (option, kind) in OUTPUT_OPTIONS.items():
             if getattr(args, attr, None) is not None:
                 check_output_path(getattr(args, attr), option, kind)
+        _check_outputs_are_not_inputs(args)
         for path in getattr(args, "effects_file", None) or []:
             fx.load_effects_file(path)
         with _warnings.catch_warnings():
@@ -901,6 +936,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except GreyboxError as e:
         print(f"greybox: failed: {e}", file=sys.stderr)
         return 1
+    except OSError as e:
+        if e.filename is None:          # not a file the user named: a fault of ours, shown as one
+            raise
+        # a file that cannot be read or written (a name too long, a full disk, a permission)
+        print(f"greybox: error: {e.filename}: {e.strerror or e}", file=sys.stderr)
+        return 2
     except (KeyboardInterrupt, Terminated, Exception) as e:
         status = interrupt_status(e)
         if status is None:

@@ -25,9 +25,15 @@ def check_output_path(path: str | Path, option: str, kind: str = "file") -> None
     """Raise a :class:`GreyboxInputError` naming ``option`` unless ``path`` can be written as a
     ``kind`` (``"file"`` or ``"folder"``): a file must not be a folder, a folder not a file,
     and the nearest existing folder above it must accept a new file (tried, not guessed)."""
+    try:
+        _check_writable(Path(path), str(path), option, kind)
+    except OSError as e:        # a name the system refuses (too long, a bad character)
+        raise GreyboxInputError(f"{option} {path}: {e.strerror or e}") from None
+
+
+def _check_writable(p: Path, path: str, option: str, kind: str) -> None:
     import os
     import tempfile
-    p = Path(path)
     if kind == "file" and p.is_dir():
         raise GreyboxInputError(f"{option} {path}: is a folder; give a file name")
     if kind == "folder" and p.exists() and not p.is_dir():
@@ -40,6 +46,13 @@ def check_output_path(path: str | Path, option: str, kind: str = "file") -> None
         here = here.parent
     if not here.is_dir():
         raise GreyboxInputError(f"{option} {path}: {here} is a file, not a folder")
+    if kind == "file":
+        # the file is written through a temporary beside it (data.atomic_write: ".NAME.XXXXXXXX.tmp")
+        longest = len(os.fsencode(p.name)) + 14
+        name_max = os.pathconf(here, "PC_NAME_MAX") if hasattr(os, "pathconf") else 255
+        if longest > name_max:
+            raise GreyboxInputError(f"{option} {path}: the file name is too long ({len(os.fsencode(p.name))} bytes; "
+                                    f"at most {name_max - 14} here)")
     try:
         fd, probe = tempfile.mkstemp(prefix=".greybox-probe-", dir=here)
         os.close(fd)

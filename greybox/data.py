@@ -17,13 +17,13 @@ import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from typing import Callable, Iterable
 
 import numpy as np
 
 from .errors import GreyboxInputError
 
-__all__ = ["FlightLog", "load_log", "save_log", "read_csv_table", "read_text_file", "atomic_write", "log_from_table",
+__all__ = ["FlightLog", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "median_row_interval"]
 
@@ -257,14 +257,18 @@ class FlightLog:
             raise GreyboxInputError(f"{where}: no data rows")
         rows = np.asarray(["index " + str(i) for i in labels], dtype=object)
         data = np.empty((len(df), len(header)))
+        text = []
         for j, name in enumerate(header):
             s = df.iloc[:, j]
-            if s.dtype.kind in "mM":
+            if s.dtype.kind in "mM" and is_log_column(name):
                 raise GreyboxInputError(f"{where}: column {name!r} holds dates or durations; give "
                                         "seconds (e.g. (df.t - df.t.iloc[0]).dt.total_seconds())")
             try:
                 data[:, j] = s.to_numpy(dtype=float, na_value=np.nan)
             except (TypeError, ValueError):
+                if not is_log_column(name):     # an extra column of text: ignored, as in a CSV
+                    text.append(j)
+                    continue
                 for k, v in enumerate(s.to_numpy(dtype=object)):
                     try:
                         float(v if v is not None and v is not pd.NA else "nan")
@@ -272,7 +276,11 @@ class FlightLog:
                         raise GreyboxInputError(f"{where}: row {rows[k]}, column {name!r}: not a number: "
                                                 f"{v!r}") from None
                 raise GreyboxInputError(f"{where}: column {name!r}: not numbers ({s.dtype})") from None
-        return log_from_table(header, data, rows, where, inputs, optional)
+        keep = [j for j in range(len(header)) if j not in text]
+        log = log_from_table([header[j] for j in keep], data[:, keep], rows, where, inputs, optional)
+        if text:
+            log.notes.append(f"{where}: ignored text column(s) {', '.join(header[j] for j in text)}")
+        return log
 
     def to_dataframe(self):
         """The log as a pandas DataFrame with the CSV's columns: ``t``, the inputs, the
@@ -358,12 +366,16 @@ def read_text_file(path: str | Path, what: str = "", encoding: str = "utf-8") ->
         raise GreyboxInputError(f"{path}: cannot read{' ' + kind if what else ''}: {e}") from None
 
 
-def read_csv_table(path: str | Path, line_numbers: bool = False):
+def read_csv_table(path: str | Path, line_numbers: bool = False,
+                   must_be_numeric: Callable[[str], bool] | None = None,
+                   text_columns: list[str] | None = None):
     """Header and float matrix of a numeric CSV file; empty cells and ``nan`` become NaN.
 
     With ``line_numbers``, also the line of the file each data row starts on (a quoted
     cell may span lines), for messages that name a row. Errors name the file, the line
-    number and the column of the first bad cell.
+    number and the column of the first bad cell. With ``must_be_numeric``, a column it
+    says need not be (an extra column a user added: a flight mode, a comment) that holds
+    text is left out of the table, its name appended to ``text_columns``.
     """
     path = Path(path)
     text = read_text_file(path, encoding="utf-8-sig")
@@ -385,21 +397,31 @@ def read_csv_table(path: str | Path, line_numbers: bool = False):
             raise GreyboxInputError(f"{path}: row 1: column {h!r} appears twice")
         seen.add(h)
     data = np.empty((len(rows) - 1, len(header)))
+    text_cols: set[int] = set()
     for k, (i, row) in enumerate(zip(lines[1:], rows[1:])):
         if len(row) != len(header):
             raise GreyboxInputError(f"{path}: row {i}: {len(row)} cells, the header has {len(header)}")
         for j, cell in enumerate(row):
             c = cell.strip()
-            if c == "" or c.lower() == "nan":
+            if c == "" or c.lower() == "nan" or j in text_cols:
                 data[k, j] = np.nan
                 continue
             try:
                 v = float(c)
             except ValueError:
+                if must_be_numeric is not None and not must_be_numeric(header[j]):
+                    text_cols.add(j)
+                    data[k, j] = np.nan
+                    continue
                 raise GreyboxInputError(f"{path}: row {i}, column {header[j]!r}: not a number: {c!r}") from None
             if math.isinf(v):
                 raise GreyboxInputError(f"{path}: row {i}, column {header[j]!r}: infinite value {c!r}")
             data[k, j] = v
+    if text_cols:
+        keep = [j for j in range(len(header)) if j not in text_cols]
+        if text_columns is not None:
+            text_columns += [header[j] for j in sorted(text_cols)]
+        header, data = [header[j] for j in keep], data[:, keep]
     return (header, data, np.asarray(lines[1:], dtype=int)) if line_numbers else (header, data)
 
 
@@ -497,8 +519,19 @@ def load_log(path: str | Path, inputs: str = "auto", optional: Iterable[str] = (
         log.output("z"), log.rate("x")     # a channel (NaN where not measured), its rate in Hz
     """
     path = Path(path)
-    header, data, lines = read_csv_table(path, line_numbers=True)
-    return log_from_table(header, data, lines, str(path), inputs, optional)
+    text: list[str] = []
+    header, data, lines = read_csv_table(path, line_numbers=True, must_be_numeric=is_log_column, text_columns=text)
+    log = log_from_table(header, data, lines, str(path), inputs, optional)
+    if text:
+        log.notes.append(f"{path}: ignored text column(s) {', '.join(text)}")
+    return log
+
+
+def is_log_column(name: str) -> bool:
+    """Whether ``name`` is a column of the flight log format (contract §2: time, inputs,
+    outputs), whose cells must be numbers; any other column is an extra."""
+    return name == "t" or bool(_W.match(name) or _U.match(name)) or name in REQUIRED_OUTPUTS \
+        or name in OPTIONAL_OUTPUTS
 
 
 def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs: str = "auto",

@@ -698,3 +698,57 @@ def test_a_signal_a_callback_swallowed_still_ends_the_run_as_that_signal(capsys,
     capsys.readouterr()
     assert cli.main([]) == rc_want
     assert capsys.readouterr().err.strip() == f"greybox: {word}"
+
+
+def test_an_output_that_is_also_an_input_is_refused_and_the_input_kept(short_log, tmp_path, capsys):
+    """An output file naming one of the command's inputs (the same path, another spelling, a
+    link) is refused before any work and the input left as it was (an audit's `import
+    nanobench F --out F` replaced the raw log); two outputs naming one file likewise."""
+    before = short_log.read_bytes()
+    link = tmp_path / "link.csv"
+    link.symlink_to(short_log)
+    for out in (str(short_log), str(tmp_path / "." / "short.csv"), str(link)):
+        rc, err = _cli(capsys, "fit", str(short_log), "--airframe", PAPER, "--quiet", "--json", out)
+        assert rc == 2 and "is also an input" in _one_error(err) and "--json" in err, err
+    airframe = tmp_path / "af.toml"
+    airframe.write_bytes(Path(PAPER).read_bytes())
+    rc, err = _cli(capsys, "fit", str(short_log), "--airframe", str(airframe), "--quiet", "--save", str(airframe))
+    assert rc == 2 and "--save" in _one_error(err) and str(airframe) in err
+    assert airframe.read_bytes() == Path(PAPER).read_bytes() and short_log.read_bytes() == before
+    rc, err = _cli(capsys, "fit", str(short_log), "--airframe", PAPER, "--quiet",
+                   "--json", str(tmp_path / "r.json"), "--save", str(tmp_path / "r.json"))
+    assert rc == 2 and "each output needs its own" in _one_error(err)
+
+
+def test_a_file_name_the_system_refuses_is_one_error_before_any_work(tmp_path, capsys):
+    """A name longer than the file system takes (with the temporary written beside it) is
+    refused up front, naming the option; an input of that name is one error too."""
+    long_name = "a" * 300
+    rc, err = _cli(capsys, "linearize", "--airframe", PAPER, "--json", str(tmp_path / f"{long_name}.json"))
+    assert rc == 2 and "--json" in _one_error(err) and "too long" in err
+    rc, err = _cli(capsys, "linearize", "--airframe", PAPER, "--json", str(tmp_path / f"{'a' * 245}.json"))
+    assert rc == 2 and "file name is too long" in _one_error(err)
+    rc, err = _cli(capsys, "import", "px4", str(tmp_path / f"{long_name}.ulg"), "--out", str(tmp_path / "x.csv"))
+    assert rc == 2 and "too long" in _one_error(err).lower()
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_text_column_a_user_added_is_ignored_with_a_note(short_log, tmp_path, capsys):
+    """Contract §2: extra columns are ignored with a note, also one of text (a flight mode);
+    text in a column of the format stays an error naming row and column."""
+    from greybox.data import load_log
+    lines = _lines(short_log)
+    with_mode = _write(tmp_path / "mode.csv", [lines[0] + ",mode"] +
+                       [row + ("," if k % 2 else ",hover") for k, row in enumerate(lines[1:])])
+    log = load_log(with_mode)
+    assert "mode" not in log.extras and any("ignored text column(s) mode" in n for n in log.notes)
+    np.testing.assert_array_equal(log.output("x"), load_log(short_log).output("x"))
+    header = lines[0].split(",")
+    j = header.index("phi")
+    bad = lines[:5] + [",".join("level" if i == j else c for i, c in enumerate(lines[5].split(",")))]
+    with pytest.raises(GreyboxInputError, match=r"row 6, column 'phi': not a number: 'level'"):
+        load_log(_write(tmp_path / "bad.csv", bad))
+    inputs = _write(tmp_path / "in.csv", ["t,w1,w2,w3,w4,mode"] +
+                    [f"{0.01 * k:.2f},320,320,320,320,{'hover' if k % 2 else ''}" for k in range(50)])
+    rc, err = _cli(capsys, "simulate", "--airframe", PAPER, "--inputs", str(inputs), "--out", str(tmp_path / "s.csv"))
+    assert rc == 0 and "ignored text column(s) mode" in err, err

@@ -102,6 +102,10 @@ def test_dataframe_bad_cells_and_objects_are_named():
     df.loc[42, "z"] = "low"
     with pytest.raises(GreyboxInputError, match=r"DataFrame: row index 42, column 'z': not a number: 'low'"):
         FlightLog.from_dataframe(df)
+    df = load_log(DEMO).to_dataframe().iloc[:100].copy()
+    df["mode"] = ["hover" if k % 2 else None for k in range(100)]    # an extra of text: ignored
+    log = FlightLog.from_dataframe(df)
+    assert "mode" not in log.extras and any("ignored text column(s) mode" in n for n in log.notes)
     df = load_log(DEMO).to_dataframe().drop(columns=["w3"])
     with pytest.raises(GreyboxInputError, match="missing required column 'w3'"):
         FlightLog.from_dataframe(df)
