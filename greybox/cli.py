@@ -378,10 +378,23 @@ def _per_flight(text: str | None, model: QuadrotorModel | None = None) -> str | 
 def _fit_imu_only(args: argparse.Namespace, model: QuadrotorModel, logs) -> int:
     """``greybox fit`` on a log with gyro and accelerometer but no position: the
     equation-error identification of :mod:`greybox.fitting.imu`."""
-    from .fitting.imu import fit_imu
+    from .fitting.imu import fit_imu, is_imu_only
     if len(logs) > 1:
-        raise GreyboxInputError(f"{logs[0].source}: an IMU-only log (gyro and accelerometer, no position) is "
+        imu = next(log for log in logs if is_imu_only(log))
+        raise GreyboxInputError(f"{imu.source}: an IMU-only log (gyro and accelerometer, no position) is "
                                 "fitted on its own; give one log")
+    # what the equation-error fit does not take: refused, never silently dropped
+    unused = [option for option, given in (
+        ("--effects", args.effects), ("--without", args.without), ("--set", args.set), ("--free", args.free),
+        ("--fixed", args.fixed), ("--save", args.save), ("--plots", args.plots), ("--interval", args.interval),
+        ("--per-flight", args.per_flight), ("--horizon", args.horizon != 1.0),
+        ("--max-iter", args.max_iter != 60), ("--process-noise", args.process_noise != "if_needed"),
+        ("--model", getattr(args, "model", None))) if given]
+    if unused:
+        raise GreyboxInputError(f"{logs[0].source}: an IMU-only log (gyro and accelerometer, no position) is fitted by "
+                                f"its own equations (K_T, b, the motor lag, the torque gains; README, \"Fitting an "
+                                f"IMU-only log\"), which take none of {', '.join(unused)}: leave "
+                                f"{'it' if len(unused) == 1 else 'them'} out")
     res = fit_imu(model, logs[0])
     print(res.summary())
     out = res.as_dict()
@@ -694,7 +707,7 @@ def _parser() -> argparse.ArgumentParser:
 
     f = sub.add_parser("fit", help="fit the model's parameters to a flight log",
                        description="Fit the free parameters by multiple-shooting least squares on the "
-                                   "first 80 %% of the log and validate on the last 20 %%.")
+                                   "first 80 % of the log and validate on the last 20 %.")
     f.add_argument("log", nargs="+", help="flight log CSV; several flights share the parameters, each has "
                                           "its own states (each is fitted on its first 80 %%, validated on the rest)")
     _model_args(f, "starting value (repeatable)")

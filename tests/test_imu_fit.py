@@ -77,6 +77,22 @@ def test_imu_only_fit_from_the_command_line(foreign, tmp_path, capsys):
     assert "IMU-only identification" in capsys.readouterr().out
     # several IMU-only logs are not pooled: one clear error, exit 2
     assert main(["fit", str(csv), str(csv), "--airframe", str(af)]) == 2
+    # options the equation-error fit does not take are refused by name, not dropped (an
+    # audit's --save wrote nothing, --effects wind and --fixed K_T were ignored, exit 0)
+    capsys.readouterr()
+    for extra, named in ((["--save", str(tmp_path / "m.json")], "--save"), (["--effects", "wind"], "--effects"),
+                         (["--set", "K_T=2e-8", "--fixed", "K_T"], "--set, --fixed"),
+                         (["--plots", str(tmp_path / "plots")], "--plots"), (["--horizon", "0.5"], "--horizon")):
+        assert main(["fit", str(csv), "--airframe", str(af), *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("greybox: error: ") and f"take none of {named}" in err, err
+    assert not (tmp_path / "m.json").exists() and not (tmp_path / "plots").exists()
+    # with a log that has position, the IMU-only one is the one named
+    full = tmp_path / "full.csv"
+    save_log(log.__class__(log.t, log.inputs, log.input_names,
+                           np.where(np.isnan(log.outputs), 0.0, log.outputs), log.output_names), full)
+    assert main(["fit", str(full), str(csv), "--airframe", str(af)]) == 2
+    assert f"{csv}: an IMU-only log" in capsys.readouterr().err
 
 
 @pytest.mark.skipif(not USD.exists(), reason="../shared/realdata/crazyflie_usd not present")
