@@ -161,9 +161,12 @@ def cmd_effects(args: argparse.Namespace) -> int:
             af = load_airframe(p)
     registered = fx.registered_effects()
     out = []
-    for name, cls in fx.known_effects().items():
+    # the disturbance models too: no diagnosis candidates (they explain any torque), but a
+    # model takes them by name (--effects disturbance_torque, which fit warnings advise)
+    for name, cls in {**fx.known_effects(), **fx.DISTURBANCE_MODELS}.items():
         origin = ("base" if name in fx.BASE_EFFECTS else "catalogue" if name in fx.CATALOGUE else
-                  "signal" if name in fx.SIGNAL_EFFECTS else registered.get(name, "registered"))
+                  "signal" if name in fx.SIGNAL_EFFECTS else "disturbance" if name in fx.DISTURBANCE_MODELS else
+                  registered.get(name, "registered"))
         params = [{"name": p.name, "size": p.size, "unit": p.unit, "null": p.null,
                    "default": p.default_vector().tolist(), "lower": _num_or_none(p.lower),
                    "upper": _num_or_none(p.upper), "free": p.free, "description": p.description}
@@ -173,7 +176,7 @@ def cmd_effects(args: argparse.Namespace) -> int:
                     "excited_by": cls.excited_by, "shifts_trim": cls.shifts_trim, "per_flight": cls.per_flight})
         pstr = "; ".join(f"{p['name']}" + (f"[{p['size']}]" if p["size"] > 1 else "") +
                          f" ({p['unit'] or '-'}, null {p['null']:g})" for p in params) or "no parameters"
-        print(f"{name:<18} {origin:<10} {cls.summary}\n{'':<29}{pstr}")
+        print(f"{name:<18} {origin:<11} {cls.summary}\n{'':<30}{pstr}")
     if args.json:
         write_json(args.json, {"effects": out})
     return 0

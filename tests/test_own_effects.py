@@ -129,6 +129,9 @@ def test_effects_file_everywhere_on_the_command_line(effect_file, tmp_path, caps
     assert listed["rate_damping"]["origin"] == str(effect_file)
     assert listed["rate_damping"]["parameters"][0]["name"] == "k_w"
     assert {"hub_rotor_drag", "ground_effect", "yaw_torque"} <= set(listed)
+    # the disturbance models a fit warning advises (--effects disturbance_torque) are listed too
+    assert listed["disturbance_torque"]["origin"] == "disturbance" and listed["held_moment"]["origin"] == "disturbance"
+    assert listed["disturbance_torque"]["states"]
     # in an airframe's [parameters], with --effects and --set
     af = tmp_path / "af.toml"
     af.write_text(open(PAPER).read().replace("[parameters]\n", "[parameters]\nk_w = [0.01, 0.01, 0.005]\n"))

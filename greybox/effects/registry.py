@@ -207,7 +207,8 @@ def effect_class(name: str) -> type[Effect]:
     (:data:`DISTURBANCE_MODELS`)."""
     cls = known_effects().get(name) or DISTURBANCE_MODELS.get(name)
     if cls is None:
-        raise GreyboxInputError(f"unknown effect {name!r}; known effects: {', '.join(known_effects())} "
+        raise GreyboxInputError(f"unknown effect {name!r}; known effects: {', '.join(known_effects())}; "
+                                f"disturbance models: {', '.join(DISTURBANCE_MODELS)} "
                                 "(effects of your own: --effects-file FILE.py or greybox.effects.register)")
     return cls
 
