@@ -253,7 +253,7 @@ def cmd_import_nanobench(args: argparse.Namespace) -> int:
     from .io.base import parse_pwm_map
     from .importers import crazyflie_airframe_toml, import_nanobench
     imp = import_nanobench(args.file, pwm_map=parse_pwm_map(args.pwm_map), held=args.held,
-                           keep_ground=args.keep_ground)
+                           keep_ground=args.keep_ground, angle_unit=args.angle_unit)
     toml = None
     if args.airframe_out:
         # floor plane: rotors assumed 2.5 cm above the floor when resting (tracked origin at rest height)
@@ -789,6 +789,9 @@ def _parser() -> argparse.ArgumentParser:
                                      "quaternion, PWM -> rotor speed, held samples, ground contact trimmed, "
                                      "battery voltage as column vbat.")
     _import_args(nb, "NanoBench CSV")
+    nb.add_argument("--angle-unit", choices=["auto", "rad", "deg"], default="auto",
+                    help="unit of the roll/pitch/yaw columns, read only without the quaternion: 'auto' (default: "
+                         "from the motion, a tilt accelerates the vehicle by about g times it), 'rad' or 'deg'")
     nb.set_defaults(func=cmd_import_nanobench)
     px = isub.add_parser("px4", help="PX4 ULog flight log (needs pyulog: pip install 'greybox[px4]')",
                          description="Convert a PX4 ULog: attitude, local position (NED), gyro and accelerometer "

@@ -427,3 +427,43 @@ def test_discovered_thrust_that_takes_over_the_rotors_is_not_taken_as_a_force():
         shift = d.fit.value("K_T") / res.value("K_T") - 1
         assert abs(shift) > MAX_THRUST_SHIFT
         assert not d.significant and "moment gain in disguise" in d.reason, d.reason
+
+
+def test_without_the_quaternion_the_angles_unit_is_read_from_the_motion(tmp_path):
+    """The published roll/pitch/yaw columns are radians (documented as degrees). Without the
+    quaternion the import reads the unit from the motion (a tilt accelerates a multirotor by
+    about g times it): the columns as published are radians and give the quaternion's attitude;
+    the same in degrees are degrees and give it too (an audit's import of a flight without qw
+    took radians for degrees: attitude and gyro 57x too small). A flight whose tilt does not
+    move cannot tell: one error asking for --angle-unit, which then decides."""
+    import pandas as pd
+    df = pd.read_csv(BUNDLED)
+    ref = import_nanobench(BUNDLED).log
+    plain = df.drop(columns=["qx", "qy", "qz", "qw"])
+    in_degrees = plain.copy()
+    in_degrees[["roll", "pitch", "yaw"]] = np.degrees(plain[["roll", "pitch", "yaw"]])
+    for frame, unit in ((plain, "radians"), (in_degrees, "degrees")):
+        path = tmp_path / f"{unit}.csv"
+        frame.to_csv(path, index=False)
+        imp = import_nanobench(path)
+        # (degrees: a tilt of 19 degrees is beyond pi, which no radians are, before any motion)
+        assert any(f"attitude from roll/pitch/yaw, in {unit} (" in n for n in imp.notes), imp.notes
+        for ch in ("phi", "theta", "p", "q"):
+            a, b = imp.log.output(ch), ref.output(ch)
+            ok = np.isfinite(a) & np.isfinite(b)
+            assert ok.sum() > 100 and np.max(np.abs(a[ok] - b[ok])) < 0.02, (unit, ch)
+    from greybox.io.nanobench import angle_unit_from_motion
+    pos, ang = plain[["px", "py", "pz"]].to_numpy(), in_degrees[["roll", "pitch"]].to_numpy()
+    ang_small = ang * 0.1       # a gentler flight in degrees, all below pi: the motion decides
+    unit, ratio = angle_unit_from_motion(plain.t.to_numpy() - plain.t[0], pos, ang_small * 10)
+    assert unit == "deg" and np.isnan(ratio)
+    t = plain.t.to_numpy() - plain.t[0]
+    unit, ratio = angle_unit_from_motion(t, np.column_stack([pos[:, :2] * 0.1, pos[:, 2]]), ang_small)
+    assert unit == "deg" and 1 / 4 < ratio * np.degrees(1) < 4
+    still = plain.copy()
+    still[["roll", "pitch"]] = 0.01
+    path = tmp_path / "still.csv"
+    still.to_csv(path, index=False)
+    with pytest.raises(GreyboxInputError, match="--angle-unit rad or deg"):
+        import_nanobench(path)
+    assert any("in radians (as given)" in n for n in import_nanobench(path, angle_unit="rad").notes)

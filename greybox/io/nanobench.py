@@ -47,7 +47,7 @@ from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, trimmed_log, com
                    euler_from_quaternion, euler_zup_to_ned, flight_from_height, flu_to_frd, fresh_rows,
                    interpolate_fresh, time_base, wrap_angle, zup_to_ned)
 
-__all__ = ["import_nanobench", "NanoBenchImport", "crazyflie_airframe_toml", "PWM_MAX"]
+__all__ = ["import_nanobench", "angle_unit_from_motion", "ANGLE_UNIT_RATIO", "NanoBenchImport", "crazyflie_airframe_toml", "PWM_MAX"]
 
 NanoBenchImport = ImportResult
 """The result of :func:`import_nanobench` (the shared :class:`~greybox.io.base.ImportResult`)."""
@@ -64,9 +64,45 @@ _VBAT = "pwr_pm_vbat"
 _SETPOINT = ["sp_ctrltarget_x", "sp_ctrltarget_y", "sp_ctrltarget_z", "sp_ctrltarget_yaw"]
 
 
+ANGLE_UNIT_RATIO = 4.0
+"""Without a quaternion the roll/pitch/yaw columns' unit is read from the motion: the
+positions' horizontal acceleration against ``g`` times the tilt taken as radians is about 1
+for radians (0.77-1.28 on the ten published flights) and 1/57 for degrees; within this factor
+of either it is that unit, else the import cannot tell and asks for ``angle_unit``."""
+
+
+def angle_unit_from_motion(t: np.ndarray, positions: np.ndarray, angles: np.ndarray,
+                           gravity: float = 9.81) -> tuple[str | None, float]:
+    """``("rad" | "deg" | None, ratio)``: the unit of the logged roll and pitch ``angles``
+    (n, 2+) of a multirotor, from its ``positions`` (n, 3, z up) — a tilt of ``theta`` rad
+    accelerates it by about ``g theta`` — as the ratio of the airborne horizontal
+    acceleration's spread to ``g`` times the tilt's, the angles read as radians (None: the
+    motion cannot tell, e.g. a hover whose tilt is noise)."""
+    if np.nanmax(np.abs(angles[:, :2])) > np.pi:
+        return "deg", float("nan")                     # no roll or pitch in radians is beyond pi
+    ok = np.isfinite(positions).all(1) & np.isfinite(angles[:, :2]).all(1)
+    t, pos, tilt = t[ok], positions[ok], angles[ok, :2]
+    if t.size < 50:
+        return None, float("nan")
+    k = 9                                              # a 90-ms mean: the positions' noise twice differentiated
+    smooth = np.column_stack([np.convolve(pos[:, i], np.ones(k) / k, mode="same") for i in range(2)])
+    acc = np.column_stack([np.gradient(np.gradient(smooth[:, i], t), t) for i in range(2)])
+    air = (pos[:, 2] > np.min(pos[:, 2]) + 0.05)
+    air[:k], air[-k:] = False, False
+    spread_tilt = np.sqrt(tilt[air].var(0).sum()) if air.sum() > 50 else 0.0
+    if not spread_tilt > 0:
+        return None, float("nan")
+    ratio = float(np.sqrt(acc[air].var(0).sum()) / (gravity * spread_tilt))
+    if 1 / ANGLE_UNIT_RATIO < ratio < ANGLE_UNIT_RATIO:
+        return "rad", ratio
+    if 1 / ANGLE_UNIT_RATIO < ratio * np.degrees(1.0) < ANGLE_UNIT_RATIO:
+        return "deg", ratio
+    return None, ratio
+
+
 def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_PWM_MAP,
                      held: str = "interpolate", keep_ground: bool = False,
-                     takeoff_height: float = 0.01) -> ImportResult:
+                     takeoff_height: float = 0.01, angle_unit: str = "auto") -> ImportResult:
     """Convert a NanoBench CSV (Crazyflie 2.1) into a flight log (see module doc).
 
     Args:
@@ -74,6 +110,8 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
         held: ``"interpolate"`` (default) or ``"hold"`` for the held motor samples.
         keep_ground: keep the samples on the ground before take-off and after touchdown.
         takeoff_height: height above the resting height (m) above which it is airborne.
+        angle_unit: the roll/pitch/yaw columns' unit where there is no quaternion: ``"auto"``
+            (read from the motion, :func:`angle_unit_from_motion`), ``"rad"`` or ``"deg"``.
 
     Raises:
         GreyboxInputError: naming the file, row and column of the first problem.
@@ -81,6 +119,8 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
     path = Path(path)
     if held not in ("interpolate", "hold"):
         raise GreyboxInputError(f"held must be 'interpolate' or 'hold', got {held!r}")
+    if angle_unit not in ("auto", "rad", "deg"):
+        raise GreyboxInputError(f"angle unit must be 'auto', 'rad' or 'deg', got {angle_unit!r}")
     rotor = PwmMap(*(float(v) for v in pwm_map))
     header, data = read_csv_table(path)
     col = {h: j for j, h in enumerate(header)}
@@ -150,8 +190,20 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
                              f"in {unit}" + (" (documented as degrees)" if unit == "radians" else ""))
         pose_block = np.column_stack([pos, q])
     else:
-        eul_flu = np.radians(np.column_stack([column(n, required=False) for n in _EULER]))
-        notes.append("no quaternion columns: attitude from roll/pitch/yaw, taken as degrees")
+        logged = np.column_stack([column(n, required=False) for n in _EULER])
+        unit, ratio = (angle_unit, float("nan")) if angle_unit != "auto" else \
+            angle_unit_from_motion(t_all, pos, logged)
+        if unit is None:
+            raise GreyboxInputError(
+                f"{path}: no quaternion columns, and the motion does not tell whether roll/pitch/yaw are in "
+                f"degrees or radians (horizontal acceleration / (g x tilt as radians) = {ratio:.3g}: about 1 for "
+                f"radians, 1/57 for degrees); give the unit: --angle-unit rad or deg")
+        eul_flu = np.radians(logged) if unit == "deg" else logged
+        notes.append("no quaternion columns: attitude from roll/pitch/yaw, in "
+                     + ("degrees" if unit == "deg" else "radians")
+                     + (" (as given)" if angle_unit != "auto" else
+                        f" (the motion says so: horizontal acceleration / (g x tilt as radians) = {ratio:.3g})"
+                        if np.isfinite(ratio) else " (beyond pi: no radians)"))
         pose_block = np.column_stack([pos, eul_flu])
     pose_fresh = fresh_rows(np.nan_to_num(pose_block, nan=1e300))
     n_held_pose = int((~pose_fresh).sum())
