@@ -294,6 +294,16 @@ def test_px4_corrupt_truncated_and_missing_pyulog(tmp_path, capsys, monkeypatch)
         short.write_bytes(ULG.read_bytes()[:2000])          # header and formats only
         with pytest.raises(GreyboxInputError, match="short.ulg: no sensor_combined or vehicle_imu"):
             import_px4(short)
+        # cut in the middle (a partial copy): pyulog reads it without a word; the import says so
+        from greybox.io.px4 import read_px4_topics, ulog_cut_at
+        half = tmp_path / "half.ulg"
+        whole = ULG.read_bytes()
+        half.write_bytes(whole[:len(whole) // 2])
+        assert ulog_cut_at(ULG) is None
+        size, end = ulog_cut_at(half)
+        assert size == len(whole) // 2 < end
+        assert any("the file ends inside a message" in n for n in read_px4_topics(half)[2])
+        assert not any("ends inside" in n for n in read_px4_topics(ULG)[2])
     out = tmp_path / "o.csv"
     assert main(["import", "px4", str(junk), "--out", str(out)]) == 2 and not out.exists()
     assert "not a readable PX4 ULog" in capsys.readouterr().err

@@ -47,7 +47,7 @@ from ..errors import GreyboxInputError
 from .base import (PX4_PWM_MAP, FlightSpan, ImportResult, PwmMap, trimmed_log, commands_on_grid, euler_from_quaternion,
                    flight_from_height, grid_with, interpolate_samples, longest_run, rpm_to_rad_s, snap, time_base)
 
-__all__ = ["import_px4", "import_px4_topics", "read_px4_topics", "px4_airframe_toml", "PX4_TOPICS",
+__all__ = ["import_px4", "import_px4_topics", "read_px4_topics", "ulog_cut_at", "px4_airframe_toml", "PX4_TOPICS",
            "MAV_TYPE_ROTORS"]
 
 PX4_TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_attitude", "vehicle_local_position", "actuator_outputs",
@@ -62,6 +62,22 @@ _INVALID_REL = 2147483647     # sensor_combined: relative time stamp of a sensor
 _ARMED = 2                    # vehicle_status.arming_state ARMED (old and new enums)
 
 Topics = Mapping[str, Mapping[str, np.ndarray]]
+
+
+def ulog_cut_at(path: str | Path) -> tuple[int, int] | None:
+    """Where a ULog file was cut inside a message: ``(file size, the message's end)``, or
+    None when its messages end with the file. pyulog reads a cut file without a word (an
+    audit's copy of half the sample log imported as a 34-s flight); a file cut exactly at a
+    message's end cannot be told from a whole one. Message headers (ULog format): ``uint16``
+    payload size, ``uint8`` type, after the 16-byte file header."""
+    data = Path(path).read_bytes()
+    pos, n = 16, len(data)
+    while pos + 3 <= n:
+        size = int.from_bytes(data[pos:pos + 2], "little")
+        pos += 3 + size
+    if pos == n:
+        return None
+    return n, pos if pos > n else n + 1       # a header itself cut (1-2 bytes left): its end is beyond
 
 
 def read_px4_topics(path: str | Path) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, float], list[str]]:
@@ -88,6 +104,10 @@ def read_px4_topics(path: str | Path) -> tuple[dict[str, dict[str, np.ndarray]],
     notes = [f"{path}: pyulog: {line.strip()}" for line in out.getvalue().splitlines() if line.strip()]
     if getattr(ulog, "file_corruption", False) and not notes:
         notes.append(f"{path}: pyulog reports file corruption; what could be read is used")
+    cut = ulog_cut_at(path)
+    if cut is not None:
+        notes.append(f"{path}: the file ends inside a message (byte {cut[0]} of a message reaching byte {cut[1]}): "
+                     "the log was cut short (a full card, power lost, a partial copy); imported up to there")
     topics: dict[str, dict[str, np.ndarray]] = {}
     multi: dict[str, int] = {}
     for d in sorted(ulog.data_list, key=lambda d: d.multi_id):
