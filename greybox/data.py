@@ -310,6 +310,14 @@ class FlightLog:
             if name in ("x", "y", "z") and not self.measures(name):
                 imu = [c for c in ("p", "q", "r", "az") if not self.measures(c)]
                 need = f"{where}: column {name!r} is empty: fitting the full model needs position (vision, motion capture)"
+                some = [c for c in ("x", "y", "z") if self.measures(c)]
+                if some:    # neither fit takes a partial position (a barometer's z alone)
+                    raise GreyboxInputError(
+                        need + f"; it has position in {', '.join(some)} only, which neither fit takes: the full model "
+                        "needs x, y and z, the fit from the IMU alone (gyro p, q, r and accelerometer az) none"
+                        + (f" (this log has no {', '.join(imu)} for it)" if imu else
+                           f": empty the column{'s' if len(some) > 1 else ''} {', '.join(some)} to fit from the IMU "
+                           "alone (README, 'Fitting an IMU-only log')"))
                 raise GreyboxInputError(
                     need + "; this log has gyro and accelerometer, so `greybox fit` (greybox.fitting.fit_imu) "
                     "identifies what its IMU alone can: K_T, b, tau_m (README, 'Fitting an IMU-only log')" if not imu

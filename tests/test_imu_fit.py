@@ -93,6 +93,15 @@ def test_imu_only_fit_from_the_command_line(foreign, tmp_path, capsys):
                            np.where(np.isnan(log.outputs), 0.0, log.outputs), log.output_names), full)
     assert main(["fit", str(full), str(csv), "--airframe", str(af)]) == 2
     assert f"{csv}: an IMU-only log" in capsys.readouterr().err
+    # a height alone (a PX4 bench log's barometer): neither fit takes it, and the error says
+    # what to do instead of sending the user back to the command that failed
+    outputs = log.outputs.copy()
+    outputs[:, log.output_names.index("z")] = -1.0
+    z_only = tmp_path / "z_only.csv"
+    save_log(log.__class__(log.t, log.inputs, log.input_names, outputs, log.output_names), z_only)
+    assert main(["fit", str(z_only), "--airframe", str(af)]) == 2
+    err = capsys.readouterr().err
+    assert "position in z only, which neither fit takes" in err and "empty the column z" in err, err
 
 
 @pytest.mark.skipif(not USD.exists(), reason="../shared/realdata/crazyflie_usd not present")
