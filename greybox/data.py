@@ -394,6 +394,11 @@ def read_csv_table(path: str | Path, line_numbers: bool = False,
         raise GreyboxInputError(f"{path}: empty file (no header row)")
     lines = lines[:len(rows)]
     header = [h.strip() for h in rows[0]]
+    if len(header) == 1:
+        sep = next((c for c in (";", "\t", "|") if c in header[0]), None)
+        if sep is not None:
+            raise GreyboxInputError(f"{path}: row 1 is one column holding {sep!r}: the file is separated by "
+                                    f"{'tabs' if sep == chr(9) else repr(sep)}, greybox reads comma-separated CSV")
     if any(not h for h in header):
         raise GreyboxInputError(f"{path}: row 1: empty column name in the header "
                                 f"(column {header.index('') + 1})")

@@ -752,3 +752,12 @@ def test_a_text_column_a_user_added_is_ignored_with_a_note(short_log, tmp_path, 
                     [f"{0.01 * k:.2f},320,320,320,320,{'hover' if k % 2 else ''}" for k in range(50)])
     rc, err = _cli(capsys, "simulate", "--airframe", PAPER, "--inputs", str(inputs), "--out", str(tmp_path / "s.csv"))
     assert rc == 0 and "ignored text column(s) mode" in err, err
+
+
+@pytest.mark.parametrize("sep, words", [(";", "';'"), ("\t", "tabs")])
+def test_a_csv_separated_otherwise_is_named(tmp_path, sep, words):
+    """A CSV written with another separator (a spreadsheet's ';', a tab) is one error saying
+    so, not a 'not a number' with the whole row."""
+    path = _write(tmp_path / "semi.csv", [sep.join(row.split(",")) for row in _lines(DEMO)[:50]])
+    with pytest.raises(GreyboxInputError, match=f"separated by {words}, greybox reads comma-separated CSV"):
+        load_log(path)

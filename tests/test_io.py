@@ -289,6 +289,8 @@ def test_px4_corrupt_truncated_and_missing_pyulog(tmp_path, capsys, monkeypatch)
     junk.write_bytes(bytes(range(256)) * 4)
     with pytest.raises(GreyboxInputError, match="junk.ulg: not a readable PX4 ULog file"):
         import_px4(junk)
+    with pytest.raises(GreyboxInputError, match="is a folder; give the .ulg file"):
+        import_px4(tmp_path)
     if ULG.exists():
         short = tmp_path / "short.ulg"
         short.write_bytes(ULG.read_bytes()[:2000])          # header and formats only

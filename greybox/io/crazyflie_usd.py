@@ -123,7 +123,7 @@ def read_usd_log(path: str | Path, strict: bool = True) -> UsdLog:
         msg = (f"CRC-32 mismatch (stored 0x{stored_crc:08X}, computed 0x{zlib.crc32(data[:-4]):08X}): "
                "the file is truncated or corrupt")
         if strict:
-            raise GreyboxInputError(f"{path}: {msg} (strict=False / --ignore-crc keeps its whole records)")
+            raise GreyboxInputError(f"{path}: {msg} (greybox import crazyflie-usd --ignore-crc, or strict=False in Python, keeps its whole records)")
         notes.append(f"{path}: {msg}; whole records kept")
 
     i = 5

@@ -93,6 +93,8 @@ def read_px4_topics(path: str | Path) -> tuple[dict[str, dict[str, np.ndarray]],
     except ImportError:
         raise GreyboxInputError(f"reading PX4 ULog files needs the pyulog package: {_INSTALL}") from None
     path = Path(path)
+    if path.is_dir():
+        raise GreyboxInputError(f"{path}: is a folder; give the .ulg file")
     if not path.is_file():
         raise GreyboxInputError(f"{path}: no such file")
     out = _io.StringIO()
