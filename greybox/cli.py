@@ -244,9 +244,23 @@ def _finish_import(args: argparse.Namespace, imp, toml: str | None) -> int:
     save_log(imp.log, args.out, digits=15)
     if toml is not None:
         atomic_write(args.airframe_out, toml)
+    if args.json:
+        write_json(args.json, {"format": imp.format, "log": args.out, "airframe": args.airframe_out if toml else None,
+                               **_log_json(imp.log), "takeoff_time": _num_or_none(imp.takeoff_time),
+                               "touchdown_time": _num_or_none(imp.touchdown_time),
+                               "rest_height": _num_or_none(imp.rest_height),
+                               "hover_rotor_speed": _num_or_none(imp.hover_rotor_speed),
+                               "pwm_map": list(imp.pwm_map) if imp.pwm_map else None, "n_rotors": imp.n_rotors,
+                               "notes": list(imp.notes)})
     print(f"wrote {args.out}: {len(imp.log)} samples, {imp.log.duration:.2f} s"
           + (f"; airframe {args.airframe_out}" if toml else ""))
     return 0
+
+
+def _log_json(log: FlightLog) -> dict:
+    """What a written flight log holds, for a command's JSON: rows, duration, columns."""
+    return {"samples": len(log), "duration_s": float(log.duration), "inputs": list(log.input_names),
+            "outputs": [n for n in log.output_names if log.measures(n)], "extras": list(log.extras)}
 
 
 def cmd_import_nanobench(args: argparse.Namespace) -> int:
@@ -333,6 +347,9 @@ def cmd_merge(args: argparse.Namespace) -> int:
     for note in merged.notes[len(log.notes):]:
         print(f"note: {note}", file=sys.stderr)
     save_log(merged, args.out)
+    if args.json:
+        write_json(args.json, {"log": args.out, **_log_json(merged), "rows_from_log": len(log),
+                               "notes": merged.notes[len(log.notes):]})
     print(f"wrote {args.out}: {len(merged)} rows ({len(log)} from {args.log})", file=sys.stderr)
     return 0
 
@@ -355,6 +372,10 @@ def cmd_render(args: argparse.Namespace) -> int:
                           exposure_time=args.exposure_time, rolling_shutter=args.rolling_shutter,
                           seed=args.seed)
     n = write_sequence(cam.frames(pose, times), args.out_dir)
+    if args.json:
+        write_json(args.json, {"out_dir": args.out_dir, "frames": n, "fps": float(args.fps),
+                               "t_start": float(times[0]) if n else None, "t_end": float(times[-1]) if n else None,
+                               "seed": args.seed})
     print(f"rendered {n} frames at {args.fps:g} fps -> {args.out_dir} (timestamps.csv, truth.csv)", file=sys.stderr)
     return 0
 
@@ -659,6 +680,7 @@ def _import_args(ap: argparse.ArgumentParser, file_help: str) -> None:
     ap.add_argument("--held", choices=["interpolate", "hold"], default="interpolate",
                     help="held motor samples: interpolate between fresh ones (default) or keep as logged")
     ap.add_argument("--keep-ground", action="store_true", help="keep samples on the ground (flagged on_ground)")
+    ap.add_argument("--json", help="write what was imported here (samples, columns, take-off, notes)")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -811,6 +833,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="keep samples on the ground (flagged on_ground); also imports a log that never flies")
     px.add_argument("--takeoff-height", type=_positive, default=0.2,
                     help="m above the resting height that counts as airborne (default 0.2)")
+    px.add_argument("--json", help="write what was imported here (samples, columns, take-off, notes)")
     px.set_defaults(func=cmd_import_px4)
     cu = isub.add_parser("crazyflie-usd", help="Crazyflie uSD-card binary log (event-based, version 1/2)",
                          description="Convert a Crazyflie uSD log: gyro (deg/s, FLU) -> p,q,r (rad/s, FRD), "
@@ -852,6 +875,7 @@ def _parser() -> argparse.ArgumentParser:
     mg.add_argument("--offset", type=_finite, default=0.0, help="seconds added to the vision times (clock offset)")
     mg.add_argument("--psi", choices=["auto", "imu", "vision"], default="auto",
                     help="where the yaw comes from (auto: the log's if it has any, else vision's)")
+    mg.add_argument("--json", help="write what was merged here (rows, columns, notes)")
     mg.set_defaults(func=cmd_merge)
 
     rd = sub.add_parser("render", help="synthetic camera frames of the markers along a flight log",
@@ -866,6 +890,7 @@ def _parser() -> argparse.ArgumentParser:
     rd.add_argument("--exposure-time", type=_non_negative, default=0.0, help="motion blur exposure, s (default 0)")
     rd.add_argument("--rolling-shutter", type=_non_negative, default=0.0, help="row readout time, s (default 0)")
     rd.add_argument("--seed", type=_seed, default=0)
+    rd.add_argument("--json", help="write what was rendered here (frames, times)")
     rd.set_defaults(func=cmd_render)
 
     e = sub.add_parser("effects", help="list every known effect: summary, parameters, units, null values",

@@ -155,8 +155,13 @@ def test_import_errors_name_file_row_and_column(tmp_path):
 
 def test_cli_import_writes_log_and_airframe_or_nothing(tmp_path, capsys):
     out, af = tmp_path / "log.csv", tmp_path / "cf.toml"
-    assert main(["import", "nanobench", str(BUNDLED), "--out", str(out), "--airframe-out", str(af)]) == 0
+    assert main(["import", "nanobench", str(BUNDLED), "--out", str(out), "--airframe-out", str(af),
+                 "--json", str(tmp_path / "i.json")]) == 0
     log = load_log(out)
+    import json
+    said = json.loads((tmp_path / "i.json").read_text())
+    assert said["format"] == "nanobench" and said["samples"] == len(log) and said["airframe"] == str(af)
+    assert said["takeoff_time"] == pytest.approx(3.07, abs=0.05) and said["notes"]
     assert log.input_names == ["w1", "w2", "w3", "w4"] and "vbat" in log.extras
     airframe = load_airframe(af)
     assert airframe.n_rotors == 4 and airframe.mass == pytest.approx(0.030)

@@ -2,11 +2,13 @@
 rendered frames, the Cramér–Rao bound, skips, merge and the CLI."""
 from __future__ import annotations
 
+import json
 import math
 from importlib import resources
 from pathlib import Path
 
 import cv2
+
 import numpy as np
 
 from greybox.rotations import rotation
@@ -251,7 +253,10 @@ def test_cli_render_vision_merge(tmp_path, rig):
     log = log_from_arrays(t, np.full((t.size, 4), 420.0), Y)
     save_log(log, tmp_path / "flight.csv")
     assert main(["render", str(tmp_path / "flight.csv"), "--camera", str(RIG_PATH),
-                 "--out-dir", str(tmp_path / "frames"), "--fps", "30", "--seed", "1"]) == 0
+                 "--out-dir", str(tmp_path / "frames"), "--fps", "30", "--seed", "1",
+                 "--json", str(tmp_path / "r.json")]) == 0
+    rendered = json.loads((tmp_path / "r.json").read_text())
+    assert rendered["frames"] == 15 and rendered["fps"] == 30.0 and rendered["seed"] == 1
     assert main(["vision", str(tmp_path / "frames"), "--camera", str(RIG_PATH), "--out", str(tmp_path / "pos.csv"),
                  "--timestamps", str(tmp_path / "frames" / "timestamps.csv"), "--json", str(tmp_path / "v.json"),
                  "--imu", str(tmp_path / "flight.csv"), "--quiet"]) == 0
@@ -266,9 +271,11 @@ def test_cli_render_vision_merge(tmp_path, rig):
     imu = log_from_arrays(t, np.full((t.size, 4), 420.0), np.column_stack([np.full((t.size, 3), np.nan), Y[:, 3:]]))
     save_log(imu, tmp_path / "imu.csv")
     assert main(["merge", str(tmp_path / "imu.csv"), "--vision", str(tmp_path / "pos.csv"),
-                 "--out", str(tmp_path / "merged.csv")]) == 0
+                 "--out", str(tmp_path / "merged.csv"), "--json", str(tmp_path / "m.json")]) == 0
     merged = load_log(tmp_path / "merged.csv")
     assert (~np.isnan(merged.output("x"))).sum() == 15
+    said = json.loads((tmp_path / "m.json").read_text())
+    assert said["samples"] == len(merged) and said["rows_from_log"] == t.size and "x" in said["outputs"]
 
 
 def test_cli_errors_exit_2_without_output(tmp_path, capsys):
