@@ -6,6 +6,7 @@ with ``--json`` are written atomically.
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import os
 import sys
@@ -411,14 +412,16 @@ def _fit_imu_only(args: argparse.Namespace, model: QuadrotorModel, logs) -> int:
     unused = [option for option, given in (
         ("--effects", args.effects), ("--without", args.without), ("--set", args.set), ("--free", args.free),
         ("--fixed", args.fixed), ("--save", args.save), ("--plots", args.plots), ("--interval", args.interval),
-        ("--per-flight", args.per_flight), ("--horizon", args.horizon != 1.0),
-        ("--max-iter", args.max_iter != 60), ("--process-noise", args.process_noise != "if_needed"),
-        ("--model", getattr(args, "model", None))) if given]
+        ("--per-flight", args.per_flight not in (None, "auto")), ("--horizon", args.horizon != 1.0),
+        ("--max-iter", args.max_iter != 60), ("--process-noise", args.process_noise != "if_needed")) if given]
     if unused:
         raise GreyboxInputError(f"{logs[0].source}: an IMU-only log (gyro and accelerometer, no position) is fitted by "
                                 f"its own equations (K_T, b, the motor lag, the torque gains; README, \"Fitting an "
                                 f"IMU-only log\"), which take none of {', '.join(unused)}: leave "
                                 f"{'it' if len(unused) == 1 else 'them'} out")
+    if getattr(args, "model", None):
+        print(f"note: {args.model}: the IMU-only fit takes the saved model's airframe; its effects and fitted "
+              "values are not used (it fits K_T, b, the motor lag and the torque gains afresh)", file=sys.stderr)
     res = fit_imu(model, logs[0])
     print(res.summary())
     out = res.as_dict()
@@ -912,6 +915,10 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+_USER_OS_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
+"""OSErrors that are the machine's state, not greybox's fault, also without a file name."""
+
+
 def _check_outputs_are_not_inputs(args: argparse.Namespace) -> None:
     """Refuse an output file that is also one of the command's inputs (any other option or
     argument naming an existing file): writing it would destroy the input."""
@@ -981,10 +988,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"greybox: failed: {e}", file=sys.stderr)
         return 1
     except OSError as e:
-        if e.filename is None:          # not a file the user named: a fault of ours, shown as one
-            raise
+        status = interrupt_status(e)    # an interrupt first (a killed compiler's missing library)
+        if status is not None:
+            return status
+        if e.filename is None and e.errno not in _USER_OS_ERRORS:
+            raise                       # not a file the user named: a fault of ours, shown as one
         # a file that cannot be read or written (a name too long, a full disk, a permission)
-        print(f"greybox: error: {e.filename}: {e.strerror or e}", file=sys.stderr)
+        print(f"greybox: error: {e.filename + ': ' if e.filename else ''}{e.strerror or e}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, Terminated, Exception) as e:
         status = interrupt_status(e)

@@ -260,14 +260,17 @@ class FlightLog:
         text = []
         for j, name in enumerate(header):
             s = df.iloc[:, j]
-            if s.dtype.kind in "mM" and is_log_column(name):
+            if s.dtype.kind in "mM":
+                if not is_log_column(name):     # an extra of dates: left out, as a text column
+                    text.append(j)
+                    continue
                 raise GreyboxInputError(f"{where}: column {name!r} holds dates or durations; give "
                                         "seconds (e.g. (df.t - df.t.iloc[0]).dt.total_seconds())")
             try:
                 data[:, j] = s.to_numpy(dtype=float, na_value=np.nan)
             except (TypeError, ValueError):
-                if not is_log_column(name):     # an extra column of text: ignored, as in a CSV
-                    text.append(j)
+                if not is_log_column(name) and not any(_numeric_cell(v) for v in s.to_numpy(dtype=object)):
+                    text.append(j)              # an extra column of text only: left out, as in a CSV
                     continue
                 for k, v in enumerate(s.to_numpy(dtype=object)):
                     try:
@@ -410,30 +413,42 @@ def read_csv_table(path: str | Path, line_numbers: bool = False,
             raise GreyboxInputError(f"{path}: row 1: column {h!r} appears twice")
         seen.add(h)
     data = np.empty((len(rows) - 1, len(header)))
-    text_cols: set[int] = set()
+    # an extra column (must_be_numeric says so) whose cells are all text is a text column, left
+    # out; one that mixes numbers and text is a numeric column with a bad cell, an error (a
+    # battery voltage with one "n/a" must not vanish); true/false in an extra column read 1/0
+    first_text: dict[int, tuple[int, str]] = {}
+    has_number: set[int] = set()
     for k, (i, row) in enumerate(zip(lines[1:], rows[1:])):
         if len(row) != len(header):
             raise GreyboxInputError(f"{path}: row {i}: {len(row)} cells, the header has {len(header)}")
         for j, cell in enumerate(row):
             c = cell.strip()
-            if c == "" or c.lower() == "nan" or j in text_cols:
+            if c == "" or c.lower() == "nan":
                 data[k, j] = np.nan
                 continue
             try:
                 v = float(c)
             except ValueError:
-                if must_be_numeric is not None and not must_be_numeric(header[j]):
-                    text_cols.add(j)
+                extra = must_be_numeric is not None and not must_be_numeric(header[j])
+                if extra and c.lower() in ("true", "false"):
+                    v = 1.0 if c.lower() == "true" else 0.0
+                elif extra:
+                    first_text.setdefault(j, (i, c))
                     data[k, j] = np.nan
                     continue
-                raise GreyboxInputError(f"{path}: row {i}, column {header[j]!r}: not a number: {c!r}") from None
+                else:
+                    raise GreyboxInputError(f"{path}: row {i}, column {header[j]!r}: not a number: {c!r}") from None
             if math.isinf(v):
                 raise GreyboxInputError(f"{path}: row {i}, column {header[j]!r}: infinite value {c!r}")
             data[k, j] = v
-    if text_cols:
-        keep = [j for j in range(len(header)) if j not in text_cols]
+            has_number.add(j)
+    for j, (i, c) in sorted(first_text.items(), key=lambda item: item[1][0]):
+        if j in has_number:
+            raise GreyboxInputError(f"{path}: row {i}, column {header[j]!r}: not a number: {c!r}")
+    if first_text:
+        keep = [j for j in range(len(header)) if j not in first_text]
         if text_columns is not None:
-            text_columns += [header[j] for j in sorted(text_cols)]
+            text_columns += [header[j] for j in sorted(first_text)]
         header, data = [header[j] for j in keep], data[:, keep]
     return (header, data, np.asarray(lines[1:], dtype=int)) if line_numbers else (header, data)
 
@@ -501,6 +516,14 @@ def check_sample_times(t: np.ndarray, where: str, rows: np.ndarray | None = None
     if not np.isfinite(span) or span > MAX_DURATION:
         raise GreyboxInputError(f"{where}: column 't': the log spans {span:.4g} s, more than "
                                 f"{MAX_DURATION / 3600:g} h - is t in seconds?")
+
+
+def _numeric_cell(v: object) -> bool:
+    """Whether a DataFrame cell holds a number (a missing one, None, NaN or pd.NA, does not)."""
+    try:
+        return not math.isnan(float(v))
+    except (TypeError, ValueError):
+        return False
 
 
 def _is_number(s: str) -> bool:

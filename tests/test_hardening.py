@@ -761,3 +761,21 @@ def test_a_csv_separated_otherwise_is_named(tmp_path, sep, words):
     path = _write(tmp_path / "semi.csv", [sep.join(row.split(",")) for row in _lines(DEMO)[:50]])
     with pytest.raises(GreyboxInputError, match=f"separated by {words}, greybox reads comma-separated CSV"):
         load_log(path)
+
+
+def test_an_extra_column_that_mixes_numbers_and_text_is_a_bad_cell_not_a_text_column(short_log, tmp_path):
+    """A column greybox may read beyond the format (a battery voltage) with one "n/a" is a
+    numeric column with a bad cell: an error naming it, not a column that silently vanishes
+    (a review's case: `--effects battery_voltage` then said the column was missing); an
+    extra of true/false reads 1/0 (pandas writes a boolean on_ground so)."""
+    from greybox.data import load_log
+    lines = _lines(short_log)
+    rows = [lines[0] + ",vbat,on_ground"] + [row + f",{4.0 - 1e-4 * k:.4f},{'true' if k < 5 else 'False'}"
+                                             for k, row in enumerate(lines[1:])]
+    rows[300] = rows[300].rsplit(",", 2)[0] + ",n/a,false"
+    with pytest.raises(GreyboxInputError, match=r"row 301, column 'vbat': not a number: 'n/a'"):
+        load_log(_write(tmp_path / "vbat.csv", rows))
+    rows[300] = rows[300].replace(",n/a,", ",3.97,")
+    log = load_log(_write(tmp_path / "vbat_ok.csv", rows))
+    assert log.extras["on_ground"][:5].tolist() == [1.0] * 5 and log.extras["on_ground"][5:].max() == 0.0
+    assert log.extras["vbat"][299] == pytest.approx(3.97)

@@ -87,6 +87,10 @@ def test_imu_only_fit_from_the_command_line(foreign, tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.startswith("greybox: error: ") and f"take none of {named}" in err, err
     assert not (tmp_path / "m.json").exists() and not (tmp_path / "plots").exists()
+    # options at their defaults, given explicitly, are no reason to refuse
+    assert main(["fit", str(csv), "--airframe", str(af), "--per-flight", "auto", "--horizon", "1",
+                 "--max-iter", "60", "--process-noise", "if_needed"]) == 0
+    capsys.readouterr()
     # with a log that has position, the IMU-only one is the one named
     full = tmp_path / "full.csv"
     save_log(log.__class__(log.t, log.inputs, log.input_names,

@@ -397,8 +397,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             spread = val_spread = None
         unchecked = [what for what, got in (("the estimation data's halves", spread),
                                             ("the validation data alone", val_spread)) if got is None]
-        if unchecked and components:
-            warnings.append(f"final model: whether the std of {', '.join(components)} can be believed was not checked "
+        # the parameters the checks would have compared (consistency: free, shared by the flights)
+        compared = [n for n in components if n in cur_res.free_names and n not in cur_res.per_flight_]
+        if unchecked and compared:
+            warnings.append(f"final model: whether the std of {', '.join(compared)} can be believed was not checked "
                             f"against {' nor '.join(unchecked)} (" +
                             ("the final fit is not certified" if not cur_res.converged else
                              "their fit failed or is not certified") +
