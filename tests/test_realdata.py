@@ -451,24 +451,33 @@ def test_without_the_quaternion_the_angles_unit_is_read_from_the_motion(tmp_path
         path = tmp_path / f"{unit}.csv"
         frame.to_csv(path, index=False)
         imp = import_nanobench(path)
-        # (degrees: a tilt of 19 degrees is beyond pi, which no radians are, before any motion)
         assert any(f"attitude from roll/pitch/yaw, in {unit} (" in n for n in imp.notes), imp.notes
         for ch in ("phi", "theta", "p", "q"):
             a, b = imp.log.output(ch), ref.output(ch)
             ok = np.isfinite(a) & np.isfinite(b)
             assert ok.sum() > 100 and np.max(np.abs(a[ok] - b[ok])) < 0.02, (unit, ch)
     from greybox.io.nanobench import angle_unit_from_motion
-    pos, ang = plain[["px", "py", "pz"]].to_numpy(), in_degrees[["roll", "pitch"]].to_numpy()
-    ang_small = ang * 0.1       # a gentler flight in degrees, all below pi: the motion decides
-    unit, ratio = angle_unit_from_motion(plain.t.to_numpy() - plain.t[0], pos, ang_small * 10)
-    assert unit == "deg" and np.isnan(ratio)
     t = plain.t.to_numpy() - plain.t[0]
-    unit, ratio = angle_unit_from_motion(t, np.column_stack([pos[:, :2] * 0.1, pos[:, 2]]), ang_small)
-    assert unit == "deg" and 1 / 4 < ratio * np.degrees(1) < 4
+    pos, ang = plain[["px", "py", "pz"]].to_numpy(), plain[["roll", "pitch", "yaw"]].to_numpy()
+    unit, fits = angle_unit_from_motion(t, pos, ang)
+    assert unit == "rad" and 0.8 < fits["rad"][0] < 1.25 and fits["rad"][1] > 0.9, fits
+    assert fits["deg"][0] > 40                        # the other unit: 57 times off
+    gappy = pos.copy()
+    for a in range(100, len(t), 200):                 # 0.2-s outages every 2 s: each stretch alone
+        gappy[a:a + 20] = np.nan
+    assert angle_unit_from_motion(t, gappy, ang)[0] == "rad"
+    assert angle_unit_from_motion(t, pos * 1000, ang)[0] is None          # positions in mm: neither
+    rng = np.random.default_rng(3)                    # a hover whose tilt is noise, yawing: cannot tell
+    n = t.size
+    hover = np.column_stack([rng.normal(0, 1e-3, (n, 2)), 1 + rng.normal(0, 1e-3, n)])
+    for noise in (5e-4, 5e-3):
+        tilt = np.column_stack([rng.normal(0, noise, (n, 2)), np.linspace(0, 6, n)])
+        assert angle_unit_from_motion(t, hover, tilt)[0] is None
+        assert angle_unit_from_motion(t, hover, np.degrees(tilt))[0] is None
     still = plain.copy()
     still[["roll", "pitch"]] = 0.01
     path = tmp_path / "still.csv"
     still.to_csv(path, index=False)
-    with pytest.raises(GreyboxInputError, match="--angle-unit rad or deg"):
+    with pytest.raises(GreyboxInputError, match="angle_unit='rad' or 'deg'"):
         import_nanobench(path)
     assert any("in radians (as given)" in n for n in import_nanobench(path, angle_unit="rad").notes)

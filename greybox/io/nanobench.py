@@ -37,6 +37,7 @@ Built on the shared parts in :mod:`greybox.io.base`:
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +48,8 @@ from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, trimmed_log, com
                    euler_from_quaternion, euler_zup_to_ned, flight_from_height, flu_to_frd, fresh_rows,
                    interpolate_fresh, time_base, wrap_angle, zup_to_ned)
 
-__all__ = ["import_nanobench", "angle_unit_from_motion", "ANGLE_UNIT_RATIO", "NanoBenchImport", "crazyflie_airframe_toml", "PWM_MAX"]
+__all__ = ["import_nanobench", "angle_unit_from_motion", "ANGLE_UNIT_SLOPE", "ANGLE_UNIT_MIN_CORRELATION",
+           "NanoBenchImport", "crazyflie_airframe_toml", "PWM_MAX"]
 
 NanoBenchImport = ImportResult
 """The result of :func:`import_nanobench` (the shared :class:`~greybox.io.base.ImportResult`)."""
@@ -64,40 +66,76 @@ _VBAT = "pwr_pm_vbat"
 _SETPOINT = ["sp_ctrltarget_x", "sp_ctrltarget_y", "sp_ctrltarget_z", "sp_ctrltarget_yaw"]
 
 
-ANGLE_UNIT_RATIO = 4.0
+ANGLE_UNIT_SLOPE = (1 / 3, 3.0)
 """Without a quaternion the roll/pitch/yaw columns' unit is read from the motion: the
-positions' horizontal acceleration against ``g`` times the tilt taken as radians is about 1
-for radians (0.77-1.28 on the ten published flights) and 1/57 for degrees; within this factor
-of either it is that unit, else the import cannot tell and asks for ``angle_unit``."""
+positions' horizontal acceleration regressed on ``g R_z(yaw) (pitch, -roll)`` (what a tilt
+does to a multirotor) has a slope of about 1 when the angles are read in their unit (0.77-1.21
+on the ten published flights read as radians) and a strong correlation; read in the other
+unit the yaw turns the tilt the wrong way and the slope is 57 times off. A unit is taken when
+its slope lies in this range and its correlation reaches :data:`ANGLE_UNIT_MIN_CORRELATION`,
+the other's does not."""
+ANGLE_UNIT_MIN_CORRELATION = 0.5
+ANGLE_UNIT_SMOOTHING = 15
+"""Samples of the moving mean on positions and angles before the acceleration is taken
+(90 ms at 100 Hz: the positions' noise twice differentiated)."""
 
 
 def angle_unit_from_motion(t: np.ndarray, positions: np.ndarray, angles: np.ndarray,
-                           gravity: float = 9.81) -> tuple[str | None, float]:
-    """``("rad" | "deg" | None, ratio)``: the unit of the logged roll and pitch ``angles``
-    (n, 2+) of a multirotor, from its ``positions`` (n, 3, z up) — a tilt of ``theta`` rad
-    accelerates it by about ``g theta`` — as the ratio of the airborne horizontal
-    acceleration's spread to ``g`` times the tilt's, the angles read as radians (None: the
-    motion cannot tell, e.g. a hover whose tilt is noise)."""
-    if np.nanmax(np.abs(angles[:, :2])) > np.pi:
-        return "deg", float("nan")                     # no roll or pitch in radians is beyond pi
-    ok = np.isfinite(positions).all(1) & np.isfinite(angles[:, :2]).all(1)
-    t, pos, tilt = t[ok], positions[ok], angles[ok, :2]
-    if t.size < 50:
-        return None, float("nan")
-    k = 9                                              # a 90-ms mean: the positions' noise twice differentiated
-    smooth = np.column_stack([np.convolve(pos[:, i], np.ones(k) / k, mode="same") for i in range(2)])
-    acc = np.column_stack([np.gradient(np.gradient(smooth[:, i], t), t) for i in range(2)])
-    air = (pos[:, 2] > np.min(pos[:, 2]) + 0.05)
-    air[:k], air[-k:] = False, False
-    spread_tilt = np.sqrt(tilt[air].var(0).sum()) if air.sum() > 50 else 0.0
-    if not spread_tilt > 0:
-        return None, float("nan")
-    ratio = float(np.sqrt(acc[air].var(0).sum()) / (gravity * spread_tilt))
-    if 1 / ANGLE_UNIT_RATIO < ratio < ANGLE_UNIT_RATIO:
-        return "rad", ratio
-    if 1 / ANGLE_UNIT_RATIO < ratio * np.degrees(1.0) < ANGLE_UNIT_RATIO:
-        return "deg", ratio
-    return None, ratio
+                           gravity: float = 9.81) -> tuple[str | None, dict[str, tuple[float, float]]]:
+    """``("rad" | "deg" | None, {unit: (slope, correlation)})``: the unit of a multirotor's
+    logged ``angles`` (n, 3: roll, pitch, yaw; FLU body, z-up world) from its ``positions``
+    (n, 3, z up): a tilt accelerates it by about ``g`` times the tilt, in the direction the yaw
+    gives (:data:`ANGLE_UNIT_SLOPE`). Airborne rows only, each stretch between missing samples
+    on its own. None when neither unit, or both, explain the motion (a hover whose tilt is
+    noise, positions in another unit)."""
+    ok = np.isfinite(positions).all(1) & np.isfinite(angles).all(1)
+    k = ANGLE_UNIT_SMOOTHING
+    acc_rows, vel_rows, tilt_rows = [], [], {"rad": [], "deg": []}
+    breaks = np.flatnonzero(np.diff(ok.astype(int)) != 0) + 1
+    for seg in np.split(np.arange(t.size), breaks):
+        if not ok[seg[0]] or seg.size < 4 * k:
+            continue
+        tt, pos, ang = t[seg], positions[seg], angles[seg]
+        kern = np.ones(k) / k
+        smooth = np.column_stack([np.convolve(pos[:, i], kern, mode="same") for i in range(3)])
+        vel = np.column_stack([np.gradient(smooth[:, i], tt) for i in range(3)])
+        acc = np.column_stack([np.gradient(vel[:, i], tt) for i in range(3)])
+        thrust = gravity + acc[:, 2]        # per unit mass, along the body axis (z up): g at hover
+        vel, acc = vel[:, :2], acc[:, :2]
+        air = pos[:, 2] > np.min(positions[ok, 2]) + 0.05
+        air[:k], air[-k:] = False, False
+        if not air.any():
+            continue
+        acc_rows.append(acc[air])
+        vel_rows.append(vel[air])
+        for unit, scale in (("rad", 1.0), ("deg", np.pi / 180.0)):
+            a = ang * scale
+            roll, pitch = (np.convolve(a[:, i], kern, mode="same") for i in range(2))
+            yaw = a[:, 2]
+            # world z-up, body FLU: a pitch (nose down) pushes along the heading, a roll to the right
+            tilt = thrust[:, None] * np.column_stack([np.cos(yaw) * pitch + np.sin(yaw) * roll,
+                                                      np.sin(yaw) * pitch - np.cos(yaw) * roll])
+            tilt_rows[unit].append(tilt[air])
+    fits: dict[str, tuple[float, float]] = {}
+    if not acc_rows or sum(len(a) for a in acc_rows) < 50:
+        return None, fits
+    acc, vel = np.concatenate(acc_rows), np.concatenate(vel_rows)
+    for unit, rows in tilt_rows.items():
+        tilt = np.concatenate(rows)
+        # a = slope * g R(yaw) tilt - drag * v + offsets (the level's, a wind's): at a steady
+        # speed the tilt holds the drag and nothing accelerates (a ramp flown at constant speeds)
+        x, v, y = (tilt - tilt.mean(0)).ravel(), (vel - vel.mean(0)).ravel(), (acc - acc.mean(0)).ravel()
+        A = np.column_stack([x, v])
+        if not float(x @ x) > 0 or np.linalg.matrix_rank(A) < 2:
+            fits[unit] = (float("nan"), float("nan"))
+            continue
+        (slope, drag), *_ = np.linalg.lstsq(A, y, rcond=None)
+        y_tilt = y - drag * v                                  # what the tilt is to explain
+        r = float(x @ y_tilt) / math.sqrt(float(x @ x) * float(y_tilt @ y_tilt)) if y_tilt @ y_tilt > 0 else 0.0
+        fits[unit] = (float(slope), r)
+    good = [u for u, (slope, r) in fits.items()
+            if ANGLE_UNIT_SLOPE[0] <= slope <= ANGLE_UNIT_SLOPE[1] and r >= ANGLE_UNIT_MIN_CORRELATION]
+    return (good[0] if len(good) == 1 else None), fits
 
 
 def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_PWM_MAP,
@@ -191,19 +229,19 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
         pose_block = np.column_stack([pos, q])
     else:
         logged = np.column_stack([column(n, required=False) for n in _EULER])
-        unit, ratio = (angle_unit, float("nan")) if angle_unit != "auto" else \
-            angle_unit_from_motion(t_all, pos, logged)
+        unit, fits = (angle_unit, {}) if angle_unit != "auto" else angle_unit_from_motion(t_all, pos, logged)
+        said = "; ".join(f"read as {'radians' if u == 'rad' else 'degrees'}: slope {sl:.3g}, correlation {r:.2f}"
+                         for u, (sl, r) in fits.items())
         if unit is None:
             raise GreyboxInputError(
                 f"{path}: no quaternion columns, and the motion does not tell whether roll/pitch/yaw are in "
-                f"degrees or radians (horizontal acceleration / (g x tilt as radians) = {ratio:.3g}: about 1 for "
-                f"radians, 1/57 for degrees); give the unit: --angle-unit rad or deg")
+                f"degrees or radians (the horizontal acceleration against g times the tilt, {said or 'too few rows'}; "
+                "the unit's slope is about 1 with a strong correlation); give the unit: angle_unit='rad' or 'deg' "
+                "(greybox import nanobench --angle-unit)")
         eul_flu = np.radians(logged) if unit == "deg" else logged
         notes.append("no quaternion columns: attitude from roll/pitch/yaw, in "
                      + ("degrees" if unit == "deg" else "radians")
-                     + (" (as given)" if angle_unit != "auto" else
-                        f" (the motion says so: horizontal acceleration / (g x tilt as radians) = {ratio:.3g})"
-                        if np.isfinite(ratio) else " (beyond pi: no radians)"))
+                     + (" (as given)" if angle_unit != "auto" else f" (the motion says so: {said})"))
         pose_block = np.column_stack([pos, eul_flu])
     pose_fresh = fresh_rows(np.nan_to_num(pose_block, nan=1e300))
     n_held_pose = int((~pose_fresh).sum())
