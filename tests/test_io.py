@@ -306,6 +306,24 @@ def test_px4_corrupt_truncated_and_missing_pyulog(tmp_path, capsys, monkeypatch)
         assert size == len(whole) // 2 < end
         assert any("the file ends inside a message" in n for n in read_px4_topics(half)[2])
         assert not any("ends inside" in n for n in read_px4_topics(ULG)[2])
+        # appended data (flag bits' appended_offsets, ULog format): the main part may stop inside
+        # a message by design; only the last appended part must end with the file
+        import struct
+        msgs, pos = [], 16
+        while pos + 3 <= len(whole):
+            size = struct.unpack("<H", whole[pos:pos + 2])[0]
+            msgs.append((pos, size, chr(whole[pos + 2])))
+            pos += 3 + size
+        cut = msgs[len(msgs) // 2][0] + 10                 # inside a message
+        appended = b"".join(whole[p:p + 3 + n] for p, n, kind in msgs if kind == "A") + \
+            b"".join(whole[p:p + 3 + n] for p, n, kind in msgs[len(msgs) // 2 + 1:len(msgs) // 2 + 300] if kind == "D")
+        flag_bits = struct.pack("<HB", 40, ord("B")) + bytes(8) + bytes([1]) + bytes(7) + \
+            struct.pack("<3Q", 16 + 43 + cut - 16, 0, 0)
+        with_appended = tmp_path / "appended.ulg"
+        with_appended.write_bytes(whole[:16] + flag_bits + whole[16:cut] + appended)
+        assert ulog_cut_at(with_appended) is None
+        with_appended.write_bytes(whole[:16] + flag_bits + whole[16:cut] + appended[:-7])
+        assert ulog_cut_at(with_appended) is not None
     out = tmp_path / "o.csv"
     assert main(["import", "px4", str(junk), "--out", str(out)]) == 2 and not out.exists()
     assert "not a readable PX4 ULog" in capsys.readouterr().err

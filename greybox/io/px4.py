@@ -69,9 +69,16 @@ def ulog_cut_at(path: str | Path) -> tuple[int, int] | None:
     None when its messages end with the file. pyulog reads a cut file without a word (an
     audit's copy of half the sample log imported as a 34-s flight); a file cut exactly at a
     message's end cannot be told from a whole one. Message headers (ULog format): ``uint16``
-    payload size, ``uint8`` type, after the 16-byte file header."""
+    payload size, ``uint8`` type, after the 16-byte file header; a file with appended data (the
+    flag bits message's ``appended_offsets``: the main part may stop inside a message, by
+    design) is walked from its last appended part."""
     data = Path(path).read_bytes()
     pos, n = 16, len(data)
+    if n >= 19 and data[18] == ord("B") and n >= 19 + 40:
+        # flag bits: compat[8], incompat[8], appended_offsets[3] (uint64); incompat bit 0: data appended
+        offsets = [int.from_bytes(data[19 + 16 + 8 * i:19 + 24 + 8 * i], "little") for i in range(3)]
+        if data[19 + 8] & 1 and any(offsets):
+            pos = max(o for o in offsets if o)
     while pos + 3 <= n:
         size = int.from_bytes(data[pos:pos + 2], "little")
         pos += 3 + size
