@@ -62,6 +62,9 @@ _positive_int = _number_type("a positive integer", 1, integer=True)
 _digits = _number_type("between 3 and 17", 3, 17, integer=True)
 _seed = _number_type("zero or a positive integer", 0, integer=True)
 
+FIT_DEFAULTS = {"horizon": 1.0, "max_iter": 60, "process_noise": "if_needed"}
+"""``greybox fit``'s defaults that an IMU-only log's fit takes as given (any other value is refused)."""
+
 OUTPUT_OPTIONS = {"json": ("--json", "file"), "out": ("--out", "file"), "save": ("--save", "file"),
                   "airframe_out": ("--airframe-out", "file"), "plots": ("--plots", "folder"),
                   "report": ("--report", "folder"), "out_dir": ("--out-dir", "folder"),
@@ -412,8 +415,9 @@ def _fit_imu_only(args: argparse.Namespace, model: QuadrotorModel, logs) -> int:
     unused = [option for option, given in (
         ("--effects", args.effects), ("--without", args.without), ("--set", args.set), ("--free", args.free),
         ("--fixed", args.fixed), ("--save", args.save), ("--plots", args.plots), ("--interval", args.interval),
-        ("--per-flight", args.per_flight not in (None, "auto")), ("--horizon", args.horizon != 1.0),
-        ("--max-iter", args.max_iter != 60), ("--process-noise", args.process_noise != "if_needed")) if given]
+        ("--per-flight", args.per_flight not in (None, "auto")), *(
+            (f"--{name.replace('_', '-')}", getattr(args, name) != default) for name, default in FIT_DEFAULTS.items())
+    ) if given]
     if unused:
         raise GreyboxInputError(f"{logs[0].source}: an IMU-only log (gyro and accelerometer, no position) is fitted by "
                                 f"its own equations (K_T, b, the motor lag, the torque gains; README, \"Fitting an "
@@ -742,8 +746,9 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--free", help="comma list of parameters to fit (default: all that are free by default)")
     f.add_argument("--fixed", help="comma list of parameters to hold at their starting values")
     f.add_argument("--interval", type=_positive_int, help="samples per shooting interval (default: nearest 50 ms)")
-    f.add_argument("--max-iter", type=_positive_int, default=60, help="Gauss-Newton iteration limit (default 60)")
-    f.add_argument("--process-noise", choices=["if_needed", "auto", "none"], default="if_needed",
+    f.add_argument("--max-iter", type=_positive_int, default=FIT_DEFAULTS["max_iter"],
+                   help=f"Gauss-Newton iteration limit (default {FIT_DEFAULTS['max_iter']})")
+    f.add_argument("--process-noise", choices=["if_needed", "auto", "none"], default=FIT_DEFAULTS["process_noise"],
                    help="how the shooting gaps are treated: 'if_needed' (default) output error, then "
                         "process noise when output error cannot follow the data; 'auto' process noise "
                         "(real logs); 'none' output error only (see README)")
@@ -753,7 +758,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="with several logs, what each flight gets its own value of: 'auto' (default: the "
                         "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
                         "comma list of effects / parameters")
-    f.add_argument("--horizon", type=_positive, default=1.0, help="validation prediction horizon, s (default 1)")
+    f.add_argument("--horizon", type=_positive, default=FIT_DEFAULTS["horizon"],
+                   help=f"validation prediction horizon, s (default {FIT_DEFAULTS['horizon']:g})")
     f.add_argument("--plots", help="folder for compare/residual plots")
     f.add_argument("--quiet", action="store_true", help="no progress lines")
     f.add_argument("--json", help="write the result here")
