@@ -779,3 +779,26 @@ def test_an_extra_column_that_mixes_numbers_and_text_is_a_bad_cell_not_a_text_co
     log = load_log(_write(tmp_path / "vbat_ok.csv", rows))
     assert log.extras["on_ground"][:5].tolist() == [1.0] * 5 and log.extras["on_ground"][5:].max() == 0.0
     assert log.extras["vbat"][299] == pytest.approx(3.97)
+
+
+def test_an_os_error_is_one_line_unless_an_interrupt_came_first(capsys, monkeypatch):
+    """An OSError from a command: a full disk (no file name) is one error line, exit 2; one
+    raised after a SIGTERM that some callback swallowed (a killed compiler's library gone)
+    ends as the interrupt it was, 143, not as a file error."""
+    import errno
+    import signal
+    from greybox import cli, errors
+    monkeypatch.setattr(errors, "_SIGNALS_RECEIVED", [])     # the record of signals, this test's own
+
+    def full_disk(args):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(cli, "cmd_effects", full_disk)       # main builds its parser on each call
+    rc, err = _cli(capsys, "effects")
+    assert rc == 2 and "No space left on device" in _one_error(err)
+
+    def library_gone_after_sigterm(args):
+        errors._SIGNALS_RECEIVED.append(signal.SIGTERM)   # as the handler records a swallowed one
+        raise FileNotFoundError(errno.ENOENT, "No such file or directory", "/cache/step.so")
+    monkeypatch.setattr(cli, "cmd_effects", library_gone_after_sigterm)
+    rc, err = _cli(capsys, "effects")
+    assert rc == 143 and "terminated" in err and "step.so" not in err
