@@ -102,6 +102,7 @@ class Options:
     import_format: str = "csv"
     pwm_map: str | None = None
     held: str = "interpolate"
+    angle_unit: str = "auto"
     # the joint fit's per-flight parameters (fit's ``per_flight``): in the fleet's key, not
     # in a flight's (a flight's own results do not depend on it)
     per_flight: str | tuple[str, ...] | None = "auto"
@@ -115,7 +116,9 @@ class Options:
                 "candidates": list(self.candidates) if self.candidates is not None else None,
                 "iterate": self.iterate, "discover": self.discover, "process_noise": self.process_noise,
                 "input_noise": self.input_noise, "import": self.import_format,
-                "pwm_map": self.pwm_map, "held": self.held}
+                "pwm_map": self.pwm_map, "held": self.held,
+                # only when given: results of batches before the option stay valid on a rerun
+                **({"angle_unit": self.angle_unit} if self.angle_unit != "auto" else {})}
 
 
 @dataclass(frozen=True)
@@ -295,7 +298,7 @@ def _read_flight(path: str, sha: str, opts: Options):
         imp = import_px4(path, pwm_map=pwm, held=opts.held)
     elif fmt == "nanobench":
         pwm = parse_pwm_map(opts.pwm_map) if opts.pwm_map else CRAZYFLIE_PWM_MAP
-        imp = import_nanobench(path, pwm_map=pwm, held=opts.held)
+        imp = import_nanobench(path, pwm_map=pwm, held=opts.held, angle_unit=opts.angle_unit)
     else:
         pwm = parse_pwm_map(opts.pwm_map) if opts.pwm_map else CRAZYFLIE_PWM_MAP
         imp = import_crazyflie_usd(path, pwm_map=pwm, held=opts.held)
@@ -819,7 +822,7 @@ class BatchResult:
 
 def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path | None = None,
           model: str | Path | None = None, import_format: str = "csv", pwm_map: str | None = None,
-          held: str = "interpolate", effects: str | Sequence[str] | None = None,
+          held: str = "interpolate", angle_unit: str = "auto", effects: str | Sequence[str] | None = None,
           without: str | Sequence[str] | None = None, sets: Mapping[str, Any] | Sequence[str] | None = None,
           effects_files: Sequence[str | Path] = (), candidates: Sequence[str] | None = None, iterate: bool = True,
           discover: bool = True, process_noise: str | None = IF_NEEDED, input_noise: str = "smooth", workers: int = 2, scheduler: str | None = None, joint: bool = False,
@@ -833,6 +836,8 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
         airframe / model: the model to fit (an airframe TOML, or a saved fitted model).
         import_format: ``"csv"`` (greybox's flight log) or ``"nanobench"``, ``"px4"``,
             ``"crazyflie-usd"`` (read through the importer, with ``pwm_map`` and ``held``).
+        angle_unit: for ``"nanobench"`` flights without the quaternion, the roll/pitch/yaw
+            columns' unit: ``"auto"`` (read from each flight's motion), ``"rad"`` or ``"deg"``.
         effects, without, sets, effects_files, candidates, iterate, discover, process_noise,
             input_noise: as for ``greybox fit``/``diagnose``.
         workers: processes of the local cluster (one thread each); ignored with ``scheduler``
@@ -867,6 +872,10 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
         raise GreyboxInputError(f"batch: unknown import format {import_format!r}; known: {', '.join(FORMATS)}")
     if held not in ("interpolate", "hold"):
         raise GreyboxInputError(f"batch: held must be 'interpolate' or 'hold', got {held!r}")
+    if angle_unit not in ("auto", "rad", "deg"):
+        raise GreyboxInputError(f"batch: angle unit must be 'auto', 'rad' or 'deg', got {angle_unit!r}")
+    if angle_unit != "auto" and import_format != "nanobench":
+        raise GreyboxInputError("--angle-unit applies to NanoBench logs (--import nanobench)")
     if scheduler is None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1):
         raise GreyboxInputError(f"--workers {workers!r}: must be a positive integer")
     if isinstance(retries, bool) or not isinstance(retries, (int, np.integer)) or retries < 0:
@@ -888,6 +897,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
                    candidates=tuple(candidates) if candidates is not None else None, iterate=bool(iterate),
                    discover=bool(discover),
                    process_noise=process_noise, input_noise=input_noise, import_format=import_format, pwm_map=pwm_map, held=held,
+                   angle_unit=angle_unit,
                    per_flight=per_flight if per_flight is None or isinstance(per_flight, str) else tuple(per_flight))
     if process_noise not in (None, "auto", IF_NEEDED):
         raise GreyboxInputError(f"process_noise must be {IF_NEEDED!r}, None or 'auto', got {process_noise!r}")

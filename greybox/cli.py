@@ -573,7 +573,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     if args.workers is not None and args.scheduler:
         raise GreyboxInputError("--workers and --scheduler exclude each other: the scheduler's workers do the work")
     res = batch(args.inputs, args.batch_out, airframe=args.airframe, model=args.model,
-                import_format=args.import_format, pwm_map=args.pwm_map, held=args.held, effects=args.effects,
+                import_format=args.import_format, pwm_map=args.pwm_map, held=args.held,
+                angle_unit=args.angle_unit, effects=args.effects,
                 without=args.without, sets=args.set, effects_files=args.effects_file or (),
                 candidates=_names(args.candidates), iterate=not args.no_iterate, discover=not args.no_discover,
                 process_noise=_process_noise(args), input_noise=args.input_noise,
@@ -606,6 +607,9 @@ def _batch_parser(sub) -> None:
     b.add_argument("--pwm-map", help="a,c of w[rad/s] = a*PWM + c for imported logs (default: the importer's)")
     b.add_argument("--held", choices=["interpolate", "hold"], default="interpolate",
                    help="held motor samples of imported logs: interpolate (default) or hold")
+    b.add_argument("--angle-unit", choices=["auto", "rad", "deg"], default="auto",
+                   help="NanoBench logs without the quaternion: the roll/pitch/yaw columns' unit (default: "
+                        "read from each flight's motion)")
     b.add_argument("--candidates", help="comma list of candidate effects (default: every effect not in the model)")
     b.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
     b.add_argument("--no-discover", action="store_true",

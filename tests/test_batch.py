@@ -161,6 +161,9 @@ def test_without_dask_exit_2_says_how_to_install(flights, tmp_path, monkeypatch,
     (["--candidates", "magic"], "unknown effect 'magic'"),
     (["--candidates", "yaw_torque"], "already in the model"),
     (["--pwm-map", "1,2"], "--pwm-map applies to imported logs"),
+    (["--angle-unit", "rad"], "--angle-unit applies to NanoBench logs"),
+    (["--import", "px4", "--angle-unit", "deg"], "--angle-unit applies to NanoBench logs"),
+    (["--import", "nanobench", "--angle-unit", "grad"], "invalid choice"),
     (["--import", "nanobench", "--pwm-map", "x"], "--pwm-map"),
     (["--import", "magic"], "invalid choice"),
     (["--set", "K_T=-1"], "K_T"),
@@ -212,6 +215,33 @@ def test_the_hash_changes_with_input_content_and_options():
                   Options(airframe=PAPER, candidates=("wind",)), Options(airframe=PAPER, process_noise="auto"),
                   Options(airframe=PAPER, sets=(("K_T", (3e-5,)),))):
         assert _flight_key("abc", other.fingerprint()) != _flight_key("abc", fp)
+
+
+def test_a_nanobench_flight_without_the_quaternion_reads_its_angles_in_the_unit_given(tmp_path):
+    """A still flight (tilt held at 0.01) cannot show its angles' unit from the motion: read
+    through the importer it is one clear error asking for the unit, and with
+    ``angle_unit="deg"`` (``--angle-unit deg``) the flight reads, its roll in radians; the
+    unit given is part of the flight's key (a rerun with another unit is not skipped), the
+    default not (batches from before the option stay valid)."""
+    import pandas as pd
+    from greybox.batch import _read_flight, _sha_bytes
+    from greybox.errors import GreyboxInputError
+    df = pd.read_csv(Path(__file__).resolve().parent / "data" / "nanobench_B2_slice.csv")
+    still = df.drop(columns=["qx", "qy", "qz", "qw"])
+    still[["roll", "pitch"]] = 0.57                     # degrees: 0.01 rad
+    path = tmp_path / "still.csv"
+    still.to_csv(path, index=False)
+    sha = _sha_bytes(path.read_bytes())
+    with pytest.raises(GreyboxInputError, match="angle_unit='rad' or 'deg'"):
+        _read_flight(str(path), sha, Options(airframe=PAPER, import_format="nanobench"))
+    log, notes = _read_flight(str(path), sha, Options(airframe=PAPER, import_format="nanobench", angle_unit="deg"))
+    assert any("in degrees (as given)" in n for n in notes), notes
+    phi = log.output("phi")
+    assert np.allclose(phi[np.isfinite(phi)], np.radians(0.57))
+    auto = Options(airframe=PAPER, import_format="nanobench")
+    assert "angle_unit" not in auto.fingerprint()
+    assert _flight_key("abc", auto.fingerprint()) != _flight_key(
+        "abc", Options(airframe=PAPER, import_format="nanobench", angle_unit="deg").fingerprint())
 
 
 def _fit_json(K, devs, std=1e-3, dev_std=1e-3, extra=None):
