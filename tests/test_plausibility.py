@@ -50,6 +50,30 @@ def test_motor_and_cog_limits_are_the_effects_own():
     assert CogOffset().plausibility_warnings({"r_cog[0]": 0.5 * lim, "r_cog[1]": 0.0}, {"r_cog[0]": 1e-4}, af) == []
 
 
+def test_rotor_gains_that_only_differ_by_spin_direction_need_a_b_near_zero_and_say_so():
+    """A rotor's gain scales its reaction torque with its thrust: gains +c on the +1 rotors and
+    -c on the -1 rotors are a steady yaw torque ``b c sum w^2`` with any propeller's b. In a
+    fit with b/K_T below 0.001 m they stand in for something else (a real Crazyflie flight's
+    first 60 %: +14, -10, +17, -21 %, b/K_T = 3e-6 m); with a propeller's b, a weak rotor's
+    pattern (its spin part under half the norm), a small difference or gains held fixed,
+    nothing is said."""
+    from greybox.effects import MotorAsymmetry
+    af = load_airframe(PAPER)                                       # spins -1, +1, -1, +1
+    ma = MotorAsymmetry()
+    gains = {"K_T_dev[0]": 0.1387, "K_T_dev[1]": -0.09916, "K_T_dev[2]": 0.1706}
+    std = dict.fromkeys(gains, 0.05)
+    w = ma.plausibility_warnings({"K_T": 1.337e-8, "b": 3.8e-14} | gains, std, af)
+    # d_4 = -(0.1387 - 0.09916 + 0.1706) = -0.2101; spin -1 (rotors 1, 3): (0.1387 + 0.1706) / 2 = +15.5 %
+    assert len(w) == 1 and "spin +1 rotors -15.5 %, spin -1 rotors +15.5 %" in w[0], w
+    assert "b/K_T = 2.8e-06 m" in w[0] and "not rotors of unequal strength" in w[0]
+    assert ma.plausibility_warnings({"K_T": 1.337e-8, "b": 4.5e-11} | gains, std, af) == []   # 0.0034 m
+    weak = {"K_T_dev[0]": -0.1, "K_T_dev[1]": 0.1 / 3, "K_T_dev[2]": 0.1 / 3}       # spin part 58 % of the norm
+    assert ma.plausibility_warnings({"K_T": 1.337e-8, "b": 3.8e-14} | weak, std, af) == []
+    small = {"K_T_dev[0]": 0.02, "K_T_dev[1]": -0.02, "K_T_dev[2]": 0.02}            # 2 %: under 3 %
+    assert ma.plausibility_warnings({"K_T": 1.337e-8, "b": 3.8e-14} | small, std, af) == []
+    assert ma.plausibility_warnings({"K_T": 1.337e-8, "b": 3.8e-14} | gains, {}, af) == []
+
+
 def test_a_rotor_deviation_beyond_the_limit_is_never_the_verdict(tmp_path):
     """Rotor 1 at 62 % of the others' thrust (d = -0.3 against +0.1 for the rest): the refit
     recovers it, and the diagnosis refuses it as the verdict, saying why (on a real flight
