@@ -17,8 +17,9 @@ its defaults), both beside the naive predictor, windows every 0.1 s. ``--models 
 each flight's final model of a diagnosis instead (``DIR/<flight>_final_model.json``, saved by
 ``experiments/real_crazyflie.py``), as fitted, with its open-loop prediction as the diagnosis
 makes it (:func:`greybox.validation.horizon_errors_after`). ``--variants`` also
-scores the closed loop with the held trim, with the estimated start and with a law that takes
-the measured attitude for the thrust's (``fit_level=False``): the choices its defaults make.
+scores the closed loop with the held trim, with the estimated start, with a law that takes
+the measured attitude for the thrust's (``fit_level=False``) and with the thrust axis' own
+delay (``axis_delays=("thrust",)``): the choices its defaults make.
 Writes the markdown tables to ``--out``.
 """
 from __future__ import annotations
@@ -83,6 +84,10 @@ def run(path: Path, effects: list[str], variants: bool, models: Path | None = No
         unlevelled = copy.copy(law)
         unlevelled.level_ = np.zeros(2)
         out["closed, no level"] = closed_loop_horizon_errors(model, res.p, unlevelled, val, horizons=HORIZONS)
+        # the thrust axis' delay its own (the attitude axes sharing the joint one)
+        thrust_own = ControllerLaw(axis_delays=("thrust",)).fit(model, est)
+        out["closed, thrust's own delay"] = closed_loop_horizon_errors(model, res.p, thrust_own, val,
+                                                                       horizons=HORIZONS)
     out["what"] = ("each flight's final model of its diagnosis" if models is not None else
                    "the base model with " + ", ".join(effects) + ", fitted on the first 80 %")
     out["seconds"] = time.perf_counter() - t0
@@ -122,7 +127,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("files", nargs="*", type=Path)
     ap.add_argument("--effects", default=EFFECTS, help="effects added to the base model (comma separated)")
-    ap.add_argument("--variants", action="store_true", help="also the held trim, the estimated start and the law without its level")
+    ap.add_argument("--variants", action="store_true", help="also the held trim, the estimated start, the law without its level and the thrust axis' own delay")
     ap.add_argument("--models", type=Path, help="fly the diagnoses' final models saved in this folder")
     ap.add_argument("--out", type=Path, default=HERE / "out" / "real_closed_loop.md")
     a = ap.parse_args()

@@ -253,7 +253,9 @@ class ControllerLaw:
         axis_delays: each axis' delay chosen by its own least squares (``delays_``); False:
             one for all (the default: on the ten NanoBench flights the thrust axis then takes
             the longest allowed and predicts height better, but B6_linear_ramp's roll takes
-            90 ms and its loop swings; README).
+            90 ms and its loop swings; README); or the names of the axes (of
+            :data:`LAW_AXES`) that get their own, the rest sharing the joint one
+            (``("thrust",)``).
 
     Fitted attributes: ``gains_`` (axis -> gains on :data:`LAW_FEATURES` [axis]), ``trims_``
     (4,), ``delay_`` (s; the joint one), ``delays_`` (4,: each axis', s), ``r2_`` (axis ->
@@ -272,7 +274,7 @@ class ControllerLaw:
     delay: float | None = None
     max_delay: float = 0.15
     fit_level: bool = True
-    axis_delays: bool = False
+    axis_delays: bool | tuple[str, ...] = False
     gains_: dict[str, np.ndarray] = field(default_factory=dict, init=False)
     trims_: np.ndarray | None = field(default=None, init=False)
     delay_: float = field(default=float("nan"), init=False)
@@ -292,6 +294,7 @@ class ControllerLaw:
         for name, v in (("delay", self.delay), ("max_delay", self.max_delay)):
             if v is not None and not (math.isfinite(v) and v >= 0):
                 raise GreyboxInputError(f"ControllerLaw: {name} must be a time >= 0 s, got {v!r}")
+        own = self.own_delay_axes()
         A = model.airframe.allocation_matrix()
         nr = model.airframe.n_rotors
         data = []
@@ -313,8 +316,8 @@ class ControllerLaw:
         _, gains, trims, r2, delay = min(fits, key=lambda f: f[0])
         self.gains_, self.trims_, self.r2_, self.delay_ = dict(gains), trims.copy(), dict(r2), float(delay)
         self.delays_ = np.full(4, float(delay))
-        if self.axis_delays:
-            for i, axis in enumerate(LAW_AXES):
+        for i, axis in enumerate(LAW_AXES):
+            if axis in own:
                 _, g, tr, r, dl = max(fits, key=lambda f: f[3][axis])
                 self.gains_[axis], self.trims_[i], self.r2_[axis], self.delays_[i] = g[axis], tr[i], r[axis], dl
         self.level_ = self.measured_level(logs, model.airframe.gravity) if self.fit_level else np.zeros(2)
@@ -322,6 +325,19 @@ class ControllerLaw:
         w = np.concatenate([log.inputs[:, :nr].ravel() for log in logs])
         self.w_range_ = (float(np.min(w)), float(np.max(w)))
         return self
+
+    def own_delay_axes(self) -> tuple[str, ...]:
+        """The axes (of :data:`LAW_AXES`) whose delay :meth:`fit` chooses by their own least
+        squares (``axis_delays``)."""
+        a = self.axis_delays
+        if isinstance(a, (bool, np.bool_)):
+            return tuple(LAW_AXES) if a else ()
+        names = (a,) if isinstance(a, str) else tuple(a)
+        bad = [n for n in names if n not in LAW_AXES]
+        if bad:
+            raise GreyboxInputError(f"ControllerLaw: axis_delays names {', '.join(map(repr, bad))}: not an axis of "
+                                    f"the law ({', '.join(LAW_AXES)})")
+        return names
 
     def delay_samples(self, dt: float) -> int:
         """The law's delay in samples of a log with sample time ``dt``."""

@@ -112,6 +112,16 @@ def test_a_known_linear_law_is_recovered_with_its_delay_in_the_yaw_aligned_frame
         np.testing.assert_allclose(law.gains_[axis], KNOWN_LAW[axis][0], rtol=0.02, err_msg=axis)
     joint = ControllerLaw().fit(QuadrotorModel(af), mixed)
     assert joint.delay_ == 0.0 and np.ptp(joint.delays_) == 0 and joint.r2_["yaw"] < law.r2_["yaw"]
+    # only the named axes get their own: yaw's 70 ms, the rest the joint 0 with the joint's gains
+    yaw_own = ControllerLaw(axis_delays=("yaw",)).fit(QuadrotorModel(af), mixed)
+    np.testing.assert_allclose(yaw_own.delays_, [0.0, 0.0, 0.0, 0.07], atol=1e-9)
+    assert yaw_own.r2_["yaw"] == pytest.approx(law.r2_["yaw"]) and yaw_own.delay_ == 0.0
+    for axis in ("thrust", "roll", "pitch"):
+        np.testing.assert_array_equal(yaw_own.gains_[axis], joint.gains_[axis])
+    thrust_own = ControllerLaw(axis_delays=("thrust",)).fit(QuadrotorModel(af), mixed)
+    np.testing.assert_allclose(thrust_own.delays_, 0.0, atol=1e-9)       # thrust's own is the joint's here
+    with pytest.raises(GreyboxInputError, match="'throttle': not an axis of the law"):
+        ControllerLaw(axis_delays=("throttle",)).fit(QuadrotorModel(af), mixed)
 
 
 def test_each_axis_of_the_loop_acts_on_the_command_its_delay_says():
