@@ -481,3 +481,27 @@ def test_without_the_quaternion_the_angles_unit_is_read_from_the_motion(tmp_path
     with pytest.raises(GreyboxInputError, match="angle_unit='rad' or 'deg'"):
         import_nanobench(path)
     assert any("in radians (as given)" in n for n in import_nanobench(path, angle_unit="rad").notes)
+
+
+@needs_real
+@pytest.mark.slow
+def test_rotor_gains_by_spin_direction_with_b_near_zero_are_not_the_verdict(tmp_path):
+    """The first 60 % of B2_circle_slow_rep2 (a flight the diagnosis had not been run on): its
+    first round's motor_asymmetry refit validated best with gains about +-19 % by spin
+    direction and b/K_T near 1e-6 m, which only works because b is near zero; it was the
+    verdict, and the final model's thrust then followed the yaw command. Refused as
+    implausible, the verdict is the CoG offset the whole flight takes."""
+    src = REAL / "B2_circle_slow_rep2.csv"
+    lines = src.read_text().splitlines(keepends=True)
+    cut = tmp_path / "B2_circle_slow_rep2_first60.csv"
+    cut.write_text("".join(lines[:1 + (len(lines) - 1) * 6 // 10]))
+    import tomllib
+    imp = import_nanobench(cut)
+    af = airframe_from_dict(tomllib.loads(
+        crazyflie_airframe_toml(0.030, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))), "cf")
+    d = diagnose(QuadrotorModel(af), imp.log, process_noise="auto", horizon=0.5, iterate=False, discover=False)
+    assert d.baseline.converged
+    assert d.verdict == "cog_offset", d.summary()
+    ma = next(c for c in d.rounds[0].ranking if c.effect == "motor_asymmetry")
+    assert ma.fit is not None and not ma.significant and "difference between the spin directions" in ma.reason, ma.reason
+    assert ma.fit.value("b") / ma.fit.value("K_T") < 1e-3
