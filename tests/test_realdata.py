@@ -505,3 +505,33 @@ def test_rotor_gains_by_spin_direction_with_b_near_zero_are_not_the_verdict(tmp_
     ma = next(c for c in d.rounds[0].ranking if c.effect == "motor_asymmetry")
     assert ma.fit is not None and not ma.significant and "difference between the spin directions" in ma.reason, ma.reason
     assert ma.fit.value("b") / ma.fit.value("K_T") < 1e-3
+
+
+@needs_real
+def test_a_flight_that_starts_in_the_air_keeps_its_velocity_the_positions_derivative(tmp_path):
+    """The last 60 % of B10_lissajous_slow (starting in the air: no climb in the log). With the
+    positions' process noise estimated like any state's, the fit ended certified with the thrust
+    carrying 85 % of the weight and the vertical drag Kd[2] on its 0.3 N s/m bound: the velocity
+    state left the positions' derivative and its drag carried the rest. Fitted again with the
+    positions held to what the kinematics allow, the thrust carries the weight, Kd[2] is off its
+    bound and the horizontal drag is the IMU's (0.011-0.012 N s/m), and the fit says so."""
+    import tomllib
+    from greybox.fitting.api import POSITION_GAP_SHARE, THRUST_BALANCE
+    src = REAL / "B10_lissajous_slow_rep1.csv"
+    lines = src.read_text().splitlines(keepends=True)
+    n = len(lines) - 1
+    cut = tmp_path / "B10_last60.csv"
+    cut.write_text(lines[0] + "".join(lines[1 + n - n * 6 // 10:]))
+    imp = import_nanobench(cut)
+    af = airframe_from_dict(tomllib.loads(
+        crazyflie_airframe_toml(0.030, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))), "cf")
+    model = QuadrotorModel(af)
+    est, _ = imp.log.split(0.8)
+    res = fit(model, est, process_noise="auto")
+    assert res.converged, res.status
+    hover = model.parameter_vector()[model.param_names.index("K_T")]      # the balance, from the log
+    assert abs(res.value("K_T") / hover - 1) < THRUST_BALANCE
+    assert res.value("Kd[2]") < 0.1 and 0.009 < res.value("Kd[0]") < 0.014 and 0.009 < res.value("Kd[1]") < 0.014
+    assert "positions' process noise held" in res.warnings[0] and "85 % of the weight" in res.warnings[0], res.warnings
+    for name in "xyz":
+        assert res.process_noise[name] == pytest.approx(POSITION_GAP_SHARE * res.sigma[name], rel=1e-6)
