@@ -515,18 +515,26 @@ def _hover_balance_restart(model: QuadrotorModel, logs, process_noise, kw: dict,
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)     # judged here
         second = _fit_from(model, logs, process_noise, {**kw, "p0": start})
+    return _balanced_or_first(
+        model, flights, first, second,
+        kept=(f"started again from K_T = {hover:.4g}, where the mean rotor thrust is the weight: from the given "
+              f"start the fit ended at K_T = {first.value('K_T'):.4g} with the thrust carrying {100 * ratio:.0f} % of "
+              f"the weight ({'certified' if first.converged else 'not certified'}): a basin where the thrust stood in "
+              "for something else (a torque the model lacks, noise on the logged speeds)"),
+        tried=f"started again from K_T = {hover:.4g}, where the mean rotor thrust is the weight")
+
+
+def _balanced_or_first(model: QuadrotorModel, flights: Sequence[FlightLog], first: FitResult, second: FitResult,
+                       kept: str, tried: str) -> FitResult:
+    """``second`` (a fit of ``first``'s problem tried again) when it is certified and its thrust
+    carries the weight, with ``kept`` leading its warnings; otherwise ``first``, with words on
+    what ``second`` found after ``tried``."""
     ratio2 = _thrust_ratio(model, flights, second.value("K_T"))
     if second.converged and ratio2 is not None and abs(ratio2 - 1.0) <= THRUST_BALANCE:
-        second.warnings.insert(0, f"started again from K_T = {hover:.4g}, where the mean rotor thrust is the weight: "
-                                  f"from the given start the fit ended at K_T = {first.value('K_T'):.4g} with the "
-                                  f"thrust carrying {100 * ratio:.0f} % of the weight "
-                                  f"({'certified' if first.converged else 'not certified'}): a basin where the "
-                                  "thrust stood in for something else (a torque the model lacks, noise on the "
-                                  f"logged speeds); this fit's thrust carries {100 * ratio2:.0f} % of it")
+        second.warnings.insert(0, f"{kept}; this fit's thrust carries {100 * ratio2:.0f} % of it")
         second.timings["total"] = first.timings.get("total", 0.0) + second.timings.get("total", 0.0)
         return second
-    first.warnings.append(f"started again from K_T = {hover:.4g}, where the mean rotor thrust is the weight, the fit "
-                          f"ended at K_T = {second.value('K_T'):.4g} "
+    first.warnings.append(f"{tried}, the fit ended at K_T = {second.value('K_T'):.4g} "
                           f"({'certified' if second.converged else 'not certified: ' + second.status}"
                           + (f", thrust {100 * ratio2:.0f} % of the weight" if ratio2 is not None else "") +
                           "): kept the first")
@@ -568,22 +576,13 @@ def _kinematic_restart(model: QuadrotorModel, logs, process_noise, kw: dict, fir
         _warnings.simplefilter("ignore", ConvergenceWarning)     # judged here
         second = _fit_from(model, logs, {**given, **pinned}, kw)
     flights = [logs] if isinstance(logs, FlightLog) else list(logs)
-    ratio2 = _thrust_ratio(model, flights, second.value("K_T"))
-    if second.converged and ratio2 is not None and abs(ratio2 - 1.0) <= THRUST_BALANCE:
-        second.warnings.insert(0, f"fitted again with the positions' process noise held at "
-                                  f"{POSITION_GAP_SHARE:g} of their sensor noise (dp/dt = v is exact): with it "
-                                  f"estimated like any state's the fit ended at K_T = {first.value('K_T'):.4g}, the "
-                                  f"thrust carrying {100 * ratio:.0f} % of the weight, a velocity apart from the "
-                                  f"positions' derivative carrying the rest through a drag; this fit's thrust "
-                                  f"carries {100 * ratio2:.0f} % of it")
-        second.timings["total"] = first.timings.get("total", 0.0) + second.timings.get("total", 0.0)
-        return second
-    first.warnings.append(f"fitted again with the positions' process noise held at what the kinematics allow, "
-                          f"the fit ended at K_T = {second.value('K_T'):.4g} "
-                          f"({'certified' if second.converged else 'not certified: ' + second.status}"
-                          + (f", thrust {100 * ratio2:.0f} % of the weight" if ratio2 is not None else "") +
-                          "): kept the first")
-    return first
+    return _balanced_or_first(
+        model, flights, first, second,
+        kept=(f"fitted again with the positions' process noise held at {POSITION_GAP_SHARE:g} of their sensor noise "
+              f"(dp/dt = v is exact): with it estimated like any state's the fit ended at K_T = "
+              f"{first.value('K_T'):.4g}, the thrust carrying {100 * ratio:.0f} % of the weight, a velocity apart "
+              "from the positions' derivative carrying the rest through a drag"),
+        tried="fitted again with the positions' process noise held at what the kinematics allow")
 
 
 class _CannotFollow(Exception):
