@@ -87,6 +87,12 @@ def progress_printer(stream=None) -> Callable[[str], None]:
     return say
 
 
+def _progress_callback(progress) -> Callable[[str], None]:
+    """The ``say`` of a ``progress`` argument: True prints (:func:`progress_printer`), a
+    callable is called, False or None says nothing."""
+    return progress_printer() if progress is True else (progress or (lambda _m: None))
+
+
 @dataclass(repr=False)   # FittedModel's short repr: the arrays would fill a screen
 class FitResult(FittedModel):
     """The outcome of :func:`fit`: a :class:`~greybox.FittedModel` (predict, simulate,
@@ -306,7 +312,7 @@ def _fit_from(model: QuadrotorModel, logs, process_noise, kw: dict) -> FitResult
     progress = kw["progress"]
     if not (isinstance(process_noise, str) and process_noise == IF_NEEDED):
         return _fit_formulation(model, logs, process_noise=process_noise, **kw)
-    say = progress_printer() if progress is True else (progress or (lambda _m: None))
+    say = _progress_callback(progress)
     t_start = time.perf_counter()
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)     # judged here
@@ -507,8 +513,8 @@ def _hover_balance_restart(model: QuadrotorModel, logs, process_noise, kw: dict,
     if not np.isfinite(hover) or hover <= 0 or abs(start[k_t] / hover - 1.0) <= THRUST_BALANCE:
         # it started at the balance: what else lets the thrust leave it is the positions'
         # process noise
-        return _kinematic_restart(model, logs, process_noise, kw, first, ratio)
-    say = progress_printer() if kw["progress"] is True else (kw["progress"] or (lambda _m: None))
+        return _kinematic_restart(model, logs, flights, process_noise, kw, first, ratio)
+    say = _progress_callback(kw["progress"])
     say(f"fit: the fitted thrust carries {100 * ratio:.0f} % of the weight (K_T = {first.value('K_T'):.4g}), from a "
         f"start at {100 * start[k_t] / hover:.0f} %: again from K_T = {hover:.4g}, where the rotors carry the weight")
     start[k_t] = hover
@@ -546,8 +552,8 @@ POSITION_GAP_SHARE = 0.01
 sensor noise: ``dp/dt = v`` is exact, and a position gap is then the integration's only."""
 
 
-def _kinematic_restart(model: QuadrotorModel, logs, process_noise, kw: dict, first: FitResult,
-                       ratio: float) -> FitResult:
+def _kinematic_restart(model: QuadrotorModel, logs, flights: Sequence[FlightLog], process_noise, kw: dict,
+                       first: FitResult, ratio: float) -> FitResult:
     """``first`` (with process noise, started at the hover balance, ended with the thrust far
     from the weight) again with the positions' process noise held at
     :data:`POSITION_GAP_SHARE` of their sensor noise, kept when certified with its thrust
@@ -561,21 +567,19 @@ def _kinematic_restart(model: QuadrotorModel, logs, process_noise, kw: dict, fir
     0.97-0.99 of it, Kd[2] 0 and the horizontal drag the IMU's (0.011 N s/m). Where the fit
     carries the weight anyway (the same flights' first 60 %, with the climb) nothing
     changes."""
-    q = first.process_noise
-    if q is None or any(n in q and isinstance(process_noise, Mapping) and n in process_noise for n in "xyz"):
+    given = dict(process_noise) if isinstance(process_noise, Mapping) else {}
+    if first.process_noise is None or any(n in given for n in "xyz"):
         return first          # output error, or the positions' process noise given by the caller
     pinned = {n: POSITION_GAP_SHARE * first.sigma[n] for n in "xyz"
               if n in model.state_names and np.isfinite(first.sigma.get(n, np.nan)) and first.sigma[n] > 0}
     if len(pinned) < 3:
         return first          # positions not measured: nothing ties the velocity down
-    given = dict(process_noise) if isinstance(process_noise, Mapping) else {}
-    say = progress_printer() if kw["progress"] is True else (kw["progress"] or (lambda _m: None))
+    say = _progress_callback(kw["progress"])
     say(f"fit: the fitted thrust carries {100 * ratio:.0f} % of the weight (K_T = {first.value('K_T'):.4g}), from a "
         "start at the balance: again with the positions' process noise held at what the kinematics allow")
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)     # judged here
         second = _fit_from(model, logs, {**given, **pinned}, kw)
-    flights = [logs] if isinstance(logs, FlightLog) else list(logs)
     return _balanced_or_first(
         model, flights, first, second,
         kept=(f"fitted again with the positions' process noise held at {POSITION_GAP_SHARE:g} of their sensor noise "
@@ -612,7 +616,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     :data:`CANNOT_FOLLOW` times the sensor noise off in some channel, or its first solve stops
     uncertified with shooting gaps :data:`CANNOT_FOLLOW_GAP` times the noise scale open."""
     t_start = time.perf_counter()
-    say = progress_printer() if progress is True else (progress or (lambda _m: None))
+    say = _progress_callback(progress)
     given = logs
     logs = [logs] if isinstance(logs, FlightLog) else list(logs) if isinstance(logs, (list, tuple)) else None
     if not logs or not all(isinstance(lg, FlightLog) for lg in logs):
