@@ -13,7 +13,7 @@ import numpy as np
 
 from . import effects as fx
 from .airframe import load_airframe
-from .data import FlightLog, atomic_write
+from .data import ATOMIC_NAME_EXTRA, FlightLog, atomic_write
 from .errors import GreyboxInputError
 from .model import QuadrotorModel
 
@@ -48,11 +48,11 @@ def _check_writable(p: Path, path: str, option: str, kind: str) -> None:
         raise GreyboxInputError(f"{option} {path}: {here} is a file, not a folder")
     if kind == "file":
         # the file is written through a temporary beside it (data.atomic_write: ".NAME.XXXXXXXX.tmp")
-        longest = len(os.fsencode(p.name)) + 14
+        longest = len(os.fsencode(p.name)) + ATOMIC_NAME_EXTRA
         name_max = os.pathconf(here, "PC_NAME_MAX") if hasattr(os, "pathconf") else 255
         if longest > name_max:
             raise GreyboxInputError(f"{option} {path}: the file name is too long ({len(os.fsencode(p.name))} bytes; "
-                                    f"at most {name_max - 14} here)")
+                                    f"at most {name_max - ATOMIC_NAME_EXTRA} here)")
     try:
         fd, probe = tempfile.mkstemp(prefix=".greybox-probe-", dir=here)
         os.close(fd)

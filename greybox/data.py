@@ -23,7 +23,8 @@ import numpy as np
 
 from .errors import GreyboxInputError
 
-__all__ = ["FlightLog", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write", "log_from_table",
+__all__ = ["FlightLog", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write",
+           "ATOMIC_NAME_EXTRA", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "median_row_interval"]
 
@@ -340,6 +341,12 @@ def _pandas(what: str):
     except ImportError:
         raise ImportError(f"{what} needs pandas, which is not installed: pip install pandas") from None
     return pandas
+
+
+ATOMIC_NAME_EXTRA = 14
+"""Bytes the temporary of :func:`atomic_write` adds to the file's name: ``.NAME.XXXXXXXX.tmp``
+(mkstemp's eight random characters). A name within this of the file system's limit cannot be
+written, so the command line refuses it before any work."""
 
 
 def atomic_write(path: str | Path, text: str | bytes) -> None:

@@ -17,7 +17,7 @@ from .. import effects as fx
 from ..data import FlightLog, median_row_interval
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..controller_law import closed_loop_or_why
-from ..fitting import IF_NEEDED, FitResult, fit, progress_printer
+from ..fitting import IF_NEEDED, FitResult, fit, progress_callback
 from ..fitting.input_errors import followed_share
 from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
@@ -89,8 +89,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         print(d.summary())                           # verdict: ground_effect
     """
     t_start = time.perf_counter()
-    say = progress_printer() if progress is True else \
-        (progress or (lambda _m: None))
+    say = progress_callback(progress)
     logs = [log] if isinstance(log, FlightLog) else list(log)
     if not logs:
         raise GreyboxInputError("diagnose: no flight logs")

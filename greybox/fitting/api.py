@@ -87,7 +87,7 @@ def progress_printer(stream=None) -> Callable[[str], None]:
     return say
 
 
-def _progress_callback(progress) -> Callable[[str], None]:
+def progress_callback(progress) -> Callable[[str], None]:
     """The ``say`` of a ``progress`` argument: True prints (:func:`progress_printer`), a
     callable is called, False or None says nothing."""
     return progress_printer() if progress is True else (progress or (lambda _m: None))
@@ -312,7 +312,7 @@ def _fit_from(model: QuadrotorModel, logs, process_noise, kw: dict) -> FitResult
     progress = kw["progress"]
     if not (isinstance(process_noise, str) and process_noise == IF_NEEDED):
         return _fit_formulation(model, logs, process_noise=process_noise, **kw)
-    say = _progress_callback(progress)
+    say = progress_callback(progress)
     t_start = time.perf_counter()
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)     # judged here
@@ -514,7 +514,7 @@ def _hover_balance_restart(model: QuadrotorModel, logs, process_noise, kw: dict,
         # it started at the balance: what else lets the thrust leave it is the positions'
         # process noise
         return _kinematic_restart(model, logs, flights, process_noise, kw, first, ratio)
-    say = _progress_callback(kw["progress"])
+    say = progress_callback(kw["progress"])
     say(f"fit: the fitted thrust carries {100 * ratio:.0f} % of the weight (K_T = {first.value('K_T'):.4g}), from a "
         f"start at {100 * start[k_t] / hover:.0f} %: again from K_T = {hover:.4g}, where the rotors carry the weight")
     start[k_t] = hover
@@ -574,7 +574,7 @@ def _kinematic_restart(model: QuadrotorModel, logs, flights: Sequence[FlightLog]
               if n in model.state_names and np.isfinite(first.sigma.get(n, np.nan)) and first.sigma[n] > 0}
     if len(pinned) < 3:
         return first          # positions not measured: nothing ties the velocity down
-    say = _progress_callback(kw["progress"])
+    say = progress_callback(kw["progress"])
     say(f"fit: the fitted thrust carries {100 * ratio:.0f} % of the weight (K_T = {first.value('K_T'):.4g}), from a "
         "start at the balance: again with the positions' process noise held at what the kinematics allow")
     with _warnings.catch_warnings():
@@ -616,7 +616,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     :data:`CANNOT_FOLLOW` times the sensor noise off in some channel, or its first solve stops
     uncertified with shooting gaps :data:`CANNOT_FOLLOW_GAP` times the noise scale open."""
     t_start = time.perf_counter()
-    say = _progress_callback(progress)
+    say = progress_callback(progress)
     given = logs
     logs = [logs] if isinstance(logs, FlightLog) else list(logs) if isinstance(logs, (list, tuple)) else None
     if not logs or not all(isinstance(lg, FlightLog) for lg in logs):
