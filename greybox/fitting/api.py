@@ -30,7 +30,7 @@ from ..validation import INIT_WINDOWS, choose_init_window, choose_start
 from .certificate import (FILTERED_SENSOR_RATIO, GAP_FORCE_SHARE, GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE,
                           NOISE_RATIO_COLOURED, STEP_TOLERANCE, WHITENESS_ADEQUATE, Certificate)
 from .gauss_newton import FitSession, GaussNewton, Solver, budget_spent
-from .input_errors import input_noise_process_scale
+from .input_errors import INPUT_NOISE_SHARE, input_noise_process_scale, was_smoothed
 from .robust import long_run_covariance, upper_covariance
 
 __all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS",
@@ -254,10 +254,14 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             one per flight. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
             fit of such data can only shrink the parameters until the model stops moving.
             Whatever the formulation, a fit that ends with its mean rotor thrust more than
-            20 % from the weight, from a start as far off, is solved again from ``K_T`` where
-            the rotors carry the weight, and that fit is kept when certified and balanced (a
-            warning says so); not with ``reweight=False`` or ``initial_states`` (a refit in
-            another fit's formulation, :meth:`FitResult.settings`).
+            :data:`THRUST_BALANCE` (10 %) from the weight is solved again: from ``K_T`` where
+            the rotors carry the weight when it started as far off, else (a start at the
+            balance, with process noise) with the positions' process noise held at what the
+            kinematics allow; that fit is kept when certified and balanced (a warning says
+            so). A fit still off the weight is solved once more with ``K_T`` held at the
+            balance, only to compare: a warning names the channels whose residuals grow there
+            (what keeps the thrust from the weight). None of this with ``reweight=False`` or
+            ``initial_states`` (a refit in another fit's formulation, :meth:`FitResult.settings`).
             The gaps sit at the shooting nodes (``interval``, default every 50 ms);
             ``interval=1`` makes every sample a node (an equation-error fit: it absorbs a
             model error sample by sample, but is biased on closed-loop data).
@@ -300,6 +304,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         _warnings.simplefilter("always")
         first = _fit_from(model, logs, process_noise, kw)
     res = _hover_balance_restart(model, logs, process_noise, kw, first)
+    res = _thrust_pull(model, logs, [logs] if isinstance(logs, FlightLog) else list(logs), kw, res)
     for w in caught:     # a first fit's non-convergence is the user's news only when it is kept
         if res is first or not issubclass(w.category, ConvergenceWarning):
             _warnings.warn(w.message, w.category, stacklevel=2)
@@ -587,6 +592,87 @@ def _kinematic_restart(model: QuadrotorModel, logs, flights: Sequence[FlightLog]
               f"{first.value('K_T'):.4g}, the thrust carrying {100 * ratio:.0f} % of the weight, a velocity apart "
               "from the positions' derivative carrying the rest through a drag"),
         tried="fitted again with the positions' process noise held at what the kinematics allow")
+
+
+ROTATION_CHANNELS = ("phi", "theta", "psi", "p", "q", "r")
+"""The channels a torque acts on (attitude, body rates); the others (positions, specific
+force) are the forces'."""
+PULL_SHARE = 0.8
+""":func:`_thrust_pull` names the channels that make up this share of the cost's rise."""
+
+
+def _thrust_pull(model: QuadrotorModel, logs, flights: Sequence[FlightLog], kw: dict, res: FitResult) -> FitResult:
+    """``res`` (its thrust still far from the weight after the restarts) with a warning on what
+    pulls it there: ``res``'s problem solved again with ``K_T`` held where the rotors carry the
+    weight, in ``res``'s own formulation (its weights, process noise and node states), and the
+    two fits' weighted residuals compared channel by channel.
+
+    The channels whose residuals grow at the balance are the ones that pull ``K_T`` away: the
+    attitude and rates when the rotor speeds' differences predict torques the vehicle does not
+    show (a torque the controller trims, e.g. a CoG offset: real Crazyflie flights, 60-67 % of
+    the weight, the roll rate's residuals three times larger at the balance), the positions and
+    specific force when a force is missing. Where the balance fits better, ``res`` is a local
+    optimum and the warning says that instead."""
+    if ("K_T" not in res.free_names or not res.converged or kw.get("initial_states") is not None
+            or not kw.get("reweight", True)):
+        return res        # a refit in another fit's formulation (as _hover_balance_restart)
+    ratio = _thrust_ratio(model, flights, res.value("K_T"))
+    if ratio is None or abs(ratio - 1.0) <= THRUST_BALANCE:
+        return res
+    start = res.p.copy()
+    hover = res.value("K_T") / ratio
+    start[model.param_names.index("K_T")] = hover
+    say = progress_callback(kw["progress"])
+    say(f"fit: the thrust carries {100 * ratio:.0f} % of the weight: solving again with K_T held at {hover:.4g}, "
+        "where the rotors carry it, to see which channels pull it away")
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", ConvergenceWarning)     # judged here
+        held = _fit_formulation(model, logs, **{**kw, **res.settings(), "p0": start, "fixed": None,
+                                                "free": [n for n in res.free_names if n != "K_T"]})
+    res.timings["total"] = res.timings.get("total", 0.0) + held.timings.get("total", 0.0)
+    if not held.converged:
+        res.warnings.append(f"with K_T held where the rotors carry the weight ({hover:.4g}) the fit ended "
+                            f"uncertified ({held.status}): what pulls the thrust from the weight is not told")
+        return res
+    rise = {ch: held.channel_cost[ch] - res.channel_cost.get(ch, 0.0) for ch in held.channel_cost}
+    gaps = held.process_cost - res.process_cost
+    total = sum(rise.values()) + 2.0 * gaps          # channel costs are sums of squares, process_cost half of one
+    held_text = f"with K_T held where the rotors carry the weight ({hover:.4g}; this fit's weights and process noise)"
+    if total < 0:
+        res.warnings.append(f"{held_text} the fit explains the data better (weighted squared residuals "
+                            f"{-total:.4g} lower): this fit stopped in a local optimum; start it from that K_T "
+                            f"(p0={{'K_T': {hover:.4g}}})")
+        return res
+    up = sorted(((d, ch) for ch, d in rise.items() if d > 0), reverse=True)
+    pulled, acc = [], 0.0
+    for d, ch in up:
+        pulled.append(ch)
+        acc += d
+        if acc >= PULL_SHARE * sum(d for d, _ in up):
+            break
+    better = [ch for ch, d in rise.items() if d < 0 and -d > 0.05 * total]
+    cert = res.certificate
+    over = cert.residual_over_noise if cert is not None else {}
+    off = set(cert.off_channels()) if cert is not None else set()
+    words = ", ".join(f"{ch} (x{held.channel_cost[ch] / max(res.channel_cost.get(ch, 0.0), 1e-300):.3g}"
+                      + (f"; {over[ch]:.3g}x the noise in this fit)" if ch in over else ")") for ch in pulled)
+    rotational = sum(rise[ch] for ch in pulled if ch in ROTATION_CHANNELS) >= 0.5 * acc
+    if rotational and any(ch in off for ch in pulled):
+        why = ("the rotor speeds' differences predict torques the vehicle does not show, and a smaller K_T "
+               "shrinks them: a torque the model lacks that the controller trims (a CoG offset, rotors that "
+               "differ); this K_T is then not the rotors' thrust coefficient")
+    elif rotational:
+        why = ("the torques the rotor speeds' differences predict, which this fit explains, hold K_T where it is; "
+               "the rest of the weight is carried by a force the model lacks (a lift, a ground effect, a tether), "
+               "or the airframe's mass or inertia is not the vehicle's")
+    else:
+        why = ("the airframe's mass is not the vehicle's, or a force the model lacks acts along the thrust (a "
+               "ground effect, a drag, a thrust that drifts) and K_T follows it")
+    res.warnings.append(f"{held_text} the residuals grow in {words}" +
+                        (f" and shrink in {', '.join(better)}" if better else "") +
+                        f": these channels keep the thrust from the weight: {why}; greybox diagnose tests the "
+                        "candidates")
+    return res
 
 
 class _CannotFollow(Exception):
@@ -900,11 +986,18 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
         warnings += effect.interpretation_notes(values, fitted_std, model.airframe)
     warnings += _thrust_balance_warnings(model, logs, values)
-    if inputs_floor is not None:
+    if inputs_floor is not None and all(was_smoothed(lg) for lg in logs):
+        warnings.append("the logged inputs, smoothed, still carry white noise the vehicle does not follow (the gyro "
+                        "tells): the process noise was held at least at the random walk it gives the states, since "
+                        "fed to the model it is a random force and torque, and gains that pass it on come out small "
+                        "(errors in variables)")
+    elif inputs_floor is not None:
         warnings.append("the logged inputs carry white noise the vehicle does not follow (the gyro tells): fed to "
                         "the model it is a random force and torque, and the gains that pass it on come out small "
-                        "(errors in variables); smooth them first, as greybox fit and diagnose do "
-                        "(greybox.fitting.denoise_inputs)")
+                        "(errors in variables); the process noise was held at least at the random walk it gives "
+                        "the states. Smoothing them first takes it out (greybox.fitting.denoise_inputs, which "
+                        "greybox fit and diagnose apply where the whole log's noise makes up "
+                        f"{100 * INPUT_NOISE_SHARE:g} % of a speed's variance)")
     if not converged:
         warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
         _warnings.warn(f"fit did not converge: {status}", ConvergenceWarning)
