@@ -61,6 +61,7 @@ def test_certificate_of_a_right_model_a_wrong_model_and_a_stopped_fit(paper_mode
     assert c.sensor_noise["x"] == pytest.approx(0.003, rel=0.2)          # from the data, not the fit
     assert all(0.8 < r < 1.2 for r in c.residual_over_noise.values())    # residuals are the noise
     assert "optimum certified" in good.summary() and "residuals at the sensor noise" in good.summary()
+    assert "the largest gap is" in c.text() and not c.soft       # output error: the gaps closed
     # the model without the rotor reaction torque: an output-error optimum, but the yaw
     # channels are far off
     no_yaw, p0 = paper_model.without("yaw_torque"), {k: v for k, v in OFF.items() if k != "b"}
@@ -77,6 +78,7 @@ def test_certificate_of_a_right_model_a_wrong_model_and_a_stopped_fit(paper_mode
     assert any("fitted with process noise" in w for w in soft.warnings)
     right = fit(paper_model, est, p0=OFF, process_noise="auto")
     assert soft.process_noise["r"] > 10 * right.process_noise["r"]
+    assert right.certificate.soft and "the shooting gaps are process noise" in right.certificate.text()
     stopped = fit(paper_model, est, p0=OFF, max_iter=1, reweight=False)
     assert not stopped.converged and not stopped.certificate.optimal
     assert stopped.certificate.step_over_std > 1                      # the step still to go, in std

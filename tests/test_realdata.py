@@ -565,3 +565,6 @@ def test_a_thrust_kept_from_the_weight_by_a_torque_the_model_lacks_says_which_ch
     grown, rest = pull[0].split("the residuals grow in ")[1].split(" and shrink in ")
     assert grown.startswith("p (") and "z" in rest.split(":")[0] and "az" in rest.split(":")[0], pull[0]
     assert "a torque the model lacks that the controller trims" in pull[0], pull[0]
+    # a soft fit's gaps are part of its cost: its certificate does not call them closed
+    assert "the shooting gaps are process noise" in res.certificate.text()
+    assert "largest gap" not in res.certificate.text()

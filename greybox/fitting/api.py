@@ -1035,7 +1035,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         {n: float(check_rms[n] / sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
         {n: float(np.nanmean(v)) if np.any(np.isfinite(v)) else float("nan") for n, v in white.items()},
         {n: float(sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, reasons,
-        _systematic_gaps(model, ses, X, th, sensor) if soft else {})
+        _systematic_gaps(model, ses, X, th, sensor) if soft else {}, soft=soft)
     if init_window is None and soft:
         vectors = [flight_vector(f) for f in range(n_flights)]
         if measured_start is None:

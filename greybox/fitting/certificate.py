@@ -84,6 +84,9 @@ class Certificate:
     (:func:`~greybox.residuals.attitude_motion`; set by :func:`~greybox.fitting.fit` when it
     keeps output error for that reason). They stay in :meth:`off_channels`: the residuals are
     not at the noise; what they are is said in :meth:`text`."""
+    soft: bool = False
+    """The fit had process noise: its shooting gaps are part of the cost, not held closed
+    (``gap_over_noise`` is 0 by construction; :attr:`systematic_gaps` judges them)."""
 
     @property
     def adequate(self) -> bool:
@@ -116,7 +119,9 @@ class Certificate:
         """The certificate in words."""
         if self.optimal:
             head = (f"optimum certified: one more Gauss-Newton step would move the parameters by "
-                    f"{self.step_over_std:.2g} std at most, the largest gap is {self.gap_over_noise:.2g} of the noise")
+                    f"{self.step_over_std:.2g} std at most, " +
+                    ("the shooting gaps are process noise (judged below)" if self.soft else
+                     f"the largest gap is {self.gap_over_noise:.2g} of the noise"))
         else:
             head = "optimum NOT certified: " + "; ".join(self.reasons)
         if self.held:
