@@ -30,7 +30,7 @@ from ..validation import INIT_WINDOWS, choose_init_window, choose_start
 from .certificate import (FILTERED_SENSOR_RATIO, GAP_FORCE_SHARE, GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE,
                           NOISE_RATIO_COLOURED, STEP_TOLERANCE, WHITENESS_ADEQUATE, Certificate)
 from .gauss_newton import FitSession, GaussNewton, Solver, budget_spent
-from .input_errors import INPUT_NOISE_SHARE, input_noise_process_scale, was_smoothed
+from .input_errors import INPUT_NOISE_SHARE, input_noise_process_scale
 from .robust import long_run_covariance, upper_covariance
 
 __all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS",
@@ -603,16 +603,20 @@ PULL_SHARE = 0.8
 
 def _thrust_pull(model: QuadrotorModel, logs, flights: Sequence[FlightLog], kw: dict, res: FitResult) -> FitResult:
     """``res`` (its thrust still far from the weight after the restarts) with a warning on what
-    pulls it there: ``res``'s problem solved again with ``K_T`` held where the rotors carry the
+    keeps it there: ``res``'s problem solved again with ``K_T`` held where the rotors carry the
     weight, in ``res``'s own formulation (its weights, process noise and node states), and the
-    two fits' weighted residuals compared channel by channel.
+    two fits' weighted residuals compared channel by channel; ``res`` itself is not changed.
 
-    The channels whose residuals grow at the balance are the ones that pull ``K_T`` away: the
-    attitude and rates when the rotor speeds' differences predict torques the vehicle does not
-    show (a torque the controller trims, e.g. a CoG offset: real Crazyflie flights, 60-67 % of
-    the weight, the roll rate's residuals three times larger at the balance), the positions and
-    specific force when a force is missing. Where the balance fits better, ``res`` is a local
-    optimum and the warning says that instead."""
+    The channels whose residuals grow at the balance are what holds ``K_T`` away from it. The
+    attitude and rates, already far above the noise in ``res``: the rotor speeds' differences
+    predict torques the vehicle does not show and a smaller ``K_T`` shrinks them (the last 60 %
+    of a real Crazyflie flight: 67 % of the weight, the roll rate's weighted residuals 2.2 times
+    larger at the balance; a CoG offset the controller trims). The attitude and rates, at the
+    noise in ``res``: those torques pin ``K_T`` and a force the model lacks carries the rest (a
+    synthetic lift of a quarter of the weight: ``K_T`` at the truth, the rates' residuals a
+    thousandfold at the balance). The positions and specific force: the mass, or a force along
+    the thrust. Where the balance fits better, ``res`` is a local optimum and the warning says
+    that instead."""
     if ("K_T" not in res.free_names or not res.converged or kw.get("initial_states") is not None
             or not kw.get("reweight", True)):
         return res        # a refit in another fit's formulation (as _hover_balance_restart)
@@ -644,6 +648,11 @@ def _thrust_pull(model: QuadrotorModel, logs, flights: Sequence[FlightLog], kw: 
                             f"(p0={{'K_T': {hover:.4g}}})")
         return res
     up = sorted(((d, ch) for ch, d in rise.items() if d > 0), reverse=True)
+    if not up:
+        res.warnings.append(f"{held_text} no channel's residuals grow, the process noise's gaps do ({2 * gaps:.4g} in "
+                            "weighted squares): at the balance the states need a force or torque the model lacks to "
+                            "follow the data; greybox diagnose tests the candidates")
+        return res
     pulled, acc = [], 0.0
     for d, ch in up:
         pulled.append(ch)
@@ -986,16 +995,11 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
         warnings += effect.interpretation_notes(values, fitted_std, model.airframe)
     warnings += _thrust_balance_warnings(model, logs, values)
-    if inputs_floor is not None and all(was_smoothed(lg) for lg in logs):
-        warnings.append("the logged inputs, smoothed, still carry white noise the vehicle does not follow (the gyro "
-                        "tells): the process noise was held at least at the random walk it gives the states, since "
-                        "fed to the model it is a random force and torque, and gains that pass it on come out small "
-                        "(errors in variables)")
-    elif inputs_floor is not None:
+    if inputs_floor is not None:
         warnings.append("the logged inputs carry white noise the vehicle does not follow (the gyro tells): fed to "
                         "the model it is a random force and torque, and the gains that pass it on come out small "
                         "(errors in variables); the process noise was held at least at the random walk it gives "
-                        "the states. Smoothing them first takes it out (greybox.fitting.denoise_inputs, which "
+                        "the states. Smoothing takes it out before a fit (greybox.fitting.denoise_inputs, which "
                         "greybox fit and diagnose apply where the whole log's noise makes up "
                         f"{100 * INPUT_NOISE_SHARE:g} % of a speed's variance)")
     if not converged:

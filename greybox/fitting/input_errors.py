@@ -25,7 +25,7 @@ from ..shooting import estimate_noise
 
 __all__ = ["INPUT_NOISE_SHARE", "mixer_directions", "wiener_smooth_along", "input_column_noise", "input_jacobian", "followed_share", "state_steps",
            "unfollowed_input_noise", "input_noise_process_scale", "InputDenoising", "denoise_inputs",
-           "wiener_smooth", "SMOOTHED_NOTE", "was_smoothed"]
+           "wiener_smooth"]
 
 INPUT_NOISE_SHARE = 0.01
 """Share of a logged input's variance that is white noise from which that noise counts: below
@@ -214,10 +214,6 @@ def wiener_smooth_along(columns: np.ndarray, sigma: np.ndarray, directions: np.n
     return mean + smooth @ d.T
 
 
-SMOOTHED_NOTE = "the model is fed them smoothed"
-"""The words of :meth:`InputDenoising.note` that mark a log :func:`denoise_inputs` smoothed."""
-
-
 @dataclass(frozen=True)
 class InputDenoising:
     """What :func:`denoise_inputs` took out of one log's rotor speeds.
@@ -242,14 +238,9 @@ class InputDenoising:
         cols = ", ".join(f"{n} ± {s:.3g}" for n, s in self.noise.items())
         return (f"{self.source or 'log'}: the logged rotor speeds carry white noise the vehicle does not follow "
                 f"({cols}; up to {100 * self.share:.1f} % of a speed's variance; the gyro follows "
-                f"{100 * max(self.followed, 0.0):.0f} % of their row-to-row changes): {SMOOTHED_NOTE} "
+                f"{100 * max(self.followed, 0.0):.0f} % of their row-to-row changes): the model is fed them smoothed "
                 "(a Wiener smoother), since noise fed to a model shrinks the gains that pass it on (errors "
                 "in variables); --input-noise keep fits them as logged")
-
-
-def was_smoothed(log: FlightLog) -> bool:
-    """Whether ``log``'s rotor speeds were smoothed by :func:`denoise_inputs` (its note)."""
-    return any(SMOOTHED_NOTE in n for n in log.notes)
 
 
 def denoise_inputs(model: QuadrotorModel, log: FlightLog, p: np.ndarray | None = None
