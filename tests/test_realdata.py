@@ -507,6 +507,20 @@ def test_rotor_gains_by_spin_direction_with_b_near_zero_are_not_the_verdict(tmp_
     assert ma.fit.value("b") / ma.fit.value("K_T") < 1e-3
 
 
+def _last_60_percent(tmp_path, flight: str) -> tuple[QuadrotorModel, FlightLog]:
+    """The base model of a NanoBench flight cut to the last 60 % of its rows (starting in the
+    air: a flight the whole-flight runs never saw) and the estimation part of the cut."""
+    import tomllib
+    lines = (REAL / f"{flight}.csv").read_text().splitlines(keepends=True)
+    n = len(lines) - 1
+    cut = tmp_path / f"{flight}_last60.csv"
+    cut.write_text(lines[0] + "".join(lines[1 + n - n * 6 // 10:]))
+    imp = import_nanobench(cut)
+    af = airframe_from_dict(tomllib.loads(
+        crazyflie_airframe_toml(0.030, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))), "cf")
+    return QuadrotorModel(af), imp.log.split(0.8)[0]
+
+
 @needs_real
 def test_a_flight_that_starts_in_the_air_keeps_its_velocity_the_positions_derivative(tmp_path):
     """The last 60 % of B10_lissajous_slow (starting in the air: no climb in the log). With the
@@ -515,18 +529,8 @@ def test_a_flight_that_starts_in_the_air_keeps_its_velocity_the_positions_deriva
     state left the positions' derivative and its drag carried the rest. Fitted again with the
     positions held to what the kinematics allow, the thrust carries the weight, Kd[2] is off its
     bound and the horizontal drag is the IMU's (0.011-0.012 N s/m), and the fit says so."""
-    import tomllib
     from greybox.fitting.api import POSITION_GAP_SHARE, THRUST_BALANCE
-    src = REAL / "B10_lissajous_slow_rep1.csv"
-    lines = src.read_text().splitlines(keepends=True)
-    n = len(lines) - 1
-    cut = tmp_path / "B10_last60.csv"
-    cut.write_text(lines[0] + "".join(lines[1 + n - n * 6 // 10:]))
-    imp = import_nanobench(cut)
-    af = airframe_from_dict(tomllib.loads(
-        crazyflie_airframe_toml(0.030, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))), "cf")
-    model = QuadrotorModel(af)
-    est, _ = imp.log.split(0.8)
+    model, est = _last_60_percent(tmp_path, "B10_lissajous_slow_rep1")
     res = fit(model, est, process_noise="auto")
     assert res.converged, res.status
     hover = model.parameter_vector()[model.param_names.index("K_T")]      # the balance, from the log
@@ -545,17 +549,7 @@ def test_a_thrust_kept_from_the_weight_by_a_torque_the_model_lacks_says_which_ch
     weights, the roll rate's residuals grow (it is 74x the noise already: the controller trims
     a roll torque the base model lacks, the CoG offset the diagnosis finds on this flight) and
     the height's and vertical specific force's shrink: the fit says so, and keeps its K_T."""
-    import tomllib
-    src = REAL / "B6_linear_ramp_rep2.csv"
-    lines = src.read_text().splitlines(keepends=True)
-    n = len(lines) - 1
-    cut = tmp_path / "B6_last60.csv"
-    cut.write_text(lines[0] + "".join(lines[1 + n - n * 6 // 10:]))
-    imp = import_nanobench(cut)
-    af = airframe_from_dict(tomllib.loads(
-        crazyflie_airframe_toml(0.030, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))), "cf")
-    model = QuadrotorModel(af)
-    est, _ = imp.log.split(0.8)
+    model, est = _last_60_percent(tmp_path, "B6_linear_ramp_rep2")
     res = fit(model, est, process_noise="auto")
     assert res.converged, res.status
     hover = model.parameter_vector()[model.param_names.index("K_T")]
