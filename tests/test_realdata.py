@@ -12,7 +12,7 @@ from greybox.cli import main
 from greybox.data import FlightLog, load_log
 from greybox.errors import GreyboxInputError
 from greybox.fitting import fit
-from greybox.importers import CRAZYFLIE_PWM_MAP, crazyflie_airframe_toml, import_nanobench, pwm_to_rotor_speed
+from greybox.importers import crazyflie_airframe_toml, import_nanobench, pwm_to_rotor_speed
 from greybox.synth import SensorSpec, synthesize
 
 from conftest import AIRFRAMES
