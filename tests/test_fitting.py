@@ -358,3 +358,7 @@ def test_a_thrust_held_from_the_weight_by_torques_the_fit_explains_says_a_force_
     grown = pull[0].split("the residuals grow in ")[1].split(":")[0]
     assert "p (" in grown and "q (" in grown and "z (" not in grown, pull[0]
     assert "a force the model lacks" in pull[0] and "torques the vehicle does not show" not in pull[0], pull[0]
+    # K_T the only free parameter: held, nothing is left to fit, so nothing is compared
+    alone = fit(paper_model, est, free=["K_T"], process_noise="auto")
+    assert any("75 % of the weight" in w for w in alone.warnings), alone.warnings
+    assert not any(w.startswith("with K_T held") for w in alone.warnings), alone.warnings

@@ -617,9 +617,11 @@ def _thrust_pull(model: QuadrotorModel, logs, flights: Sequence[FlightLog], kw: 
     thousandfold at the balance). The positions and specific force: the mass, or a force along
     the thrust. Where the balance fits better, ``res`` is a local optimum and the warning says
     that instead."""
-    if ("K_T" not in res.free_names or not res.converged or kw.get("initial_states") is not None
-            or not kw.get("reweight", True)):
-        return res        # a refit in another fit's formulation (as _hover_balance_restart)
+    if ("K_T" not in res.free_names or len(res.free_names) < 2 or not res.converged
+            or kw.get("initial_states") is not None or not kw.get("reweight", True)):
+        # K_T alone: held, nothing is left to fit; a refit in another fit's formulation (as
+        # _hover_balance_restart)
+        return res
     ratio = _thrust_ratio(model, flights, res.value("K_T"))
     if ratio is None or abs(ratio - 1.0) <= THRUST_BALANCE:
         return res
