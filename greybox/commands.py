@@ -47,7 +47,7 @@ def _check_writable(p: Path, path: str, option: str, kind: str) -> None:
     if not here.is_dir():
         raise GreyboxInputError(f"{option} {path}: {here} is a file, not a folder")
     if kind == "file":
-        # the file is written through a temporary beside it (data.atomic_write: ".NAME.XXXXXXXX.tmp")
+        # the file is written through a temporary beside it, ATOMIC_NAME_EXTRA bytes longer (data.atomic_write)
         longest = len(os.fsencode(p.name)) + ATOMIC_NAME_EXTRA
         name_max = os.pathconf(here, "PC_NAME_MAX") if hasattr(os, "pathconf") else 255
         if longest > name_max:

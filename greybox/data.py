@@ -343,10 +343,10 @@ def _pandas(what: str):
     return pandas
 
 
-ATOMIC_NAME_EXTRA = 14
-"""Bytes the temporary of :func:`atomic_write` adds to the file's name: ``.NAME.XXXXXXXX.tmp``
-(mkstemp's eight random characters). A name within this of the file system's limit cannot be
-written, so the command line refuses it before any work."""
+ATOMIC_NAME_EXTRA = len(".") + len(".") + 8 + len(".tmp")
+"""Bytes the temporary of :func:`atomic_write` adds to the file's name: a dot before it, then a
+dot, mkstemp's eight random characters and ``.tmp`` after it (14). A name within this of the
+file system's limit cannot be written, so the command line refuses it before any work."""
 
 
 def atomic_write(path: str | Path, text: str | bytes) -> None:

@@ -303,8 +303,13 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     with _warnings.catch_warnings(record=True) as caught:
         _warnings.simplefilter("always")
         first = _fit_from(model, logs, process_noise, kw)
-    res = _hover_balance_restart(model, logs, process_noise, kw, first)
-    res = _thrust_pull(model, logs, [logs] if isinstance(logs, FlightLog) else list(logs), kw, res)
+    res = first
+    if initial_states is None and reweight:
+        # not with fixed weights or given node states: a refit in another fit's formulation (a
+        # candidate's, a SIMEX draw's) whose comparison with that fit a second basin would break
+        flights = [logs] if isinstance(logs, FlightLog) else list(logs)
+        res = _hover_balance_restart(model, logs, flights, process_noise, kw, first)
+        res = _thrust_pull(model, logs, flights, kw, res)
     for w in caught:     # a first fit's non-convergence is the user's news only when it is kept
         if res is first or not issubclass(w.category, ConvergenceWarning):
             _warnings.warn(w.message, w.category, stacklevel=2)
@@ -489,7 +494,8 @@ def _thrust_balance_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], v
             "in for something the model lacks, or the mass or the rotor speeds' units are wrong"]
 
 
-def _hover_balance_restart(model: QuadrotorModel, logs, process_noise, kw: dict, first: FitResult) -> FitResult:
+def _hover_balance_restart(model: QuadrotorModel, logs, flights: Sequence[FlightLog], process_noise, kw: dict,
+                           first: FitResult) -> FitResult:
     """``first`` again from ``K_T`` where the rotors carry the weight, when ``first`` ended with
     its thrust far from the weight (:data:`THRUST_BALANCE`) from a start that was far from it too.
 
@@ -502,11 +508,8 @@ def _hover_balance_restart(model: QuadrotorModel, logs, process_noise, kw: dict,
     carries the weight (a flight that starts and ends near rest: the mean thrust is the weight,
     a little more when tilted); otherwise ``first`` is, and a warning says what the restart
     found."""
-    if "K_T" not in first.free_names or kw.get("initial_states") is not None or not kw.get("reweight", True):
-        # fixed weights or given node states: a refit in another fit's formulation (a candidate's,
-        # a SIMEX draw's) whose comparison with that fit a second basin would break
+    if "K_T" not in first.free_names:
         return first
-    flights = [logs] if isinstance(logs, FlightLog) else list(logs)
     ratio = _thrust_ratio(model, flights, first.value("K_T"))
     if ratio is None or abs(ratio - 1.0) <= THRUST_BALANCE:
         return first
@@ -617,11 +620,8 @@ def _thrust_pull(model: QuadrotorModel, logs, flights: Sequence[FlightLog], kw: 
     thousandfold at the balance). The positions and specific force: the mass, or a force along
     the thrust. Where the balance fits better, ``res`` is a local optimum and the warning says
     that instead."""
-    if ("K_T" not in res.free_names or len(res.free_names) < 2 or not res.converged
-            or kw.get("initial_states") is not None or not kw.get("reweight", True)):
-        # K_T alone: held, nothing is left to fit; a refit in another fit's formulation (as
-        # _hover_balance_restart)
-        return res
+    if "K_T" not in res.free_names or len(res.free_names) < 2 or not res.converged:
+        return res        # K_T alone: held, nothing is left to fit
     ratio = _thrust_ratio(model, flights, res.value("K_T"))
     if ratio is None or abs(ratio - 1.0) <= THRUST_BALANCE:
         return res
