@@ -386,7 +386,8 @@ class QuadrotorModel:
             rotor_pos=ca.SX(ca.DM(af.rotor_positions)), v_air=v,
             force_world=ca.SX.zeros(3), torque_body=ca.SX.zeros(3))
         for e in self.effects:
-            e.modify(ctx)
+            with fx.user_hook(e, "modify"):
+                e.modify(ctx)
 
         # rotor thrust along body -z, and its moment about the centre of gravity
         ctx.rotor_thrust = K_T * ctx.thrust_scale * ctx.w ** 2
@@ -396,7 +397,8 @@ class QuadrotorModel:
             torque += ca.cross(ctx.rotor_pos[i, :].T, ca.vertcat(0, 0, -ctx.rotor_thrust[i]))
         ctx.thrust_torque = torque
         for e in self.effects:
-            e.add_forces(ctx)
+            with fx.user_hook(e, "add_forces"):
+                e.add_forces(ctx)
 
         m, g = af.mass, af.gravity
         J = ca.DM(af.inertia)
@@ -407,7 +409,8 @@ class QuadrotorModel:
         euler_dot = euler_rate_matrix(euler[0], euler[1]) @ omega
         xdot_parts = [v, euler_dot, acc, omega_dot]
         for e in self.effects:
-            xdot_parts.append(e.state_derivative(ctx))
+            with fx.user_hook(e, "state_derivative"):
+                xdot_parts.append(e.state_derivative(ctx))
         xdot = ca.vertcat(*xdot_parts)
 
         ctx.acc_world = acc
@@ -416,7 +419,8 @@ class QuadrotorModel:
         specific_force = R.T @ (acc - ca.vertcat(0, 0, g))
         y.update(ax=specific_force[0], ay=specific_force[1], az=specific_force[2])
         for e in self.effects:
-            e.modify_measurement(ctx, y)
+            with fx.user_hook(e, "modify_measurement"):
+                e.modify_measurement(ctx, y)
         yv = ca.vertcat(*[y[name] for name in OUTPUTS])
 
         rhs = ca.Function("rhs", [x, u, p, t], [xdot], ["x", "u", "p", "t"], ["xdot"])

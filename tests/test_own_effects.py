@@ -151,6 +151,31 @@ def test_effects_file_everywhere_on_the_command_line(effect_file, tmp_path, caps
     assert len(err) == 1 and str(bad) in err[0] and "line 5" in err[0]
 
 
+def test_an_error_in_an_effect_files_hook_is_one_line_naming_the_file_line_and_hook(tmp_path, capsys):
+    # the file loads and registers (its parameters describe themselves), but add_forces reads
+    # a parameter it never declared: that shows only when a model is built (a blind audit got
+    # a 31-line traceback and exit 1 from `greybox linearize`)
+    path = tmp_path / "bad_hook.py"
+    path.write_text(RATE_DAMPING.replace('ctx.params["k_w"]', 'ctx.params["nonexistent"]')
+                    .replace('"rate_damping"', '"bad_hook"').replace('"k_w"', '"k_bad"'))
+    out = tmp_path / "lin.json"
+    try:
+        capsys.readouterr()
+        assert main(["linearize", "--airframe", PAPER, "--effects-file", str(path), "--effects", "bad_hook",
+                     "--json", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        line = next(i for i, t in enumerate(RATE_DAMPING.splitlines(), 1) if "ctx.params" in t)
+        assert len(err) == 1 and str(path) in err[0] and f"line {line}" in err[0]
+        assert "add_forces()" in err[0] and "KeyError" in err[0] and "nonexistent" in err[0]
+        assert not out.exists()
+        # in Python the file's effect says the same
+        with pytest.raises(GreyboxInputError, match=f"line {line}: effect 'bad_hook', add_forces"):
+            QuadrotorModel(greybox.load_airframe(PAPER), [fx.by_name("bad_hook")]).output
+    finally:
+        if "bad_hook" in fx.registered_effects():
+            fx.unregister("bad_hook")
+
+
 @pytest.mark.slow    # about a minute; the file on every command is checked in the default run
 def test_own_effect_is_ranked_first_on_a_flight_that_has_it(effect_file, tmp_path, capsys):
     """A flight with body-rate damping (the user's own effect, k_w as the file's plausible

@@ -44,7 +44,7 @@ from .ground import GroundEffect
 from .power import BatteryVoltage, CommandDelay, RotorMap, SampledInputs, ThrustDrift
 from .registry import (DISTURBANCE_MODELS, ENTRY_POINT_GROUP, by_name, confusable, distinguishing_manoeuvre,
                        effect_class, example_values, known_effects, load_effects_file, measurement_only,
-                       parse_effect_names, per_flight, register, registered_effects, unregister)
+                       parse_effect_names, per_flight, register, registered_effects, unregister, user_hook)
 from .rotor import Gyroscopic, MomentGain, MotorLag, ThrustCurve, YawTorque
 from .sensors import AccelBias, AttitudeBias, PositionDelay
 
@@ -57,4 +57,5 @@ __all__ = [
     "effect_class", "confusable", "measurement_only", "per_flight", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP",
     "example_values", "DiscoveredEffect",
     "unregister", "HeldMoment", "DisturbanceTorque", "DISTURBANCE_MODELS", "MomentGain", "ThrustCurve", "CommandDelay", "SampledInputs", "is_derived_signal",
+    "user_hook",
 ]

@@ -5,7 +5,8 @@ name: the class, a new instance, the advice that tells two effects apart, plausi
 magnitudes."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from contextlib import contextmanager
+from typing import TYPE_CHECKING, Iterator
 
 from ..errors import GreyboxInputError
 from ..parameters import Parameter
@@ -18,7 +19,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["register", "unregister", "load_effects_file", "known_effects", "registered_effects", "effect_class",
            "by_name", "confusable", "measurement_only", "per_flight", "distinguishing_manoeuvre", "parse_effect_names",
-           "example_values", "ENTRY_POINT_GROUP"]
+           "example_values", "ENTRY_POINT_GROUP", "user_hook"]
 
 
 _REGISTERED: dict[str, type[Effect]] = {}     # user effects: register(), files, entry points
@@ -158,6 +159,29 @@ def load_effects_file(path) -> list[str]:
     if not names:
         raise GreyboxInputError(f"{path}: defines no Effect subclass with a name")
     return names
+
+
+@contextmanager
+def user_hook(effect: Effect, hook: str) -> Iterator[None]:
+    """Run a hook of ``effect`` (e.g. ``with user_hook(e, "add_forces"): e.add_forces(ctx)``):
+    when the effect came from an effects file, an error raised in it is the file's to fix and
+    becomes one :class:`GreyboxInputError` line naming the file, the line, the effect and the
+    hook (``--effects-file``: no traceback for a user's mistake). greybox's own effects and
+    effects registered in code raise as they are (a programmer reads the traceback)."""
+    import traceback
+    from pathlib import Path
+    try:
+        yield
+    except GreyboxInputError:
+        raise
+    except Exception as e:   # noqa: BLE001 - the user's code: one line saying where
+        name = getattr(effect, "name", "")
+        if not _FROM_FILE.get(name) or not _same_class(_REGISTERED[name], type(effect)):
+            raise
+        source = _REGISTERED_FROM[name]
+        frames = [f for f in traceback.extract_tb(e.__traceback__) if Path(f.filename).resolve() == Path(source).resolve()]
+        where = f", line {frames[-1].lineno}" if frames else ""
+        raise GreyboxInputError(f"{source}{where}: effect {name!r}, {hook}(): {type(e).__name__}: {e}") from None
 
 
 def _load_entry_points() -> None:
