@@ -158,7 +158,14 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 def cmd_effects(args: argparse.Namespace) -> int:
     """Every known effect with its summary, parameters (unit, null, default, bounds) and origin."""
-    if args.airframe:
+    fitted: dict = {}
+    in_model: set[str] = set()
+    if args.model:
+        # a saved model: its airframe's defaults and bounds, and its own effects' fitted values
+        from .fitted import load
+        fm = load(args.model)
+        af, fitted, in_model = fm.model.airframe, fm.parameters_, set(fm.model.effect_names)
+    elif args.airframe:
         af = load_airframe(args.airframe)
     else:
         with resources.as_file(resources.files("greybox") / "data" / "airframes" / "paper.toml") as p:
@@ -174,12 +181,18 @@ def cmd_effects(args: argparse.Namespace) -> int:
         params = [{"name": p.name, "size": p.size, "unit": p.unit, "null": p.null,
                    "default": p.default_vector().tolist(), "lower": _num_or_none(p.lower),
                    "upper": _num_or_none(p.upper), "free": p.free, "description": p.description}
+                  | ({"fitted": [float(fitted[c]) for c in p.component_names]}
+                     if name in in_model and all(c in fitted for c in p.component_names) else {})
                   for p in cls().parameters(af)]
         out.append({"name": name, "origin": origin, "summary": cls.summary, "parameters": params,
                     "states": cls().state_names(af), "signals": list(cls.signals), "channels": list(cls.channels),
-                    "excited_by": cls.excited_by, "shifts_trim": cls.shifts_trim, "per_flight": cls.per_flight})
+                    "excited_by": cls.excited_by, "shifts_trim": cls.shifts_trim, "per_flight": cls.per_flight}
+                   | ({"in_model": name in in_model} if args.model else {}))
         pstr = "; ".join(f"{p['name']}" + (f"[{p['size']}]" if p["size"] > 1 else "") +
                          f" ({p['unit'] or '-'}, null {p['null']:g})" for p in params) or "no parameters"
+        if name in in_model:
+            pstr += "; in the model: " + ", ".join(
+                f"{p['name']} = {', '.join(f'{v:.4g}' for v in p['fitted'])}" for p in params if "fitted" in p)
         print(f"{name:<18} {origin:<11} {cls.summary}\n{'':<30}{pstr}")
     if args.json:
         write_json(args.json, {"effects": out})
@@ -910,8 +923,12 @@ def _parser() -> argparse.ArgumentParser:
                        description="List the catalogue's effects, the signal effects and those registered "
                                    "(--effects-file, greybox.effects.register, the 'greybox.effects' entry points).")
     _effects_file_arg(e)
-    e.add_argument("--airframe", help="airframe TOML for the parameters' defaults and bounds (default: the "
-                                      "bundled paper airframe)")
+    which = e.add_mutually_exclusive_group()
+    which.add_argument("--airframe", help="airframe TOML for the parameters' defaults and bounds (default: the "
+                                          "bundled paper airframe)")
+    which.add_argument("--model", metavar="MODEL.json",
+                       help="a saved fitted model instead: its airframe's defaults and bounds, and the fitted "
+                            "values of its own effects' parameters")
     e.add_argument("--json", help="write the list here")
     e.set_defaults(func=cmd_effects)
 

@@ -134,9 +134,19 @@ def test_cli_fit_save_then_model_everywhere(flight, tmp_path, capsys):
     d = json.loads((tmp_path / "d.json").read_text())
     assert d["model"]["parameters"]["K_T"]["value"] == pytest.approx(kt, rel=1e-3)
     assert greybox.load(tmp_path / "final.json").model.effect_names == d["model"]["effects"]
+    # effects --model (contract section 8: every command taking --airframe takes --model):
+    # the saved model's effects are marked and carry their fitted values
+    assert main(["effects", "--model", str(tmp_path / "m.json"), "--json", str(tmp_path / "e.json")]) == 0
+    listed = {e["name"]: e for e in json.loads((tmp_path / "e.json").read_text())["effects"]}
+    saved = json.loads((tmp_path / "r.json").read_text())["parameters"]
+    assert listed["linear_drag"]["in_model"] and not listed["ground_effect"]["in_model"]
+    assert listed["linear_drag"]["parameters"][0]["fitted"] == [saved[f"Kd[{i}]"]["value"] for i in range(3)]
+    assert listed["yaw_torque"]["parameters"][0]["fitted"] == [saved["b"]["value"]]
+    assert "fitted" not in listed["ground_effect"]["parameters"][0]
     capsys.readouterr()
     rc = main(["fit", str(log), "--airframe", af, "--model", str(tmp_path / "m.json")])
     assert rc == 2 and "not allowed with argument" in capsys.readouterr().err
+    assert main(["effects", "--airframe", af, "--model", str(tmp_path / "m.json")]) == 2
 
 
 def test_estimator_keeps_every_option_through_sklearn_clone(paper_model, flight):
