@@ -115,7 +115,8 @@ def _read_inputs(path: str, model: QuadrotorModel, p: np.ndarray) -> tuple[np.nd
         n_rot = model.airframe.n_rotors
         for note in check_rotor_speed_units(U[:, :n_rot], model.input_names[:n_rot], path, lines):
             print(f"note: {note}", file=sys.stderr)
-        model.check_rotor_speeds(U[:, :n_rot], p, path)
+        for note in model.check_rotor_speeds(U[:, :n_rot], p, path, too_slow="note"):
+            print(f"note: {note}", file=sys.stderr)
     return t, U
 
 

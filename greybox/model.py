@@ -444,14 +444,19 @@ class QuadrotorModel:
 
     ROTOR_SPEED_PLAUSIBLE_FACTOR = 5.0
     """Logged rotor speeds typically above this many hover speeds (25 times the weight in
-    thrust) are refused as a unit mistake: RPM read as rad/s is 9.5 times."""
+    thrust) are refused as a unit mistake: RPM read as rad/s is 9.5 times. So are speeds whose
+    fast samples stay below the hover speed over this factor (a 25th of the weight): rev/s
+    read as rad/s is 2 pi times too slow."""
 
-    def check_rotor_speeds(self, w: np.ndarray, p: np.ndarray | None = None, where: str = "log") -> None:
+    def check_rotor_speeds(self, w: np.ndarray, p: np.ndarray | None = None, where: str = "log",
+                           too_slow: str = "error") -> list[str]:
         """Raise a :class:`GreyboxInputError` if logged rotor speeds ``w`` (n, n_rotors) are far
-        above the hover speed the airframe's mass and ``K_T`` imply (RPM logged as rad/s)."""
+        above the hover speed the airframe's mass and ``K_T`` imply (RPM logged as rad/s), or
+        never come near it (rev/s logged as rad/s). ``too_slow="note"`` returns the latter as a
+        note instead (a simulation may drop the vehicle on purpose)."""
         w = np.abs(np.asarray(w, dtype=float))
         if w.size == 0:
-            return
+            return []
         p = self.default_parameters() if p is None else p
         hover = self.hover_speed(p)
         # per rotor: one column in RPM among rad/s ones is as wrong as all of them
@@ -472,6 +477,28 @@ class QuadrotorModel:
                    "the airframe gives no K_T, so that is greybox's default "
                    "guess: give one under [parameters] (thrust per rotor / w^2 at hover, N s^2; "
                    "m g / (n w_hover^2)); or are the speeds RPM? rad/s = RPM * pi/30"))
+        # too slow: even the fastest rotor's fast samples (the 90th percentile: a log may hold
+        # time on the ground) would carry a 25th of the weight; a fit would take a K_T 39 times
+        # the airframe's from rev/s and say nothing (an audit's case)
+        fast = np.percentile(w, 90, axis=0)
+        j = int(np.argmax(fast))
+        top = float(fast[j])
+        if w.shape[0] >= 10 and top * self.ROTOR_SPEED_PLAUSIBLE_FACTOR < hover:
+            ratio = hover / max(top, 1e-300)
+            given = "K_T" in self.airframe.parameters
+            problem = (
+                f"{where}: the rotor speeds stay below {top:.4g} (column {self.command_names[j]}'s 90th "
+                f"percentile, the fastest), 1/{ratio:.1f} of the hover speed {hover:.4g} rad/s that mass "
+                f"{self.airframe.mass:g} kg and K_T {p[self.param_names.index('K_T')]:.3g} imply (thrust "
+                f"1/{ratio ** 2:.0f} of the weight): "
+                + ("are they rev/s or kRPM? rad/s = rev/s * 2 pi = RPM * pi/30 (or is K_T too small?)" if given
+                   else "the airframe gives no K_T, so that is greybox's default guess: give one under "
+                        "[parameters] (m g / (n w_hover^2), N s^2); or are the speeds rev/s? "
+                        "rad/s = rev/s * 2 pi"))
+            if too_slow == "note":
+                return [problem]
+            raise GreyboxInputError(problem)
+        return []
 
     def hover_speed(self, p: np.ndarray | None = None) -> float:
         """Equal rotor speed that balances gravity with the nominal ``K_T`` (level, no effects)."""

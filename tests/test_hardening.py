@@ -221,6 +221,28 @@ def test_rad_s_with_a_rough_K_T_guess_is_not_taken_for_rpm(short_log, tmp_path, 
     model.check_rotor_speeds(load_log(short_log).inputs, p, "log")
 
 
+def test_rotor_speeds_in_rev_s_are_refused_by_fit_and_noted_by_simulate(tmp_path, capsys):
+    """rev/s read as rad/s: 2 pi times too slow, a thrust a 39th of the weight; the fit took a
+    K_T 40 times the airframe's without a word (an audit). A K_T guess 10 times too small puts
+    the hover speed only 3.2 times higher: still accepted."""
+    log = load_log(DEMO).slice(0, 600)
+    log.inputs[:, :4] /= 2 * np.pi
+    save_log(log, tmp_path / "revs.csv")
+    rc, err = _cli(capsys, "fit", str(tmp_path / "revs.csv"), "--airframe", PAPER, "--quiet",
+                   "--json", str(tmp_path / "r.json"))
+    line = _one_error(err)
+    assert rc == 2 and "rev/s" in line and "hover speed" in line and not (tmp_path / "r.json").exists()
+    model = QuadrotorModel(load_airframe(PAPER))
+    w = load_log(DEMO).slice(0, 600).inputs[:, :4]
+    assert model.check_rotor_speeds(w, model.parameter_vector({"K_T": model.default_parameters()[0] / 10}),
+                                    "log") == []
+    # a simulation may drop the vehicle on purpose: a note, and the flight is simulated
+    inputs = tmp_path / "u.csv"
+    inputs.write_text("t,w1,w2,w3,w4\n" + "".join(f"{0.01 * k:.2f},50,50,50,50\n" for k in range(20)))
+    rc, err = _cli(capsys, "simulate", "--airframe", PAPER, "--inputs", str(inputs), "--out", str(tmp_path / "s.csv"))
+    assert rc == 0 and "rev/s" in err and (tmp_path / "s.csv").exists()
+
+
 def test_negative_rotor_speeds_get_a_note(tmp_path):
     lines = _lines(DEMO)[:100]
     cells = lines[20].split(",")
