@@ -263,6 +263,15 @@ def airframe_from_dict(doc: Mapping[str, Any], source: str = "<airframe>") -> Ai
             if spin not in (-1, 1) or isinstance(spin, bool):
                 raise GreyboxInputError(f"{where}: spin must be +1 or -1, got {spin!r}")
             rotors.append(Rotor(tuple(pos), int(spin)))
+        P = np.array([r.position for r in rotors], dtype=float)
+        # hubs with no lever about an axis give the model no torque about it: every roll or
+        # pitch prediction would be the vehicle's free motion (an audit's four rotors at
+        # [0, 0, 0] linearised with zero B rows and no word)
+        for axis, coord, what in ((1, "y", "roll"), (0, "x", "pitch")):
+            if np.all(np.abs(P[:, axis]) < 1e-6):
+                raise GreyboxInputError(f"{source}: [[rotor]] positions: every rotor is at {coord} = 0, so the "
+                                        f"rotors give no {what} torque; positions are the hubs' in the body frame "
+                                        "(FRD, m) from the centre of gravity")
         layout = "custom"   # an arm not given is the hubs' mean distance (Airframe.__post_init__)
     else:
         raise GreyboxInputError(f"{source}: give airframe.layout ('plus' or 'x') or [[rotor]] tables")

@@ -26,7 +26,8 @@ from .errors import GreyboxInputError
 __all__ = ["FlightLog", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write",
            "ATOMIC_NAME_EXTRA", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
-           "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "median_row_interval"]
+           "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "median_row_interval",
+           "check_measurement_units", "UNIT_RATIO_LIMIT"]
 
 REQUIRED_OUTPUTS = ["x", "y", "z", "phi", "theta", "psi"]
 OPTIONAL_OUTPUTS = ["p", "q", "r", "ax", "ay", "az"]
@@ -648,6 +649,7 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
             hint = " - is it in degrees?" if unit == "rad" and abs(Y[bad[0], j]) < 400 else ""
             raise GreyboxInputError(f"{where}: row {rows[bad[0]]}, column {name!r}: {Y[bad[0], j]:g} is not "
                                     f"plausible in {unit} (|{name}| <= {limit:g}){hint}")
+    check_measurement_units(t, Y, out_names, where)
     used = {"t", *in_names, *out_names}
     extra_names = [h for h in header if h not in used]
     extras = {h: data[:, col[h]].copy() for h in extra_names}
@@ -679,6 +681,150 @@ def check_rotor_speed_units(U: np.ndarray, names: list[str], where: str,
                 f"{rows[r]}, column {names[c]!r}, {U[r, c]:g}); the model's thrust and torque go with "
                 "w^2 and do not reverse - if the sign encodes the spin direction, log magnitudes"]
     return []
+
+
+UNIT_RATIO_LIMIT = 20.0
+"""Two measurements of one motion (the attitude's change and the gyro; the positions'
+acceleration and the tilt that drives it) that differ in size by more than this factor are
+in different units (degrees are 57.3 radians, millimetres 1000 metres). Real flights give
+0.3-1.1 (the ten NanoBench flights, greybox's own); 20 is no vehicle's physics."""
+_STANDARD_GRAVITY = 9.80665
+_UNIT_MIN_CORRELATION = 0.3
+
+
+def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
+                            where: str) -> dict[str, tuple[float, float, float]]:
+    """Refuse measurements whose units contradict each other, which a fit would take silently
+    (an audit: roll and pitch logged in degrees below 4 pi, a gyro in deg/s, positions in mm,
+    each fitted with exit 0). Each check is a least-squares slope between two measurements of
+    one motion, and refuses only when the slope is off by more than :data:`UNIT_RATIO_LIMIT`
+    with three of its standard deviations to spare (counted over the smoothing window's
+    independent stretches): a log with too little motion to tell is let through.
+
+    * roll and pitch against the gyro: ``d(phi)/dt`` against ``p``, ``d(theta)/dt`` against
+      ``q`` (the small-angle kinematics; yaw coupling only blurs it), both smoothed over 0.1 s:
+      a slope of 57 is degrees, 1/57 a gyro in deg/s;
+    * horizontal positions against the tilt: their acceleration (smoothed over 0.2 s) against
+      ``-g R_psi (theta, -phi)``, what a thrust near the weight gives, with the velocity beside
+      it for a drag's share: 1000 is millimetres, 100 centimetres, 1/57 angles in degrees
+      (left out when the yaw is beyond a turn and a bit, unwrapped or not in radians);
+    * the accelerometer: the median of ``|(ax, ay, az)|`` against that of the specific force
+      the positions give (``g`` on the ground and in hover; ``g`` without positions): below a
+      quarter of it the accelerometer is in g.
+
+    A slope too small must also come with a correlation above 0.3 (two noises give a slope near
+    0 as well). Returns what was judged, ``{"gyro" | "tilt": (slope, std, correlation),
+    "accelerometer": (median magnitude over the expected one, 0, 1)}`` (a check left out is absent).
+    """
+    col = {n: j for j, n in enumerate(names)}
+    judged: dict[str, tuple[float, float, float]] = {}
+    if t.size < 50:
+        return judged
+    dt = float(np.median(np.diff(t)))
+    if not dt > 0:
+        return judged
+    grid = np.arange(t[0], t[-1], dt)
+
+    def on_grid(name: str, window: float, deriv: int) -> np.ndarray | None:
+        """``name`` on a uniform grid, smoothed over ``window`` s (Savitzky-Golay) or
+        differentiated; NaN where its samples are more than half a window apart."""
+        from scipy.signal import savgol_filter
+        y = Y[:, col[name]]
+        ok = np.isfinite(y)
+        if ok.sum() < 50:
+            return None
+        ts, ys = t[ok], y[ok]
+        n = max(5, int(round(window / dt)) | 1)
+        if n >= grid.size:
+            return None
+        v = savgol_filter(np.interp(grid, ts, ys), n, 2 if deriv < 2 else 3, deriv=deriv, delta=dt)
+        k = np.clip(np.searchsorted(ts, grid), 1, ts.size - 1)
+        near = np.minimum(np.abs(grid - ts[k - 1]), np.abs(ts[k] - grid)) <= max(2.5 * dt, window / 2)
+        v[np.convolve(~near, np.ones(n), mode="same") > 0] = np.nan
+        return v
+
+    def slope(a: np.ndarray, x: np.ndarray, window: float,
+              v: np.ndarray | None = None) -> tuple[float, float, float] | None:
+        """Slope of ``a`` on ``x`` (centred; beside ``v`` when given), its std (the samples
+        within one smoothing ``window`` counted as one) and the correlation of ``x`` with what
+        ``v`` leaves of ``a``."""
+        cols = [x] if v is None else [x, v]
+        ok = np.isfinite(a) & np.all(np.isfinite(np.column_stack(cols)), axis=1)
+        per_window = max(1.0, window / dt)
+        if ok.sum() < 10 * per_window:
+            return None
+        A = np.column_stack([c[ok] - c[ok].mean() for c in cols])
+        b = a[ok] - a[ok].mean()
+        if np.linalg.matrix_rank(A) < A.shape[1]:
+            return None
+        coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+        rest = b - A @ coef
+        var = float(rest @ rest) / max(ok.sum() - A.shape[1], 1) * np.linalg.inv(A.T @ A)[0, 0] * per_window
+        explained = b - A[:, 1:] @ coef[1:]
+        den = math.sqrt(float(A[:, 0] @ A[:, 0]) * float(explained @ explained))
+        return float(coef[0]), math.sqrt(max(var, 0.0)), float(A[:, 0] @ explained) / den if den > 0 else 0.0
+
+    def off(fit: tuple[float, float, float]) -> bool:
+        # too large: noise cannot make it so. Too small: two noises that share nothing give a
+        # slope near 0 too, so the two must also show one motion (correlated)
+        m, sd, c = abs(fit[0]), fit[1], abs(fit[2])
+        return m - 3 * sd > UNIT_RATIO_LIMIT or (m + 3 * sd < 1 / UNIT_RATIO_LIMIT and c > _UNIT_MIN_CORRELATION)
+
+    if {"ax", "ay", "az"} <= set(col):
+        f = np.linalg.norm(Y[:, [col["ax"], col["ay"], col["az"]]], axis=1)
+        f = f[np.isfinite(f)]
+        # the specific force the positions give (on the ground and in hover g; a simulated
+        # fall less), else g
+        pos = [on_grid(n, 0.2, 2) for n in ("x", "y", "z")] if {"x", "y", "z"} <= set(col) else [None]
+        if all(v is not None for v in pos):
+            a = np.column_stack(pos) - np.array([0.0, 0.0, _STANDARD_GRAVITY])
+            a = a[np.all(np.isfinite(a), axis=1)]
+            expected = float(np.median(np.linalg.norm(a, axis=1))) if a.shape[0] >= 20 else _STANDARD_GRAVITY
+        else:
+            expected = _STANDARD_GRAVITY
+        if f.size >= 20 and expected > 2.0:
+            med = float(np.median(f))
+            judged["accelerometer"] = (med / expected, 0.0, 1.0)
+            if med * 4 < expected or med > 4 * expected:
+                hint = "in g? m/s^2 = g * 9.81" if med < expected else "not in m/s^2?"
+                raise GreyboxInputError(
+                    f"{where}: columns 'ax', 'ay', 'az': the accelerometer's magnitude is typically {med:.3g}, where "
+                    f"{'the positions give' if expected != _STANDARD_GRAVITY else 'an IMU reads'} "
+                    f"{expected:.3g} m/s^2 (g on the ground and in hover): {hint}")
+    if {"phi", "theta", "p", "q"} <= set(col):
+        parts = [on_grid(n, 0.1, d) for n, d in (("phi", 1), ("theta", 1), ("p", 0), ("q", 0))]
+        if all(v is not None for v in parts):
+            fit = slope(np.concatenate(parts[:2]), np.concatenate(parts[2:]), 0.1)
+            if fit is not None:
+                judged["gyro"] = fit
+                if off(fit):
+                    hint = ("phi and theta in degrees? rad = deg * pi/180" if abs(fit[0]) > 1 else
+                            "the gyro in deg/s? rad/s = deg/s * pi/180")
+                    raise GreyboxInputError(
+                        f"{where}: columns 'phi', 'theta' against 'p', 'q': the attitude changes {abs(fit[0]):.3g} "
+                        f"(± {fit[1]:.2g}) times as fast as the gyro says, where consistent units give about 1: {hint}")
+    psi = Y[:, col["psi"]] if "psi" in col else np.array([np.nan])
+    if ({"x", "y", "phi", "theta"} <= set(col) and np.isfinite(psi).any()
+            and np.max(np.abs(psi[np.isfinite(psi)])) <= 2 * math.pi + 0.5):
+        acc = [on_grid(n, 0.2, 2) for n in ("x", "y")]
+        vel = [on_grid(n, 0.2, 1) for n in ("x", "y")]
+        ph, th, ps = (on_grid(n, 0.2, 0) for n in ("phi", "theta", "psi"))
+        if all(v is not None for v in (*acc, *vel, ph, th, ps)):
+            g = _STANDARD_GRAVITY
+            tilt = np.concatenate([-g * (np.cos(ps) * th + np.sin(ps) * ph), -g * (np.sin(ps) * th - np.cos(ps) * ph)])
+            # at a steady speed the tilt holds a drag and nothing accelerates: the velocity
+            # (in the positions' own unit, so it cannot hide one) takes the drag's share
+            fit = slope(np.concatenate(acc), tilt, 0.2, np.concatenate(vel))
+            if fit is not None:
+                judged["tilt"] = fit
+                if off(fit):
+                    hint = ("x and y in mm (1000) or cm (100)? positions are in metres" if abs(fit[0]) > 1 else
+                            "phi, theta, psi in degrees? (or x, y in km)")
+                    raise GreyboxInputError(
+                        f"{where}: columns 'x', 'y' against 'phi', 'theta', 'psi': the horizontal acceleration is "
+                        f"{abs(fit[0]):.3g} (± {fit[1]:.2g}) times what the tilt gives with a thrust near the weight, "
+                        f"where consistent units give about 1: {hint}")
+    return judged
 
 
 def save_log(log: FlightLog, path: str | Path, extras: bool = True, digits: int = 17) -> None:

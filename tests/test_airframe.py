@@ -113,6 +113,13 @@ def test_bad_rotor_tables(tmp_path):
         load_airframe(write(tmp_path, GOOD + "[[rotor]]\nposition = [0.1, 0, 0]\nspin = 1\n"))
     with pytest.raises(GreyboxInputError, match="give airframe.layout"):
         load_airframe(write(tmp_path, base))
+    # hubs without a lever: no roll (and no pitch) torque, which a model would not say
+    zero = "".join(f"[[rotor]]\nposition = [0, 0, 0]\nspin = {s}\n" for s in (1, -1, 1, -1))
+    with pytest.raises(GreyboxInputError, match="every rotor is at y = 0, so the rotors give no roll torque"):
+        load_airframe(write(tmp_path, base + zero))
+    line = "".join(f"[[rotor]]\nposition = [0, {y}, 0]\nspin = {s}\n" for y, s in ((0.1, 1), (-0.1, -1)))
+    with pytest.raises(GreyboxInputError, match="no pitch torque"):
+        load_airframe(write(tmp_path, base + line))
 
 
 def test_file_errors(tmp_path):

@@ -243,6 +243,57 @@ def test_rotor_speeds_in_rev_s_are_refused_by_fit_and_noted_by_simulate(tmp_path
     assert rc == 0 and "rev/s" in err and (tmp_path / "s.csv").exists()
 
 
+@pytest.mark.parametrize("mistake, words", [
+    ("attitude_deg", "phi and theta in degrees"),
+    ("gyro_deg", "gyro in deg/s"),
+    ("positions_mm", "mm (1000)"),
+    ("positions_cm", "cm (100)"),
+    ("attitude_deg_no_gyro", "in degrees"),
+    ("accelerometer_g", "in g?"),
+])
+def test_measurements_in_units_that_contradict_each_other_are_refused(mistake, words, tmp_path, capsys):
+    """Units a fit would take silently (an audit: degrees below 4 pi, deg/s, mm; each fitted
+    with exit 0): two measurements of one motion that differ 20 fold and more."""
+    log = load_log(DEMO).slice(0, 2000)
+    cols = {n: j for j, n in enumerate(log.output_names)}
+    Y = log.outputs
+    if mistake.startswith("attitude_deg"):
+        Y[:, [cols["phi"], cols["theta"], cols["psi"]]] *= 180 / np.pi
+    if mistake == "gyro_deg":
+        Y[:, [cols["p"], cols["q"], cols["r"]]] *= 180 / np.pi
+    if mistake.startswith("positions"):
+        Y[:, [cols["x"], cols["y"], cols["z"]]] *= 1000 if mistake.endswith("mm") else 100
+    path = tmp_path / f"{mistake}.csv"
+    save_log(log, path)
+    if mistake == "attitude_deg_no_gyro":
+        import pandas as pd
+        pd.read_csv(path).drop(columns=["p", "q", "r"]).to_csv(path, index=False)
+    if mistake == "accelerometer_g":
+        import pandas as pd
+        df = pd.read_csv(path)
+        df["ax"], df["ay"], df["az"] = 0.01, -0.02, -1.0
+        df.to_csv(path, index=False)
+    rc, err = _cli(capsys, "fit", str(path), "--airframe", PAPER, "--quiet", "--json", str(tmp_path / "r.json"))
+    line = _one_error(err)
+    assert rc == 2 and words in line and str(path) in line and not (tmp_path / "r.json").exists()
+
+
+def test_consistent_units_pass_the_unit_checks_also_when_nothing_moves():
+    """The bundled flights give slopes near 1; a log of noise alone (a vehicle on a table)
+    cannot be judged and is let through."""
+    from greybox.data import check_measurement_units
+    log = load_log(DEMO)
+    judged = check_measurement_units(log.t, log.outputs, list(log.output_names), "demo")
+    assert 0.8 < judged["gyro"][0] < 1.2 and 0.8 < judged["tilt"][0] < 1.3
+    rng = np.random.default_rng(3)
+    n = 6000
+    t = np.arange(n) * 0.01
+    names = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
+    Y = rng.normal(0, [1e-3, 1e-3, 1e-3, 2e-3, 2e-3, 2e-3, 0.01, 0.01, 0.01], (n, 9))
+    judged = check_measurement_units(t, Y, names, "noise")
+    assert abs(judged["gyro"][0]) < 0.2 and abs(judged["tilt"][0]) < 0.2     # judged, not refused
+
+
 def test_negative_rotor_speeds_get_a_note(tmp_path):
     lines = _lines(DEMO)[:100]
     cells = lines[20].split(",")
