@@ -92,12 +92,15 @@ def _parse_x0(text: str | None) -> list[float] | None:
 
 
 def _read_inputs(path: str, model: QuadrotorModel, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    names = ["t"] + model.input_names
+    everything = ["t"] + model.input_names
     text: list[str] = []
-    header, data, lines = read_csv_table(path, line_numbers=True, must_be_numeric=lambda h: h in names,
+    header, data, lines = read_csv_table(path, line_numbers=True, must_be_numeric=lambda h: h in everything,
                                          text_columns=text)
     if text:
         print(f"note: {path}: ignored text column(s) {', '.join(text)}", file=sys.stderr)
+    # signals derived from the commands (w1@next, w1@-10ms) come from the file's own commands,
+    # as a fit derives them from a log's, unless the file gives them
+    names = ["t"] + [n for n in model.input_names if not fx.is_derived_signal(n) or n in header]
     for n in names:
         if n not in header:
             raise GreyboxInputError(f"{path}: missing required column {n!r}")
@@ -110,7 +113,12 @@ def _read_inputs(path: str, model: QuadrotorModel, p: np.ndarray) -> tuple[np.nd
         raise GreyboxInputError(f"{path}: row {lines[r]}, column {names[c]!r}: missing value")
     t = M[:, 0]
     check_sample_times(t, path, lines)
-    U = M[:, 1:]
+    given = {n: M[:, j] for j, n in enumerate(names)}
+    commands = {c: given[c] for c in model.command_names}
+    for e in model.effects:
+        if any(n not in given for n in e.derived_signals(model.command_names)):
+            given.update({n: v for n, v in e.derive_signals(t, commands).items() if n not in given})
+    U = np.column_stack([given[n] for n in model.input_names])
     if model.inputs == "rotor_speeds":
         n_rot = model.airframe.n_rotors
         for note in check_rotor_speed_units(U[:, :n_rot], model.input_names[:n_rot], path, lines):

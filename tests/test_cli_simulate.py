@@ -78,6 +78,31 @@ def test_simulate_set_effects_and_default_x0(tmp_path, paper_airframe_path):
     assert log.output("z")[-1] > 0
 
 
+def test_simulate_derives_the_signals_effects_read_from_the_inputs(tmp_path, paper_airframe_path):
+    """sampled_inputs reads the next row's speeds (w1@next), command_delay earlier commands
+    (w1@-10ms): derived from the inputs file as a fit derives them from a log (an audit got
+    "missing required column 'w1@next'"). By hand: with s_lead = 1 each row holds the next
+    row's speeds, so a step acts one row (10 ms) early; a command delay of 10 ms, one row late."""
+    import pandas as pd
+    t = np.arange(0, 0.3, 0.01)
+    for name, k in (("u", 10), ("early", 9), ("late", 11)):
+        w = np.full((t.size, 4), 300.0)
+        w[k:] = 340.0
+        write_inputs(tmp_path / f"{name}.csv", t, w)
+
+    def run(inputs, *extra):
+        out = tmp_path / f"y_{len(list(tmp_path.iterdir()))}.csv"
+        assert main(["simulate", "--airframe", str(paper_airframe_path), "--inputs", str(tmp_path / inputs),
+                     "--out", str(out), *extra]) == 0
+        return pd.read_csv(out)[["z", "vz"] if "vz" in pd.read_csv(out) else ["z"]].to_numpy()
+
+    np.testing.assert_allclose(run("u.csv", "--effects", "sampled_inputs", "--set", "s_lead=1"),
+                               run("early.csv"), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(run("u.csv", "--effects", "command_delay", "--set", "tau_cmd=0.01"),
+                               run("late.csv"), rtol=1e-9, atol=1e-12)
+    assert run("u.csv")[-1, 0] != run("early.csv")[-1, 0]      # the step's timing shows in z
+
+
 @pytest.mark.parametrize("setup, args, message", [
     (lambda d: write_inputs(d / "u.csv", [0, 0.1, 0.05], np.ones((3, 4))), [], r"row 4, column 't'"),
     (lambda d: write_inputs(d / "u.csv", [0, 0.1], np.full((2, 4), 2000.0 * 30)), [], "RPM"),
