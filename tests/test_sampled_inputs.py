@@ -51,6 +51,47 @@ def test_each_interval_holds_the_blend_of_its_row_and_the_next_by_hand():
     assert (par.null, par.lower, par.upper) == (0.0, 0.0, 1.0)
 
 
+def test_the_accelerometer_reads_the_thrust_at_its_sample_instant_by_hand():
+    """An accelerometer sample is the specific force at its instant: with the row holding the
+    speeds' mean (``(1 - s) w_k + s w_k+1``), the speeds at the row's start are the ramp's,
+    ``w_k + (s - 0.5)(w_k+1 - w_k)`` (w_k itself at s = 0.5). Before, az read the held mean,
+    and an independent simulator's 0.8 kg flight with ax, ay, az logged fitted s_lead 0.43 ±
+    0.009 where it is 0.517 (0.515 ± 0.001 now, az residual at its noise). A motor lag's state
+    is the rotors' speed at the instant already: then nothing changes."""
+    base = QuadrotorModel(_airframe())
+    t = np.arange(0.0, 0.2, 0.01)
+    W = _speeds(t, 400.0)
+    log = FlightLog(t, W, ["w1", "w2", "w3", "w4"], np.full((t.size, 6), np.nan), OUT[:6])
+    k = 7
+    i_az = base.output_names.index("az")
+    for hold in ("mean", "linear"):
+        model = base + effects.SampledInputs(hold=hold)
+        prep = model.prepare_log(log)
+        x0 = model.initial_state()
+        for s in (0.0, 0.5, 0.8):
+            p = model.default_parameters()
+            p[model.param_names.index("s_lead")] = s
+            got = np.asarray(model.output(x0, prep.inputs[k], p, t[k])).ravel()
+            w = W[k] + (s - 0.5) * (W[k + 1] - W[k])
+            want = np.asarray(base.output(base.initial_state(), w, base.default_parameters(), t[k])).ravel()
+            kt = base.default_parameters()[0]
+            assert want[i_az] == pytest.approx(-kt * np.sum(w ** 2) / base.airframe.mass, rel=1e-12)
+            assert got == pytest.approx(want, rel=1e-12, abs=1e-12), (hold, s)
+    # with a motor lag the sensor reads the lag's state, whatever the blend feeding it
+    lagged = base + effects.MotorLag() + effects.SampledInputs()
+    prep = lagged.prepare_log(log)
+    x0 = lagged.initial_state()
+    x0[-4:] = 410.0
+    outs = []
+    for s in (0.0, 0.8):
+        p = lagged.default_parameters()
+        p[lagged.param_names.index("s_lead")] = s
+        outs.append(np.asarray(lagged.output(x0, prep.inputs[k], p, t[k])).ravel())
+    assert outs[0][i_az] == pytest.approx(-base.default_parameters()[0] * 4 * 410.0 ** 2 / base.airframe.mass,
+                                          rel=1e-12)
+    assert outs[1] == pytest.approx(outs[0], rel=1e-12, abs=1e-12)
+
+
 def test_the_linear_hold_ramps_across_the_row_by_hand():
     """``hold="linear"``: at the fraction f of row k the model's derivatives are the base
     model's at ``w_k + (f + s - 0.5)(w_k+1 - w_k)``: the first-order hold through the samples at

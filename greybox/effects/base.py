@@ -53,6 +53,8 @@ class ModelContext:
     thrust_torque: ca.SX = None  # the rotor thrusts' moment about the CoG (body, N m), set by the model
     signals: dict[str, ca.SX] = None  # extra logged inputs by name (see Effect.signals)
     acc_world: ca.SX = None    # translational acceleration, set before measurement hooks
+    w_row_mean: ca.SX = None   # the speeds an effect made a row's mean (sampled_inputs), and
+    w_at_sample: ca.SX = None  # the speeds at the row's sample instant, for instantaneous sensors
 
 
 class Effect:
