@@ -925,8 +925,22 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
         except OSError as e:
             raise GreyboxInputError(f"{f}: cannot read: {e.strerror or e}") from None
         flights.append(Flight(f.stem, os.path.abspath(f), sha, _flight_key(sha, fp)))
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
+    try:
+        return _batch_run(flights, out, opts, the_model, workers, scheduler, joint, retries, progress)
+    except BaseException:
+        # a run that failed before writing anything (a scheduler that cannot be reached,
+        # Ctrl-C while starting) leaves no empty folder behind
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        raise
 
+
+def _batch_run(flights: list, out: Path, opts, the_model, workers: int, scheduler: str | None, joint: bool,
+               retries: int, progress) -> "BatchResult":
+    """The batch's work once its inputs are checked: skip what is done, run the rest, write
+    the summaries."""
     say = _Progress(len(flights), progress)
     records: dict[str, dict] = {}
     todo = []

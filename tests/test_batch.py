@@ -153,6 +153,23 @@ def test_without_dask_exit_2_says_how_to_install(flights, tmp_path, monkeypatch,
     assert not (tmp_path / "out").exists()
 
 
+def test_a_scheduler_that_cannot_be_reached_leaves_no_folder(flights, tmp_path, monkeypatch, capsys):
+    """The engine fails after the inputs are checked (an audit: 'cannot connect ... after 20
+    s', exit 2, and an empty output folder left behind); a folder that was there stays."""
+    gb = sys.modules["greybox.batch"]
+    from greybox.errors import GreyboxInputError
+
+    def unreachable(self):
+        raise GreyboxInputError("--scheduler tcp://127.0.0.1:1: cannot connect (OSError: timed out)")
+    monkeypatch.setattr(gb._Engine, "__enter__", unreachable)
+    args = ["batch", str(flights), "--airframe", PAPER, "--scheduler", "tcp://127.0.0.1:1"]
+    assert main(args + ["--out", str(tmp_path / "new" / "out")]) == 2
+    assert "cannot connect" in capsys.readouterr().err and not (tmp_path / "new" / "out").exists()
+    (tmp_path / "kept").mkdir()
+    assert main(args + ["--out", str(tmp_path / "kept")]) == 2
+    assert (tmp_path / "kept").is_dir()
+
+
 @pytest.mark.parametrize("args, message", [
     (["--workers", "0"], "--workers"),
     (["--workers", "2", "--scheduler", "tcp://127.0.0.1:8786"], "exclude each other"),
