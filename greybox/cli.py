@@ -983,6 +983,18 @@ def _check_outputs_are_not_inputs(args: argparse.Namespace) -> None:
                                         f"({src}); writing it would overwrite that input: give another file name")
 
 
+def _missing_folders(path: str, kind: str) -> str | None:
+    """The topmost folder above an output (the output itself for a folder option, beyond its
+    own creation) that does not exist, or None."""
+    p = Path(os.path.abspath(path))
+    top = None
+    here = p.parent
+    while not here.exists():
+        top = here
+        here = here.parent
+    return None if top is None else str(top)
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     print(f"greybox: warning: {message}", file=sys.stderr)
 
@@ -1003,6 +1015,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         for attr, (option, kind) in OUTPUT_OPTIONS.items():
             if getattr(args, attr, None) is not None:
                 check_output_path(getattr(args, attr), option, kind)
+                missing = _missing_folders(getattr(args, attr), kind)
+                if missing is not None:
+                    # made when the output is written; said, so that a mistyped path is seen
+                    print(f"note: {option} {getattr(args, attr)}: folder {missing} does not exist yet; "
+                          "it will be created", file=sys.stderr)
         _check_outputs_are_not_inputs(args)
         for path in getattr(args, "effects_file", None) or []:
             fx.load_effects_file(path)

@@ -294,6 +294,19 @@ def test_consistent_units_pass_the_unit_checks_also_when_nothing_moves():
     assert abs(judged["gyro"][0]) < 0.2 and abs(judged["tilt"][0]) < 0.2     # judged, not refused
 
 
+def test_an_output_below_folders_that_do_not_exist_says_it_creates_them(tmp_path, capsys):
+    """A mistyped folder in an output path is made, and said (an audit saw /nonexist created
+    without a word)."""
+    inputs = tmp_path / "u.csv"
+    inputs.write_text("t,w1,w2,w3,w4\n" + "".join(f"{0.01 * k:.2f},320,320,320,320\n" for k in range(20)))
+    out = tmp_path / "typo" / "deeper" / "s.csv"
+    rc, err = _cli(capsys, "simulate", "--airframe", PAPER, "--inputs", str(inputs), "--out", str(out))
+    assert rc == 0 and out.exists()
+    assert f"folder {tmp_path / 'typo'} does not exist yet; it will be created" in err
+    rc, err = _cli(capsys, "simulate", "--airframe", PAPER, "--inputs", str(inputs), "--out", str(out))
+    assert rc == 0 and "does not exist" not in err
+
+
 def test_negative_rotor_speeds_get_a_note(tmp_path):
     lines = _lines(DEMO)[:100]
     cells = lines[20].split(",")
