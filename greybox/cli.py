@@ -480,7 +480,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     print(res.summary())
     for log, pred in zip(logs, preds):
         where = f" of {log.source}" if len(logs) > 1 else ""
-        print(f"validation ({args.horizon:g} s-ahead, last 20 %{where}): nrmse {pred.total:.4f}  " +
+        print(f"validation ({pred.horizon_label}, last 20 %{where}): nrmse {pred.total:.4f}  " +
               "  ".join(f"{c}={v:.3f}" for c, v in pred.nrmse.items()))
     # the error-against-horizon report predicts the validation part again from many starts:
     # only when a file shows it

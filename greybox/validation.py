@@ -76,6 +76,22 @@ class Prediction:
         return HorizonErrors.from_prediction(self, horizons)
 
     @property
+    def longest_window(self) -> float:
+        """s: the longest window predicted; shorter than :attr:`horizon` when the log after its
+        start window is (then every number here is over that shorter stretch)."""
+        t = self.log.t
+        return max((float(t[ke - 1] - t[k]) for k, ke in self.windows), default=0.0)
+
+    @property
+    def horizon_label(self) -> str:
+        """``"1 s-ahead"``, or what was predicted when the log is shorter than the horizon."""
+        dt = float(np.median(np.diff(self.log.t))) if self.log.t.size > 1 else 0.0
+        if self.longest_window + 1.5 * dt < self.horizon:
+            return (f"{self.horizon:g} s-ahead asked, the data after the start window give "
+                    f"{len(self.windows)} window(s) of at most {self.longest_window:.3g} s")
+        return f"{self.horizon:g} s-ahead"
+
+    @property
     def fit_percent(self) -> dict[str, float]:
         return {c: 100.0 * (1.0 - v) for c, v in self.nrmse.items()}
 
@@ -83,7 +99,8 @@ class Prediction:
         """JSON-ready; a diverged prediction's infinite nrmse is ``None`` (null)."""
         num = lambda v: v if math.isfinite(v) else None   # noqa: E731
         return {"nrmse": num(self.total), "channels": {c: num(v) for c, v in self.nrmse.items()},
-                "horizon": self.horizon, "windows": len(self.windows)}
+                "horizon": self.horizon, "windows": len(self.windows),
+                "longest_window": self.longest_window}
 
 
 POSE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi")

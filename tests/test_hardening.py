@@ -307,6 +307,18 @@ def test_an_output_below_folders_that_do_not_exist_says_it_creates_them(tmp_path
     assert rc == 0 and "does not exist" not in err
 
 
+def test_a_horizon_longer_than_the_validation_part_says_what_was_predicted(short_log, tmp_path, capsys):
+    """--horizon 1e9 on a few seconds of validation data printed "1e+09 s-ahead" over one
+    short window (an audit): the line and the JSON say how long the window was."""
+    rc = main(["fit", str(short_log), "--airframe", PAPER, "--quiet", "--horizon", "1e9",
+               "--json", str(tmp_path / "r.json")])
+    out = capsys.readouterr().out
+    v = json.loads((tmp_path / "r.json").read_text())["validation"]
+    assert rc == 0 and v["windows"] == 1 and 0 < v["longest_window"] < 10
+    assert f"1e+09 s-ahead asked, the data after the start window give 1 window(s) of at most " \
+           f"{v['longest_window']:.3g} s" in out
+
+
 def test_negative_rotor_speeds_get_a_note(tmp_path):
     lines = _lines(DEMO)[:100]
     cells = lines[20].split(",")
