@@ -57,6 +57,11 @@ def test_a_lag_under_half_a_row_of_the_inputs_cannot_be_told_from_the_logs_timin
     said = within_row_timing(lagged, "motor_lag", {"tau_m": 0.00105}, [log])
     assert "tau_m = 1.05 ms is under half a row of the logged inputs (2.5 ms)" in said, said
     assert within_row_timing(lagged, "motor_lag", {"tau_m": 0.00396}, [log]) == ""
+    # on its lower bound it says so; just under the half row it shows the digits that make it
+    # under (an audit read "tau_m = 2 ms is under half a row ... (2 ms)")
+    assert "tau_m = 2 ms (its lower bound) is under" in within_row_timing(lagged, "motor_lag", {"tau_m": 0.002}, [log])
+    assert "tau_m = 2.4998 ms is under half a row of the logged inputs (2.5 ms)" in \
+        within_row_timing(lagged, "motor_lag", {"tau_m": 0.0024998}, [log])
     assert within_row_timing(lagged, "motor_lag", {}, [log]) == ""
     curved = model + effects.ThrustCurve()
     assert within_row_timing(curved, "thrust_curve", {"k_Tw": 1e-4}, [log]) == ""

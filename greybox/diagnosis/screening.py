@@ -551,7 +551,18 @@ def within_row_timing(model: QuadrotorModel, effect: str, values: dict[str, floa
     half = 0.5 * median_row_interval(logs)
     if not all(abs(values[n]) < half for n in timed):
         return ""
-    said = ", ".join(f"{n} = {1e3 * values[n]:.3g} ms" for n in timed)
+    lower = {par.name: float(np.atleast_1d(par.lower)[0]) for par in model.parameters}
+
+    def one(n: str) -> str:
+        v, lo = values[n], lower.get(n.split("[")[0], -np.inf)
+        if np.isfinite(lo) and lo > 0 and abs(v - lo) <= 1e-6 * lo:
+            return f"{n} = {1e3 * v:.3g} ms (its lower bound)"
+        digits = 3
+        # as many digits as show it below the half row (2 ms against 2 ms read as a contradiction)
+        while digits < 6 and float(f"{1e3 * v:.{digits}g}") >= float(f"{1e3 * half:.2g}"):
+            digits += 1
+        return f"{n} = {1e3 * v:.{digits}g} ms"
+    said = ", ".join(one(n) for n in timed)
     return (f"{said} is under half a row of the logged inputs ({1e3 * half:.2g} ms), which how the logged values "
             "vary within a row (the log's timing) moves a lag by: cannot tell it from the log's timing; "
             "log the inputs faster to measure it")
