@@ -546,6 +546,12 @@ _W = re.compile(r"^w(\d+)$")
 _U = re.compile(r"^u([1-4])$")
 
 
+def _case_hint(header: list[str], name: str) -> str:
+    """" (the header has 'T': column names are lower-case)" when a column differs in case only."""
+    other = next((h for h in header if h.strip().lower() == name and h != name), None)
+    return f" (the header has {other!r}: column names are lower-case, without spaces)" if other else ""
+
+
 def load_log(path: str | Path, inputs: str = "auto", optional: Iterable[str] = ()) -> FlightLog:
     """Read and validate a flight log CSV (README, "Flight log (CSV)").
 
@@ -593,14 +599,15 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
     source = where if source is None else source
     col = {h: j for j, h in enumerate(header)}
     if "t" not in col:
-        raise GreyboxInputError(f"{where}: missing required column 't'")
+        raise GreyboxInputError(f"{where}: missing required column 't'" + _case_hint(header, "t"))
     w_cols = sorted((int(m.group(1)), h) for h in header if (m := _W.match(h)))
     u_cols = sorted((int(m.group(1)), h) for h in header if (m := _U.match(h)))
     if inputs == "auto":
         inputs = "rotor_speeds" if w_cols else "controls" if u_cols else "rotor_speeds"
     if inputs == "rotor_speeds":
         if not w_cols:
-            raise GreyboxInputError(f"{where}: missing required rotor speed columns 'w1'..'w4'")
+            raise GreyboxInputError(f"{where}: missing required rotor speed columns 'w1'..'w4'" +
+                                    _case_hint(header, "w1"))
         idx = [i for i, _ in w_cols]
         if idx != list(range(1, len(idx) + 1)):
             missing = sorted(set(range(1, max(idx) + 1)) - set(idx))
@@ -619,8 +626,9 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
     for name in REQUIRED_OUTPUTS:
         if name not in col and name not in optional:
             raise GreyboxInputError(f"{where}: missing required column {name!r}" +
-                                    (" (a log without position keeps the columns x, y, z, left empty)"
-                                     if name in ("x", "y", "z") else ""))
+                                    (_case_hint(header, name) or
+                                     (" (a log without position keeps the columns x, y, z, left empty)"
+                                      if name in ("x", "y", "z") else "")))
     out_names = REQUIRED_OUTPUTS + [n for n in OPTIONAL_OUTPUTS if n in col]
 
     if data.shape[0] == 0:
