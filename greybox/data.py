@@ -381,8 +381,14 @@ def read_text_file(path: str | Path, what: str = "", encoding: str = "utf-8") ->
         return path.read_text(encoding=encoding)
     except FileNotFoundError:
         raise GreyboxInputError(f"{path}: {kind} not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise GreyboxInputError(f"{path}: cannot read{' ' + kind if what else ''}: {e}") from None
+    except UnicodeDecodeError as e:
+        # a binary file given where text is read (a .ulg or uSD log for a CSV): say so plainly
+        line = path.read_bytes()[:e.start].count(b"\n") + 1
+        hint = "" if what else ": a binary log needs its importer (greybox import px4 | crazyflie-usd)"
+        raise GreyboxInputError(f"{path}: not a text {kind} (byte {e.start}, line {line}, "
+                                f"is not {encoding}){hint}") from None
+    except OSError as e:
+        raise GreyboxInputError(f"{path}: cannot read{' ' + kind if what else ''}: {e.strerror or e}") from None
 
 
 def read_csv_table(path: str | Path, line_numbers: bool = False,

@@ -319,6 +319,15 @@ def test_a_horizon_longer_than_the_validation_part_says_what_was_predicted(short
            f"{v['longest_window']:.3g} s" in out
 
 
+def test_a_binary_file_given_as_a_log_says_it_is_not_text(tmp_path, capsys):
+    """Python's "'utf-8' codec can't decode byte 0xab" (an audit) becomes words a user reads."""
+    path = tmp_path / "flight.ulg"
+    path.write_bytes(b"ULog\x01\x12\xab\xff" * 100)
+    rc, err = _cli(capsys, "fit", str(path), "--airframe", PAPER)
+    line = _one_error(err)
+    assert rc == 2 and "not a text file" in line and "greybox import px4" in line and "codec" not in line
+
+
 def test_negative_rotor_speeds_get_a_note(tmp_path):
     lines = _lines(DEMO)[:100]
     cells = lines[20].split(",")
