@@ -571,12 +571,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         doc = {**diag.as_json(), "log_notes": _log_notes(logs + (validation or []))}
         outputs.append((Path(args.json), _json_text(doc)))
     if args.write_effect:
-        best = diag.best_discovery
-        if best is None:
+        text = diag.discoveries_file(f"Found on {', '.join(str(x) for x in args.log)}:")
+        if text is None:
             print(f"--write-effect: nothing significant was discovered; {args.write_effect} not written")
         else:
-            outputs.append((Path(args.write_effect), best.effect_file(
-                f"Found on {', '.join(str(x) for x in args.log)}: {best.text()}; {best.reason}.")))
+            outputs.append((Path(args.write_effect), text))
     if args.save:
         outputs.append((Path(args.save), _json_text(diag.fitted_model.to_dict())))
     if args.report:
@@ -584,8 +583,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     write_outputs(outputs)
     if args.save:
         print(f"model: {args.save}")
-    if args.write_effect and diag.best_discovery is not None:
-        print(f"effect: {args.write_effect} (use it with --effects-file {args.write_effect})")
+    if args.write_effect and diag.significant_discoveries:
+        names = ",".join(d.effect_class().name for d in diag.significant_discoveries)
+        print(f"effect: {args.write_effect} (use it with --effects-file {args.write_effect} --effects {names})")
     return 0
 
 

@@ -156,13 +156,13 @@ def test_height_sentence_says_what_the_error_does_near_the_ground():
     h = np.linspace(0.1, 2.0, 2000)
     near = np.where(h < 0.3, 3.0, 1.0)                   # concentrated below 0.3 m
     s = regime_sentence("z", "height above ground", -0.6, near, h)
-    assert s.startswith("z error is largest close to the ground")
+    assert s.startswith("z error is largest at the lowest heights flown")
     import re
     assert 2.5 < float(re.search(r"([0-9.]+)x the RMS", s).group(1)) <= 3.0
     # larger at low heights overall, but the lowest decile is quiet (e.g. on the ground)
     hump = np.where(h < 0.3, 0.5, 2.0 - 0.5 * h)
     s = regime_sentence("x", "height above ground", -0.6, hump, h)
-    assert "but not close to the ground" in s and "largest" not in s
+    assert "but is not concentrated at the lowest heights" in s and "largest" not in s
 
 
 def test_every_catalogue_effect_has_a_manoeuvre_that_excites_it():

@@ -356,10 +356,10 @@ def regime_sentence(ch: str, name: str, r: float, env: np.ndarray, v: np.ndarray
         low = v <= np.quantile(v, 0.1)
         ratio = float(np.sqrt(np.mean(env[low] ** 2) / max(np.mean(env[~low] ** 2), 1e-300)))
         if ratio >= 1.2:
-            return (f"{ch} error is largest close to the ground: below {np.quantile(v, 0.1):.2f} m it is "
+            return (f"{ch} error is largest at the lowest heights flown: below {np.quantile(v, 0.1):.2f} m it is "
                     f"{ratio:.1f}x the RMS elsewhere (r = {r:+.2f} with height)")
         # a rank correlation over the whole flight, not a near-ground concentration: say both
-        return (f"{ch} error grows as {name} falls (r = {r:+.2f}), but not close to the ground: below "
+        return (f"{ch} error grows as {name} falls (r = {r:+.2f}), but is not concentrated at the lowest heights: below "
                 f"{np.quantile(v, 0.1):.2f} m it is {ratio:.1f}x the RMS elsewhere")
     if r > 0:
         return f"{ch} error grows with {name} (r = {r:+.2f})"

@@ -167,13 +167,16 @@ class Discovered:
             out["channels_after"] = {k: _num(v) for k, v in self.channels_after.items()}
         return out
 
-    def effect_file(self, note: str = "") -> str:
-        """Python source of an effects file (``--effects-file``) defining this discovery, with
-        its coefficients (the refit's when there was one) as starting values."""
+    def effect_class(self) -> type[DiscoveredEffect]:
+        """This discovery as an effect class, its coefficients (the refit's when there was one)
+        as starting values."""
         terms = self.fitted or self.terms
-        cls = discovered_effect_class(self.channel, [t.feature for t in terms], [t.coefficient for t in terms],
-                                      [t.scale for t in terms])
-        return effect_file_text(cls, note)
+        return discovered_effect_class(self.channel, [t.feature for t in terms], [t.coefficient for t in terms],
+                                       [t.scale for t in terms])
+
+    def effect_file(self, note: str = "") -> str:
+        """Python source of an effects file (``--effects-file``) defining this discovery."""
+        return effect_file_text(self.effect_class(), note)
 
 
 @dataclass
@@ -555,8 +558,29 @@ class Diagnosis:
 
     @property
     def best_discovery(self) -> Discovered | None:
-        """The best significant discovery (what ``--write-effect`` writes), or None."""
+        """The best significant discovery, or None."""
         return next((d for d in self.discovered if d.significant), None)
+
+    @property
+    def significant_discoveries(self) -> list[Discovered]:
+        """The best significant discovery of each channel, best first (what ``--write-effect``
+        writes: a missing physics shows in several channels at once, an inflow in the thrust
+        and in the roll and pitch moments)."""
+        out: list[Discovered] = []
+        for d in self.discovered:
+            if d.significant and all(o.channel != d.channel for o in out):
+                out.append(d)
+        return out
+
+    def discoveries_file(self, note: str = "") -> str | None:
+        """Python source of an effects file defining :attr:`significant_discoveries` (one
+        class each, ``discovered_<channel>``), or None when nothing significant was found."""
+        found = self.significant_discoveries
+        if not found:
+            return None
+        return effect_file_text([d.effect_class() for d in found],
+                                "\n".join([note] if note else []) + ("\n" if note else "") +
+                                "\n".join(f"{d.text()}; {d.reason}." for d in found))
 
     def _discovery_lines(self) -> list[str]:
         if not self.discovery:

@@ -220,21 +220,28 @@ def discovered_effect_class(channel: str, features: Sequence[str], coefficients:
                  "scales": tuple(float(s) for s in scales), "__module__": __name__})
 
 
-def effect_file_text(cls: type[DiscoveredEffect], note: str = "") -> str:
-    """Python source of an effects file (``--effects-file``) defining ``cls`` as written by
-    ``greybox diagnose --write-effect``; ``note`` goes into its docstring."""
-    unit = CHANNEL_UNITS[cls.channel]
-    terms = " + ".join(f"{parameter_name(cls.channel, f)}*{f}" for f in cls.features)
-    doc = [f"Effect discovered by greybox diagnose: {cls.channel} ({unit}, body frame) = {terms}."]
+def effect_file_text(classes: "type[DiscoveredEffect] | Sequence[type[DiscoveredEffect]]", note: str = "") -> str:
+    """Python source of an effects file (``--effects-file``) defining one discovered effect
+    class or several (one per channel), as written by ``greybox diagnose --write-effect``;
+    ``note`` goes into its docstring."""
+    classes = [classes] if isinstance(classes, type) else list(classes)
+    doc = ["Effect(s) discovered by greybox diagnose:"]
+    for cls in classes:
+        terms = " + ".join(f"{parameter_name(cls.channel, f)}*{f}" for f in cls.features)
+        doc.append(f"  {cls.name}: {cls.channel} ({CHANNEL_UNITS[cls.channel]}, body frame) = {terms}")
     if note:
         doc += [""] + note.splitlines()
-    doc += ["", "Load it with --effects-file; its coefficients are fitted like any parameter (the values",
-            "below only start the fit). Edit the features or the channel to test another form."]
+    names = ",".join(cls.name for cls in classes)
+    doc += ["", f"Load it with --effects-file and add them with --effects {names}; their coefficients are",
+            "fitted like any parameter (the values below only start the fit). Edit the features or the",
+            "channel to test another form."]
     body = "\n".join(doc)
-    return (f'"""{body}\n"""\nfrom greybox.effects import DiscoveredEffect\n\n\n'
-            f"class {cls.__name__}(DiscoveredEffect):\n"
-            f"    name = {cls.name!r}\n"
-            f"    channel = {cls.channel!r}\n"
-            f"    features = {tuple(cls.features)!r}\n"
-            f"    coefficients = {tuple(float(c) for c in cls.coefficients)!r}\n"
-            f"    scales = {tuple(float(s) for s in cls.scales)!r}\n")
+    text = f'"""{body}\n"""\nfrom greybox.effects import DiscoveredEffect\n'
+    for cls in classes:
+        text += (f"\n\nclass {cls.__name__}(DiscoveredEffect):\n"
+                 f"    name = {cls.name!r}\n"
+                 f"    channel = {cls.channel!r}\n"
+                 f"    features = {tuple(cls.features)!r}\n"
+                 f"    coefficients = {tuple(float(c) for c in cls.coefficients)!r}\n"
+                 f"    scales = {tuple(float(s) for s in cls.scales)!r}\n")
+    return text
