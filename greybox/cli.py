@@ -104,6 +104,10 @@ def _read_inputs(path: str, model: QuadrotorModel, p: np.ndarray) -> tuple[np.nd
     for n in names:
         if n not in header:
             raise GreyboxInputError(f"{path}: missing required column {n!r}")
+    ignored = [h for h in header if h not in names and h not in text]
+    if ignored:
+        print(f"note: {path}: ignored column(s) {', '.join(ignored)} (simulate reads the time and the model's "
+              "inputs; the outputs are simulated from the start state)", file=sys.stderr)
     if data.shape[0] == 0:
         raise GreyboxInputError(f"{path}: no data rows after the header")
     M = data[:, [header.index(n) for n in names]]

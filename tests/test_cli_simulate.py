@@ -103,6 +103,18 @@ def test_simulate_derives_the_signals_effects_read_from_the_inputs(tmp_path, pap
     assert run("u.csv")[-1, 0] != run("early.csv")[-1, 0]      # the step's timing shows in z
 
 
+def test_simulate_says_which_columns_of_its_inputs_it_ignores(tmp_path, paper_airframe_path, capsys):
+    """A whole flight log given as inputs: its measurements are not a start state (an audit)."""
+    t = np.arange(0, 0.1, 0.01)
+    path = tmp_path / "log.csv"
+    path.write_text("t,w1,w2,w3,w4,x,phi\n" + "".join(f"{v},320,320,320,320,1.0,0.1\n" for v in t))
+    assert main(["simulate", "--airframe", str(paper_airframe_path), "--inputs", str(path),
+                 "--out", str(tmp_path / "y.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "ignored column(s) x, phi" in err
+    assert load_log(tmp_path / "y.csv").output("x")[0] == 0        # from rest at the origin, not x = 1
+
+
 @pytest.mark.parametrize("setup, args, message", [
     (lambda d: write_inputs(d / "u.csv", [0, 0.1, 0.05], np.ones((3, 4))), [], r"row 4, column 't'"),
     (lambda d: write_inputs(d / "u.csv", [0, 0.1], np.full((2, 4), 2000.0 * 30)), [], "RPM"),
