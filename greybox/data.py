@@ -784,27 +784,6 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
         m, sd, c = abs(fit[0]), fit[1], abs(fit[2])
         return m - 3 * sd > UNIT_RATIO_LIMIT or (m + 3 * sd < 1 / UNIT_RATIO_LIMIT and c > _UNIT_MIN_CORRELATION)
 
-    if {"ax", "ay", "az"} <= set(col):
-        f = np.linalg.norm(Y[:, [col["ax"], col["ay"], col["az"]]], axis=1)
-        f = f[np.isfinite(f)]
-        # the specific force the positions give (on the ground and in hover g; a simulated
-        # fall less), else g
-        pos = [on_grid(n, 0.2, 2) for n in ("x", "y", "z")] if {"x", "y", "z"} <= set(col) else [None]
-        if all(v is not None for v in pos):
-            a = np.column_stack(pos) - np.array([0.0, 0.0, _STANDARD_GRAVITY])
-            a = a[np.all(np.isfinite(a), axis=1)]
-            expected = float(np.median(np.linalg.norm(a, axis=1))) if a.shape[0] >= 20 else _STANDARD_GRAVITY
-        else:
-            expected = _STANDARD_GRAVITY
-        if f.size >= 20 and expected > 2.0:
-            med = float(np.median(f))
-            judged["accelerometer"] = (med / expected, 0.0, 1.0)
-            if med * 4 < expected or med > 4 * expected:
-                hint = "in g? m/s^2 = g * 9.81" if med < expected else "not in m/s^2?"
-                raise GreyboxInputError(
-                    f"{where}: columns 'ax', 'ay', 'az': the accelerometer's magnitude is typically {med:.3g}, where "
-                    f"{'the positions give' if expected != _STANDARD_GRAVITY else 'an IMU reads'} "
-                    f"{expected:.3g} m/s^2 (g on the ground and in hover): {hint}")
     if {"phi", "theta", "p", "q"} <= set(col):
         parts = [on_grid(n, 0.1, d) for n, d in (("phi", 1), ("theta", 1), ("p", 0), ("q", 0))]
         if all(v is not None for v in parts):
@@ -838,6 +817,30 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
                         f"{where}: columns 'x', 'y' against 'phi', 'theta', 'psi': the horizontal acceleration is "
                         f"{abs(fit[0]):.3g} (± {fit[1]:.2g}) times what the tilt gives with a thrust near the weight, "
                         f"where consistent units give about 1: {hint}")
+    # last: positions in another unit are named by the tilt check first
+    if {"ax", "ay", "az"} <= set(col):
+        f = np.linalg.norm(Y[:, [col["ax"], col["ay"], col["az"]]], axis=1)
+        f = f[np.isfinite(f)]
+        # the specific force the positions give (on the ground and in hover g; a simulated
+        # fall less), else g
+        pos = [on_grid(n, 0.2, 2) for n in ("x", "y", "z")] if {"x", "y", "z"} <= set(col) else [None]
+        if all(v is not None for v in pos):
+            a = np.column_stack(pos) - np.array([0.0, 0.0, _STANDARD_GRAVITY])
+            a = a[np.all(np.isfinite(a), axis=1)]
+            expected = float(np.median(np.linalg.norm(a, axis=1))) if a.shape[0] >= 20 else _STANDARD_GRAVITY
+        else:
+            expected = _STANDARD_GRAVITY
+        if f.size >= 20 and expected > 2.0:
+            med = float(np.median(f))
+            judged["accelerometer"] = (med / expected, 0.0, 1.0)
+            if med * 4 < expected or med > 4 * expected:
+                hint = "in g? m/s^2 = g * 9.81" if med < expected else "not in m/s^2?"
+                if expected != _STANDARD_GRAVITY:
+                    hint += " (or the positions are not in metres)"
+                raise GreyboxInputError(
+                    f"{where}: columns 'ax', 'ay', 'az': the accelerometer's magnitude is typically {med:.3g}, where "
+                    f"{'the positions give' if expected != _STANDARD_GRAVITY else 'an IMU reads'} "
+                    f"{expected:.3g} m/s^2 (g on the ground and in hover): {hint}")
     return judged
 
 

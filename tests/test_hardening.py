@@ -250,6 +250,7 @@ def test_rotor_speeds_in_rev_s_are_refused_by_fit_and_noted_by_simulate(tmp_path
     ("positions_cm", "cm (100)"),
     ("attitude_deg_no_gyro", "in degrees"),
     ("accelerometer_g", "in g?"),
+    ("positions_mm_accelerometer", "mm (1000)"),     # the positions named, not the accelerometer
 ])
 def test_measurements_in_units_that_contradict_each_other_are_refused(mistake, words, tmp_path, capsys):
     """Units a fit would take silently (an audit: degrees below 4 pi, deg/s, mm; each fitted
@@ -262,16 +263,17 @@ def test_measurements_in_units_that_contradict_each_other_are_refused(mistake, w
     if mistake == "gyro_deg":
         Y[:, [cols["p"], cols["q"], cols["r"]]] *= 180 / np.pi
     if mistake.startswith("positions"):
-        Y[:, [cols["x"], cols["y"], cols["z"]]] *= 1000 if mistake.endswith("mm") else 100
+        Y[:, [cols["x"], cols["y"], cols["z"]]] *= 100 if mistake.endswith("cm") else 1000
     path = tmp_path / f"{mistake}.csv"
     save_log(log, path)
     if mistake == "attitude_deg_no_gyro":
         import pandas as pd
         pd.read_csv(path).drop(columns=["p", "q", "r"]).to_csv(path, index=False)
-    if mistake == "accelerometer_g":
+    if mistake in ("accelerometer_g", "positions_mm_accelerometer"):
         import pandas as pd
         df = pd.read_csv(path)
-        df["ax"], df["ay"], df["az"] = 0.01, -0.02, -1.0
+        g = 1.0 if mistake == "accelerometer_g" else 9.81
+        df["ax"], df["ay"], df["az"] = 0.01 * g, -0.02 * g, -1.0 * g
         df.to_csv(path, index=False)
     rc, err = _cli(capsys, "fit", str(path), "--airframe", PAPER, "--quiet", "--json", str(tmp_path / "r.json"))
     line = _one_error(err)
