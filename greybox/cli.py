@@ -136,8 +136,9 @@ def _read_inputs(path: str, model: QuadrotorModel, p: np.ndarray) -> tuple[np.nd
 def cmd_simulate(args: argparse.Namespace) -> int:
     model, brought = model_from_args(args)
     p = _parameters(model, brought, args.set)
+    x0 = _parse_x0(args.x0)         # the options first: a bad one is the only line said
     t, U = _read_inputs(args.inputs, model, p)
-    sim = simulate(model, t, U, p, _parse_x0(args.x0), method=args.integrator)
+    sim = simulate(model, t, U, p, x0, method=args.integrator)
     log = FlightLog(t, U, model.input_names, sim.outputs, list(model.output_names))
     save_log(log, args.out)
     print(f"simulated {len(t)} samples ({t[-1] - t[0]:.3f} s), effects {','.join(model.effect_names)}"
