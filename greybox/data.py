@@ -784,18 +784,23 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
         m, sd, c = abs(fit[0]), fit[1], abs(fit[2])
         return m - 3 * sd > UNIT_RATIO_LIMIT or (m + 3 * sd < 1 / UNIT_RATIO_LIMIT and c > _UNIT_MIN_CORRELATION)
 
+    def judge(key: str, fit: tuple[float, float, float] | None, what: str, too_large: str, too_small: str) -> None:
+        """Record ``fit`` under ``key``; refuse it, saying ``what`` (``{}``: the ratio) and the
+        likely unit, when it is off."""
+        if fit is None:
+            return
+        judged[key] = fit
+        if off(fit):
+            ratio = f"{abs(fit[0]):.3g} (± {fit[1]:.2g})"
+            raise GreyboxInputError(f"{where}: columns {what.format(ratio)}, where consistent units give about 1: "
+                                    f"{too_large if abs(fit[0]) > 1 else too_small}")
+
     if {"phi", "theta", "p", "q"} <= set(col):
         parts = [on_grid(n, 0.1, d) for n, d in (("phi", 1), ("theta", 1), ("p", 0), ("q", 0))]
         if all(v is not None for v in parts):
-            fit = slope(np.concatenate(parts[:2]), np.concatenate(parts[2:]), 0.1)
-            if fit is not None:
-                judged["gyro"] = fit
-                if off(fit):
-                    hint = ("phi and theta in degrees? rad = deg * pi/180" if abs(fit[0]) > 1 else
-                            "the gyro in deg/s? rad/s = deg/s * pi/180")
-                    raise GreyboxInputError(
-                        f"{where}: columns 'phi', 'theta' against 'p', 'q': the attitude changes {abs(fit[0]):.3g} "
-                        f"(± {fit[1]:.2g}) times as fast as the gyro says, where consistent units give about 1: {hint}")
+            judge("gyro", slope(np.concatenate(parts[:2]), np.concatenate(parts[2:]), 0.1),
+                  "'phi', 'theta' against 'p', 'q': the attitude changes {} times as fast as the gyro says",
+                  "phi and theta in degrees? rad = deg * pi/180", "the gyro in deg/s? rad/s = deg/s * pi/180")
     psi = Y[:, col["psi"]] if "psi" in col else np.array([np.nan])
     if ({"x", "y", "phi", "theta"} <= set(col) and np.isfinite(psi).any()
             and np.max(np.abs(psi[np.isfinite(psi)])) <= 2 * math.pi + 0.5):
@@ -807,16 +812,11 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
             tilt = np.concatenate([-g * (np.cos(ps) * th + np.sin(ps) * ph), -g * (np.sin(ps) * th - np.cos(ps) * ph)])
             # at a steady speed the tilt holds a drag and nothing accelerates: the velocity
             # (in the positions' own unit, so it cannot hide one) takes the drag's share
-            fit = slope(np.concatenate(acc), tilt, 0.2, np.concatenate(vel))
-            if fit is not None:
-                judged["tilt"] = fit
-                if off(fit):
-                    hint = ("x and y in mm (1000) or cm (100)? positions are in metres" if abs(fit[0]) > 1 else
-                            "phi, theta, psi in degrees? (or x, y in km)")
-                    raise GreyboxInputError(
-                        f"{where}: columns 'x', 'y' against 'phi', 'theta', 'psi': the horizontal acceleration is "
-                        f"{abs(fit[0]):.3g} (± {fit[1]:.2g}) times what the tilt gives with a thrust near the weight, "
-                        f"where consistent units give about 1: {hint}")
+            judge("tilt", slope(np.concatenate(acc), tilt, 0.2, np.concatenate(vel)),
+                  "'x', 'y' against 'phi', 'theta', 'psi': the horizontal acceleration is {} times what the "
+                  "tilt gives with a thrust near the weight",
+                  "x and y in mm (1000) or cm (100)? positions are in metres",
+                  "phi, theta, psi in degrees? (or x, y in km)")
     # last: positions in another unit are named by the tilt check first
     if {"ax", "ay", "az"} <= set(col):
         f = np.linalg.norm(Y[:, [col["ax"], col["ay"], col["az"]]], axis=1)
