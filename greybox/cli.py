@@ -117,12 +117,9 @@ def _read_inputs(path: str, model: QuadrotorModel, p: np.ndarray) -> tuple[np.nd
         raise GreyboxInputError(f"{path}: row {lines[r]}, column {names[c]!r}: missing value")
     t = M[:, 0]
     check_sample_times(t, path, lines)
-    given = {n: M[:, j] for j, n in enumerate(names)}
-    commands = {c: given[c] for c in model.command_names}
-    for e in model.effects:
-        if any(n not in given for n in e.derived_signals(model.command_names)):
-            given.update({n: v for n, v in e.derive_signals(t, commands).items() if n not in given})
-    U = np.column_stack([given[n] for n in model.input_names])
+    # the model's inputs as a fit prepares a log's (derived signals computed from the commands)
+    U = model.prepare_log(FlightLog(t, M[:, 1:], names[1:], np.full((t.size, 0), np.nan), [],
+                                    source=path)).inputs
     if model.inputs == "rotor_speeds":
         n_rot = model.airframe.n_rotors
         for note in check_rotor_speed_units(U[:, :n_rot], model.input_names[:n_rot], path, lines):
@@ -988,12 +985,11 @@ def _check_outputs_are_not_inputs(args: argparse.Namespace) -> None:
                                         f"({src}); writing it would overwrite that input: give another file name")
 
 
-def _missing_folders(path: str, kind: str) -> str | None:
-    """The topmost folder above an output (the output itself for a folder option, beyond its
-    own creation) that does not exist, or None."""
-    p = Path(os.path.abspath(path))
+def _missing_folders(path: str) -> str | None:
+    """The topmost folder above an output that does not exist, or None (a folder option's own
+    folder is not counted: making it is what the option asks)."""
     top = None
-    here = p.parent
+    here = Path(os.path.abspath(path)).parent
     while not here.exists():
         top = here
         here = here.parent
@@ -1020,7 +1016,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for attr, (option, kind) in OUTPUT_OPTIONS.items():
             if getattr(args, attr, None) is not None:
                 check_output_path(getattr(args, attr), option, kind)
-                missing = _missing_folders(getattr(args, attr), kind)
+                missing = _missing_folders(getattr(args, attr))
                 if missing is not None:
                     # made when the output is written; said, so that a mistyped path is seen
                     print(f"note: {option} {getattr(args, attr)}: folder {missing} does not exist yet; "
