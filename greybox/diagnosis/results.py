@@ -578,9 +578,8 @@ class Diagnosis:
         found = self.significant_discoveries
         if not found:
             return None
-        return effect_file_text([d.effect_class() for d in found],
-                                "\n".join([note] if note else []) + ("\n" if note else "") +
-                                "\n".join(f"{d.text()}; {d.reason}." for d in found))
+        lines = ([note] if note else []) + [f"{d.text()}; {d.reason}." for d in found]
+        return effect_file_text([d.effect_class() for d in found], "\n".join(lines))
 
     def _discovery_lines(self) -> list[str]:
         if not self.discovery:
