@@ -434,7 +434,7 @@ def test_rotor_gains_linear_in_position_are_a_cog_offset_and_a_weak_rotor_is_not
     (-a sum x_i^2, -c sum y_i^2) / N does: at hover with equal speeds the two models give the
     same body accelerations (roll, pitch, yaw, vertical), by hand from the torque -y_i T_i.
     ``MotorAsymmetry.reduces_to("cog_offset")`` says so for such gains with noise of their own
-    covariance (20 seeded draws, x frame and the audit's hexacopter) and for the same gains known
+    covariance (at least 190 of 200 seeded draws, x frame and the audit's hexacopter) and for the same gains known
     to 1e-4, a hundredth of them beyond the plane; not for one rotor 7 % weak, known to 0.002."""
     if frame == "x":
         af = make_airframe("x")
@@ -462,10 +462,13 @@ def test_rotor_gains_linear_in_position_are_a_cog_offset_and_a_weak_rotor_is_not
     names = [f"K_T_dev[{i}]" for i in range(n - 1)]
     cov = np.diag(np.full(n - 1, 0.02 ** 2))
     e = effects.MotorAsymmetry()
+    # draws of the gains' noise (its covariance is diagonal: scaled normals, the same on every
+    # numpy build; multivariate_normal's factorisation is not). The test's level is 1 %
+    # (Bonferroni over the patterns): of 200 draws about 2 fall outside; 10 would be 1e-4 likely
     rng = np.random.default_rng(4)
-    for _ in range(20):
-        drawn = d[:-1] + rng.multivariate_normal(np.zeros(n - 1), cov)
-        assert "pattern of a CoG offset" in e.reduces_to("cog_offset", dict(zip(names, drawn)), cov, names, af)
+    said = [e.reduces_to("cog_offset", dict(zip(names, d[:-1] + 0.02 * rng.standard_normal(n - 1))), cov, names, af)
+            for _ in range(200)]
+    assert sum("pattern of a CoG offset" in s for s in said) >= 190
     off = e.reduces_to("cog_offset", dict(zip(names, d[:-1])), cov, names, af)
     import re
     said = re.search(r"CoG offset of \(([-\d.e]+), ([-\d.e]+)\) mm", off)
