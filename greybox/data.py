@@ -663,7 +663,7 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
             hint = " - is it in degrees?" if unit == "rad" and abs(Y[bad[0], j]) < 400 else ""
             raise GreyboxInputError(f"{where}: row {rows[bad[0]]}, column {name!r}: {Y[bad[0], j]:g} is not "
                                     f"plausible in {unit} (|{name}| <= {limit:g}){hint}")
-    check_measurement_units(t, Y, out_names, where)
+    check_measurement_units(t, Y, out_names, where, U if inputs == "rotor_speeds" else None)
     used = {"t", *in_names, *out_names}
     extra_names = [h for h in header if h not in used]
     extras = {h: data[:, col[h]].copy() for h in extra_names}
@@ -704,13 +704,25 @@ in different units (degrees are 57.3 radians, millimetres 1000 metres). Real fli
 0.3-1.1 (the ten NanoBench flights, greybox's own); 20 is no vehicle's physics."""
 _STANDARD_GRAVITY = 9.80665
 _UNIT_MIN_CORRELATION = 0.3
+_HEADING_WRAP_STEP = 3.0
+"""A heading step between two samples at least this large (rad or degrees) is a wrap, not a yaw."""
+_TILT_WINDOWS = (0.2, 1.0)
+"""Smoothing windows (s) of the tilt check; the one whose correlation is highest is judged."""
+_FRAME_MIN_CORRELATION = 0.5
+_FRAME_UNEXPLAINED_RATIO = 4.0
+"""A reading of the positions' frame or the heading (mirrored, in degrees) is taken over the
+log's own when it leaves this many times less of the acceleration unexplained (``1 - rho^2``);
+flights along one line give a mirror image a high correlation too (a real one 0.94 against
+0.99)."""
+_FRAME_MAX_TURN = 30.0
+"""Degrees the positions' axes may be turned from the heading's zero (the real flights: 4)."""
 
 
-def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
-                            where: str) -> dict[str, tuple[float, float, float]]:
-    """Refuse measurements whose units contradict each other, which a fit would take silently
-    (an audit: roll and pitch logged in degrees below 4 pi, a gyro in deg/s, positions in mm,
-    each fitted with exit 0). Each check is a least-squares slope between two measurements of
+def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], where: str,
+                            inputs: np.ndarray | None = None) -> dict[str, tuple[float, float, float]]:
+    """Refuse measurements whose units or frames contradict each other, which a fit would take
+    silently (an audit: roll and pitch logged in degrees below 4 pi, a gyro in deg/s, positions
+    in mm, each fitted with exit 0; positions in ENU or z up). Each check is a least-squares slope between two measurements of
     one motion, and refuses only when the slope is off by more than :data:`UNIT_RATIO_LIMIT`
     with three of its standard deviations to spare (counted over the smoothing window's
     independent stretches): a log with too little motion to tell is let through.
@@ -718,17 +730,25 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
     * roll and pitch against the gyro: ``d(phi)/dt`` against ``p``, ``d(theta)/dt`` against
       ``q`` (the small-angle kinematics; yaw coupling only blurs it), both smoothed over 0.1 s:
       a slope of 57 is degrees, 1/57 a gyro in deg/s;
+    * the heading against the yaw gyro: ``d(psi)/dt`` against ``r``, wraps taken out;
     * horizontal positions against the tilt: their acceleration (smoothed over 0.2 s) against
       ``-g R_psi (theta, -phi)``, what a thrust near the weight gives, with the velocity beside
-      it for a drag's share: 1000 is millimetres, 100 centimetres, 1/57 angles in degrees
-      (left out when the yaw is beyond a turn and a bit, unwrapped or not in radians);
+      it for a drag's share: 1000 is millimetres, 100 centimetres, 1/57 angles in degrees (a log
+      with every angle and rate in degrees passes the two gyro checks). Over 0.2 s and 1 s (a
+      hover's drifts), the one showing one motion best. As a complex slope it also gives the
+      frames: an angle beyond 30 degrees is positions turned against the heading's zero; the
+      tilt's mirror image, or the heading read as degrees, explaining the acceleration clearly
+      better (a quarter of the unexplained share) is a mirrored world (ENU) or degrees;
+    * z against the rotors' ``sum w^2`` along the body's vertical (``inputs``, rotor speeds):
+      falling in NED; rising, z points up;
     * the accelerometer: the median of ``|(ax, ay, az)|`` against that of the specific force
       the positions give (``g`` on the ground and in hover; ``g`` without positions): below a
       quarter of it the accelerometer is in g.
 
     A slope too small must also come with a correlation above 0.3 (two noises give a slope near
-    0 as well). Returns what was judged, ``{"gyro" | "tilt": (slope, std, correlation),
-    "accelerometer": (median magnitude over the expected one, 0, 1)}`` (a check left out is absent).
+    0 as well). Returns what was judged, ``{"gyro" | "yaw gyro" | "tilt" | "vertical": (slope,
+    std, correlation), "tilt turned": (|slope|, angle in degrees, correlation), "accelerometer":
+    (median magnitude over the expected one, 0, 1)}`` (a check left out is absent).
     """
     col = {n: j for j, n in enumerate(names)}
     judged: dict[str, tuple[float, float, float]] = {}
@@ -737,8 +757,13 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
     dt = float(np.median(np.diff(t)))
     if not dt > 0:
         return judged
-    grid = np.arange(t[0], t[-1], dt)
 
+    def grid_step(window: float) -> float:
+        # a window is smoothed over at most 100 grid points: they are plenty, and a 30-min log
+        # at 1 kHz takes seconds per smoothing on its own grid
+        return max(dt, window / 100)
+
+    derived: dict[str, np.ndarray] = {}
     resampled: dict[tuple[str, float], tuple[np.ndarray, np.ndarray, int] | None] = {}
     smoothed: dict[tuple[str, float, int], np.ndarray | None] = {}
 
@@ -750,9 +775,11 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
         if (name, window, deriv) in smoothed:
             return smoothed[name, window, deriv]
         if (name, window) not in resampled:
-            y = Y[:, col[name]]
+            y = derived[name] if name in derived else Y[:, col[name]]
             ok = np.isfinite(y)
-            n = max(5, int(round(window / dt)) | 1)
+            h = grid_step(window)
+            grid = np.arange(t[0], t[-1], h)
+            n = max(5, int(round(window / h)) | 1)
             if ok.sum() < 50 or n >= grid.size:
                 resampled[name, window] = None
             else:
@@ -765,12 +792,12 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
                 half = n // 2
                 hi = np.minimum(np.arange(grid.size) + half + 1, grid.size)
                 lo = np.maximum(np.arange(grid.size) - half, 0)
-                resampled[name, window] = (np.interp(grid, ts, y[ok]), far[hi] - far[lo] > 0, n)
+                resampled[name, window] = (np.interp(grid, ts, y[ok]), far[hi] - far[lo] > 0, n, h)
         base = resampled[name, window]
         v = None
         if base is not None:
-            values, bad, n = base
-            v = savgol_filter(values, n, 2 if deriv < 2 else 3, deriv=deriv, delta=dt)
+            values, bad, n, h = base
+            v = savgol_filter(values, n, 2 if deriv < 2 else 3, deriv=deriv, delta=h)
             v[bad] = np.nan
         smoothed[name, window, deriv] = v
         return v
@@ -782,7 +809,7 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
         ``v`` leaves of ``a``."""
         cols = [x] if v is None else [x, v]
         ok = np.isfinite(a) & np.all(np.isfinite(np.column_stack(cols)), axis=1)
-        per_window = max(1.0, window / dt)
+        per_window = max(1.0, window / grid_step(window))
         if ok.sum() < 10 * per_window:
             return None
         A = np.column_stack([c[ok] - c[ok].mean() for c in cols])
@@ -795,6 +822,23 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
         explained = b - A[:, 1:] @ coef[1:]
         den = math.sqrt(float(A[:, 0] @ A[:, 0]) * float(explained @ explained))
         return float(coef[0]), math.sqrt(max(var, 0.0)), float(A[:, 0] @ explained) / den if den > 0 else 0.0
+
+    def tilt_on_acceleration(tilt: np.ndarray, a: np.ndarray, v: np.ndarray,
+                             window: float) -> tuple[complex, float] | None:
+        """The horizontal acceleration ``a`` as a complex multiple ``c`` of ``tilt`` beside the
+        velocity ``v`` (all ``x + i y``): ``c``'s angle is how far the positions' axes are turned
+        from the heading's; and the correlation of ``tilt`` with what ``v`` leaves of ``a``."""
+        ok = np.isfinite(a) & np.isfinite(v) & np.isfinite(tilt)
+        if ok.sum() < 10 * max(1.0, window / grid_step(window)):
+            return None
+        A = np.column_stack([tilt[ok] - tilt[ok].mean(), v[ok] - v[ok].mean()])
+        if np.linalg.matrix_rank(A) < 2:
+            return None
+        b = a[ok] - a[ok].mean()
+        coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+        explained = b - A[:, 1] * coef[1]
+        den = math.sqrt(np.vdot(A[:, 0], A[:, 0]).real * np.vdot(explained, explained).real)
+        return complex(coef[0]), float(abs(np.vdot(A[:, 0], explained)) / den) if den > 0 else 0.0
 
     def off(fit: tuple[float, float, float]) -> bool:
         # too large: noise cannot make it so. Too small: two noises that share nothing give a
@@ -819,22 +863,98 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str],
             judge("gyro", slope(np.concatenate(parts[:2]), np.concatenate(parts[2:]), 0.1),
                   "'phi', 'theta' against 'p', 'q': the attitude changes {} times as fast as the gyro says",
                   "phi and theta in degrees? rad = deg * pi/180", "the gyro in deg/s? rad/s = deg/s * pi/180")
+    if {"psi", "r"} <= set(col):
+        # the heading's rate against the yaw gyro (small tilts: psi' ~ r); a wrap of the heading
+        # (2 pi or 360) is a step no yaw makes between two samples: it is taken out, whatever the unit
+        psi = Y[:, col["psi"]].copy()
+        ok = np.flatnonzero(np.isfinite(psi))
+        if ok.size > 1:
+            wraps = np.diff(psi[ok])
+            wraps[np.abs(wraps) < _HEADING_WRAP_STEP] = 0.0
+            psi[ok[1:]] -= np.cumsum(wraps)
+        derived["psi continuous"] = psi
+        parts = [on_grid("psi continuous", 0.1, 1), on_grid("r", 0.1, 0)]
+        if all(v is not None for v in parts):
+            judge("yaw gyro", slope(parts[0], parts[1], 0.1),
+                  "'psi' against 'r': the heading changes {} times as fast as the yaw gyro says",
+                  "psi in degrees? rad = deg * pi/180", "the gyro's r in deg/s? rad/s = deg/s * pi/180")
     psi = Y[:, col["psi"]] if "psi" in col else np.array([np.nan])
-    if ({"x", "y", "phi", "theta"} <= set(col) and np.isfinite(psi).any()
-            and np.max(np.abs(psi[np.isfinite(psi)])) <= 2 * math.pi + 0.5):
-        acc = [on_grid(n, 0.2, 2) for n in ("x", "y")]
-        vel = [on_grid(n, 0.2, 1) for n in ("x", "y")]
-        ph, th, ps = (on_grid(n, 0.2, 0) for n in ("phi", "theta", "psi"))
-        if all(v is not None for v in (*acc, *vel, ph, th, ps)):
-            g = _STANDARD_GRAVITY
-            tilt = np.concatenate([-g * (np.cos(ps) * th + np.sin(ps) * ph), -g * (np.sin(ps) * th - np.cos(ps) * ph)])
-            # at a steady speed the tilt holds a drag and nothing accelerates: the velocity
-            # (in the positions' own unit, so it cannot hide one) takes the drag's share
-            judge("tilt", slope(np.concatenate(acc), tilt, 0.2, np.concatenate(vel)),
-                  "'x', 'y' against 'phi', 'theta', 'psi': the horizontal acceleration is {} times what the "
-                  "tilt gives with a thrust near the weight",
-                  "x and y in mm (1000) or cm (100)? positions are in metres",
-                  "phi, theta, psi in degrees? (or x, y in km)")
+    # per reading of the positions' frame and the heading, the best smoothing window's
+    # (complex slope, correlation, real fit): a hover's slight drifts need a second, a
+    # manoeuvre's turns a fifth of it
+    readings: dict[str, tuple[complex, float, tuple[float, float, float] | None]] = {}
+    for window in _TILT_WINDOWS if {"x", "y", "phi", "theta"} <= set(col) and np.isfinite(psi).any() else ():
+        acc = [on_grid(n, window, 2) for n in ("x", "y")]
+        vel = [on_grid(n, window, 1) for n in ("x", "y")]
+        ph, th, ps = (on_grid(n, window, 0) for n in ("phi", "theta", "psi"))
+        if not all(v is not None for v in (*acc, *vel, ph, th, ps)):
+            continue
+        g = _STANDARD_GRAVITY
+        for reading, heading, mirror in (("as given", ps, False), ("mirrored", ps, True),
+                                         ("heading in degrees", np.radians(ps), False)):
+            # the world acceleration a thrust near the weight gives, x + i y
+            tilt = -g * np.exp(1j * heading) * (th - 1j * ph)
+            fit = tilt_on_acceleration(np.conj(tilt) if mirror else tilt, acc[0] + 1j * acc[1],
+                                       vel[0] + 1j * vel[1], window)
+            if fit is not None and (reading not in readings or fit[1] > readings[reading][1]):
+                # at a steady speed the tilt holds a drag and nothing accelerates: the velocity
+                # (in the positions' own unit, so it cannot hide one) takes the drag's share
+                real = slope(np.concatenate(acc), np.concatenate([tilt.real, tilt.imag]), window,
+                             np.concatenate(vel)) if reading == "as given" else None
+                readings[reading] = (*fit, real)
+    if "as given" in readings:
+        c, rho, real = readings["as given"]
+        judged["tilt turned"] = (abs(c), math.degrees(float(np.angle(c))), rho)
+        # another reading of the frame or the heading that leaves a quarter of what this one
+        # leaves unexplained: the motion says the log is not in the frame it claims
+        other = min((r for r in readings if r != "as given"), key=lambda r: 1 - readings[r][1] ** 2)
+        c_o, rho_o = readings[other][:2]
+        if rho_o > _FRAME_MIN_CORRELATION and 1 - rho_o ** 2 < (1 - rho ** 2) / _FRAME_UNEXPLAINED_RATIO:
+            shown = f"(correlation {rho_o:.2f}, as given {rho:.2f})"
+            if other == "heading in degrees":
+                raise GreyboxInputError(
+                    f"{where}: column 'psi': the tilt points along the positions' acceleration only with psi read "
+                    f"as degrees {shown}: " + ("phi, theta, psi in degrees? rad = deg * pi/180" if abs(c_o) < 1 / UNIT_RATIO_LIMIT
+                                                 else "psi in degrees? rad = deg * pi/180"))
+            turn = math.degrees(float(np.angle(c_o)))
+            how = ("x and y swapped (ENU: x east, y north, z up?)" if abs(abs(turn) - 90) < 30 else
+                   "y mirrored (y to the left: a z-up frame?)" if abs(turn) < 30 else
+                   "x mirrored" if abs(turn) > 150 else f"mirrored and turned by {turn:.0f} degrees")
+            raise GreyboxInputError(
+                f"{where}: columns 'x', 'y': the positions' acceleration follows the tilt's mirror image "
+                f"{shown}: {how}; greybox's world is NED (x north, y east, z down) and the attitude's body FRD")
+        turn = math.degrees(float(np.angle(c)))
+        if rho > _FRAME_MIN_CORRELATION and abs(turn) > _FRAME_MAX_TURN:
+            raise GreyboxInputError(
+                f"{where}: columns 'x', 'y' against 'psi': the positions' acceleration follows the tilt turned by "
+                f"{turn:.0f} degrees (correlation {rho:.2f}): the positions' axes and the heading's zero differ "
+                f"(a motion-capture frame against a compass heading?); turn the positions by {-turn:.0f} degrees "
+                f"or add {turn:.0f} degrees to psi")
+        judge("tilt", real,
+              "'x', 'y' against 'phi', 'theta', 'psi': the horizontal acceleration is {} times what the "
+              "tilt gives with a thrust near the weight",
+              "x and y in mm (1000) or cm (100)? positions are in metres",
+              "phi, theta, psi in degrees? (or x, y in km)")
+    if (inputs is not None and {"z", "phi", "theta"} <= set(col) and inputs.shape[1] >= 1
+            and np.isfinite(Y[:, col["z"]]).any() and np.isfinite(Y[:, col["phi"]] + Y[:, col["theta"]]).any()):
+        # NED: more thrust accelerates the vehicle up, toward negative z
+        # (the rotors' sum of w^2 along the vertical, over its median: about -g per unit in hover)
+        thrust = np.sum(inputs.astype(float) ** 2, axis=1) * np.cos(Y[:, col["phi"]]) * np.cos(Y[:, col["theta"]])
+        scale = float(np.median(thrust[np.isfinite(thrust)]))
+        derived["thrust"] = thrust / scale if scale > 0 else thrust
+        best = None
+        for window in _TILT_WINDOWS:
+            parts = [on_grid("z", window, 2), on_grid("thrust", window, 0), on_grid("z", window, 1)]
+            if all(v is not None for v in parts):
+                fit = slope(parts[0], parts[1], window, parts[2])
+                if fit is not None and (best is None or abs(fit[2]) > abs(best[2])):
+                    best = fit
+        if best is not None:
+            judged["vertical"] = best
+            if best[0] - 3 * best[1] > 0 and best[2] > _UNIT_MIN_CORRELATION:
+                raise GreyboxInputError(
+                    f"{where}: column 'z': z accelerates toward positive values as the rotors speed up "
+                    f"(correlation {best[2]:.2f}): z points up? greybox's world is NED, z down: z = -height")
     # last: positions in another unit are named by the tilt check first
     if {"ax", "ay", "az"} <= set(col):
         f = np.linalg.norm(Y[:, [col["ax"], col["ay"], col["az"]]], axis=1)

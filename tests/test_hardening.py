@@ -280,6 +280,118 @@ def test_measurements_in_units_that_contradict_each_other_are_refused(mistake, w
     assert rc == 2 and words in line and str(path) in line and not (tmp_path / "r.json").exists()
 
 
+@pytest.fixture(scope="module")
+def hover_flight():
+    """A flight of hovers, climbs and yaw turns (tilts under 0.03 rad), at 200 Hz."""
+    from greybox.synth import SensorSpec, synthesize
+    model = QuadrotorModel(load_airframe(resources.files("greybox") / "data" / "airframes" / "x_quad.toml"))
+    return synthesize(model, duration=30.0, sensors=SensorSpec(rate=200.0), manoeuvres=("hover", "step_z", "yaw"),
+                      seed=3).log
+
+
+def _heading_mistake(log, mistake):
+    """``log``'s outputs with ``mistake`` made; the world turned by 3.6 rad, so that the heading
+    wraps at +-pi (+-180 degrees) twice."""
+    from greybox.data import check_measurement_units
+    cols = {n: j for j, n in enumerate(log.output_names)}
+    Y = log.outputs.copy()
+    a = 3.6
+    x, y = Y[:, cols["x"]].copy(), Y[:, cols["y"]].copy()
+    Y[:, cols["x"]], Y[:, cols["y"]] = np.cos(a) * x - np.sin(a) * y, np.sin(a) * x + np.cos(a) * y
+    Y[:, cols["psi"]] = np.angle(np.exp(1j * (Y[:, cols["psi"]] + a)))
+    assert np.sum(np.abs(np.diff(Y[np.isfinite(Y[:, cols["psi"]]), cols["psi"]])) > 3) >= 2     # it wraps
+    deg = {"none": [], "psi": ["psi"], "every angle and rate": ["phi", "theta", "psi", "p", "q", "r"]}[mistake]
+    for n in deg:
+        Y[:, cols[n]] = np.degrees(Y[:, cols[n]])
+    return lambda: check_measurement_units(log.t, Y, list(log.output_names), "hover.csv")
+
+
+@pytest.mark.parametrize("mistake, words", [
+    ("none", None),
+    ("psi", "psi in degrees"),                                     # against the yaw gyro
+    ("every angle and rate", "phi, theta, psi in degrees"),        # the gyro checks agree; the tilt does not
+])
+def test_headings_that_wrap_and_angles_in_degrees_on_a_hover_flight(hover_flight, mistake, words):
+    """Every angle and rate in degrees passes both gyro checks; on a hover, whose tilts are under
+    2 degrees, the positions' acceleration over 0.2 s showed the tilt too faintly to tell (a
+    correlation of 0.08), and a heading beyond a turn left the tilt check out: such a log was
+    fitted, uncertified, with no word on its units. Over 1 s the hover shows it (correlation 0.9,
+    slope 0.74 in radians, 0.010 in degrees); a heading that wraps is continued, and one in
+    degrees is read as degrees to turn the tilt."""
+    check = _heading_mistake(hover_flight, mistake)
+    if words is None:
+        judged = check()
+        assert 0.8 < judged["yaw gyro"][0] < 1.2 and 0.5 < judged["tilt"][0] < 1.3 and judged["tilt"][2] > 0.7
+    else:
+        with pytest.raises(GreyboxInputError, match=words):
+            check()
+
+
+@pytest.fixture(scope="module")
+def manoeuvring_flight():
+    """greybox's manoeuvres (steps, yaw turns, fast translations), 30 s at 200 Hz."""
+    from greybox.synth import SensorSpec, synthesize
+    model = QuadrotorModel(load_airframe(resources.files("greybox") / "data" / "airframes" / "x_quad.toml"))
+    return synthesize(model, duration=30.0, sensors=SensorSpec(rate=200.0), seed=3).log
+
+
+def test_a_heading_and_yaw_gyro_in_degrees_are_told_by_the_tilt(manoeuvring_flight):
+    """psi and r both in degrees agree with each other; on a flight that manoeuvres under a
+    changing heading, the tilt lines up with the positions' acceleration only with psi read as
+    degrees (correlation 0.99 against 0.23)."""
+    from greybox.data import check_measurement_units
+    log = manoeuvring_flight
+    cols = {n: j for j, n in enumerate(log.output_names)}
+    Y = log.outputs.copy()
+    judged = check_measurement_units(log.t, Y, list(log.output_names), "flight.csv", log.inputs)
+    assert 0.7 < judged["tilt"][0] < 1.3 and abs(judged["tilt turned"][1]) < 5 and judged["vertical"][2] < -0.9
+    Y[:, [cols["psi"], cols["r"]]] = np.degrees(Y[:, [cols["psi"], cols["r"]]])
+    with pytest.raises(GreyboxInputError, match="only with psi read as degrees"):
+        check_measurement_units(log.t, Y, list(log.output_names), "flight.csv")
+
+
+@pytest.mark.parametrize("frame, words", [
+    ("ENU", "x and y swapped (ENU"),
+    ("y to the left", "y mirrored"),
+    ("x backwards", "x mirrored"),
+    ("turned 40 degrees", "turned by 4"),
+    ("turned 180 degrees", "turned by"),
+    ("z up", "z points up?"),
+])
+def test_positions_in_another_frame_than_the_attitudes_are_refused(manoeuvring_flight, frame, words, tmp_path, capsys):
+    """A world frame other than NED (ENU, a y to the left, z up) or positions turned against the
+    heading's zero (a motion-capture frame against a compass) fit as any log would, with no word:
+    z up gave a certified K_T with z's residual 3.3 times its noise. The positions' acceleration is
+    the tilt's, turned by the heading (and in z, the rotors' thrust's): read as a complex slope
+    its angle says how the axes are turned; a mirror image that explains four times more says
+    they are mirrored (the real flights: turned by 4 degrees at most, mirror images explaining
+    less)."""
+    log = manoeuvring_flight
+    cols = {n: j for j, n in enumerate(log.output_names)}
+    Y = log.outputs
+    x, y, z = (Y[:, cols[n]].copy() for n in "xyz")
+    turn = {"turned 40 degrees": 40.0, "turned 180 degrees": 180.0}.get(frame)
+    if frame == "ENU":
+        x, y, z = y, x, -z
+    elif frame == "y to the left":
+        y, z = -y, -z
+    elif frame == "x backwards":
+        x = -x
+    elif frame == "z up":
+        z = -z
+    elif turn is not None:
+        a = np.radians(turn)
+        x, y = np.cos(a) * x - np.sin(a) * y, np.sin(a) * x + np.cos(a) * y
+    bad = log.slice(0, len(log.t))
+    for n, v in zip("xyz", (x, y, z)):
+        bad.outputs[:, cols[n]] = v
+    path = tmp_path / "frame.csv"
+    save_log(bad, path, digits=8)
+    rc, err = _cli(capsys, "fit", str(path), "--airframe", PAPER, "--quiet", "--json", str(tmp_path / "r.json"))
+    line = _one_error(err)
+    assert rc == 2 and words in line and str(path) in line and not (tmp_path / "r.json").exists()
+
+
 def test_consistent_units_pass_the_unit_checks_also_when_nothing_moves():
     """The bundled flights give slopes near 1; a log of noise alone (a vehicle on a table)
     cannot be judged and is let through."""
