@@ -408,6 +408,35 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+NOISE_HELP = ("a channel's noise standard deviation, in its units, taken instead of the one estimated from the "
+              "log's high-frequency content, e.g. --noise phi=0.01 for an attitude from an onboard filter, "
+              "whose slow error that content does not show (repeatable)")
+
+
+def _channel_noise(items: Sequence[str] | None) -> dict[str, float] | None:
+    """``--noise CH=SD`` (repeatable) as :func:`greybox.fitting.fit`'s ``noise``: each a log
+    channel and its noise standard deviation in the channel's units."""
+    import math
+    from .data import OPTIONAL_OUTPUTS, REQUIRED_OUTPUTS
+    if not items:
+        return None
+    out: dict[str, float] = {}
+    channels = REQUIRED_OUTPUTS + OPTIONAL_OUTPUTS
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or name not in channels:
+            raise GreyboxInputError(f"--noise {item!r}: expected CHANNEL=SD with CHANNEL one of {', '.join(channels)}")
+        try:
+            sd = float(value)
+        except ValueError:
+            sd = math.nan
+        if not (math.isfinite(sd) and sd > 0):
+            raise GreyboxInputError(f"--noise {item!r}: the noise must be a positive number (the channel's units)")
+        out[name] = sd
+    return out
+
+
 def _process_noise(args) -> str | None:
     """``--process-noise`` as :func:`greybox.fitting.fit` takes it ('none': None)."""
     return None if args.process_noise == "none" else args.process_noise
@@ -439,7 +468,7 @@ def _fit_imu_only(args: argparse.Namespace, model: QuadrotorModel, logs) -> int:
     unused = [option for option, given in (
         ("--effects", args.effects), ("--without", args.without), ("--set", args.set), ("--free", args.free),
         ("--fixed", args.fixed), ("--save", args.save), ("--plots", args.plots), ("--interval", args.interval),
-        ("--per-flight", args.per_flight not in (None, "auto")), *(
+        ("--per-flight", args.per_flight not in (None, "auto")), ("--noise", args.noise), *(
             (f"--{name.replace('_', '-')}", getattr(args, name) != default) for name, default in FIT_DEFAULTS.items())
     ) if given]
     if unused:
@@ -473,7 +502,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
         # several flights: shared parameters, each flight its own states
         res = fit(model, [est for est, _ in parts], free=_names(args.free), fixed=_names(args.fixed), p0=p0,
                   interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
-                  process_noise=_process_noise(args), per_flight=_per_flight(args.per_flight, model))
+                  process_noise=_process_noise(args), per_flight=_per_flight(args.per_flight, model),
+                  noise=_channel_noise(args.noise))
     if not res.converged:
         raise GreyboxError(f"fit did not converge: {res.status}")
     # each flight validated with its own values of the per-flight parameters (wind, battery sag)
@@ -566,7 +596,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                     p0=p0, progress=not args.quiet,
                     process_noise=_process_noise(args), validation=validation,
                     discover=not args.no_discover or bool(args.write_effect), per_flight=per_flight,
-                    horizon=args.horizon)
+                    horizon=args.horizon, noise=_channel_noise(args.noise))
     print(diag.summary())
     outputs: list[tuple[Path, str | bytes]] = []
     if args.json:
@@ -782,6 +812,7 @@ def _parser() -> argparse.ArgumentParser:
                         "(real logs); 'none' output error only (see README)")
     f.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
                    help=INPUT_NOISE_HELP)
+    f.add_argument("--noise", action="append", metavar="CH=SD", help=NOISE_HELP)
     f.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with several logs, what each flight gets its own value of: 'auto' (default: the "
                         "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
@@ -809,6 +840,7 @@ def _parser() -> argparse.ArgumentParser:
                         "(real logs); 'none' output error only (see README)")
     g.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
                    help=INPUT_NOISE_HELP)
+    g.add_argument("--noise", action="append", metavar="CH=SD", help=NOISE_HELP)
     g.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with several logs, what each flight gets its own value of (as for fit; default auto: "
                         "wind, thrust_drift)")

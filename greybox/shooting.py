@@ -36,7 +36,7 @@ from .model import OUTPUTS, QuadrotorModel
 from .rotations import body_rates_from_euler_rates
 
 __all__ = ["ShootingProblem", "MappedPair", "BufferedFunction", "ShootingData", "layout", "initial_node_states",
-           "estimate_noise", "noise_levels", "sensor_noise", "free_indices", "parameter_bounds",
+           "estimate_noise", "noise_levels", "NOISE_FLOOR", "sensor_noise", "free_indices", "parameter_bounds",
            "DEFAULT_INTERVAL_S", "default_interval"]
 
 DEFAULT_INTERVAL_S = 0.05
@@ -588,6 +588,12 @@ def parameter_bounds(model: QuadrotorModel) -> tuple[np.ndarray, np.ndarray]:
     return np.array(lo), np.array(hi)
 
 
+NOISE_FLOOR = np.array([{"x": 1e-4, "y": 1e-4, "z": 1e-4, "phi": 1e-4, "theta": 1e-4, "psi": 1e-4,
+                         "p": 1e-3, "q": 1e-3, "r": 1e-3, "ax": 1e-3, "ay": 1e-3, "az": 1e-3}[n] for n in OUTPUTS])
+"""Per output channel (``OUTPUTS`` order), the resolution below which no sensor reports: the
+floor of a noise estimated from the measurements (0.1 mm, 0.1 mrad, 1 mrad/s, 1 mm/s^2)."""
+
+
 def noise_levels(logs: Sequence[FlightLog], noise: Mapping[str, float] | None) -> np.ndarray:
     sigma = np.ones(len(OUTPUTS))
     given = dict(noise or {})
@@ -598,9 +604,7 @@ def noise_levels(logs: Sequence[FlightLog], noise: Mapping[str, float] | None) -
         vals = [estimate_noise(l.output(name)) for l in logs if name in l.output_names]
         vals = [v for v in vals if np.isfinite(v)]
         sigma[c] = float(np.median(vals)) if vals else 1.0
-    floor = {"x": 1e-4, "y": 1e-4, "z": 1e-4, "phi": 1e-4, "theta": 1e-4, "psi": 1e-4,
-             "p": 1e-3, "q": 1e-3, "r": 1e-3, "ax": 1e-3, "ay": 1e-3, "az": 1e-3}
-    return np.maximum(sigma, [floor[n] for n in OUTPUTS])
+    return np.maximum(sigma, NOISE_FLOOR)
 
 
 def sensor_noise(logs: Sequence[FlightLog]) -> np.ndarray:

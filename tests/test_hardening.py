@@ -1023,3 +1023,51 @@ def test_an_os_error_is_one_line_unless_an_interrupt_came_first(capsys, monkeypa
     monkeypatch.setattr(cli, "cmd_effects", library_gone_after_sigterm)
     rc, err = _cli(capsys, "effects")
     assert rc == 143 and "terminated" in err and "step.so" not in err
+
+
+@pytest.mark.parametrize("given, words", [
+    ("phi", "expected CHANNEL=SD"), ("roll=0.01", "expected CHANNEL=SD"), ("phi=-1", "positive number"),
+    ("phi=abc", "positive number"), ("phi=inf", "positive number"),
+])
+def test_a_channel_noise_given_on_the_command_line_is_checked(given, words, tmp_path, capsys):
+    rc, err = _cli(capsys, "fit", DEMO, "--airframe", PAPER, "--quiet", "--noise", given,
+                   "--json", str(tmp_path / "r.json"))
+    line = _one_error(err)
+    assert rc == 2 and words in line and given in line and not (tmp_path / "r.json").exists()
+
+
+def test_a_channel_noise_given_weights_the_fit_and_judges_its_residuals(tmp_path, capsys):
+    """An attitude from an onboard filter errs slowly, by more than its high-frequency content
+    shows (an audit's complementary filter: 4-18 mrad against the 1e-4 that content gave, and
+    certified fits 5-9 std off); the user who knows it says so: the fit weights the channel by
+    it and the certificate's residual check judges against it."""
+    rc, _ = _cli(capsys, "fit", DEMO, "--airframe", PAPER, "--quiet", "--noise", "phi=0.01", "--noise", "theta=0.02",
+                 "--json", str(tmp_path / "r.json"))
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert rc == 0 and r["noise"]["phi"] == 0.01 and r["noise"]["theta"] == 0.02
+    assert r["certificate"]["sensor_noise"]["phi"] == 0.01 and r["certificate"]["sensor_noise"]["psi"] < 0.005
+    # the demo's attitude noise is 3 mrad: its residual is a third of the noise given
+    assert 0.2 < r["certificate"]["residual_over_noise"]["phi"] < 0.45
+
+
+def test_an_attitude_filtered_from_the_gyro_is_named_and_its_accuracy_asked_for(tmp_path, capsys):
+    """An attitude whose high-frequency content sits at greybox's floor is an estimate filtered
+    from the gyro; its slow error does not show there, and the fit would weigh it as accurate to
+    0.1 mrad: a warning says so and asks for --noise. Given, the channel is not named."""
+    from scipy.ndimage import uniform_filter1d
+    log = load_log(DEMO).slice(0, 3000)
+    cols = {n: j for j, n in enumerate(log.output_names)}
+    for ch in ("phi", "theta"):
+        y = log.outputs[:, cols[ch]]
+        ok = np.isfinite(y)
+        # a filter's estimate: smooth (no high-frequency content) and a little late
+        y[ok] = np.interp(log.t[ok] - 0.02, log.t[ok], uniform_filter1d(y[ok], 61))
+    path = tmp_path / "filtered.csv"
+    save_log(log, path)
+    rc, _ = _cli(capsys, "fit", str(path), "--airframe", PAPER, "--quiet", "--json", str(tmp_path / "r.json"))
+    said = [w for w in json.loads((tmp_path / "r.json").read_text())["warnings"] if "greybox's floor" in w]
+    assert rc == 0 and len(said) == 1 and said[0].startswith("phi, theta:") and "--noise phi=SD" in said[0]
+    rc, _ = _cli(capsys, "fit", str(path), "--airframe", PAPER, "--quiet", "--noise", "phi=0.003",
+                 "--json", str(tmp_path / "r2.json"))
+    said = [w for w in json.loads((tmp_path / "r2.json").read_text())["warnings"] if "greybox's floor" in w]
+    assert rc == 0 and len(said) == 1 and said[0].startswith("theta:")

@@ -9,7 +9,7 @@ import time
 import warnings as _warnings
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -48,7 +48,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
              progress: bool | Callable[[str], None] = False,
              process_noise: str | dict[str, float] | None = IF_NEEDED,
              validation: FlightLog | Sequence[FlightLog] | None = None, discover: bool = True,
-             per_flight: str | Sequence[str] | None = "auto", horizon: float = DEFAULT_HORIZON) -> Diagnosis:
+             per_flight: str | Sequence[str] | None = "auto", horizon: float = DEFAULT_HORIZON,
+             noise: Mapping[str, float] | None = None) -> Diagnosis:
     """Compare ``model`` with ``log``, find where it fails and which catalogue effect is
     missing; with ``iterate`` add significant effects until none is left (see module doc).
 
@@ -73,6 +74,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             candidate out of sample; default 1 s). A real vehicle's attitude, open loop, is
             not predictable for a whole second: on real flights 0.5 s judges a model where it
             is used (README, "Real flights").
+        noise: channel noise standard deviations the baseline fit takes instead of estimating
+            them (``{"phi": 0.01, ...}``; every refit keeps the baseline's): an attitude from an
+            onboard filter errs by more than its high-frequency content shows.
 
     ``log`` may be several flights of one vehicle: they share the parameters, each has its
     own states (the baseline, the screening, every refit); each is split into estimation and
@@ -122,7 +126,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # little noise, leave an open-loop unstable body's output-error fit far from the data,
         # and test statistics there would credit any extra parameter with the distance
         res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise,
-                  per_flight=per_flight)
+                  per_flight=per_flight, noise=noise)
         if not res.converged:
             # one more go from where it stopped, in its formulation, with the weights it reached
             say(f"diagnose: the baseline fit is not certified ({res.status}); solving on")

@@ -17,7 +17,7 @@
 The problem itself (interval functions, data layout, initial states, noise) is
 :mod:`greybox.shooting`.
 """
-from ..shooting import (DEFAULT_INTERVAL_S, default_interval, estimate_noise, initial_node_states,
+from ..shooting import (DEFAULT_INTERVAL_S, NOISE_FLOOR, default_interval, estimate_noise, initial_node_states,
                         sensor_noise)
 from .api import (IF_NEEDED, MAX_RESTARTS, THRUST_ADVICE, TRUST_REGION, FitResult, fit, manoeuvre_advice,
                   per_flight_positions, progress_callback, progress_printer)
@@ -28,7 +28,7 @@ from .imu import ImuFit, fit_imu, is_imu_only
 from .input_errors import InputDenoising, denoise_inputs
 
 __all__ = ["fit", "FitResult", "Certificate", "GreyBoxEstimator", "Solver", "GaussNewton", "FitSession",
-           "estimate_noise", "sensor_noise", "initial_node_states", "DEFAULT_INTERVAL_S",
+           "estimate_noise", "sensor_noise", "NOISE_FLOOR", "initial_node_states", "DEFAULT_INTERVAL_S",
            "default_interval", "THRUST_ADVICE", "manoeuvre_advice", "MAX_RESTARTS", "TRUST_REGION", "progress_printer",
            "progress_callback", "per_flight_positions", "fit_imu", "ImuFit", "is_imu_only", "IF_NEEDED", "STOPPED",
            "budget_spent", "denoise_inputs", "InputDenoising"]
