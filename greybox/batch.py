@@ -84,6 +84,24 @@ _PATTERNS = {"csv": "*.csv", "nanobench": "*.csv", "px4": "*.ulg", "crazyflie-us
 
 
 # ---------------------------------------------------------------------------- options
+def _channel_noise(noise: Mapping[str, float] | None) -> tuple[tuple[str, float], ...]:
+    """``noise`` checked (log channels, positive finite standard deviations), sorted."""
+    from .data import OPTIONAL_OUTPUTS, REQUIRED_OUTPUTS
+    out = []
+    for ch, sd in dict(noise or {}).items():
+        if ch not in REQUIRED_OUTPUTS + OPTIONAL_OUTPUTS:
+            raise GreyboxInputError(f"noise: {ch!r} is not a log channel ({', '.join(REQUIRED_OUTPUTS + OPTIONAL_OUTPUTS)})")
+        try:
+            sd = float(sd)
+        except (TypeError, ValueError):
+            sd = math.nan
+        if not (math.isfinite(sd) and sd > 0):
+            raise GreyboxInputError(f"noise: {ch}={noise[ch]!r} must be a positive number (the channel's units)")
+        out.append((ch, sd))
+    return tuple(sorted(out))
+
+
+
 @dataclass(frozen=True)
 class Options:
     """What every flight is processed with (sent to the workers; part of each flight's hash)."""
@@ -106,6 +124,7 @@ class Options:
     # the joint fit's per-flight parameters (fit's ``per_flight``): in the fleet's key, not
     # in a flight's (a flight's own results do not depend on it)
     per_flight: str | tuple[str, ...] | None = "auto"
+    noise: tuple[tuple[str, float], ...] = ()      # channel noise given (fit's ``noise``)
 
     def fingerprint(self) -> dict:
         """The options as they decide a flight's results: file contents, not paths."""
@@ -118,7 +137,8 @@ class Options:
                 "input_noise": self.input_noise, "import": self.import_format,
                 "pwm_map": self.pwm_map, "held": self.held,
                 # only when given: results of batches before the option stay valid on a rerun
-                **({"angle_unit": self.angle_unit} if self.angle_unit != "auto" else {})}
+                **({"angle_unit": self.angle_unit} if self.angle_unit != "auto" else {}),
+                **({"noise": [[c, v] for c, v in self.noise]} if self.noise else {})}
 
 
 @dataclass(frozen=True)
@@ -362,7 +382,7 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
     notes += log.notes[before:]
     diag = diagnose(model, log, candidates=list(opts.candidates) if opts.candidates is not None else None,
                     iterate=opts.iterate, p0=p0, process_noise=opts.process_noise, progress=False,
-                    discover=opts.discover)
+                    discover=opts.discover, noise=dict(opts.noise) or None)
     base = diag.baseline
     files["fit.json"] = _json_bytes(fit_json(model, base, [diag.baseline_prediction], [flight.path],
                                                   horizons=diag.baseline_horizons, est=[log.split(0.8)[0]]))
@@ -417,7 +437,8 @@ def run_fleet(flights: Sequence[Flight], opts: Options, nuisance: Sequence[str] 
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)
         res = fit(model, [est for est, _ in parts], p0=p0, max_iter=200, process_noise=opts.process_noise,
-                  per_flight=list(opts.per_flight) if isinstance(opts.per_flight, tuple) else opts.per_flight)
+                  per_flight=list(opts.per_flight) if isinstance(opts.per_flight, tuple) else opts.per_flight,
+                  noise=dict(opts.noise) or None)
     preds = [predict(model, res.flight_p(i), val, **prediction_options(res)) for i, (_, val) in enumerate(parts)]
     fitj = fit_json(model, res, preds, [f.path for f in flights], est=[est for est, _ in parts])
     return {"fit": fitj, "model": res.to_dict(),
@@ -825,7 +846,8 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
           held: str = "interpolate", angle_unit: str = "auto", effects: str | Sequence[str] | None = None,
           without: str | Sequence[str] | None = None, sets: Mapping[str, Any] | Sequence[str] | None = None,
           effects_files: Sequence[str | Path] = (), candidates: Sequence[str] | None = None, iterate: bool = True,
-          discover: bool = True, process_noise: str | None = IF_NEEDED, input_noise: str = "smooth", workers: int = 2, scheduler: str | None = None, joint: bool = False,
+          discover: bool = True, process_noise: str | None = IF_NEEDED, input_noise: str = "smooth",
+          noise: Mapping[str, float] | None = None, workers: int = 2, scheduler: str | None = None, joint: bool = False,
           per_flight: str | Sequence[str] | None = "auto", retries: int = 1, progress: bool = True) -> BatchResult:
     """Import (if needed), fit and diagnose every flight in ``inputs`` on Dask distributed;
     results under ``out`` (see the module doc and README, "greybox batch").
@@ -839,7 +861,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
         angle_unit: for ``"nanobench"`` flights without the quaternion, the roll/pitch/yaw
             columns' unit: ``"auto"`` (read from each flight's motion), ``"rad"`` or ``"deg"``.
         effects, without, sets, effects_files, candidates, iterate, discover, process_noise,
-            input_noise: as for ``greybox fit``/``diagnose``.
+            input_noise, noise: as for ``greybox fit``/``diagnose``.
         workers: processes of the local cluster (one thread each); ignored with ``scheduler``
             (the address of a running Dask scheduler, e.g. ``tcp://127.0.0.1:8786``).
         joint: also fit the shared parameters on all good flights at once and compare each
@@ -897,7 +919,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
                    candidates=tuple(candidates) if candidates is not None else None, iterate=bool(iterate),
                    discover=bool(discover),
                    process_noise=process_noise, input_noise=input_noise, import_format=import_format, pwm_map=pwm_map, held=held,
-                   angle_unit=angle_unit,
+                   angle_unit=angle_unit, noise=_channel_noise(noise),
                    per_flight=per_flight if per_flight is None or isinstance(per_flight, str) else tuple(per_flight))
     if process_noise not in (None, "auto", IF_NEEDED):
         raise GreyboxInputError(f"process_noise must be {IF_NEEDED!r}, None or 'auto', got {process_noise!r}")

@@ -631,7 +631,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
                 angle_unit=args.angle_unit, effects=args.effects,
                 without=args.without, sets=args.set, effects_files=args.effects_file or (),
                 candidates=_names(args.candidates), iterate=not args.no_iterate, discover=not args.no_discover,
-                process_noise=_process_noise(args), input_noise=args.input_noise,
+                process_noise=_process_noise(args), input_noise=args.input_noise, noise=_channel_noise(args.noise),
                 workers=args.workers or 2, scheduler=args.scheduler, joint=args.joint,
                 per_flight=_per_flight(args.per_flight), progress=not args.quiet)
     print(res.summary())
@@ -677,6 +677,7 @@ def _batch_parser(sub) -> None:
                         "than 3 std from the fleet")
     b.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
                    help=INPUT_NOISE_HELP)
+    b.add_argument("--noise", action="append", metavar="CH=SD", help=NOISE_HELP)
     b.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with --joint, what each flight gets its own value of: 'auto' (default: wind and "
                         "thrust_drift when the model or a flight's diagnosis has them), 'none' or a comma list")

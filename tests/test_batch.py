@@ -185,6 +185,8 @@ def test_a_scheduler_that_cannot_be_reached_leaves_no_folder(flights, tmp_path, 
     (["--import", "magic"], "invalid choice"),
     (["--set", "K_T=-1"], "K_T"),
     (["--process-noise", "yes"], "invalid choice"),
+    (["--noise", "roll=0.01"], "expected CHANNEL=SD"),
+    (["--noise", "phi=0"], "positive number"),
 ])
 def test_bad_options_exit_2_with_one_line(flights, tmp_path, capsys, args, message):
     rc = main(["batch", str(flights), "--airframe", PAPER, "--out", str(tmp_path / "out")] + args)
@@ -230,8 +232,12 @@ def test_the_hash_changes_with_input_content_and_options():
     for other in (Options(airframe=PAPER, effects="ground_effect"), Options(airframe=PAPER, iterate=False),
                   Options(airframe=PAPER, discover=False),
                   Options(airframe=PAPER, candidates=("wind",)), Options(airframe=PAPER, process_noise="auto"),
-                  Options(airframe=PAPER, sets=(("K_T", (3e-5,)),))):
+                  Options(airframe=PAPER, sets=(("K_T", (3e-5,)),)), Options(airframe=PAPER, noise=(("phi", 0.01),))):
         assert _flight_key("abc", other.fingerprint()) != _flight_key("abc", fp)
+    # options added later enter the hash only when given: earlier batches' results stay valid
+    assert "noise" not in fp and "angle_unit" not in fp
+    with pytest.raises(greybox.GreyboxInputError, match="not a log channel"):
+        batch([], "unused", airframe=PAPER, noise={"roll": 0.01})
 
 
 def test_a_nanobench_flight_without_the_quaternion_reads_its_angles_in_the_unit_given(tmp_path):
