@@ -292,3 +292,31 @@ def test_other_forms_are_discovered_on_the_right_channel(paper, hidden, channel,
     assert any(v in t.feature.split("*") for t in first.terms for v in np.atleast_1d(variable)), d.summary()
     assert first.nrmse_after < 0.7 * first.nrmse_before or \
         d.discovery["together"]["nrmse_after"] < 0.7 * first.nrmse_before
+
+
+def test_a_term_that_rides_on_anothers_gain_is_not_confirmed_together(monkeypatch):
+    """A term that predicts its own channel better but the total worse alone is judged together
+    with the others; the joint model must also beat each of them alone. An audit's filtered
+    attitude gave fx ~ t*w2pitch (total +4 % alone) beside a weathervane moment mz ~ vy_b that
+    alone took the total from 0.226 to 0.129 and together with it to 0.140: it was confirmed
+    "together" and named in the verdict. Three rate-damping terms that each worsen the total
+    alone and together take it to the noise stay confirmed (the case the rule was made for)."""
+    from types import SimpleNamespace
+    from greybox.diagnosis import discovery
+    from greybox.diagnosis.results import Discovered
+
+    def case(alone_totals, together_total):
+        group = [Discovered(channel=ch, terms=[], p_value=0.0, contribution=1.0, nrmse_before=0.226,
+                            nrmse_after=total, channels_after={ch: 0.5}, significant=confirmed, lr_p_value=0.0)
+                 for ch, total, confirmed in alone_totals]
+        alone = {id(d): d.channel for d in group if not d.significant}
+        monkeypatch.setattr(discovery, "_refit_together", lambda *a, **k: {
+            "K_T_change": None, "nrmse_after": together_total, "channels_after": {d.channel: 0.1 for d in group}})
+        pred = SimpleNamespace(total=0.226, nrmse={d.channel: 1.0 for d in group})
+        out = discovery._confirm_together(group, alone, None, None, pred, [], [], "never", 1, lambda s: None)
+        return out, group
+
+    out, (mz, fx) = case([("mz", 0.129, True), ("fx", 0.236, False)], 0.140)
+    assert out is None and not fx.significant and "adds nothing" in fx.reason
+    out, group = case([("mx", 0.30, False), ("my", 0.31, False), ("mz", 0.25, False)], 0.053)
+    assert out is not None and all(d.significant for d in group)

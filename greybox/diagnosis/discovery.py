@@ -585,12 +585,26 @@ def _confirm_together(group: list[Discovered], alone: dict[int, str], model: Qua
            if (ch := alone.get(id(d))) is not None}
     if gain < MIN_VALIDATION_GAIN or min(own.values()) < MIN_VALIDATION_GAIN:
         return None
+    confirmed = False
     for d in group:
         if id(d) in alone:
             others = ", ".join(o.channel for o in group if o is not d)
+            # the joint model must also beat what each of the others does alone: a term that only
+            # rides on another's gain adds nothing (an audit's filtered attitude gave fx ~ t*w2pitch,
+            # total +4 % alone, "confirmed" beside a weathervane moment that alone predicted better
+            # than the two together, 0.129 against 0.140)
+            alone_totals = [(o.nrmse_after, o) for o in group if o is not d and o.nrmse_after is not None
+                            and np.isfinite(o.nrmse_after)]
+            best = min(alone_totals, key=lambda a: a[0])[1] if alone_totals else None
+            if best is not None and together["nrmse_after"] >= best.nrmse_after:
+                d.reason += (f"; refitted together with {others} the model predicts worse than with {best.channel} "
+                             f"alone (total {together['nrmse_after']:.3g} against {best.nrmse_after:.3g}): it "
+                             "adds nothing")
+                continue
+            confirmed = True
             d.significant = True
             d.reason = (f"p = {d.p_value:.2g} (regression), {d.lr_p_value:.2g} (refit); validation "
                         f"{alone[id(d)]} {-100 * own[id(d)]:+.0f} %, total {-100 * gain:+.0f} % together with "
                         f"{others} (alone the total {-100 * (1 - d.nrmse_after / pred.total):+.0f} %)")
-    return together
+    return together if confirmed else None
 
