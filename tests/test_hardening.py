@@ -1071,3 +1071,20 @@ def test_an_attitude_filtered_from_the_gyro_is_named_and_its_accuracy_asked_for(
                  "--json", str(tmp_path / "r2.json"))
     said = [w for w in json.loads((tmp_path / "r2.json").read_text())["warnings"] if "greybox's floor" in w]
     assert rc == 0 and len(said) == 1 and said[0].startswith("theta:")
+
+
+def test_a_refit_in_a_fits_formulation_keeps_the_sensor_noise_the_user_gave():
+    """A refit with ``**res.settings()`` (a candidate's, a SIMEX draw's) takes every channel's
+    weight as ``noise``; the certificate still judges against the sensors' own noise: the one the
+    user gave where given, the estimate elsewhere — not the weights (so a candidate's refit and
+    its baseline are judged alike)."""
+    from greybox import fit
+    model = QuadrotorModel(load_airframe(PAPER))
+    est = load_log(DEMO).slice(0, 3000)
+    res = fit(model, est, noise={"phi": 0.01})
+    assert res.sensor_given == {"phi": 0.01} and res.certificate.sensor_noise["phi"] == 0.01
+    again = fit(model, est, p0=res.p, **res.settings())
+    assert again.sensor_given == {"phi": 0.01} and again.certificate.sensor_noise["phi"] == 0.01
+    assert again.certificate.sensor_noise["theta"] == pytest.approx(res.certificate.sensor_noise["theta"])
+    plain = fit(model, est)
+    assert plain.sensor_given == {} and plain.certificate.sensor_noise["phi"] < 0.005

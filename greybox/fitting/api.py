@@ -25,7 +25,8 @@ from ..fitted import FittedModel, provenance
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import (AttitudeMotion, attitude_motion, fitted_trajectory, flight_residuals, output_residuals,
                          whiteness_fraction)
-from ..shooting import NOISE_FLOOR, default_interval, free_indices, noise_levels, sensor_noise
+from ..shooting import NOISE_FLOOR, default_interval, free_indices, noise_levels
+from ..shooting import sensor_noise as estimated_sensor_noise
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
 from .certificate import (FILTERED_SENSOR_RATIO, GAP_FORCE_SHARE, GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE,
                           NOISE_RATIO_COLOURED, STEP_TOLERANCE, WHITENESS_ADEQUATE, Certificate)
@@ -139,6 +140,7 @@ class FitResult(FittedModel):
     init_window: float | None = None    # s of measurements its predictions start from (None: predict's default)
     measured_start: bool = False        # its predictions start from the measured attitude and body rates
     white_std: np.ndarray | None = None  # the std white residuals would give (Gauss-Newton), free_names order
+    sensor_given: dict[str, float] = field(default_factory=dict)   # sensor noise given, not estimated (refits keep it)
 
     def settings(self, *, states: bool = True, flights: Sequence[int] | None = None) -> dict[str, Any]:
         """The keyword arguments of :func:`fit` that go on from this fit in its own
@@ -156,7 +158,8 @@ class FitResult(FittedModel):
             # a process noise given per flight is a list over the fit's flights
             q = {s: ([v[i] for i in flights] if len(flights) > 1 else v[flights[0]])
                  if isinstance(v, (list, tuple)) else v for s, v in q.items()}
-        kw: dict[str, Any] = dict(noise=dict(self.sigma), reweight=False, interval=self.interval,
+        kw: dict[str, Any] = dict(noise=dict(self.sigma), sensor_noise=dict(self.sensor_given),
+                                  reweight=False, interval=self.interval,
                                   process_noise=q, per_flight=self.per_flight_rule,
                                   init_window=self.init_window, measured_start=self.measured_start)
         if states:
@@ -209,7 +212,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         progress: bool | Callable[[str], None] = False, initial_states: Sequence[np.ndarray] | None = None,
         process_noise: str | Mapping[str, float] | None = IF_NEEDED, solver: Solver | None = None,
         per_flight: str | Iterable[str] | None = None, init_window: float | None = None,
-        measured_start: bool | None = None) -> FitResult:
+        measured_start: bool | None = None, sensor_noise: Mapping[str, float] | None = None) -> FitResult:
     """Fit the free parameters of ``model`` to one or several flight logs.
 
     Args:
@@ -222,6 +225,10 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         p0: starting values (flat vector or ``{name: value}``); default the airframe's guesses.
         interval: samples per shooting interval (default: the number nearest 50 ms).
         noise: channel noise standard deviations ``{"x": 0.003, ...}``; others are estimated.
+        sensor_noise: the sensors' own noise the certificate's residual check judges against,
+            per channel (default: estimated from the measurements' high-frequency content, and
+            for the channels in ``noise``, that). A refit in another fit's formulation
+            (``**res.settings()``) passes that fit's, since its ``noise`` holds every weight.
         reweight: re-estimate channel noise from the residuals and solve again.
         compile: ``"auto"`` (a compiled step function from the cache, else CasADi's virtual
             machine, compiled to C in the background once evaluating there has cost half
@@ -299,7 +306,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     """
     kw = dict(free=free, fixed=fixed, p0=p0, interval=interval, noise=noise, max_iter=max_iter, tol=tol,
               reweight=reweight, compile=compile, progress=progress, initial_states=initial_states,
-              solver=solver, per_flight=per_flight, init_window=init_window, measured_start=measured_start)
+              solver=solver, per_flight=per_flight, init_window=init_window, measured_start=measured_start,
+              sensor_noise=dict(noise or {}) if sensor_noise is None else dict(sensor_noise))
     with _warnings.catch_warnings(record=True) as caught:
         _warnings.simplefilter("always")
         first = _fit_from(model, logs, process_noise, kw)
@@ -727,7 +735,8 @@ def _filtered_attitude_warnings(sensor: np.ndarray, resid_rms: Mapping[str, floa
 
 def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free, fixed, p0,
                      interval, noise, max_iter, tol, reweight, compile, progress, initial_states,
-                     process_noise, solver, per_flight, init_window, measured_start, probe: bool = False
+                     process_noise, solver, per_flight, init_window, measured_start, sensor_noise,
+                     probe: bool = False
                      ) -> FitResult:
     """:func:`fit` in one formulation: output error (``process_noise=None``) or soft
     continuity (``"auto"`` or ``{state: std}``). ``probe``: output error tried before soft
@@ -846,9 +855,9 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
                 ", ".join(f"{n}={v:.2g}" for n, v in zip(model.state_names, inputs_floor.max(axis=0)) if v > 0))
         ses.q = estimate_q(X, th, first=True)
         say("fit: process noise (gap scale per state): " + _q_text(model, ses))
-    sensor = sensor_noise(logs)
+    sensor = estimated_sensor_noise(logs)
     # a noise the user gave is the sensor's: the residual check judges against it too
-    sensor = np.array([float(noise[n]) if n in (noise or {}) else v for n, v in zip(OUTPUTS, sensor)])
+    sensor = np.array([float(sensor_noise[n]) if n in sensor_noise else v for n, v in zip(OUTPUTS, sensor)])
     n_res = int(data.mask.sum())
     dof = max(n_res - ses.nth - ses.nx * len(logs), 1)
 
@@ -1034,7 +1043,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
 
     cc = cch.sum(axis=1)
     resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
-    warnings += _filtered_attitude_warnings(sensor, resid_rms, noise)
+    warnings += _filtered_attitude_warnings(sensor, resid_rms, sensor_noise)
     node_states, k = [], 0
     for _, M in data.flights:
         node_states.append(X[k:k + M + 1].copy())
@@ -1094,7 +1103,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
                                 **({"measured_start": True} if measured_start else {})),
                      per_flight_out,
                      per_flight if per_flight is None or isinstance(per_flight, str) else list(per_flight),
-                     init_window, measured_start, white_std)
+                     init_window, measured_start, white_std, dict(sensor_noise))
 
 
 def _flight_q(ses: FitSession) -> np.ndarray:
