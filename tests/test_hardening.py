@@ -1088,3 +1088,21 @@ def test_a_refit_in_a_fits_formulation_keeps_the_sensor_noise_the_user_gave():
     assert again.certificate.sensor_noise["theta"] == pytest.approx(res.certificate.sensor_noise["theta"])
     plain = fit(model, est)
     assert plain.sensor_given == {} and plain.certificate.sensor_noise["phi"] < 0.005
+
+
+def test_diagnose_takes_the_channel_noise_given_for_its_baseline_and_refits(tmp_path, capsys):
+    """``greybox diagnose --noise``: the baseline is weighted by it and its certificate judges
+    against it; a candidate's refit in the baseline's formulation keeps it."""
+    est = tmp_path / "est.csv"
+    save_log(load_log(DEMO).slice(0, 3000), est)
+    rc, _ = _cli(capsys, "diagnose", str(est), "--airframe", PAPER, "--quiet", "--candidates", "ground_effect",
+                 "--no-iterate", "--no-discover", "--noise", "phi=0.01", "--json", str(tmp_path / "d.json"))
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert rc == 0 and d["certificate"]["sensor_noise"]["phi"] == 0.01
+    assert d["certificate"]["sensor_noise"]["theta"] < 0.005
+    from greybox import diagnose
+    diag = diagnose(QuadrotorModel(load_airframe(PAPER)), load_log(est), candidates=["ground_effect"], iterate=False,
+                    discover=False, noise={"phi": 0.01})
+    assert diag.baseline.sensor_given == {"phi": 0.01} and diag.baseline.sigma["phi"] == 0.01
+    refits = [c.fit for c in diag.ranking if c.fit is not None]
+    assert refits and all(r.sensor_given == {"phi": 0.01} and r.certificate.sensor_noise["phi"] == 0.01 for r in refits)

@@ -115,7 +115,8 @@ def _with_disturbance(res: FitResult, logs: Sequence[FlightLog], compile: str,
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # judged by the caller
         alt = fit(with_d, logs, p0=res.p, process_noise=process_noise, initial_states=nodes, compile=compile,
-                  max_iter=100, free=res.free_names, interval=res.interval, per_flight=per_flight)
+                  max_iter=100, free=res.free_names, interval=res.interval, per_flight=per_flight,
+                  sensor_noise=res.sensor_given)
         if not alt.converged:
             alt = fit(with_d, logs, p0=alt.p, compile=compile, max_iter=100, free=res.free_names,
                       **alt.settings())

@@ -483,6 +483,7 @@ def _fit_with(sig: Sequence[Discovered], model: QuadrotorModel, res: FitResult, 
         warnings.simplefilter("ignore", ConvergenceWarning)    # judged by its likelihood ratio
         # a discovered effect adds no states: the model's node states start the refit as they are
         fr = fit(ext, est, free=list(res.free_names) + new, p0=p0, noise=res.sigma, reweight=False,
+                 sensor_noise=res.sensor_given,
                  compile=compile, max_iter=200, initial_states=res.node_states, interval=res.interval,
                  process_noise=res.process_noise, per_flight=res.per_flight_rule)
     pr = predict_after_fit(fr, est, val, compile=compile, horizon=horizon)

@@ -409,6 +409,7 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # a capped refit is judged by its LR
         fr = fit(ext, est, free=free, p0=p, noise=None if reweight else sigma, reweight=reweight,
+                 sensor_noise=res.sensor_given,
                  compile=compile, max_iter=max_iter or cap, initial_states=init, interval=res.interval,
                  process_noise=_process_noise(ext, res), per_flight=res.per_flight_rule,
                  solver=GaussNewton(stop=HeldBeyondPlausible(name)))

@@ -227,8 +227,9 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         noise: channel noise standard deviations ``{"x": 0.003, ...}``; others are estimated.
         sensor_noise: the sensors' own noise the certificate's residual check judges against,
             per channel (default: estimated from the measurements' high-frequency content, and
-            for the channels in ``noise``, that). A refit in another fit's formulation
-            (``**res.settings()``) passes that fit's, since its ``noise`` holds every weight.
+            for the channels in ``noise``, that — with ``reweight=False``, a refit at another
+            fit's weights whose ``noise`` holds every channel's weight, none). A refit in another
+            fit's formulation (``**res.settings()``) passes that fit's ``sensor_given``.
         reweight: re-estimate channel noise from the residuals and solve again.
         compile: ``"auto"`` (a compiled step function from the cache, else CasADi's virtual
             machine, compiled to C in the background once evaluating there has cost half
@@ -307,7 +308,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
     kw = dict(free=free, fixed=fixed, p0=p0, interval=interval, noise=noise, max_iter=max_iter, tol=tol,
               reweight=reweight, compile=compile, progress=progress, initial_states=initial_states,
               solver=solver, per_flight=per_flight, init_window=init_window, measured_start=measured_start,
-              sensor_noise=dict(noise or {}) if sensor_noise is None else dict(sensor_noise))
+              sensor_noise=(dict(noise or {}) if reweight else {}) if sensor_noise is None else dict(sensor_noise))
     with _warnings.catch_warnings(record=True) as caught:
         _warnings.simplefilter("always")
         first = _fit_from(model, logs, process_noise, kw)
@@ -1043,7 +1044,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
 
     cc = cch.sum(axis=1)
     resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
-    warnings += _filtered_attitude_warnings(sensor, resid_rms, sensor_noise)
+    warnings += _filtered_attitude_warnings(sensor, resid_rms, {**(noise or {}), **sensor_noise})
     node_states, k = [], 0
     for _, M in data.flights:
         node_states.append(X[k:k + M + 1].copy())
