@@ -50,6 +50,7 @@ import numpy as np
 
 from . import __version__
 from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError
+from .data import check_channel_noise
 from .fitting import IF_NEEDED
 
 __all__ = ["batch", "BatchResult", "FORMATS", "INSTALL_HINT", "fleet_comparison", "SUMMARY_COLUMNS"]
@@ -84,23 +85,6 @@ _PATTERNS = {"csv": "*.csv", "nanobench": "*.csv", "px4": "*.ulg", "crazyflie-us
 
 
 # ---------------------------------------------------------------------------- options
-def _channel_noise(noise: Mapping[str, float] | None) -> tuple[tuple[str, float], ...]:
-    """``noise`` checked (log channels, positive finite standard deviations), sorted."""
-    from .data import OPTIONAL_OUTPUTS, REQUIRED_OUTPUTS
-    out = []
-    for ch, sd in dict(noise or {}).items():
-        if ch not in REQUIRED_OUTPUTS + OPTIONAL_OUTPUTS:
-            raise GreyboxInputError(f"noise: {ch!r} is not a log channel ({', '.join(REQUIRED_OUTPUTS + OPTIONAL_OUTPUTS)})")
-        try:
-            sd = float(sd)
-        except (TypeError, ValueError):
-            sd = math.nan
-        if not (math.isfinite(sd) and sd > 0):
-            raise GreyboxInputError(f"noise: {ch}={noise[ch]!r} must be a positive number (the channel's units)")
-        out.append((ch, sd))
-    return tuple(sorted(out))
-
-
 
 @dataclass(frozen=True)
 class Options:
@@ -919,7 +903,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
                    candidates=tuple(candidates) if candidates is not None else None, iterate=bool(iterate),
                    discover=bool(discover),
                    process_noise=process_noise, input_noise=input_noise, import_format=import_format, pwm_map=pwm_map, held=held,
-                   angle_unit=angle_unit, noise=_channel_noise(noise),
+                   angle_unit=angle_unit, noise=tuple(sorted(check_channel_noise(noise or {}, "noise").items())),
                    per_flight=per_flight if per_flight is None or isinstance(per_flight, str) else tuple(per_flight))
     if process_noise not in (None, "auto", IF_NEEDED):
         raise GreyboxInputError(f"process_noise must be {IF_NEEDED!r}, None or 'auto', got {process_noise!r}")

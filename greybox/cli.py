@@ -415,26 +415,18 @@ NOISE_HELP = ("a channel's noise standard deviation, in its units, taken instead
 
 def _channel_noise(items: Sequence[str] | None) -> dict[str, float] | None:
     """``--noise CH=SD`` (repeatable) as :func:`greybox.fitting.fit`'s ``noise``: each a log
-    channel and its noise standard deviation in the channel's units."""
-    import math
-    from .data import OPTIONAL_OUTPUTS, REQUIRED_OUTPUTS
+    channel and its noise standard deviation in the channel's units
+    (:func:`greybox.data.check_channel_noise`)."""
+    from .data import check_channel_noise
     if not items:
         return None
-    out: dict[str, float] = {}
-    channels = REQUIRED_OUTPUTS + OPTIONAL_OUTPUTS
+    given: dict[str, str] = {}
     for item in items:
         name, sep, value = item.partition("=")
-        name = name.strip()
-        if not sep or name not in channels:
-            raise GreyboxInputError(f"--noise {item!r}: expected CHANNEL=SD with CHANNEL one of {', '.join(channels)}")
-        try:
-            sd = float(value)
-        except ValueError:
-            sd = math.nan
-        if not (math.isfinite(sd) and sd > 0):
-            raise GreyboxInputError(f"--noise {item!r}: the noise must be a positive number (the channel's units)")
-        out[name] = sd
-    return out
+        if not sep:
+            raise GreyboxInputError(f"--noise {item}: expected CHANNEL=SD")
+        given[name.strip()] = value
+    return check_channel_noise(given, "--noise")
 
 
 def _process_noise(args) -> str | None:

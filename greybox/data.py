@@ -17,7 +17,7 @@ import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Mapping
 
 import numpy as np
 
@@ -27,7 +27,7 @@ __all__ = ["FlightLog", "load_log", "is_log_column", "save_log", "read_csv_table
            "ATOMIC_NAME_EXTRA", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "median_row_interval",
-           "check_measurement_units", "UNIT_RATIO_LIMIT"]
+           "check_measurement_units", "UNIT_RATIO_LIMIT", "check_channel_noise"]
 
 REQUIRED_OUTPUTS = ["x", "y", "z", "phi", "theta", "psi"]
 OPTIONAL_OUTPUTS = ["p", "q", "r", "ax", "ay", "az"]
@@ -675,6 +675,26 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
         notes.append(f"{where}: ignored extra column(s) {', '.join(extra_names)} (kept as extras)"
                      + "".join(f"; did you mean {m!r} for {h!r}?" for h, m in meant.items()))
     return FlightLog(t.copy(), U, in_names, Y, out_names, extras, notes, source).fill_gaps()
+
+
+def check_channel_noise(noise: Mapping[str, object], where: str) -> dict[str, float]:
+    """A channel noise the user gives (fit's ``noise``, ``--noise CH=SD``): each key a log
+    channel and each value a positive finite standard deviation in its units; as floats. One
+    error naming ``where`` and the entry otherwise."""
+    channels = REQUIRED_OUTPUTS + OPTIONAL_OUTPUTS
+    out: dict[str, float] = {}
+    for ch, value in noise.items():
+        if ch not in channels:
+            raise GreyboxInputError(f"{where} {ch}={value}: not a log channel; expected CHANNEL=SD with CHANNEL one "
+                                    f"of {', '.join(channels)}")
+        try:
+            sd = float(value)
+        except (TypeError, ValueError):
+            sd = math.nan
+        if not (math.isfinite(sd) and sd > 0):
+            raise GreyboxInputError(f"{where} {ch}={value}: the noise must be a positive number (the channel's units)")
+        out[ch] = sd
+    return out
 
 
 def check_rotor_speed_units(U: np.ndarray, names: list[str], where: str,
