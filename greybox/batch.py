@@ -369,7 +369,8 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
                     discover=opts.discover, noise=dict(opts.noise) or None)
     base = diag.baseline
     files["fit.json"] = _json_bytes(fit_json(model, base, [diag.baseline_prediction], [flight.path],
-                                                  horizons=diag.baseline_horizons, est=[log.split(0.8)[0]]))
+                                                  horizons=diag.baseline_horizons, est=[log.split(0.8)[0]],
+                                                  closed_loop=diag.baseline_closed_loop))
     files["diagnose.json"] = _json_bytes(diag.as_json())
     files["model.json"] = _json_bytes(diag.fitted_model.to_dict())
     # what the fleet comparison reads: the final model's parameters and std (which count the

@@ -516,8 +516,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
     # like the horizon report, only when a file shows it
     closed = None
     if args.json or args.plots:
-        closed, why = closed_loop_or_why(model, [res.flight_p(i) for i in range(len(preds))],
-                                         [e for e, _ in parts], [v for _, v in parts], horizons=he.horizons)
+        flight_ps = [res.flight_p(i) for i in range(len(preds))]
+        closed, why = closed_loop_or_why(model, flight_ps, [e for e, _ in parts], [v for _, v in parts],
+                                         horizons=he.horizons, open_loop=he, est_ps=flight_ps)
         if why:
             print(f"greybox: warning: {why}", file=sys.stderr)
         if closed is not None:

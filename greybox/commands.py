@@ -169,24 +169,31 @@ def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
 
 def fit_json(model: QuadrotorModel, res, preds, sources, horizons=None, est=None, closed_loop=None) -> dict:
     """The whole ``greybox fit --json`` document of a fit validated by ``preds`` (one
-    prediction per flight, named by ``sources``): parameters, validation, horizons (``horizons``,
-    a :class:`~greybox.validation.HorizonErrors`, when already computed; else computed, with
-    the fit's estimation flights ``est`` when given), the model flown by its controller's law
-    (``closed_loop``, a :class:`~greybox.controller_law.ClosedLoopReport`, when already computed;
-    else computed when ``est`` is given and the logs hold setpoints) and the extra keys (also
-    written by ``greybox batch``)."""
-    from .controller_law import closed_loop_or_why
+    prediction per flight, named by ``sources``): parameters, validation, the open loop's
+    horizons (``horizons``, a :class:`~greybox.validation.HorizonErrors`, when already computed;
+    else computed, with the fit's estimation flights ``est`` when given), the model flown by its
+    controller's law (``closed_loop``, a :class:`~greybox.controller_law.ClosedLoopReport`, when
+    already computed; else computed when ``est`` is given and the logs hold setpoints), the
+    contract's ``horizons`` from the better of the two on the estimation flights
+    (:func:`~greybox.controller_law.reported_horizons`) and the extra keys (also written by
+    ``greybox batch``)."""
+    from .controller_law import closed_loop_or_why, reported_horizons
     from .validation import horizon_errors_after
     ps = [res.flight_p(i) for i in range(len(preds))]
     if horizons is None:
         horizons = horizon_errors_after(res, preds, ps, est=est)
-    out = {**fit_result_json(model, res, _combined_validation(preds, sources)), "horizons": horizons.as_dict(),
-           "horizons_predictor": dict(horizons.predictor)}
+    out = fit_result_json(model, res, _combined_validation(preds, sources))
     if closed_loop is None and est is not None:
-        closed_loop, why = closed_loop_or_why(model, ps, est, [pred.log for pred in preds], horizons=horizons.horizons)
+        closed_loop, why = closed_loop_or_why(model, ps, est, [pred.log for pred in preds], horizons=horizons.horizons,
+                                              open_loop=horizons, est_ps=[res.flight_p(i) for i in range(len(est))])
         if why:
             out["warnings"] = list(out.get("warnings") or []) + [why]
-    out["closed_loop"] = closed_loop.as_dict() if closed_loop is not None else None
+    # the model's prediction: flown by its controller's law where that predicts the estimation
+    # flights better (controller_law.reported_horizons); the open loop's beside it
+    reported = reported_horizons(horizons, closed_loop)
+    out.update({"horizons": reported.as_dict(), "horizons_predictor": dict(reported.predictor),
+                "horizons_open_loop": horizons.as_dict(),
+                "closed_loop": closed_loop.as_dict() if closed_loop is not None else None})
     return out
 
 

@@ -69,13 +69,14 @@ from .errors import GreyboxError, GreyboxInputError
 from .integrate import Substeps, log_substeps, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import rotation_matrices
-from .validation import (DEFAULT_HORIZONS, DEFAULT_INIT_WINDOW, HORIZON_START_EVERY, HorizonAccumulator,
-                         HorizonErrors, estimate_states, horizon_windows, measured_outputs, naive_start)
+from .validation import (DEFAULT_HORIZONS, DEFAULT_INIT_WINDOW, HORIZON_START_EVERY, INIT_WINDOW_DATA,
+                         HorizonAccumulator, HorizonErrors, estimate_states, estimation_tails, horizon_errors,
+                         horizon_windows, measured_outputs, naive_start)
 
 __all__ = ["ControllerLaw", "closed_loop_horizon_errors", "SETPOINTS", "LAW_AXES", "LAW_FEATURES",
            "TRIM_WINDOW", "has_setpoints", "setpoint_signals", "measured_law_states", "loop_model",
            "ClosedLoopReport", "closed_loop_report", "closed_loop_or_why", "hover_commands",
-           "logged_mixer_commands"]
+           "logged_mixer_commands", "reported_horizons", "CHOICE_HORIZONS"]
 
 SETPOINTS = ("x_ref", "y_ref", "z_ref", "psi_ref")
 """The log's extra columns a closed-loop model reads: the position setpoint (m, NED) and the
@@ -707,14 +708,27 @@ def closed_loop_horizon_errors(model: QuadrotorModel, p: "np.ndarray | Sequence[
     return out
 
 
+CHOICE_HORIZONS = (0.25, 0.5)
+"""s ahead at which :func:`closed_loop_report` compares the closed loop with the open loop on
+the estimation flights (the horizons the naive predictor is beaten at)."""
+
+
 @dataclass
 class ClosedLoopReport:
     """A fitted model flown by its controller's law on the validation flights: the law
     (:class:`ControllerLaw`, fitted to the estimation flights) and the prediction error against
-    horizon (:class:`~greybox.validation.HorizonErrors`, beside the naive predictor)."""
+    horizon (:class:`~greybox.validation.HorizonErrors`, beside the naive predictor).
+
+    ``preferred``: the closed loop predicts the last :data:`~greybox.validation.INIT_WINDOW_DATA`
+    seconds of the estimation flights better than the model open loop (its error relative to
+    the naive predictor's at :data:`CHOICE_HORIZONS`, ``estimation_errors``: ``{"open_loop":
+    r, "closed_loop": r}``), so that it is the model's prediction the reports give
+    (:func:`reported_horizons`). Chosen on the estimation data: validation stays out of it."""
 
     law: ControllerLaw
     horizons: HorizonErrors
+    preferred: bool = False
+    estimation_errors: dict = field(default_factory=dict)
 
     def beats(self, horizon: float) -> list[str]:
         """The position and attitude channels where the closed loop beats the naive predictor."""
@@ -723,8 +737,10 @@ class ClosedLoopReport:
     def as_dict(self) -> dict:
         """The JSON's ``closed_loop``: ``horizons`` (as the contract's ``horizons``), the
         ``law`` (delay in s, each axis' delay, gains per axis and feature, trims and R² per
-        axis, the level: the measured roll and pitch in rad at which the thrust is vertical) and
-        how the windows were flown (``predictor``)."""
+        axis, the level: the measured roll and pitch in rad at which the thrust is vertical), how
+        the windows were flown (``predictor``), whether it is the model's reported prediction
+        (``preferred``) and the errors relative to naive on the estimation flights that chose
+        it (``estimation_errors``)."""
         law = self.law
         return {"horizons": self.horizons.as_dict(),
                 "law": {"delay": float(law.delay_),
@@ -733,40 +749,88 @@ class ClosedLoopReport:
                         "trims": {a: float(v) for a, v in zip(LAW_AXES, law.trims_)},
                         "r2": {a: float(law.r2_[a]) for a in LAW_AXES},
                         "level": [float(v) for v in law.level_]},
-                "predictor": dict(self.horizons.predictor)}
+                "predictor": dict(self.horizons.predictor),
+                "preferred": bool(self.preferred),
+                "estimation_errors": {k: (float(v) if math.isfinite(v) else None)
+                                      for k, v in self.estimation_errors.items()}}
 
     def line(self) -> str:
         """One line for a summary: what the closed loop beats the naive predictor on."""
         law = self.law
         beats = "; ".join(f"{h:g} s: {', '.join(self.beats(h)) or 'none'}" for h in (0.25, 0.5)
                           if any(abs(x - h) < 1e-9 for x in self.horizons.horizons))
+        why = ""
+        if self.preferred:
+            o, c = self.estimation_errors["open_loop"], self.estimation_errors["closed_loop"]
+            why = (f" (the model's reported prediction: on the estimation flights' last {INIT_WINDOW_DATA:g} s its "
+                   f"error is {c:.2f} of the naive predictor's, open loop {o:.2f})")
         return (f"   flown by its controller's law (fitted to the logged commands and setpoints: delay "
                 f"{1e3 * law.delay_:.0f} ms, R² roll {law.r2_['roll']:.2f}, pitch {law.r2_['pitch']:.2f}), "
-                f"the model beats the naive predictor on {beats}")
+                f"the model beats the naive predictor on {beats}{why}")
+
+
+def reported_horizons(open_loop: HorizonErrors, closed: "ClosedLoopReport | None") -> HorizonErrors:
+    """The model's error against horizon that the reports give (the contract's ``horizons``):
+    the closed loop's where it predicts the estimation flights better (``closed.preferred``),
+    else the open loop's."""
+    return closed.horizons if closed is not None and closed.preferred else open_loop
+
+
+def _estimation_errors(model: QuadrotorModel, est_ps: Sequence[np.ndarray], est: Sequence[FlightLog],
+                       law: ControllerLaw, open_options: dict, compile: str) -> dict:
+    """The open loop's (with ``open_options``, as its report predicts) and the closed loop's
+    error relative to naive on the last seconds of the estimation flights."""
+    tails = estimation_tails(est)
+    open_he = horizon_errors(model, list(est_ps), tails, horizons=CHOICE_HORIZONS, compile=compile,
+                             **{k: open_options[k] for k in ("init_window", "measured_start", "held_moment")
+                                if k in open_options})
+    closed_he = closed_loop_horizon_errors(model, list(est_ps), law, tails, horizons=CHOICE_HORIZONS, compile=compile)
+    return {"open_loop": open_he.relative_error(CHOICE_HORIZONS), "closed_loop": closed_he.relative_error(CHOICE_HORIZONS)}
 
 
 def closed_loop_report(model: QuadrotorModel, ps: Sequence[np.ndarray], est: Sequence[FlightLog],
                        val: Sequence[FlightLog], horizons: Sequence[float] | None = None,
-                       compile: str = "auto") -> ClosedLoopReport | None:
+                       compile: str = "auto", open_loop: HorizonErrors | None = None,
+                       est_ps: Sequence[np.ndarray] | None = None) -> ClosedLoopReport | None:
     """The closed-loop prediction of a fitted model (``ps``: its parameters per validation
     flight) on ``val`` with a law fitted to ``est``, or None when a log has no setpoints or
-    the model's inputs are no rotor speeds (nothing to fly it with)."""
+    the model's inputs are no rotor speeds (nothing to fly it with).
+
+    Given the open loop's report ``open_loop`` (its ``predictor``: how its windows start), the
+    two are also compared on the last seconds of the estimation flights (``est_ps``: the
+    parameters per estimation flight; ``ps`` when as many, else the first) and the report says
+    whether the closed loop is the better predictor there (``preferred``)."""
     logs = list(est) + list(val)
     if not logs or not all(has_setpoints(log) for log in logs) or model.inputs == "controls":
         return None
     law = ControllerLaw().fit(model, list(est))
-    return ClosedLoopReport(law, closed_loop_horizon_errors(model, list(ps), law, list(val), horizons=horizons,
-                                                            compile=compile))
+    report = ClosedLoopReport(law, closed_loop_horizon_errors(model, list(ps), law, list(val), horizons=horizons,
+                                                              compile=compile))
+    if open_loop is not None:
+        if est_ps is None:
+            est_ps = list(ps) if len(ps) == len(est) else [ps[0]] * len(est)
+        try:
+            errors = _estimation_errors(model, est_ps, list(est), law, open_loop.predictor, compile)
+        except (GreyboxError, RuntimeError, np.linalg.LinAlgError, ValueError):
+            # the comparison is a choice of the report only: where it cannot be made, the open loop stands
+            errors = {}
+        report.estimation_errors = errors
+        o, c = errors.get("open_loop", math.nan), errors.get("closed_loop", math.nan)
+        report.preferred = bool(math.isfinite(c) and (c < o or not math.isfinite(o)))
+        report.horizons.predictor["preferred"] = report.preferred
+    return report
 
 
 def closed_loop_or_why(model: QuadrotorModel, ps: Sequence[np.ndarray], est: Sequence[FlightLog],
                        val: Sequence[FlightLog], horizons: Sequence[float] | None = None,
-                       compile: str = "auto") -> tuple[ClosedLoopReport | None, str]:
+                       compile: str = "auto", open_loop: HorizonErrors | None = None,
+                       est_ps: Sequence[np.ndarray] | None = None) -> tuple[ClosedLoopReport | None, str]:
     """:func:`closed_loop_report` for the commands that add it to a finished fit or diagnosis:
     the report, or None and why not in words ("" when the logs simply have no setpoints). The
     closed loop is an extra: a law the logs cannot give or a loop that cannot be flown (a
     solver's failure) must not cost the user the fit itself."""
     try:
-        return closed_loop_report(model, ps, est, val, horizons=horizons, compile=compile), ""
+        return closed_loop_report(model, ps, est, val, horizons=horizons, compile=compile, open_loop=open_loop,
+                                  est_ps=est_ps), ""
     except (GreyboxError, RuntimeError, np.linalg.LinAlgError) as err:
         return None, f"the model flown by its controller's law was not predicted: {err}"

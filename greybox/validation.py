@@ -39,7 +39,7 @@ from .rotations import euler_rates_from_body_rates
 __all__ = ["Prediction", "HorizonErrors", "HorizonAccumulator", "measured_outputs", "DEFAULT_HORIZONS", "POSE_CHANNELS", "startable", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
            "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options", "predict_after_fit",
            "horizon_errors_after", "horizon_errors", "HORIZON_START_EVERY", "INIT_WINDOWS",
-           "choose_horizon_predictor", "HELD_MOMENT_WINDOWS",
+           "choose_horizon_predictor", "HELD_MOMENT_WINDOWS", "estimation_tails", "INIT_WINDOW_DATA",
            "INIT_WINDOW_HORIZON", "choose_init_window", "choose_measured_start",
            "choose_start", "STATE_PRIOR_SCALE", "horizon_windows"]
 
@@ -446,6 +446,29 @@ class HorizonErrors:
         i = int(np.argmin(np.abs(np.asarray(self.horizons) - horizon)))
         return bool(self.model[channel][i] < self.naive[channel][i])
 
+    def relative_error(self, horizons: Sequence[float] = (0.25, 0.5),
+                       channels: Sequence[str] = POSE_CHANNELS) -> float:
+        """The model's error relative to the naive predictor's: the geometric mean of their
+        ratio over ``channels`` (the positions and angles measured) at ``horizons`` (below 1: the
+        model predicts better). A ratio of logs, so that one channel whose prediction diverges
+        does not decide alone; ``inf`` when a model error is not finite, ``nan`` when nothing
+        can be compared."""
+        logs = []
+        for h in horizons:
+            i = int(np.argmin(np.abs(np.asarray(self.horizons) - h)))
+            if abs(self.horizons[i] - h) > 1e-9:
+                continue
+            for ch in channels:
+                if ch not in self.model:
+                    continue
+                m, n = self.model[ch][i], self.naive[ch][i]
+                if not (math.isfinite(n) and n > 0):
+                    continue
+                if not math.isfinite(m):
+                    return math.inf
+                logs.append(math.log(max(m, 1e-300) / n))
+        return math.exp(float(np.mean(logs))) if logs else math.nan
+
     @classmethod
     def from_prediction(cls, pred: "Prediction", horizons: Sequence[float] | None = None) -> "HorizonErrors":
         """From the windows of one (pooled) prediction: consecutive, so each horizon is scored
@@ -681,12 +704,12 @@ def choose_init_window(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarr
     velocity estimated from three 60-Hz position samples is noise (a synthetic flight's true
     model predicted its own data with nrmse 1.02 from 50 ms and 0.012 from 0.5 s). Chosen on
     the estimation data, so that validation stays out of it."""
-    return _best_window(model, p, _tails(logs), compile)[0]
+    return _best_window(model, p, estimation_tails(logs), compile)[0]
 
 
-def _tails(logs: "FlightLog | Sequence[FlightLog]") -> list[FlightLog]:
+def estimation_tails(logs: "FlightLog | Sequence[FlightLog]") -> list[FlightLog]:
     """The last :data:`INIT_WINDOW_DATA` seconds of each flight: enough windows to rank the
-    start-state choices."""
+    predictors' choices (start states, a held moment, the closed loop) on estimation data."""
     logs = [logs] if isinstance(logs, FlightLog) else list(logs)
     return [lg.slice(int(np.searchsorted(lg.t, lg.t[-1] - INIT_WINDOW_DATA)), len(lg)) for lg in logs]
 
@@ -719,7 +742,7 @@ def choose_start(model: QuadrotorModel, p: "np.ndarray | Sequence[np.ndarray]",
                  logs: "FlightLog | Sequence[FlightLog]", compile: str = "auto") -> tuple[float, bool]:
     """(start-state window, measured start): :func:`choose_init_window`, then
     :func:`choose_measured_start` at that window (one prediction fewer than the two apart)."""
-    tails = _tails(logs)
+    tails = estimation_tails(logs)
     window, score = _best_window(model, p, tails, compile)
     return window, _measured_start_better(model, p, tails, window, compile,
                                           score if math.isfinite(score) else None)
@@ -738,7 +761,7 @@ def choose_measured_start(model: QuadrotorModel, p: "np.ndarray | Sequence[np.nd
     worse than by the naive predictor 0.25 s ahead. Where the model follows the data (or the
     attitude is measured coarsely), the estimate is the better start, and this says so; chosen
     on the estimation data, so that validation stays out of it."""
-    return _measured_start_better(model, p, _tails(logs), init_window, compile)
+    return _measured_start_better(model, p, estimation_tails(logs), init_window, compile)
 
 
 def _fitted_with_process_noise(res) -> bool:
@@ -787,7 +810,7 @@ def choose_horizon_predictor(model: QuadrotorModel, p: "np.ndarray | Sequence[np
     options = dict(options or {})
     if not model.accepts(fx.HeldMoment()):
         return options
-    tails = _tails(logs)
+    tails = estimation_tails(logs)
     try:
         best = predict_flights(model, p, tails, horizon=INIT_WINDOW_HORIZON, compile=compile, **options).total
     except GreyboxInputError:

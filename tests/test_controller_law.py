@@ -308,6 +308,14 @@ def test_fit_json_holds_the_closed_loop_where_the_log_has_setpoints(cascade_flig
     assert set(cl["law"]["delays"].values()) == {cl["law"]["delay"]}          # one delay by default
     i = cl["horizons"]["horizons"].index(0.5)
     assert cl["horizons"]["model"]["phi"][i] < cl["horizons"]["naive"]["phi"][i]
+    # the true rotor speeds are logged: open loop the model predicts the estimation flight's
+    # last seconds far better than flown by a law it only approximates, and that stays the
+    # reported prediction (the contract's horizons), the closed loop beside it
+    doc = json.loads(out.read_text())
+    errs = cl["estimation_errors"]
+    assert cl["preferred"] is False and errs["open_loop"] < 0.5 * errs["closed_loop"], errs
+    assert doc["horizons"] == doc["horizons_open_loop"] != cl["horizons"]
+    assert "closed_loop" not in doc["horizons_predictor"]
     plain = tmp_path / "plain.csv"
     save_log(FlightLog(log.t, log.inputs, log.input_names, log.outputs, log.output_names,
                        {k: v for k, v in log.extras.items() if k not in SETPOINTS}), plain)

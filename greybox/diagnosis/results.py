@@ -16,7 +16,7 @@ from ..fitting import FitResult
 from ..fitting.certificate import FILTERED_SENSOR_RATIO
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import ANGLE_OF_RATE, AttitudeMotion
-from ..controller_law import ClosedLoopReport
+from ..controller_law import ClosedLoopReport, reported_horizons
 from ..validation import HorizonErrors, Prediction
 from .analysis import CommandImbalance, Finding
 from .closed_loop import rate_levels
@@ -237,12 +237,13 @@ class Diagnosis:
     # the final (or base) model refitted with a disturbance torque, when the yaw check made it
     # and it is certified: its b is the one the warning gives (diagnosis.closed_loop)
     closed_loop_fit: FitResult | None = field(default=None, repr=False)
-    # error against horizon of the baseline and the final model (validation.horizon_errors_after)
+    # error against horizon of the baseline and the final model open loop (validation.horizon_errors_after)
     baseline_horizons: HorizonErrors | None = None
     final_horizons: HorizonErrors | None = None
-    # the final model flown by its controller's law fitted to the log (greybox.controller_law),
-    # where the logs carry setpoints; None otherwise
+    # the final model and the baseline flown by their controller's law fitted to the log
+    # (greybox.controller_law), where the logs carry setpoints; None otherwise
     closed_loop: ClosedLoopReport | None = None
+    baseline_closed_loop: ClosedLoopReport | None = None
     # whether the final fit's attitude and rate residuals are motion (residuals.attitude_motion),
     # computed when some of those channels are unexplained
     attitude_motion: dict[str, AttitudeMotion] = field(default_factory=dict)
@@ -304,10 +305,11 @@ class Diagnosis:
 
     def as_json(self) -> dict:
         """The diagnose JSON (README, "Command line"), plus findings, warnings and the added effects."""
+        base_open = self.baseline_horizons or self.baseline_prediction.horizon_errors()
         out = {"baseline": {"nrmse": self.baseline_prediction.total,
                             "channels": dict(self.baseline_prediction.nrmse),
                             "horizon": self.baseline_prediction.horizon,
-                            "horizons": (self.baseline_horizons or self.baseline_prediction.horizon_errors()).as_dict()},
+                            "horizons": reported_horizons(base_open, self.baseline_closed_loop).as_dict()},
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
                "null_reason": self.null_reason,
@@ -342,15 +344,21 @@ class Diagnosis:
                "timing_bound": dict(self.timing_bound)}
         if self.final_model is not None and self.final_prediction is not None:
             out["added"] = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
+            final_open = self.final_horizons or self.final_prediction.horizon_errors()
             out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
                             "channels": dict(self.final_prediction.nrmse),
-                            "horizons": (self.final_horizons or self.final_prediction.horizon_errors()).as_dict()}
-        # contract §5: at the top level the final model's (the baseline's when nothing was added)
+                            "horizons": reported_horizons(final_open, self.closed_loop).as_dict()}
+        # contract §5: at the top level the final model's (the baseline's when nothing was added);
+        # flown by its controller's law where that predicts the estimation flights better
+        # (controller_law.reported_horizons), the open loop's beside it
         out["horizons"] = out["final"]["horizons"] if "final" in out else out["baseline"]["horizons"]
-        # how each horizon report's windows started (validation.choose_horizon_predictor): the
-        # baseline's and the final model's may differ, a held moment in one and not the other
-        out["horizons_predictor"] = {k: dict(he.predictor) for k, he in
-                                     (("baseline", self.baseline_horizons), ("final", self.final_horizons))
+        out["horizons_open_loop"] = {"baseline": base_open.as_dict(),
+                                     **({"final": final_open.as_dict()} if "final" in out else {})}
+        # how each horizon report's windows started (validation.choose_horizon_predictor, or the
+        # closed loop): the baseline's and the final model's may differ
+        out["horizons_predictor"] = {k: dict(reported_horizons(he, cl).predictor) for k, he, cl in
+                                     (("baseline", self.baseline_horizons, self.baseline_closed_loop),
+                                      ("final", self.final_horizons, self.closed_loop))
                                      if he is not None and he.predictor}
         # the final model flown by its controller's law (logs with setpoints only)
         out["closed_loop"] = self.closed_loop.as_dict() if self.closed_loop is not None else None
@@ -534,7 +542,9 @@ class Diagnosis:
             return []
         held = he.predictor.get("held_moment")
         why = self.horizon_why()
-        return ["   beats the naive predictor (constant velocity and body rates) on " + "; ".join(beats) +
+        # flown by the law where that is the reported prediction (its own line says so)
+        loop = "open loop, " if self.closed_loop is not None and self.closed_loop.preferred else ""
+        return [f"   {loop}beats the naive predictor (constant velocity and body rates) on " + "; ".join(beats) +
                 (f" (its windows hold a roll and pitch moment estimated with the start state over "
                  f"{he.predictor['init_window']:g} s: it predicts the estimation data better so)" if held else "")] + \
             ([f"   why not on attitude: {why}"] if why else [])

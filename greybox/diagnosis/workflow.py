@@ -438,11 +438,18 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     diag.final_horizons = diag.baseline_horizons if cur_res is res else \
         horizon_errors_after(cur_res, cur_pred.parts or [cur_pred], validation_vectors(cur_res, est, val),
                              compile=compile, est=est)
-    # the final model flown by its controller's law, where the logs hold setpoints
-    diag.closed_loop, why = closed_loop_or_why(cur_model, validation_vectors(cur_res, est, val), est, val,
-                                               horizons=diag.final_horizons.horizons, compile=compile)
-    if why:
-        diag.warnings.append(why)
+    # the final model and the baseline flown by their controller's law, where the logs hold
+    # setpoints: the reported prediction where it predicts the estimation flights better
+    def flown_by_law(fitted, open_loop):
+        report, why = closed_loop_or_why(fitted.model, validation_vectors(fitted, est, val), est, val,
+                                         horizons=open_loop.horizons, compile=compile, open_loop=open_loop,
+                                         est_ps=[fitted.flight_p(i) for i in range(len(est))])
+        if why:
+            diag.warnings.append(why)
+        return report
+
+    diag.closed_loop = flown_by_law(cur_res, diag.final_horizons)
+    diag.baseline_closed_loop = diag.closed_loop if cur_res is res else flown_by_law(res, diag.baseline_horizons)
     diag.timings["total"] = time.perf_counter() - t_start
     say(f"diagnose: verdict {verdict or 'null'}; {diag.timings['total']:.1f} s")
     return diag
