@@ -355,3 +355,17 @@ def test_no_prediction_window_starts_inside_a_vision_outage():
     full = horizon_errors(m, p, whole, init_window=0.2)
     gapped = horizon_errors(m, p, log, init_window=0.2)
     assert 3 <= full.windows - gapped.windows <= 7, (full.windows, gapped.windows)
+
+
+def test_error_relative_to_naive_by_hand():
+    """The geometric mean of model/naive over the positions and angles at 0.25 and 0.5 s: a
+    channel twice as good and one twice as bad cancel; a rate channel and another horizon do not
+    count; a diverged prediction is infinite; nothing to compare is nan."""
+    he = HorizonErrors([0.1, 0.25, 0.5], {"x": [9.0, 0.5, 1.0], "phi": [9.0, 2.0, 4.0], "p": [9.0, 9.0, 9.0]},
+                       {"x": [1.0, 1.0, 1.0], "phi": [1.0, 1.0, 2.0], "p": [1.0, 1.0, 1.0]})
+    # ratios 0.5, 2 at 0.25 s; 1, 2 at 0.5 s: (0.5 * 2 * 1 * 2) ** (1/4)
+    assert he.relative_error() == pytest.approx(2 ** 0.25)
+    assert he.relative_error(horizons=(0.25,)) == pytest.approx(1.0)
+    he.model["x"][2] = float("inf")
+    assert he.relative_error() == float("inf")
+    assert np.isnan(he.relative_error(horizons=(0.3,)))
