@@ -127,6 +127,22 @@ class Airframe:
         P = self.rotor_positions
         return np.vstack([np.ones(self.n_rotors), -P[:, 1], P[:, 0], self.spins])
 
+    def hover_shares(self) -> np.ndarray:
+        """Each rotor's share of the squared rotor speeds in a steady hover of equal rotors
+        with the centre of gravity at the body origin, relative to the mean (1 for every rotor
+        of a symmetric frame): the thrust that balances the weight with no roll, pitch or yaw
+        torque (:meth:`allocation_matrix`; the least-norm such split where more than four
+        rotors leave a choice). An H-frame with its front rotors nearer the centre of gravity
+        than its rear ones hovers with the rear ones working harder, and that is no weak rotor.
+        Equal shares where the geometry gives none that is positive."""
+        G = self.allocation_matrix()
+        target = np.zeros(G.shape[0])
+        target[0] = 1.0
+        w2 = np.linalg.lstsq(G, target, rcond=None)[0]
+        if not (np.all(np.isfinite(w2)) and np.all(w2 > 0) and np.allclose(G @ w2, target, atol=1e-9)):
+            return np.ones(self.n_rotors)
+        return w2 / w2.mean()
+
     def to_toml(self) -> str:
         """The airframe as TOML text in the format :func:`load_airframe` reads (explicit rotors if custom)."""
         # a JSON string is a valid TOML basic string: quotes and backslashes survive

@@ -81,3 +81,55 @@ def test_a_trim_that_follows_the_speed_points_at_drag_acting_above_the_centre_of
     assert ci.speed_trim["pitch"][0] == pytest.approx(-slope, rel=0.2) and ci.speed_trim["pitch"][1] < -0.5
     at_cog = simulate_flight(veh, duration=20.0, seed=2, linear_drag=[K, K, 0.005]).log
     assert "speed" not in command_imbalance(model, at_cog).evidence
+
+
+H_FRAME = """
+[airframe]
+name = "h-frame"
+mass = 2.2
+inertia = [0.030, 0.022, 0.048]
+rotor_inertia = 2.0e-5
+
+[[rotor]]
+position = [0.16, 0.20, 0.0]
+spin = 1
+
+[[rotor]]
+position = [-0.14, -0.24, 0.0]
+spin = 1
+
+[[rotor]]
+position = [0.16, -0.20, 0.0]
+spin = -1
+
+[[rotor]]
+position = [-0.14, 0.24, 0.0]
+spin = -1
+
+[parameters]
+K_T = 1.5e-5
+b = 2.4e-7
+Kd = [0.25, 0.25, 0.35]
+"""
+
+
+def test_an_h_frame_hovers_with_its_rear_rotors_working_harder_and_that_is_no_imbalance(tmp_path):
+    """An H-frame (a blind audit's: front hubs 0.16 m ahead of the centre of gravity, rear ones
+    0.14 m behind) balances pitch with the front pair at 0.14/0.16 of the rear pair's w²: by
+    hand, front 0.875/0.9375 = 0.9333 and rear 1.0667 of the mean; the roll and yaw balances
+    hold by symmetry. Equal rotors on it are not "driven unequally" (the audit's flights were
+    told so on every diagnosis: w1 -6.6 %, w2 +6.6 %), and a weak rotor still shows."""
+    (tmp_path / "h.toml").write_text(H_FRAME)
+    af = load_airframe(tmp_path / "h.toml")
+    np.testing.assert_allclose(af.hover_shares(), [0.14 / 0.15, 0.16 / 0.15, 0.14 / 0.15, 0.16 / 0.15], rtol=1e-12)
+    np.testing.assert_allclose(load_airframe(AIRFRAMES / "x_quad.toml").hover_shares(), 1.0)
+    base = QuadrotorModel(af)
+    m0, p0 = model_with_hidden_effects(base, [])
+    log = synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log
+    raw = (log.inputs ** 2).mean(axis=0)
+    assert raw[1] / raw[0] == pytest.approx(0.16 / 0.14, rel=0.02)        # the flight's hover as by hand
+    equal = command_imbalance(base, log)
+    assert not equal.notable and max(abs(v) for v in equal.share.values()) < 0.01, equal.share
+    m, p = model_with_hidden_effects(base, ["motor_asymmetry"], {"K_T_dev": [-0.1, 0.05, 0.05]})
+    weak = command_imbalance(base, synthesize(m, p, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log)
+    assert weak.notable and weak.share["w1"] == pytest.approx(1 / 0.9 - 1, abs=0.03)

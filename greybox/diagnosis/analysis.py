@@ -86,7 +86,9 @@ class CommandImbalance:
     """How unequally the logged rotor speeds share the work in steady flight (level, not
     rotating, not accelerating): evidence a propeller engineer reads before any fit.
 
-    ``share[name]`` is rotor ``name``'s mean ``w^2`` over the mean of all rotors', minus 1;
+    ``share[name]`` is rotor ``name``'s mean ``w^2`` over the mean of all rotors', minus 1,
+    each first divided by the share the frame's geometry asks of equal rotors in a hover
+    (:meth:`~greybox.airframe.Airframe.hover_shares`: 1 on a symmetric frame);
     ``spin[+1 / -1]`` the same for the two spin directions. A model with equal rotors needs a
     steady torque to explain an imbalance: a weaker rotor (``motor_asymmetry``, thrust and
     torque), a centre of gravity off the middle (``cog_offset``, roll and pitch only), or,
@@ -186,7 +188,9 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     if seconds < 1.0:
         return None
     W2 = np.vstack(rows)
-    mean = W2.mean(axis=0)
+    # relative to what the frame's geometry asks of equal rotors in a hover (all equal on a
+    # symmetric frame; an H-frame's rear rotors work harder), so that only the rest is evidence
+    mean = W2.mean(axis=0) / model.airframe.hover_shares()
     names = model.command_names[:n_rot]
     share = {name: float(m / mean.mean() - 1.0) for name, m in zip(names, mean)}
     spins = model.airframe.spins
