@@ -340,3 +340,32 @@ def test_a_regime_said_once_when_two_variables_are_the_same_numbers():
     found = [(f.channel, f.variable) for f in _regime_findings(E, log, regimes, 0.3)]
     assert sum(ch == "x" and "speed" in v for ch, v in found) == 1, found
     assert ("z", "height above ground") in found, found
+
+
+def test_candidates_predicted_from_different_start_windows_are_compared_from_the_same_one():
+    """A blind audit's flight whose thrust fell with the battery voltage: ``thrust_drift``'s
+    refit chose a 0.5-s start window and validated at 0.222, ``battery_voltage``'s chose 0.2 s
+    and validated at 0.234 — 5.4 % apart, beyond the tie band, and the verdict went to the time
+    drift. Both predicted from the baseline's start they were 0.2205 and 0.2215: a tie, which
+    the estimation data decide (LR 403295 against 334284); the reason gives both pairs."""
+    from types import SimpleNamespace
+    from greybox.diagnosis import CandidateResult, order_refitted
+
+    ok = SimpleNamespace(converged=True)
+
+    def cand(effect, nrmse, lr, common):
+        return CandidateResult(effect, 1, score=lr, lr=lr, p_value=0.0, significant=True, nrmse_after=nrmse,
+                               fit=ok, reason="p = 0", nrmse_common_start=common)
+
+    own_only = order_refitted([cand("thrust_drift", 0.2220, 334284.3, None),
+                               cand("battery_voltage", 0.2340, 403295.0, None)])
+    assert [c.effect for c in own_only] == ["thrust_drift", "battery_voltage"]
+    common = order_refitted([cand("thrust_drift", 0.2220, 334284.3, 0.2215),
+                             cand("battery_voltage", 0.2340, 403295.0, 0.2205)])
+    assert [c.effect for c in common] == ["battery_voltage", "thrust_drift"]
+    assert "0.234 against 0.222, each from its own start window; 0.221 against 0.222 from the baseline's" \
+        in common[0].reason
+    # apart from the same start as well: the validation orders them
+    apart = order_refitted([cand("thrust_drift", 0.2220, 334284.3, 0.2100),
+                            cand("battery_voltage", 0.2340, 403295.0, 0.2340)])
+    assert [c.effect for c in apart] == ["thrust_drift", "battery_voltage"]

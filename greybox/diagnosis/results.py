@@ -17,7 +17,7 @@ from ..fitting.certificate import FILTERED_SENSOR_RATIO
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import ANGLE_OF_RATE, AttitudeMotion
 from ..controller_law import ClosedLoopReport, reported_horizons
-from ..validation import HorizonErrors, Prediction
+from ..validation import HorizonErrors, Prediction, prediction_options
 from .analysis import CommandImbalance, Finding
 from .closed_loop import rate_levels
 from .predictability import ANGLE_OF_AXIS, CommandPredictability
@@ -52,12 +52,19 @@ class CandidateResult:
     # input-noise check a verdict-to-be gets has not run)
     validation_tie: bool = False
     explained: float | None = None      # fraction of the baseline's excess residual (above noise) removed
+    # the validation nrmse with the windows started as the baseline's are (its start window):
+    # a refit chooses its own, and two candidates compare alike only from the same start
+    nrmse_common_start: float | None = None
 
     def as_dict(self) -> dict:
         out = {"effect": self.effect, "significant": bool(self.significant),
                "nrmse_before": _num(self.nrmse_before), "nrmse_after": _num(self.nrmse_after),
                "score": _num(self.score), "lr": _num(self.lr), "p_value": _num(self.p_value),
-               "df": self.df, "reason": self.reason, "explained": _num(self.explained)}
+               "df": self.df, "reason": self.reason, "explained": _num(self.explained),
+               "nrmse_common_start": _num(self.nrmse_common_start)}
+        if self.fit is not None:
+            # how its validation windows started (a soft fit chooses on its estimation data)
+            out["start"] = {k: (float(v) if isinstance(v, float) else v) for k, v in prediction_options(self.fit).items()}
         if self.channels_after is not None:
             out["channels_after"] = {k: _num(v) for k, v in self.channels_after.items()}
         if self.fit is not None:

@@ -31,7 +31,7 @@ from .consistency import half_consistency, half_spread, validation_spread
 from .elimination import backward_elimination, fit_without
 from .screening import negligible_effect
 from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
-                      rank_round, tie_explanation, validation_ties)
+                      rank_round, tie_explanation, tie_numbers, validation_ties)
 from .results import UNEXPLAINED_RATIO, Diagnosis, Round
 
 __all__ = ["diagnose", "UNEXPLAINED_RATIO", "distinguishing_manoeuvre"]
@@ -318,8 +318,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         top = rd.ranking[0] if rd.verdict and rd.ranking else None
         tied = validation_ties(rd.ranking) if top is not None else []
         for c in tied:
-            warnings.append(f"round {k}: {top.effect} and {c.effect} predict the validation data alike (nrmse "
-                            f"{top.nrmse_after:.3f} and {c.nrmse_after:.3f}); {top.effect} is taken as "
+            warnings.append(f"round {k}: {top.effect} and {c.effect} predict the validation data alike "
+                            f"({tie_numbers(top, c)}); {top.effect} is taken as "
                             f"{tie_explanation(top, c, [top] + tied)}; "
                             f"to tell them apart: {distinguishing_manoeuvre(top.effect, c.effect)}")
     verdict = rounds[0].verdict if rounds else None
