@@ -1,0 +1,90 @@
+"""A twelfth blind audit's H-frame (``tests/hframe_sim.py``: its own simulator, an asymmetric
+frame, ESC telemetry of the rotor speeds): what the audit found wrong, on its own flights."""
+import argparse
+
+import numpy as np
+import pytest
+
+from greybox import QuadrotorModel, load_airframe
+from greybox.data import load_log
+from greybox.diagnosis import command_imbalance, diagnose
+
+import hframe_sim
+
+AIRFRAME = """
+[airframe]
+name = "hframe_audit12"
+mass = 2.2
+inertia = [0.030, 0.022, 0.048]
+arm_length = 0.267
+rotor_inertia = 2.0e-5
+
+[[rotor]]
+position = [0.16, 0.20, 0.0]
+spin = 1
+
+[[rotor]]
+position = [-0.14, -0.24, 0.0]
+spin = 1
+
+[[rotor]]
+position = [0.16, -0.20, 0.0]
+spin = -1
+
+[[rotor]]
+position = [-0.14, 0.24, 0.0]
+spin = -1
+
+[parameters]
+# a user's spec-sheet guesses, 30-70 % off the simulator's K_T 1.5e-5, b 2.4e-7, Kd 0.25, 0.25, 0.35
+K_T = 1.0e-5
+b = 3.4e-7
+Kd = [0.1, 0.1, 0.1]
+"""
+
+
+def _flight(tmp_path, effect, seed, duration):
+    out = tmp_path / f"{effect}_{seed}.csv"
+    hframe_sim.flight(argparse.Namespace(effect=effect, seed=seed, duration=duration, out=str(out), truth=None,
+                                         accel=True, rpm_jitter=12.0, v0=4.15, rpm_quant=10.0))
+    return load_log(out)
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    path = tmp_path_factory.mktemp("hframe") / "h.toml"
+    path.write_text(AIRFRAME)
+    return QuadrotorModel(load_airframe(path))
+
+
+@pytest.mark.slow
+def test_a_battery_that_sags_is_named_not_a_drift_in_time(model, tmp_path):
+    """Thrust per w² falling with the logged cell voltage (4.15 V down to about 3.8, sagging
+    with the load). ``thrust_drift`` (refit's start window 0.5 s) validated at 0.222 and
+    ``battery_voltage`` (0.2 s) at 0.234 and the verdict was the drift in time; from the same
+    start they are within 1 %, and the estimation data prefer the voltage (LR 403295 against
+    334284). The simulator's thrust factor 1 + 0.18 (V - 4) is greybox's speed factor
+    (1 + K_vbat (V - 4))² with K_vbat near 0.09. Nor are its rotors "driven unequally": the
+    frame's geometry asks the rear pair for 1.067 of the mean."""
+    est = _flight(tmp_path, "battery", 31, 40.0)
+    val = _flight(tmp_path, "battery", 32, 25.0)
+    imbalance = command_imbalance(model, est)
+    assert imbalance is not None and "steady" not in imbalance.evidence, imbalance.share
+    d = diagnose(model, est, validation=val, progress=False)
+    assert d.verdict == "battery_voltage", [(c.effect, c.reason) for c in d.ranking[:3]]
+    assert d.baseline.converged
+    assert d.fitted_model.value("K_vbat") == pytest.approx(0.09, abs=0.002)
+    assert d.fitted_model.value("K_T") == pytest.approx(1.5e-5, rel=0.03)
+
+
+@pytest.mark.slow
+def test_nothing_missing_on_the_h_frame_is_null(model, tmp_path):
+    """The audit's control flight (seeds 11 and 12): null with a certified baseline, K_T and b
+    within 1 %."""
+    est = _flight(tmp_path, "none", 11, 40.0)
+    val = _flight(tmp_path, "none", 12, 25.0)
+    d = diagnose(model, est, validation=val, progress=False)
+    assert d.verdict is None, [(c.effect, c.reason) for c in d.ranking[:3]]
+    assert d.baseline.converged
+    assert d.baseline.value("K_T") == pytest.approx(1.5e-5, rel=0.01)
+    assert d.baseline.value("b") == pytest.approx(2.4e-7, rel=0.01)
