@@ -2,7 +2,6 @@
 frame, ESC telemetry of the rotor speeds): what the audit found wrong, on its own flights."""
 import argparse
 
-import numpy as np
 import pytest
 
 from greybox import QuadrotorModel, load_airframe
