@@ -51,6 +51,8 @@ class CandidateResult:
     # confirms it nor predicts worse with it (total within MAX_VALIDATION_LOSS): a tie (the
     # input-noise check a verdict-to-be gets has not run)
     validation_tie: bool = False
+    # significant in the fit and past the rules of size and plausibility, refused on validation only
+    not_confirmed: bool = False
     explained: float | None = None      # fraction of the baseline's excess residual (above noise) removed
     # the validation nrmse with the windows started as the baseline's are (its start window):
     # a refit chooses its own, and two candidates compare alike only from the same start

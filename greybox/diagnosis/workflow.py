@@ -133,10 +133,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             res = fit(model, est, p0=res.p, compile=compile, max_iter=200, **res.settings())
     pred = predict_after_fit(res, est, val, compile=compile, horizon=horizon)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split, 1, horizon)})")
-    timing = timing_refit = None
+    timing = timing_refit = timing_unconfirmed = None
     if timing_candidate and res.converged:
-        model, res, pred, timing, timing_refit = _input_timing(model, res, pred, est, val, timing_candidate,
-                                                               compile, n_refit, say)
+        model, res, pred, timing, timing_refit, timing_unconfirmed = _input_timing(
+            model, res, pred, est, val, timing_candidate, compile, n_refit, say)
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
                                                             validation_is_tail=validation is None)
     # the baseline's own warnings say so: after the final model in the report, a "K_T carries 14 %
@@ -180,7 +180,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             # rounds share out what is left, and a real effect may then remove a small part of it
             ranking = rank_round(m, fr, pr, est, val, remaining, compile, say, n_refit, nominated=nominated,
                                  min_explained_inadequate=MIN_EXPLAINED_INADEQUATE if r == 0 else 0.0,
-                                 controller_check=r == 0)
+                                 controller_check=r == 0, timing=timing_unconfirmed if fr is res else None)
             verdict = ranking[0].effect if ranking and ranking[0].significant else None
             out.append(Round(m, fr, pr, ranking, verdict))
             if verdict is None:
@@ -335,7 +335,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # commands logged at 100 Hz: tau_m 15.5 ms for its 20 ms motors).
         added = [e for e in cur_model.effect_names if e not in model.effect_names]
         say(f"diagnose: the log's timing judged again, against the model with {', '.join(added)}")
-        cur_model, cur_res, cur_pred, timing, timing_refit = _input_timing(
+        cur_model, cur_res, cur_pred, timing, timing_refit, _ = _input_timing(
             cur_model, cur_res, cur_pred, est, val, timing_candidate, compile, n_refit, say, against=added)
         if timing:
             warnings.insert(0, timing["text"])
@@ -517,8 +517,11 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     """Whether the logged rotor speeds are samples of a signal that varies between rows
     (:class:`~greybox.effects.SampledInputs`), judged like a candidate (likelihood ratio,
     effect size, validation) against the certified fit ``res`` of ``model``. When they are,
-    the diagnosis goes on from the model with it: ``(model, fit, prediction, words, refit)``;
-    else the arguments, None and the certified refit with the timing free (None without one).
+    the diagnosis goes on from the model with it: ``(model, fit, prediction, words, refit, None)``;
+    else the arguments, None, the certified refit with the timing free (None without one) and
+    the timing's :class:`CandidateResult` when it was significant in the fit and refused on
+    validation alone (a round's verdict-to-be must then stand beside it:
+    :func:`~greybox.diagnosis.ranking.stands_beside_timing`), else None.
     The words and numbers: ``{"effect", "s_lead", "s_lead_std", "nrmse_before", "nrmse_after",
     "text", "judged_with"}`` (:attr:`Diagnosis.input_timing`);
     ``against``: the effects ``model`` has beyond the model as given (judged again after the
@@ -552,7 +555,9 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
         if cand is not None:
             say(f"diagnose: the held rows stand ({cand.reason or 'its refit is not certified'})")
         refit = cand.fit if cand is not None and cand.fit is not None and cand.fit.converged else None
-        return model, res, pred, None, refit
+        # significant in the fit, refused on validation alone: a candidate may stand in for it
+        unconfirmed = cand if refit is not None and cand.not_confirmed and cand.prediction is not None else None
+        return model, res, pred, None, refit, unconfirmed
     fit_t = cand.fit
     s = fit_t.value("s_lead")
     std = float(fit_t.std[fit_t.free_names.index("s_lead")]) if "s_lead" in fit_t.free_names else float("nan")
@@ -570,7 +575,7 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     say(f"diagnose: {note}")
     timing = {"effect": name, "s_lead": s, "s_lead_std": std, "nrmse_before": pred.total,
               "nrmse_after": cand.prediction.total, "text": note, "judged_with": list(against)}
-    return fit_t.model, fit_t, cand.prediction, timing, fit_t
+    return fit_t.model, fit_t, cand.prediction, timing, fit_t, None
 
 
 def _free_input_timed(model: QuadrotorModel, fr) -> list[str]:
