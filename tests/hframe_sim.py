@@ -50,6 +50,16 @@ def default_truth():
                 battery=False, c_vbat=0.0)
 
 
+def airframe_toml(K_T: float = 1.0e-5, b: float = 3.4e-7, Kd=(0.1, 0.1, 0.1)) -> str:
+    """The airframe as a user would write it for greybox (``[[rotor]]`` tables in the order of
+    ``ROTORS``); the default parameters are a spec sheet's guesses, 30-70 % off the truth."""
+    rotors = "".join(f"\n[[rotor]]\nposition = [{x!r}, {y!r}, {z!r}]\nspin = {int(s)}\n"
+                     for (x, y, z), s in zip(ROTORS.tolist(), SPIN))
+    return (f'[airframe]\nname = "hframe_audit12"\nmass = {MASS!r}\n'
+            f"inertia = [{float(J[0, 0])!r}, {float(J[1, 1])!r}, {float(J[2, 2])!r}]\nrotor_inertia = {J_R!r}\n{rotors}\n"
+            f"[parameters]\nK_T = {K_T!r}\nb = {b!r}\nKd = [{', '.join(repr(float(k)) for k in Kd)}]\n")
+
+
 def quat_to_R(q):
     w, x, y, z = q
     return np.array([

@@ -83,34 +83,6 @@ def test_a_trim_that_follows_the_speed_points_at_drag_acting_above_the_centre_of
     assert "speed" not in command_imbalance(model, at_cog).evidence
 
 
-H_FRAME = """
-[airframe]
-name = "h-frame"
-mass = 2.2
-inertia = [0.030, 0.022, 0.048]
-rotor_inertia = 2.0e-5
-
-[[rotor]]
-position = [0.16, 0.20, 0.0]
-spin = 1
-
-[[rotor]]
-position = [-0.14, -0.24, 0.0]
-spin = 1
-
-[[rotor]]
-position = [0.16, -0.20, 0.0]
-spin = -1
-
-[[rotor]]
-position = [-0.14, 0.24, 0.0]
-spin = -1
-
-[parameters]
-K_T = 1.5e-5
-b = 2.4e-7
-Kd = [0.25, 0.25, 0.35]
-"""
 
 
 def test_an_h_frame_hovers_with_its_rear_rotors_working_harder_and_that_is_no_imbalance(tmp_path):
@@ -119,7 +91,8 @@ def test_an_h_frame_hovers_with_its_rear_rotors_working_harder_and_that_is_no_im
     hand, front 0.875/0.9375 = 0.9333 and rear 1.0667 of the mean; the roll and yaw balances
     hold by symmetry. Equal rotors on it are not "driven unequally" (the audit's flights were
     told so on every diagnosis: w1 -6.6 %, w2 +6.6 %), and a weak rotor still shows."""
-    (tmp_path / "h.toml").write_text(H_FRAME)
+    import hframe_sim
+    (tmp_path / "h.toml").write_text(hframe_sim.airframe_toml(K_T=1.5e-5, b=2.4e-7, Kd=(0.25, 0.25, 0.35)))
     af = load_airframe(tmp_path / "h.toml")
     np.testing.assert_allclose(af.hover_shares(), [0.14 / 0.15, 0.16 / 0.15, 0.14 / 0.15, 0.16 / 0.15], rtol=1e-12)
     np.testing.assert_allclose(load_airframe(AIRFRAMES / "x_quad.toml").hover_shares(), 1.0)

@@ -10,36 +10,6 @@ from greybox.diagnosis import command_imbalance, diagnose
 
 import hframe_sim
 
-AIRFRAME = """
-[airframe]
-name = "hframe_audit12"
-mass = 2.2
-inertia = [0.030, 0.022, 0.048]
-arm_length = 0.267
-rotor_inertia = 2.0e-5
-
-[[rotor]]
-position = [0.16, 0.20, 0.0]
-spin = 1
-
-[[rotor]]
-position = [-0.14, -0.24, 0.0]
-spin = 1
-
-[[rotor]]
-position = [0.16, -0.20, 0.0]
-spin = -1
-
-[[rotor]]
-position = [-0.14, 0.24, 0.0]
-spin = -1
-
-[parameters]
-# a user's spec-sheet guesses, 30-70 % off the simulator's K_T 1.5e-5, b 2.4e-7, Kd 0.25, 0.25, 0.35
-K_T = 1.0e-5
-b = 3.4e-7
-Kd = [0.1, 0.1, 0.1]
-"""
 
 
 def _flight(tmp_path, effect, seed, duration):
@@ -52,7 +22,7 @@ def _flight(tmp_path, effect, seed, duration):
 @pytest.fixture(scope="module")
 def model(tmp_path_factory):
     path = tmp_path_factory.mktemp("hframe") / "h.toml"
-    path.write_text(AIRFRAME)
+    path.write_text(hframe_sim.airframe_toml())      # the guesses: K_T 1.0e-5, b 3.4e-7, Kd 0.1
     return QuadrotorModel(load_airframe(path))
 
 
