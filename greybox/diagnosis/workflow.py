@@ -444,7 +444,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         report, why = closed_loop_or_why(fitted.model, validation_vectors(fitted, est, val), est, val,
                                          horizons=open_loop.horizons, compile=compile, open_loop=open_loop,
                                          est_ps=[fitted.flight_p(i) for i in range(len(est))])
-        if why:
+        if why and why not in diag.warnings:      # the baseline's and the final model's may say the same
             diag.warnings.append(why)
         return report
 
