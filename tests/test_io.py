@@ -494,3 +494,36 @@ def test_cli_usd_writes_a_log_load_log_reads(usd_log10, tmp_path):
     assert np.isnan(log.outputs[:, :6]).all() and np.isfinite(log.outputs[:, 6:]).mean() > 0.99
     a = load_airframe(af)
     assert a.mass == pytest.approx(0.030) and [r.spin for r in a.rotors] == [1, -1, 1, -1]
+
+
+def test_px4_position_setpoints_become_the_logs_setpoints_for_a_closed_loop_model():
+    """``vehicle_local_position_setpoint`` (x, y, z, yaw; NED, rad) or the newer
+    ``trajectory_setpoint`` (position[0..2], yaw) become ``x_ref .. psi_ref`` on the rows,
+    interpolated, yaw unwrapped across ±pi; samples with a NaN component (a velocity or manual
+    mode) are left out, and a log with none complete has no setpoints and says so."""
+    from greybox.controller_law import has_setpoints
+    topics = _synthetic_px4()
+    ts = topics["vehicle_local_position"]["timestamp"]
+    t = (ts - ts[0]) / 1e6
+    yaw = 3.0 + 0.02 * t                       # crosses pi at t = 7.08 s: wrapped as PX4 logs it
+    sp = {"timestamp": ts, "x": 0.5 + 0 * t, "y": -0.2 + 0 * t, "z": -np.clip((t - 2.0) / 2.0, 0, 1) * 2.0,
+          "yaw": np.angle(np.exp(1j * yaw))}
+    sp["x"][:3] = np.nan                       # not yet in position control
+    imp = import_px4_topics({**topics, "vehicle_local_position_setpoint": sp}, {"PWM_DISARMED": 900.0}, "s.ulg")
+    log = imp.log
+    assert has_setpoints(log)
+    np.testing.assert_allclose(log.extras["x_ref"], 0.5)
+    np.testing.assert_allclose(log.extras["y_ref"], -0.2)
+    tb = log.extras["t_boot"] - 1.0
+    np.testing.assert_allclose(log.extras["psi_ref"], 3.0 + 0.02 * tb, atol=1e-3)    # unwrapped, no 2 pi jump
+    assert np.nanmax(np.abs(np.diff(log.extras["psi_ref"]))) < 0.01
+    assert any("setpoints from vehicle_local_position_setpoint" in n for n in imp.notes)
+    # the newer topic's field names
+    new = {"timestamp": ts, "position[0]": sp["x"], "position[1]": sp["y"], "position[2]": sp["z"], "yaw": sp["yaw"]}
+    imp2 = import_px4_topics({**topics, "trajectory_setpoint": new}, {"PWM_DISARMED": 900.0}, "s.ulg")
+    np.testing.assert_allclose(imp2.log.extras["z_ref"], log.extras["z_ref"])
+    # velocity control only: no position target anywhere
+    vel = {**sp, "x": np.full(t.size, np.nan)}
+    imp3 = import_px4_topics({**topics, "vehicle_local_position_setpoint": vel}, {"PWM_DISARMED": 900.0}, "s.ulg")
+    assert not has_setpoints(imp3.log) and any("no closed-loop model" in n for n in imp3.notes)
+    assert not has_setpoints(import_px4_topics(topics, {"PWM_DISARMED": 900.0}, "s.ulg").log)

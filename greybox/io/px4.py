@@ -51,7 +51,8 @@ __all__ = ["import_px4", "import_px4_topics", "read_px4_topics", "ulog_cut_at", 
            "MAV_TYPE_ROTORS"]
 
 PX4_TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_attitude", "vehicle_local_position", "actuator_outputs",
-              "esc_status", "battery_status", "vehicle_status", "vehicle_land_detected"]
+              "esc_status", "battery_status", "vehicle_status", "vehicle_land_detected",
+              "vehicle_local_position_setpoint", "trajectory_setpoint"]
 """The uORB topics the importer reads (others are not even parsed)."""
 
 MAV_TYPE_ROTORS = {2: 4, 13: 6, 14: 8, 15: 3}
@@ -152,6 +153,37 @@ def _stamps(topic: Mapping[str, np.ndarray], name: str, notes: list[str]) -> tup
 
 def _field(topic: Mapping[str, np.ndarray], name: str, idx: np.ndarray) -> np.ndarray:
     return np.asarray(topic[name], dtype=float)[idx]
+
+
+_SETPOINT_FIELDS = {"vehicle_local_position_setpoint": ("x", "y", "z", "yaw"),
+                    "trajectory_setpoint": ("position[0]", "position[1]", "position[2]", "yaw")}
+"""Where a PX4 log keeps the position controller's target (NED, m; yaw in rad), older first."""
+
+
+def _setpoints(topics: Topics, t_boot: np.ndarray, notes: list[str]) -> dict[str, np.ndarray]:
+    """The position controller's target as the log's ``x_ref, y_ref, z_ref, psi_ref`` (what a
+    closed-loop model reads: :mod:`greybox.controller_law`), interpolated onto the rows, yaw
+    unwrapped first; from the first of :data:`_SETPOINT_FIELDS` logged with at least two
+    complete samples. PX4 writes NaN in a component the controller does not hold (velocity or
+    manual modes): such samples are left out, and none complete is no setpoint."""
+    for topic, fields in _SETPOINT_FIELDS.items():
+        sp = topics.get(topic)
+        if sp is None or not len(sp.get("timestamp", [])) or not all(f in sp for f in fields):
+            continue
+        t_s, i_s = _stamps(sp, topic, notes)
+        vals = np.column_stack([_field(sp, f, i_s) for f in fields])
+        ok = np.isfinite(vals).all(axis=1)
+        if ok.sum() < 2:
+            notes.append(f"{topic}: no sample holds a position and yaw target (manual or velocity control): "
+                         "no closed-loop model")
+            return {}
+        yaw = np.unwrap(vals[ok, 3])
+        out = {name: np.interp(t_boot, t_s[ok], vals[ok, j]) for j, name in enumerate(("x_ref", "y_ref", "z_ref"))}
+        out["psi_ref"] = np.interp(t_boot, t_s[ok], yaw)
+        notes.append(f"setpoints from {topic} ({', '.join(fields)}; {ok.mean():.0%} of its samples complete) kept as "
+                     "x_ref, y_ref, z_ref (m, NED), psi_ref (rad): what a closed-loop model reads")
+        return out
+    return {}
 
 
 def import_px4(path: str | Path, pwm_map: tuple[float, float] = PX4_PWM_MAP, held: str = "interpolate",
@@ -374,6 +406,7 @@ def import_px4_topics(topics: Topics, params: Mapping[str, float], where: str,
                 notes.append(f"battery voltage from battery_status.{key}: {v[okv].min():.2f}-{v[okv].max():.2f} V")
     else:
         notes.append("no battery_status: no battery voltage (vbat)")
+    extras.update(_setpoints(topics, t_boot, notes))
     extras["t_boot"] = t_boot
 
     # --- ground contact
