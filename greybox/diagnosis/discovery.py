@@ -69,7 +69,7 @@ from ..residuals import fitted_trajectory
 from ..shooting import initial_node_states
 from ..validation import Prediction, predict_after_fit
 from .analysis import estimation_residuals
-from .ranking import ALPHA, MAX_VALIDATION_LOSS, MIN_VALIDATION_GAIN
+from .ranking import ALPHA, MIN_VALIDATION_GAIN, confirmed_on_validation, validation_falls
 from .results import Discovered, DiscoveredTerm
 from .screening import lr_test
 
@@ -525,9 +525,7 @@ def _refit_and_judge(d: Discovered, model: QuadrotorModel, res: FitResult, pred:
     for t in d.terms:
         name = parameter_name(d.channel, t.feature)
         d.fitted.append(DiscoveredTerm(t.feature, fr.value(name), float(fr.std[fr.free_names.index(name)])))
-    gain = 1 - pr.total / pred.total
-    falls = {ch: 1 - pr.nrmse[ch] / pred.nrmse[ch] for ch in pred.nrmse if pred.nrmse[ch] > 0}
-    best_ch = max(falls, key=falls.get)
+    falls, best_ch, gain = validation_falls(pred, pr)
     confirmed_alone = None
     shift = _thrust_shift(d, res, fr)
     if d.lr_p_value >= ALPHA:
@@ -536,7 +534,7 @@ def _refit_and_judge(d: Discovered, model: QuadrotorModel, res: FitResult, pred:
         d.reason = (f"its refit moves K_T by {100 * shift:+.0f} %: it takes over part of the rotors' thrust "
                     f"without their moments, so the control moments scale by {1 + shift:.2f} with it (a moment "
                     f"gain in disguise, not a missing force)")
-    elif falls[best_ch] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS:
+    elif not confirmed_on_validation(falls, best_ch, gain):
         d.reason = (f"significant in the refit but not confirmed on validation (best channel {best_ch} "
                     f"{-100 * falls[best_ch]:+.1f} %, total {-100 * gain:+.1f} %)")
         if falls[best_ch] >= MIN_VALIDATION_GAIN:

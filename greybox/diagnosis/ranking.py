@@ -26,7 +26,7 @@ from .screening import (explained_fraction, held_on_bound, replaced_base_terms, 
                         physically_implausible, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
                         screen, screen_jointly, within_row_timing)
 
-__all__ = ["PARAMETER_SHIFT", "parameter_shifts", "ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
+__all__ = ["PARAMETER_SHIFT", "parameter_shifts", "ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "validation_falls", "confirmed_on_validation", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
            "rank_round", "order_refitted", "default_candidates", "far_channels"]
 
 ALPHA = 0.01
@@ -98,6 +98,19 @@ def far_channels(res: FitResult) -> list[str]:
     if res.certificate is None:
         return []
     return [ch for ch, v in res.certificate.residual_over_noise.items() if v > FAR_FROM_DATA]
+
+
+def validation_falls(before: Prediction, after: Prediction) -> tuple[dict[str, float], str | None, float]:
+    """How ``after`` predicts the validation data against ``before``: per channel the relative
+    fall of its nrmse, the channel where it falls most (None without one) and the total's fall."""
+    falls = {ch: 1 - after.nrmse[ch] / before.nrmse[ch] for ch in before.nrmse if before.nrmse[ch] > 0}
+    return falls, (max(falls, key=falls.get) if falls else None), 1 - after.total / before.total
+
+
+def confirmed_on_validation(falls: dict[str, float], best_ch: str | None, gain: float) -> bool:
+    """Confirmed out of sample (:func:`validation_falls`): some channel better by
+    :data:`MIN_VALIDATION_GAIN`, the total not worse by :data:`MAX_VALIDATION_LOSS`."""
+    return best_ch is not None and not (falls[best_ch] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS)
 
 
 def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Sequence[FlightLog],
@@ -233,9 +246,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         cand.fit, cand.prediction = fr, pr
         cand.nrmse_after, cand.channels_after = pr.total, dict(pr.nrmse)
         cand.nrmse_common_start = common_start_nrmse(fr, pr)
-        gain = 1 - pr.total / pred.total
-        falls = {ch: 1 - pr.nrmse[ch] / pred.nrmse[ch] for ch in pred.nrmse if pred.nrmse[ch] > 0}
-        best_ch = max(falls, key=falls.get)
+        falls, best_ch, gain = validation_falls(pred, pr)
         cand.explained = explained_fraction(res, fr)
         negligible = negligible_effect(fr, cand.effect, est)
         shifted = parameter_shifts(res, fr) if negligible and size_in_parameters else {}
@@ -273,7 +284,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                            f"it the model is still far from the data ({', '.join(off)}): a sliver that a "
                            "correlation with the unexplained rest can give (a controller answers an unmodelled "
                            "force or moment through the commands); cannot tell")
-        elif falls[best_ch] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS:
+        elif not confirmed_on_validation(falls, best_ch, gain):
             cand.reason = (f"significant in the fit but not confirmed on validation (best channel {best_ch} "
                            f"{-100 * falls[best_ch]:+.1f} %, total {-100 * gain:+.1f} %)")
             cand.validation_tie = gain >= -MAX_VALIDATION_LOSS
@@ -487,15 +498,12 @@ def stands_beside_timing(cand: CandidateResult, timing: CandidateResult, est: Se
         return ""        # cannot tell from an uncertified refit: the round's own judgement stands
     E = estimation_residuals(ext, fr, est)
     lr, p = lr_test(timing.fit, fr, E, cand.df, null_on_bound(ext, cand.effect), n_tests)
-    base = timing.prediction
-    falls = {ch: 1 - pr.nrmse[ch] / base.nrmse[ch] for ch in base.nrmse if base.nrmse[ch] > 0}
-    best_ch = max(falls, key=falls.get) if falls else None
-    gain = 1 - pr.total / base.total
+    falls, best_ch, gain = validation_falls(timing.prediction, pr)
     if p >= ALPHA:
         return (f"with the log's timing in the model (the rows as samples of a varying signal: significant in the fit "
                 f"(LR {timing.lr:.3g}), not confirmed on validation) it is not significant (LR {lr:.3g}, "
                 f"p = {p:.2g}): it stands in for the log's timing; cannot tell")
-    if best_ch is None or falls[best_ch] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS:
+    if not confirmed_on_validation(falls, best_ch, gain):
         return (f"with the log's timing in the model (the rows as samples of a varying signal: significant in the fit "
                 f"(LR {timing.lr:.3g}), not confirmed on validation) it is not confirmed on validation (best channel "
                 f"{best_ch} {-100 * falls.get(best_ch, 0.0):+.1f} %, total {-100 * gain:+.1f} %): it stands in for "
