@@ -50,7 +50,7 @@ from ..errors import GreyboxInputError
 __all__ = ["trimmed_log", "G0", "CRAZYFLIE_PWM_MAP", "PX4_PWM_MAP", "PwmMap", "ImportResult", "FlightSpan",
            "flu_to_frd", "zup_to_ned", "euler_zup_to_ned", "euler_from_quaternion", "wrap_angle",
            "deg_to_rad", "g_to_ms2", "rpm_to_rad_s", "pwm_to_rotor_speed", "parse_pwm_map",
-           "time_base", "fresh_rows", "interpolate_fresh", "interpolate_samples", "commands_on_grid", "flight_from_height",
+           "time_base", "fresh_rows", "interpolate_fresh", "interpolate_samples", "setpoint_extras", "commands_on_grid", "flight_from_height",
            "flight_from_imu", "longest_run", "grid_with", "snap", "assemble_log"]
 
 G0 = 9.80665
@@ -225,6 +225,24 @@ def interpolate_fresh(t: np.ndarray, values: np.ndarray, fresh: np.ndarray) -> n
     """``values`` (n,) linearly interpolated between its fresh rows (held at the ends)."""
     k = np.flatnonzero(fresh)
     return np.interp(t, t[k], values[k])
+
+
+def setpoint_extras(t_rows: np.ndarray, t_samples: np.ndarray, position_ned: np.ndarray,
+                    yaw: np.ndarray) -> dict[str, np.ndarray]:
+    """The position controller's target as the log's ``x_ref, y_ref, z_ref`` (m, NED) and
+    ``psi_ref`` (rad), what a closed-loop model reads (:mod:`greybox.controller_law`): its
+    complete samples (``position_ned`` (n, 3) and ``yaw`` (n,) at ``t_samples``; one with a NaN
+    component is left out) interpolated onto the rows ``t_rows``, the yaw unwrapped first so
+    that a gap is not bridged the long way round (179 -> -179 degrees). Empty when no sample
+    is complete."""
+    vals = np.column_stack([np.asarray(position_ned, dtype=float), np.asarray(yaw, dtype=float)])
+    ok = np.isfinite(vals).all(axis=1)
+    if not ok.any():
+        return {}
+    t_ok = np.asarray(t_samples, dtype=float)[ok]
+    out = {name: np.interp(t_rows, t_ok, vals[ok, j]) for j, name in enumerate(("x_ref", "y_ref", "z_ref"))}
+    out["psi_ref"] = np.interp(t_rows, t_ok, np.unwrap(vals[ok, 3]))
+    return out
 
 
 def interpolate_samples(t: np.ndarray, y: np.ndarray, max_gap: float = 1.0) -> np.ndarray:

@@ -46,7 +46,7 @@ from ..data import read_csv_table
 from ..errors import GreyboxInputError
 from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, trimmed_log, commands_on_grid,
                    euler_from_quaternion, euler_zup_to_ned, flight_from_height, flu_to_frd, fresh_rows,
-                   interpolate_fresh, time_base, wrap_angle, zup_to_ned)
+                   interpolate_fresh, setpoint_extras, time_base, wrap_angle, zup_to_ned)
 
 __all__ = ["import_nanobench", "angle_unit_from_motion", "ANGLE_UNIT_SLOPE", "ANGLE_UNIT_MIN_CORRELATION",
            "NanoBenchImport", "crazyflie_airframe_toml", "PWM_MAX"]
@@ -290,16 +290,9 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
     if all(h in col for h in _SETPOINT):
         # the controller's target: the same world as the Vicon pose, yaw in degrees (firmware)
         sp = np.column_stack([column(n, required=False) for n in _SETPOINT])
-        fin = np.isfinite(sp).all(1)
-        if fin.any():
-            # yaw unwrapped before it is interpolated across a gap (179 -> -179 degrees)
-            yaw = np.unwrap(np.radians(sp[fin, 3]))
-            sp = np.column_stack([np.interp(t_all, t_all[fin], sp[fin, j]) for j in range(3)]
-                                 + [np.interp(t_all, t_all[fin], yaw)])
-            sp_ned = zup_to_ned(sp[:, :3])
-            for j, name in enumerate(("x_ref", "y_ref", "z_ref")):
-                extras[name] = sp_ned[:, j]
-            extras["psi_ref"] = -sp[:, 3]
+        refs = setpoint_extras(t_all, t_all, zup_to_ned(sp[:, :3]), -np.radians(sp[:, 3]))
+        if refs:
+            extras.update(refs)
             notes.append("setpoints sp_ctrltarget_x..yaw kept as x_ref, y_ref, z_ref (m, NED), psi_ref (rad): "
                          "what a closed-loop model reads")
         else:

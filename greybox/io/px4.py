@@ -45,7 +45,8 @@ import numpy as np
 
 from ..errors import GreyboxInputError
 from .base import (PX4_PWM_MAP, FlightSpan, ImportResult, PwmMap, trimmed_log, commands_on_grid, euler_from_quaternion,
-                   flight_from_height, grid_with, interpolate_samples, longest_run, rpm_to_rad_s, snap, time_base)
+                   flight_from_height, grid_with, interpolate_samples, longest_run, rpm_to_rad_s, setpoint_extras, snap,
+                   time_base)
 
 __all__ = ["import_px4", "import_px4_topics", "read_px4_topics", "ulog_cut_at", "px4_airframe_toml", "PX4_TOPICS",
            "MAV_TYPE_ROTORS"]
@@ -161,10 +162,9 @@ _SETPOINT_FIELDS = {"vehicle_local_position_setpoint": ("x", "y", "z", "yaw"),
 
 
 def _setpoints(topics: Topics, t_boot: np.ndarray, notes: list[str]) -> dict[str, np.ndarray]:
-    """The position controller's target as the log's ``x_ref, y_ref, z_ref, psi_ref`` (what a
-    closed-loop model reads: :mod:`greybox.controller_law`), interpolated onto the rows, yaw
-    unwrapped first; from the first of :data:`_SETPOINT_FIELDS` logged with at least two
-    complete samples. PX4 writes NaN in a component the controller does not hold (velocity or
+    """The position controller's target as the log's ``x_ref, y_ref, z_ref, psi_ref``
+    (:func:`~greybox.io.base.setpoint_extras`) from the first of :data:`_SETPOINT_FIELDS` logged
+    with at least two complete samples. PX4 writes NaN in a component the controller does not hold (velocity or
     manual modes): such samples are left out, and none complete is no setpoint."""
     for topic, fields in _SETPOINT_FIELDS.items():
         sp = topics.get(topic)
@@ -177,9 +177,7 @@ def _setpoints(topics: Topics, t_boot: np.ndarray, notes: list[str]) -> dict[str
             notes.append(f"{topic}: no sample holds a position and yaw target (manual or velocity control): "
                          "no closed-loop model")
             return {}
-        yaw = np.unwrap(vals[ok, 3])
-        out = {name: np.interp(t_boot, t_s[ok], vals[ok, j]) for j, name in enumerate(("x_ref", "y_ref", "z_ref"))}
-        out["psi_ref"] = np.interp(t_boot, t_s[ok], yaw)
+        out = setpoint_extras(t_boot, t_s, vals[:, :3], vals[:, 3])
         notes.append(f"setpoints from {topic} ({', '.join(fields)}; {ok.mean():.0%} of its samples complete) kept as "
                      "x_ref, y_ref, z_ref (m, NED), psi_ref (rad): what a closed-loop model reads")
         return out
