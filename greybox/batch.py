@@ -85,7 +85,6 @@ _PATTERNS = {"csv": "*.csv", "nanobench": "*.csv", "px4": "*.ulg", "crazyflie-us
 
 
 # ---------------------------------------------------------------------------- options
-
 @dataclass(frozen=True)
 class Options:
     """What every flight is processed with (sent to the workers; part of each flight's hash)."""

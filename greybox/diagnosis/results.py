@@ -64,12 +64,11 @@ class CandidateResult:
                "score": _num(self.score), "lr": _num(self.lr), "p_value": _num(self.p_value),
                "df": self.df, "reason": self.reason, "explained": _num(self.explained),
                "nrmse_common_start": _num(self.nrmse_common_start)}
-        if self.fit is not None:
-            # how its validation windows started (a soft fit chooses on its estimation data)
-            out["start"] = {k: (float(v) if isinstance(v, float) else v) for k, v in prediction_options(self.fit).items()}
         if self.channels_after is not None:
             out["channels_after"] = {k: _num(v) for k, v in self.channels_after.items()}
         if self.fit is not None:
+            # how its validation windows started (a soft fit chooses on its estimation data)
+            out["start"] = {k: (float(v) if isinstance(v, float) else v) for k, v in prediction_options(self.fit).items()}
             new = [n for n in self.fit.free_names if _effect_of(self.fit.model, n) == self.effect]
             out["parameters"] = {n: {"value": self.fit.value(n),
                                      "std": float(self.fit.std[self.fit.free_names.index(n)])} for n in new}
