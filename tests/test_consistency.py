@@ -121,3 +121,27 @@ def test_a_diagnosis_whose_validation_comparison_failed_says_which_std_went_unch
     said = [w for w in d.warnings if "can be believed was not checked" in w]
     assert len(said) == 1 and "K_T_drift" in said[0] and "the validation data alone" in said[0], d.warnings
     assert "halves" not in said[0] and d.final_spread is not None
+
+
+def test_a_parameter_the_data_do_not_determine_is_named_with_what_it_trades_with(paper):
+    """A hub drag's height multiplies the hub drag's force: with no hub drag in the flight
+    (k_rdh fits to about zero) the height is free across its whole range and is said to be
+    undetermined; with a hub drag there (k_rdh 2e-4, 3 cm above the CoG) it is fitted to a
+    millimetre and nothing is said."""
+    from greybox import fit
+    from greybox.diagnosis.consistency import UNDETERMINED_SHARE, undetermined_parameters
+
+    hub = paper + effects.by_name("hub_rotor_drag")
+    words = {}
+    for k_rdh in (0.0, 2e-4):
+        p = hub.parameter_vector({"k_rdh": k_rdh, "k_rdv": 0.5 * k_rdh, "h_hub": 0.03})
+        log = synthesize(hub, p, duration=8.0, seed=3).log
+        res = fit(hub, log, p0=p)
+        assert res.converged
+        i = res.free_names.index("h_hub")
+        width = 2 * paper.airframe.arm_length
+        assert (res.std[i] > UNDETERMINED_SHARE * width) == (k_rdh == 0.0)
+        words[k_rdh] = undetermined_parameters(res, ["hub_rotor_drag"])
+    assert words[2e-4] == []
+    assert len(words[0.0]) == 1 and words[0.0][0].startswith("h_hub = ")
+    assert "not determined by these data" in words[0.0][0] and "k_rdh" in words[0.0][0]

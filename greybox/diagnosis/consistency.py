@@ -17,7 +17,8 @@ from ..fitting import FitResult, fit, per_flight_positions
 from ..model import QuadrotorModel
 from ..residuals import residual_widening
 
-__all__ = ["CONSISTENCY_Z", "CONSISTENCY_MIN_CHANGE", "half_consistency", "half_spread", "validation_spread"]
+__all__ = ["CONSISTENCY_Z", "CONSISTENCY_MIN_CHANGE", "UNDETERMINED_SHARE", "half_consistency", "half_spread",
+           "validation_spread", "undetermined_parameters"]
 
 
 CONSISTENCY_Z = 3.0
@@ -28,6 +29,45 @@ CONSISTENCY_MIN_CHANGE = 0.02
 its effect on the airframe when that is larger): two estimates 0.2 % apart are the same
 constant, however small their standard deviations (another simulator's 1.2 kg vehicle with a
 gyro bias: b 1.697e-7 ± 7e-11 against 1.700e-7 ± 6e-11 had been flagged)."""
+
+UNDETERMINED_SHARE = 0.5
+"""A fitted parameter whose standard deviation exceeds this share of the whole range its bounds
+allow is not determined by the data at all: its value says nothing."""
+
+
+def undetermined_parameters(res: FitResult, effects: Sequence[str]) -> list[str]:
+    """Words on the free parameters of ``effects`` in ``res`` that the data do not determine:
+    standard deviation above :data:`UNDETERMINED_SHARE` of the range between their (finite)
+    bounds, each with the parameter it trades with most (largest correlation). An audit's
+    H-frame with a body-axis drag: a hub drag's height -0.039 ± 0.83 m (bounds ± 0.27 m)
+    beside a drag moment that explains the same pitching."""
+    model = res.model
+    std = dict(zip(res.free_names, map(float, res.std)))
+    C = np.asarray(res.covariance, dtype=float)
+    d = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    out = []
+    for effect in effects:
+        for par, comp, _null in model.effect_components(effect):
+            width = par.upper - par.lower
+            s = std.get(comp, math.nan)
+            if not (np.isfinite(width) and width > 0 and np.isfinite(s)) or s <= UNDETERMINED_SHARE * width:
+                continue
+            i = res.free_names.index(comp)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                r = C[i] / (d[i] * d)
+            r[i] = 0.0
+            r = np.where(np.isfinite(r), r, 0.0)
+            words = (f"{comp} = {res.value(comp):.3g} ± {s:.2g} {par.unit} is not determined by these data: its std "
+                     f"is {s / width:.1f}x the whole range it may take ({par.lower:.3g} to {par.upper:.3g} {par.unit})")
+            if r.size > 1 and np.max(np.abs(r)) > 0.5:
+                j = int(np.argmax(np.abs(r)))
+                partner = res.free_names[j]
+                owner = next((e for e in model.effect_names
+                              if any(c == partner for _, c, _ in model.effect_components(e))), "the base model")
+                words += (f"; it trades with {partner} (r = {r[j]:+.2f}, {owner})"
+                          + (", and the two effects share what they explain" if owner != effect else ""))
+            out.append(words)
+    return out
 
 
 def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], E: np.ndarray,

@@ -139,14 +139,17 @@ def backward_elimination(res: FitResult, pred: Prediction, verdicts: Sequence[tu
     """The certified final fit ``res`` (prediction ``pred``) less the ``verdicts`` that no
     longer stand (:func:`judge_removal`), one at a time. ``verdicts``: ``(effect, n_tests)``
     in the order the rounds added them, ``n_tests`` its round's candidates. The last verdict
-    was judged against all the others by its round and is judged again only after one was
-    removed. Returns the final fit, its prediction and the removals (each with why)."""
+    was judged against all the others by its round; it is judged again too, at no cost when
+    the Wald screen spares it: admitted against a fit that had not found the others' best
+    values, it can be a collinear partner they no longer need (an audit's H-frame: a drag
+    moment 0.3 std from zero beside a hub drag whose height took its place). Returns the
+    final fit, its prediction and the removals (each with why)."""
     order = [e for e, _ in verdicts]
     tests = dict(verdicts)
     removed: list[Removal] = []
     if len(order) < 2 or not res.converged:
         return res, pred, removed
-    pending = order[:-1]
+    pending = list(order)
     while pending:
         effect = pending.pop(0)
         if effect not in res.model.effect_names:

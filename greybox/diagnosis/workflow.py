@@ -27,7 +27,7 @@ from .analysis import command_imbalance, residual_analysis
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
-from .consistency import half_consistency, half_spread, validation_spread
+from .consistency import half_consistency, half_spread, undetermined_parameters, validation_spread
 from .elimination import backward_elimination, fit_without
 from .screening import negligible_effect
 from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
@@ -389,6 +389,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         values, std = cur_model.parameter_dict(cur_res.p), dict(zip(cur_res.free_names, map(float, cur_res.std)))
         for e in added_effects:
             warnings += [f"final model: {w}" for w in e.interpretation_notes(values, std, cur_model.airframe)]
+        warnings += [f"final model: {w}" for w in undetermined_parameters(cur_res, [e.name for e in added_effects])]
         # whether the added parameters' std can be believed: each half of the flight alone, and
         # the validation flights alone (the halves can agree by chance)
         components = [c for e in added_effects for _, c, _ in cur_model.effect_components(e.name)]
