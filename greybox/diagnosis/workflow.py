@@ -286,7 +286,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # on the model as given, like the candidates (the same nrmse before): a catalogue
         # effect added in its place may be a compensating stand-in, and the residual forces
         # of a model bent around it are not those of the physics that is missing
-        discovered, discovery_note = discover_beyond_catalogue(model, res, pred, est, val, compile, say)
+        discovered, discovery_note = discover_beyond_catalogue(model, res, pred, est, val, compile, say,
+                                                                   timing=timing_unconfirmed)
         first_verdict = rounds[0].verdict if rounds else None
         outside = _encompassing(rounds, cur_res, cur_pred.total, discovered, discovery_note, est, val, compile, say,
                                 warnings)
