@@ -236,6 +236,16 @@ def test_rotor_speeds_in_rev_s_are_refused_by_fit_and_noted_by_simulate(tmp_path
     w = load_log(DEMO).slice(0, 600).inputs[:, :4]
     assert model.check_rotor_speeds(w, model.parameter_vector({"K_T": model.default_parameters()[0] / 10}),
                                     "log") == []
+    # a racer's flight (a blind audit's 5-inch quad): its fastest rotor's fast samples reach 4
+    # times its typical speed, so in rev/s they passed the fastest-rotor test; the typical one
+    # (RMS over the rotors, its 75th percentile) is refused
+    rng = np.random.default_rng(3)
+    typical = model.hover_speed() * (1.0 + 0.3 * np.abs(rng.standard_normal((2000, 1))))
+    racer = typical * (1.0 + 0.05 * rng.standard_normal((2000, 4)))
+    racer[::20, 0] *= 4.0                                        # bursts on one rotor
+    assert model.check_rotor_speeds(racer, None, "log") == []
+    with pytest.raises(GreyboxInputError, match="typically .* rev/s"):
+        model.check_rotor_speeds(racer / (2 * np.pi), None, "log")
     # a simulation may drop the vehicle on purpose: a note, and the flight is simulated
     inputs = tmp_path / "u.csv"
     inputs.write_text("t,w1,w2,w3,w4\n" + "".join(f"{0.01 * k:.2f},50,50,50,50\n" for k in range(20)))
