@@ -238,6 +238,12 @@ def test_rate_damping_is_discovered_refitted_and_written(paper, damped, tmp_path
     assert together < single
     between = replace(beside, final_prediction=SimpleNamespace(total=0.5 * (together + single)))
     assert "what the verdict holds" not in "\n".join(between._discovery_lines())
+    # a null verdict not taken as outside the catalogue says why beside the "significant" ones
+    # (the model predicting 1.02 times what the best found does: 2 % better with it)
+    null = replace(d, verdict=None, outside_catalogue="", final_prediction=SimpleNamespace(total=1.02 * together))
+    stays = [ln for ln in null._discovery_lines() if "verdict stays null" in ln]
+    assert len(stays) == 1 and " 2 % better" in stays[0], null._discovery_lines()
+    assert not [ln for ln in d._discovery_lines() if "verdict stays null" in ln]     # it is outside the catalogue
     # --write-effect's file: the best significant combination of each channel, fitted by
     # `greybox fit --effects-file` together (before 2026-12-04 only the best one was written,
     # and its fit absorbed the two other axes' damping: within 10 %)

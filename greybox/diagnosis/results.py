@@ -619,6 +619,14 @@ class Diagnosis:
             lines.append(f"   (found on the model as given; the final model predicts better, nrmse "
                          f"{self.final_prediction.total:.3f} against {min(found):.3f}: it is what the verdict "
                          "holds, seen from outside the catalogue)")
+        elif found and not self.verdict and not self.outside_catalogue:
+            # a null verdict beside a "significant" combination read as a contradiction (a blind
+            # audit's racer in its own propwash: mx ~ w2roll^2, roll -13 %, total -2 %)
+            before = (self.final_prediction or self.baseline_prediction).total
+            lines.append(f"   (the verdict stays null: in total it predicts the validation data "
+                         f"{100 * (1 - min(found) / before):.0f} % better than the model (nrmse {before:.3f} -> "
+                         f"{min(found):.3f}), too little to call it what is missing: a lead to fly for, not a "
+                         "finding)")
         return lines
 
     def _later_round_lines(self) -> list[str]:
