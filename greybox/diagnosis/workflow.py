@@ -565,7 +565,8 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     std = float(fit_t.std[fit_t.free_names.index("s_lead")]) if "s_lead" in fit_t.free_names else float("nan")
     note = (f"the logged rotor speeds are samples of a signal that varies between the log's rows, not values held "
             f"until the next row: each interval is modelled with {name} (the next row's weight s_lead = {s:.3g} "
-            f"± {std:.2g}; 0.5 is a signal interpolated linearly between rows), which changes the validation nrmse "
+            f"± {std:.2g} in the model it was judged against, refitted with every effect added later; 0.5 is a signal "
+            f"interpolated linearly between rows), which changes the validation nrmse "
             f"{pred.total:.3f} -> {cand.prediction.total:.3f}. This is the log's timing, not a physical effect: "
             + ("the baseline and every candidate below include it" if not against else
                f"judged against the model with {', '.join(against)} (against the baseline, far off without "
