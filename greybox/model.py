@@ -494,9 +494,8 @@ class QuadrotorModel:
         # typical: the RMS over the rotors, three quarters of the log below it (a quarter may be
         # on the ground); a 5-inch racer's fastest rotor reaches 4 times hover in rev/s
         typical_rms = float(np.percentile(np.sqrt(np.mean(w ** 2, axis=1)), 75))
-        if w.shape[0] >= 10 and (top * self.ROTOR_SPEED_PLAUSIBLE_FACTOR < hover
-                                 or typical_rms * self.ROTOR_SPEED_TYPICAL_FACTOR < hover):
-            slow_fast = top * self.ROTOR_SPEED_PLAUSIBLE_FACTOR < hover
+        slow_fast = top * self.ROTOR_SPEED_PLAUSIBLE_FACTOR < hover
+        if w.shape[0] >= 10 and (slow_fast or typical_rms * self.ROTOR_SPEED_TYPICAL_FACTOR < hover):
             level = top if slow_fast else typical_rms
             ratio = hover / max(level, 1e-300)
             given = "K_T" in self.airframe.parameters

@@ -62,8 +62,8 @@ def undetermined_parameters(res: FitResult, effects: Sequence[str]) -> list[str]
             if r.size > 1 and np.max(np.abs(r)) > 0.5:
                 j = int(np.argmax(np.abs(r)))
                 partner = res.free_names[j]
-                owner = next((e for e in model.effect_names
-                              if any(c == partner for _, c, _ in model.effect_components(e))), "the base model")
+                owner = next(q.effect for q in model.parameters if partner in q.component_names)
+                owner = "the base model" if owner == "base" else owner
                 words += (f"; it trades with {partner} (r = {r[j]:+.2f}, {owner})"
                           + (", and the two effects share what they explain" if owner != effect else ""))
             out.append(words)

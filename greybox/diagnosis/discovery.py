@@ -69,7 +69,7 @@ from ..residuals import fitted_trajectory
 from ..shooting import initial_node_states
 from ..validation import Prediction, predict_after_fit
 from .analysis import estimation_residuals
-from .ranking import ALPHA, MIN_VALIDATION_GAIN, confirmed_on_validation, validation_falls
+from .ranking import ALPHA, MIN_VALIDATION_GAIN, confirmed_on_validation, timing_stand_in, validation_falls
 from .results import CandidateResult, Discovered, DiscoveredTerm
 from .screening import lr_test
 
@@ -577,19 +577,11 @@ def _beside_timing(d: Discovered, timing: CandidateResult, est: Sequence[FlightL
         return
     if not fr.converged or pr is None:
         return          # cannot tell from an uncertified refit: its own judgement stands
-    falls, best_ch, gain = validation_falls(timing.prediction, pr)
-    why = ""
-    if p >= ALPHA:
-        why = f"it is not significant (LR {lr:.3g}, p = {p:.2g})"
-    elif not confirmed_on_validation(falls, best_ch, gain):
-        why = (f"it is not confirmed on validation (best channel {best_ch} {-100 * falls.get(best_ch, 0.0):+.1f} %, "
-               f"total {-100 * gain:+.1f} %)")
+    why = timing_stand_in(timing, lr, p, timing.prediction, pr)
     say(f"  discovered {d.channel} beside the log's timing: {why or 'stands'} ({time.perf_counter() - t0:.1f} s)")
     if why:
         d.significant = False
-        d.reason = (f"{d.reason}; but with the log's timing in the model (the rows as samples of a varying signal: "
-                    f"significant in the fit (LR {timing.lr:.3g}), not confirmed on validation) {why}: it stands in "
-                    "for the log's timing; cannot tell")
+        d.reason = f"{d.reason}; but {why}"
 
 
 def _thrust_shift(d: Discovered, res: FitResult, fr: FitResult) -> float | None:

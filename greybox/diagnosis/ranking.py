@@ -26,7 +26,7 @@ from .screening import (explained_fraction, held_on_bound, replaced_base_terms, 
                         physically_implausible, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
                         screen, screen_jointly, within_row_timing)
 
-__all__ = ["PARAMETER_SHIFT", "parameter_shifts", "ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "validation_falls", "confirmed_on_validation", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
+__all__ = ["PARAMETER_SHIFT", "parameter_shifts", "ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "validation_falls", "confirmed_on_validation", "timing_stand_in", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
            "rank_round", "order_refitted", "default_candidates", "far_channels"]
 
 ALPHA = 0.01
@@ -498,17 +498,25 @@ def stands_beside_timing(cand: CandidateResult, timing: CandidateResult, est: Se
         return ""        # cannot tell from an uncertified refit: the round's own judgement stands
     E = estimation_residuals(ext, fr, est)
     lr, p = lr_test(timing.fit, fr, E, cand.df, null_on_bound(ext, cand.effect), n_tests)
-    falls, best_ch, gain = validation_falls(timing.prediction, pr)
+    return timing_stand_in(timing, lr, p, timing.prediction, pr)
+
+
+def timing_stand_in(timing: CandidateResult, lr: float, p: float, before: Prediction, after: Prediction) -> str:
+    """Words saying that a refit onto the log's timing (``timing``: significant in the fit,
+    not confirmed on validation) does not stand there — likelihood ratio ``lr``, p-value ``p``
+    (Bonferroni applied) against the timing's fit, validation prediction ``after`` against the
+    timing's ``before`` — so that it stands in for the timing; "" when it stands. The judge of
+    :func:`stands_beside_timing` and of discovery's combinations beside the timing."""
+    falls, best_ch, gain = validation_falls(before, after)
     if p >= ALPHA:
-        return (f"with the log's timing in the model (the rows as samples of a varying signal: significant in the fit "
-                f"(LR {timing.lr:.3g}), not confirmed on validation) it is not significant (LR {lr:.3g}, "
-                f"p = {p:.2g}): it stands in for the log's timing; cannot tell")
-    if not confirmed_on_validation(falls, best_ch, gain):
-        return (f"with the log's timing in the model (the rows as samples of a varying signal: significant in the fit "
-                f"(LR {timing.lr:.3g}), not confirmed on validation) it is not confirmed on validation (best channel "
-                f"{best_ch} {-100 * falls.get(best_ch, 0.0):+.1f} %, total {-100 * gain:+.1f} %): it stands in for "
-                "the log's timing; cannot tell")
-    return ""
+        why = f"it is not significant (LR {lr:.3g}, p = {p:.2g})"
+    elif not confirmed_on_validation(falls, best_ch, gain):
+        why = (f"it is not confirmed on validation (best channel {best_ch} {-100 * falls.get(best_ch, 0.0):+.1f} %, "
+               f"total {-100 * gain:+.1f} %)")
+    else:
+        return ""
+    return (f"with the log's timing in the model (the rows as samples of a varying signal: significant in the fit "
+            f"(LR {timing.lr:.3g}), not confirmed on validation) {why}: it stands in for the log's timing; cannot tell")
 
 
 def _ask_verdict_to_be(ordered: list[CandidateResult], refitted: Sequence[CandidateResult],
