@@ -533,14 +533,15 @@ def test_turbulence_alone_is_not_named_after_a_command_fed_sliver(tmp_path):
     above the noise: nothing stands. Judged again with the torque as a disturbance, nothing
     stands either and the rates fall to their noise: the verdict is null because what is
     missing acts as a random torque, and the final model holds it, with K_T and b within 5 %
-    (the baseline's b is 30 % low, a closed-loop bias the halves flag)."""
+    (the baseline's b is 30 % low, a closed-loop bias; its halves are 9 % apart, beyond the
+    white-noise screen but within their own std, which the torque widens: not called absorbing)."""
     veh = PeerVehicle.one_kg()
     flights = [fly(veh, duration=20.0, seed=s, effects=PeerEffects(turbulence=0.02), low_hovers=True) for s in (1, 2)]
     paths = [write_case(f, tmp_path, name=f"seed{s}") for s, f in zip((1, 2), flights)]
     model = QuadrotorModel(load_airframe(paths[0]["airframe"]))
     d = diagnose(model, load_log(paths[0]["log"]), validation=load_log(paths[1]["log"]))
     truth = flights[0].truth["greybox_equivalent"]
-    assert "b" in d.inconsistent and d.baseline.value("b") / truth["b"] - 1 < -0.15
+    assert "b" not in d.inconsistent and d.baseline.value("b") / truth["b"] - 1 < -0.15
     assert d.baseline_certified
     assert d.verdict is None and not [c.effect for c in d.ranking if c.significant], d.summary()
     mg = next(c for c in d.ranking if c.effect == "moment_gain")
