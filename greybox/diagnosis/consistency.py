@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import warnings as _warnings
-from typing import Callable, NamedTuple, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -17,7 +17,7 @@ from ..fitting import FitResult, fit, per_flight_positions
 from ..model import QuadrotorModel
 from ..residuals import residual_widening
 
-__all__ = ["CONSISTENCY_Z", "CONSISTENCY_MIN_CHANGE", "UNDETERMINED_SHARE", "HalvesComparison", "half_consistency", "half_spread",
+__all__ = ["CONSISTENCY_Z", "CONSISTENCY_MIN_CHANGE", "UNDETERMINED_SHARE", "half_consistency", "half_spread",
            "validation_spread", "undetermined_parameters"]
 
 
@@ -70,48 +70,37 @@ def undetermined_parameters(res: FitResult, effects: Sequence[str]) -> list[str]
     return out
 
 
-class HalvesComparison(NamedTuple):
-    """What :func:`half_consistency` found: ``{name: (first, first_std, second, second_std)}``
-    for each parameter whose halves are ``apart`` (beyond the noise's std taken as white,
-    widened by the residuals' median colour) and those of them that are ``absorbing`` too
-    (also beyond each half's own std, which counts the colour its residuals give that
-    parameter: a difference within it is the noise's)."""
-
-    absorbing: dict[str, tuple[float, float, float, float]]
-    apart: dict[str, tuple[float, float, float, float]]
-
-
 def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], E: np.ndarray,
-                     compile: str, say: Callable[[str], None]) -> HalvesComparison:
+                     compile: str, say: Callable[[str], None]) -> dict[str, tuple[float, float, float, float]]:
     """Fit each half of the estimation data (warm-started at the baseline, its weights) and
-    compare each parameter's two estimates: a constant of the vehicle is the same in both
-    halves; a parameter absorbing a missing effect follows what each half happens to exercise.
+    return the parameters whose two estimates disagree, ``{name: (first, first_std, second,
+    second_std)}``: a constant of the vehicle is the same in both halves; a parameter absorbing
+    a missing effect follows what each half happens to exercise.
 
-    A parameter is ``apart`` when its estimates differ by more than :data:`CONSISTENCY_Z`
-    standard deviations of the difference, the half fits' white-residual (Gauss-Newton) std
-    widened by the square root of the median long-run variance factor of the baseline's
-    residual channels (``E``), *and* by more than :data:`CONSISTENCY_MIN_CHANGE` of its size.
-    The diagnosis asks whether the baseline's ``b`` carries the controller's bias when ``b`` is
-    apart: a random torque's closed-loop bias of ``b`` (30 % low, halves 25 % apart) is a bias
-    each half's own std, wide under that torque, would hide.
-
-    It is ``absorbing`` (flagged as not a constant of the vehicle) when the two also differ
-    by more than :data:`CONSISTENCY_Z` std of the difference counted with each half's own std
-    (its reported one, a sandwich per parameter that counts the colour of the residuals it is
-    fitted from, never below the widened white one). Residuals coloured in the channels a
-    parameter rests on widen its scatter far beyond the median channel's: a blind audit's
-    racer with an estimator's slow attitude error and nothing missing had ``Kd[0]``'s halves
-    0.0586 and 0.0616 (5 %) at 37 std of the white screen but 1.6 of their own (the fit on
-    all of it: 0.0603 ± 0.0010, truth 0.060), on three of three such flights; a thrust
-    coefficient drifting 0.5 %/s stays flagged (halves 3.7 % apart, 7.8 std of their own)."""
+    They disagree when they differ by more than :data:`CONSISTENCY_Z` standard deviations of
+    the difference counted two ways, and by more than :data:`CONSISTENCY_MIN_CHANGE` of the
+    parameter's size: with the half fits' white-residual (Gauss-Newton) std widened by the
+    square root of the median long-run variance factor of the baseline's residual channels
+    (``E``), and with each half's own std (its reported one, a sandwich per parameter that
+    counts the colour of the residuals it is fitted from; never below the first), which the
+    returned std are. Residuals coloured in the channels a parameter rests on widen its
+    scatter far beyond the median channel's: a blind audit's racer with an estimator's slow
+    attitude error and nothing missing had ``Kd[0]``'s halves 0.0586 and 0.0616 (5 %) at 37
+    std of the first count but 1.8 of the second (the fit on all of it: 0.0603 ± 0.0010, truth
+    0.060), on three of three such flights; its thrust drifting 0.4 %/s stays flagged (K_T
+    halves 5.7 % apart, 7 std of their own). A ``b`` whose halves differ only within their own
+    std is no evidence of a closed-loop bias either: the same racer's acceleration reaction
+    torque had ``b``'s halves 8.7 % apart (14 std of the first count, 2.4 of the second) and
+    the disturbance refit's ``b``, 18 % below a fitted ``b`` 1.4 % from the truth, was offered
+    as the one to take."""
+    out: dict[str, tuple[float, float, float, float]] = {}
     fits = _half_fits(model, res, est, compile, say)
     if fits is None:
-        return HalvesComparison({}, {})
+        return out
     a, b = fits
     widen = residual_widening(E, res.sigma)
     sizes = _plausible_sizes(model, res)
-    apart: dict[str, tuple[float, float, float, float]] = {}
-    absorbing: dict[str, tuple[float, float, float, float]] = {}
+    within: list[str] = []
     for i, n in enumerate(res.free_names):
         if n in res.per_flight_:
             continue    # a wind or battery sag of other flights: no reason to agree
@@ -122,16 +111,16 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
         size = max(abs(a.value(n)), abs(b.value(n)), sizes.get(n, 0.0))
         if not (diff / math.hypot(sa, sb) > CONSISTENCY_Z and diff > CONSISTENCY_MIN_CHANGE * size):
             continue
-        apart[n] = (a.value(n), sa, b.value(n), sb)
         # each half's own std (an undefined one leaves the widened white one)
         ca, cb = (max(s, float(f.std[i])) if np.isfinite(f.std[i]) else s for s, f in ((sa, a), (sb, b)))
         if diff / math.hypot(ca, cb) > CONSISTENCY_Z:
-            absorbing[n] = (a.value(n), ca, b.value(n), cb)
-    within = [n for n in apart if n not in absorbing]
+            out[n] = (a.value(n), ca, b.value(n), cb)
+        else:
+            within.append(n)
     say("diagnose: halves of the estimation data " +
-        (f"disagree on {', '.join(absorbing)}" if absorbing else "agree on every parameter") +
-        (f" ({', '.join(within)} apart within what their residuals' colour gives)" if within else ""))
-    return HalvesComparison(absorbing, apart)
+        (f"disagree on {', '.join(out)}" if out else "agree on every parameter") +
+        (f" ({', '.join(within)} apart within what the colour of their residuals gives)" if within else ""))
+    return out
 
 
 def half_spread(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], components: Sequence[str],

@@ -27,7 +27,7 @@ from .analysis import command_imbalance, residual_analysis
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
-from .consistency import HalvesComparison, half_consistency, half_spread, undetermined_parameters, validation_spread
+from .consistency import half_consistency, half_spread, undetermined_parameters, validation_spread
 from .elimination import backward_elimination, fit_without
 from .screening import negligible_effect
 from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
@@ -152,8 +152,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                            "the verdict is null because greybox cannot tell. A model that misses a large force or "
                            "torque cannot follow the data open loop over a shooting interval: see where it fails "
                            "(above), try shorter intervals, or process_noise='auto' (--process-noise auto)")
-    halves = half_consistency(model, res, est, E, compile, say) if res.converged else HalvesComparison({}, {})
-    inconsistent = halves.absorbing
+    inconsistent = half_consistency(model, res, est, E, compile, say) if res.converged else {}
     for n, (a, sa, b, sb) in inconsistent.items():
         warnings.append(f"baseline fit: {n} differs between the two halves of the estimation data ({a:.4g} ± {sa:.2g} "
                         f"vs {b:.4g} ± {sb:.2g}): it is absorbing something the model lacks, not a constant of the "
@@ -380,7 +379,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # is what the final fit leaves in the attitude and rates motion, or the sensors' own?
         motion = attitude_motion(flight_residuals(cur_model, cur_res, est), est,
                                  starts=list(cur_res.node_index) if cur_res.process_noise is not None else None)
-    yaw = closed_loop_yaw(cur_res, est, baseline=res, halves_disagree="b" in halves.apart, compile=compile, say=say)
+    yaw = closed_loop_yaw(cur_res, est, baseline=res, halves_disagree="b" in inconsistent, compile=compile, say=say)
     if yaw.words:
         warnings.append(yaw.words)
     spread: dict[str, tuple[float, float, float, float]] | None = {}
