@@ -504,7 +504,12 @@ class Diagnosis:
         if self.final_prediction is not None and self.final_model is not None:
             added = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
             f = self.final_prediction
-            lines.append(f"4. added {', '.join(added) or 'nothing'}: nrmse {b.total:.3f} -> {f.total:.3f}")
+            # a verdict the final model lacks (its refit not certified, or left out since) says so
+            # here too: "verdict: motor_lag" above "added nothing" read as a contradiction
+            missing = [r.verdict for r in self.rounds if r.verdict and r.verdict not in self.final_model.effect_names]
+            note = (f" ({', '.join(missing)}, named above, {'is' if len(missing) == 1 else 'are'} not in the final "
+                    "model: see the warnings)") if missing else ""
+            lines.append(f"4. added {', '.join(added) or 'nothing'}{note}: nrmse {b.total:.3f} -> {f.total:.3f}")
             for ch in b.nrmse:
                 change = 100 * (f.nrmse[ch] / b.nrmse[ch] - 1) if b.nrmse[ch] > 0 else 0.0
                 lines.append(f"   {ch:<6} {b.nrmse[ch]:8.3f} -> {f.nrmse[ch]:8.3f}  ({change:+.0f} %)")
