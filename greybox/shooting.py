@@ -581,9 +581,15 @@ def free_indices(model: QuadrotorModel, free: Iterable[str] | None,
 
 
 def parameter_bounds(model: QuadrotorModel) -> tuple[np.ndarray, np.ndarray]:
+    """Every parameter component's bounds for the solver; a bound the value must stay strictly
+    above (``Parameter.lower_exclusive``: ``K_T > 0``) is lifted by a millionth of the
+    parameter's scale, so that a fit held there leaves a value every later division can take
+    (rotor columns in another order drove K_T to exactly 0: b/K_T and the thrust's balance then
+    raised ZeroDivisionError)."""
     lo, hi = [], []
     for p in model.parameters:
-        lo += [p.lower] * p.size
+        lower = p.lower + 1e-6 * abs(p.scale) if p.lower_exclusive else p.lower
+        lo += [lower] * p.size
         hi += [p.upper] * p.size
     return np.array(lo), np.array(hi)
 

@@ -24,7 +24,9 @@ def test_a_weak_rotor_is_driven_harder_and_equal_rotors_are_not(base):
     m0, p0 = model_with_hidden_effects(base, [])
     equal = command_imbalance(base, synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log)
     assert not equal.notable and max(abs(v) for v in equal.share.values()) < 0.01
-    assert set(equal.as_dict()) == {"share", "spin", "seconds", "notable", "speed_trim", "at_limit"}
+    assert set(equal.as_dict()) == {"share", "share_std", "spin", "seconds", "notable", "speed_trim", "at_limit"}
+    # the shares scatter little from one half second of steady flight to the next
+    assert max(weak.share_std.values()) < 0.01 and weak.share["w1"] > 3 * weak.share_std["w1"]
     assert "speed" not in equal.evidence and "steady" in weak.evidence
     assert equal.at_limit == {} and weak.at_limit == {}
 
@@ -106,3 +108,23 @@ def test_an_h_frame_hovers_with_its_rear_rotors_working_harder_and_that_is_no_im
     m, p = model_with_hidden_effects(base, ["motor_asymmetry"], {"K_T_dev": [-0.1, 0.05, 0.05]})
     weak = command_imbalance(base, synthesize(m, p, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log)
     assert weak.notable and weak.share["w1"] == pytest.approx(1 / 0.9 - 1, abs=0.03)
+
+
+def test_rotor_columns_logged_in_another_order_are_told(base):
+    """A flight's rotor-speed columns written in Betaflight's motor order (rear-right first)
+    for greybox's X layout (front-right first): the roll and pitch the columns move match the
+    airframe's only with the columns read as rotors 4, 1, 2, 3. In their own order: nothing."""
+    from dataclasses import replace
+    from greybox.diagnosis import diagnose
+    from greybox.diagnosis.analysis import rotor_order
+
+    m0, p0 = model_with_hidden_effects(base, [])
+    log = synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log
+    assert rotor_order(base, log) is None
+    inputs = log.inputs.copy()
+    inputs[:, :4] = log.inputs[:, [3, 0, 1, 2]]      # column 1 holds rotor 4's speed, column 2 rotor 1's, ...
+    shuffled = replace(log, inputs=inputs)
+    assert rotor_order(base, shuffled) == (3, 0, 1, 2)
+    d = diagnose(base, shuffled, candidates=[], discover=False, iterate=False)
+    assert d.warnings[0].startswith("the logged rotor speeds act as the airframe's rotors in another order: "
+                                    "w1 as rotor 4, w2 as rotor 1, w3 as rotor 2, w4 as rotor 3"), d.warnings[0]

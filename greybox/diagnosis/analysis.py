@@ -3,6 +3,7 @@ and input correlation of the estimation residuals, the flight regimes where the 
 concentrates (said in words), and how unequally the rotors share the work in steady flight."""
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -17,7 +18,7 @@ from ..residuals import flight_residuals, whiteness_fraction
 from ..shooting import initial_node_states
 from ..validation import Prediction
 
-__all__ = ["Finding", "CommandImbalance", "command_imbalance", "residual_analysis", "regime_sentence",
+__all__ = ["Finding", "CommandImbalance", "command_imbalance", "rotor_order", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
            "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE"]
 
 
@@ -76,6 +77,16 @@ IMBALANCE_NOTABLE = 0.03
 """A rotor's steady-flight share of the squared commands this far from the mean (3 %) is
 worth telling: more than hover trim tolerances, less than a damaged propeller."""
 
+IMBALANCE_BLOCK = 0.5
+"""Seconds of steady flight per block over which the shares are averaged to see how they
+scatter: a controller's transients last longer than a sample, so samples are not independent."""
+
+IMBALANCE_MIN_BLOCKS = 4
+"""Fewest such blocks (2 s of steady flight) from which the shares' scatter, and so their
+imbalance, can be told: a blind audit's outdoor flight kept 1.15 s, during a yaw command that
+drove one spin direction harder, and its line named rotor 1 (-8.2 %) where rotor 2 was the
+weak one (driven +5.9 % over the whole flight)."""
+
 AT_LIMIT_NOTABLE = 0.01
 """A rotor whose command sits at its flight maximum in this fraction of the samples (1 %) is
 clipped there, not flown: an unclipped command reaches its maximum once."""
@@ -111,6 +122,11 @@ class CommandImbalance:
     at the flight's highest value: a command clipped at the end of its range (a PWM of 65535
     on a Crazyflie with a sagging battery), where the controller asked for more than the rotor
     gave. Only rotors at or above :data:`AT_LIMIT_NOTABLE` are listed."""
+    share_std: dict[str, float] = field(default_factory=dict)
+    """Per rotor, the standard error of ``share`` from its scatter over blocks of
+    :data:`IMBALANCE_BLOCK` seconds of steady flight (NaN with fewer than
+    :data:`IMBALANCE_MIN_BLOCKS`): an imbalance is told only where a rotor's share is beyond
+    :data:`IMBALANCE_NOTABLE` and three of these."""
 
     @property
     def notable(self) -> bool:
@@ -120,15 +136,18 @@ class CommandImbalance:
     def follows_speed(self) -> bool:
         """The roll or pitch trim follows the body speed (|r| >= :data:`SPEED_TRIM_R`). No
         floor on its size: a trim shift of 0.3 % of the arm over slow steady flight was, on
-        another simulator's flights, a moment that made the whole attitude prediction."""
-        return any(abs(r) >= SPEED_TRIM_R for _, r, _ in self.speed_trim.values())
+        another simulator's flights, a moment that made the whole attitude prediction. Not
+        from less steady flight than :data:`IMBALANCE_MIN_BLOCKS` blocks of it."""
+        return self.seconds >= IMBALANCE_MIN_BLOCKS * IMBALANCE_BLOCK and \
+            any(abs(r) >= SPEED_TRIM_R for _, r, _ in self.speed_trim.values())
 
     @property
     def evidence(self) -> set[str]:
         """What the imbalance points at (matched against each effect's ``trim_evidence``):
         ``"steady"`` (rotors unequal on average), ``"speed"`` (a trim that follows the speed)."""
         out = set()
-        if max(abs(v) for v in self.share.values()) > IMBALANCE_NOTABLE:
+        if any(abs(v) > IMBALANCE_NOTABLE and abs(v) > 3 * self.share_std.get(n, 0.0)
+               for n, v in self.share.items()):    # a NaN std (too few blocks) tells nothing
             out.add("steady")
         if self.follows_speed:
             out.add("speed")
@@ -159,6 +178,7 @@ class CommandImbalance:
 
     def as_dict(self) -> dict:
         return {"share": dict(self.share), "spin": {str(k): v for k, v in self.spin.items()},
+                "share_std": {n: (v if np.isfinite(v) else None) for n, v in self.share_std.items()},
                 "seconds": self.seconds, "notable": self.notable, "at_limit": dict(self.at_limit),
                 "speed_trim": {ax: {"slope": v[0], "r": v[1], "change": v[2]} for ax, v in self.speed_trim.items()}}
 
@@ -174,7 +194,7 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     n_rot = model.airframe.n_rotors
     if model.inputs != "rotor_speeds":
         return None
-    rows, vbs, seconds = [], [], 0.0
+    rows, vbs, blocks, seconds = [], [], [], 0.0
     logs = [lg for lg in ([log] if isinstance(log, FlightLog) else list(log)) if len(lg) >= 10]
     for lg in logs:
         X = initial_node_states(model, lg, np.arange(len(lg)))
@@ -182,22 +202,88 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
         acc = np.gradient(rates, lg.t, axis=0)
         steady = ((np.abs(rates).max(axis=1) < max_rate) & (np.abs(X[:, 3:5]).max(axis=1) < max_tilt)
                   & (np.abs(acc).max(axis=1) < max_angular_acc))
-        seconds += float(np.append(np.diff(lg.t), 0.0)[steady].sum())
+        dt = np.append(np.diff(lg.t), 0.0)[steady]
+        seconds += float(dt.sum())
         rows.append(lg.inputs[steady, :n_rot] ** 2)
         vbs.append(_body_velocity(X[steady]))
+        # blocks of IMBALANCE_BLOCK seconds of steady flight, in time order (a short last one dropped)
+        block = np.floor(np.cumsum(dt) / IMBALANCE_BLOCK).astype(int)
+        blocks += [rows[-1][block == k] for k in range(int(dt.sum() // IMBALANCE_BLOCK))]
     if seconds < 1.0:
         return None
     W2 = np.vstack(rows)
     # relative to what the frame's geometry asks of equal rotors in a hover (all equal on a
     # symmetric frame; an H-frame's rear rotors work harder), so that only the rest is evidence
-    mean = W2.mean(axis=0) / model.airframe.hover_shares()
+    hover = model.airframe.hover_shares()
+    mean = W2.mean(axis=0) / hover
     names = model.command_names[:n_rot]
     share = {name: float(m / mean.mean() - 1.0) for name, m in zip(names, mean)}
+    per_block = np.array([(b.mean(axis=0) / hover) / (b.mean(axis=0) / hover).mean() - 1.0
+                          for b in blocks if len(b)]).reshape(-1, n_rot)
+    scatter = (per_block.std(axis=0, ddof=1) / np.sqrt(len(per_block)) if len(per_block) >= IMBALANCE_MIN_BLOCKS
+               else np.full(n_rot, np.nan))
+    share_std = {name: float(v) for name, v in zip(names, scatter)}
     spins = model.airframe.spins
     spin = {int(s): float(mean[spins == s].mean() / mean.mean() - 1.0) for s in np.unique(spins)}
     clipped = {name: float(f) for name, f in zip(names, _at_limit(np.vstack([lg.inputs[:, :n_rot] for lg in logs])))
                if f >= AT_LIMIT_NOTABLE}
-    return CommandImbalance(share, spin, seconds, _speed_trim(model, W2, np.vstack(vbs)), clipped)
+    return CommandImbalance(share, spin, seconds, _speed_trim(model, W2, np.vstack(vbs)), clipped, share_std)
+
+
+ROTOR_ORDER_MATCH = 0.95
+"""Cosine between the roll (and the pitch) moments the logged speeds move and the airframe's
+from which another order of the rotor columns explains them (:func:`rotor_order`)."""
+ROTOR_ORDER_MISMATCH = 0.5
+"""...where the order as given explains the roll or the pitch moments this poorly or worse."""
+
+
+def rotor_order(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> tuple[int, ...] | None:
+    """Whether the logged rotor-speed columns act as the airframe's rotors in another order:
+    the body's angular accelerations (from the measured rates, smoothed) regressed on every
+    column's ``w^2``, and the roll and pitch rows compared (cosine) with the airframe's
+    (:meth:`~greybox.airframe.Airframe.allocation_matrix`) for every order of the columns.
+    Returns ``order`` (``order[j]``: the airframe rotor that column ``j`` acts as) when the order
+    as given explains the roll or the pitch moments no better than :data:`ROTOR_ORDER_MISMATCH`
+    and another explains both to :data:`ROTOR_ORDER_MATCH`; None otherwise, or without the
+    data to tell (no gyro or attitude, rotor speeds not the inputs, more than eight rotors).
+    A blind audit's PX4-style flight logged in Betaflight's motor order (rear-right first)
+    had been read as physics outside the catalogue, roll moments proportional to the yaw mix:
+    as given -0.00 and -1.00, the order ``(3, 0, 1, 2)`` (columns w1..w4 acting as rotors 4, 1, 2,
+    3) 1.00 and 1.00. On real Crazyflie flights in
+    their own order (motor lag, PWM-mapped speeds) the order as given reaches 0.1-0.9 and no
+    other order 0.95 on both."""
+    n = model.airframe.n_rotors
+    if model.inputs != "rotor_speeds" or n > 8:
+        return None
+    rows_d, rows_a = [], []
+    for lg in ([log] if isinstance(log, FlightLog) else list(log)):
+        if len(lg) < 50:
+            continue
+        X = initial_node_states(model, lg, np.arange(len(lg)))
+        acc = np.gradient(X[:, 9:12], lg.t, axis=0)[:, :2]
+        w2 = lg.inputs[:, :n].astype(float) ** 2
+        ok = np.all(np.isfinite(w2), axis=1) & np.all(np.isfinite(acc), axis=1)
+        if ok.sum() < 50:
+            continue
+        rows_d.append(np.column_stack([w2[ok] - w2[ok].mean(axis=0), np.ones(int(ok.sum()))]))
+        rows_a.append(acc[ok] - acc[ok].mean(axis=0))
+    if not rows_d:
+        return None
+    D, acc = np.vstack(rows_d), np.vstack(rows_a)
+    if np.linalg.matrix_rank(D) < D.shape[1]:
+        return None
+    C = np.linalg.lstsq(D, acc, rcond=None)[0][:n].T          # roll, pitch acceleration per column's w^2
+    A = model.airframe.allocation_matrix()[1:3]
+
+    def cosines(order) -> np.ndarray:
+        G = A[:, list(order)]
+        return np.array([float(np.dot(C[k], G[k]) / max(np.linalg.norm(C[k]) * np.linalg.norm(G[k]), 1e-300))
+                         for k in range(2)])
+
+    if cosines(range(n)).min() > ROTOR_ORDER_MISMATCH:
+        return None
+    best = max(itertools.permutations(range(n)), key=lambda o: cosines(o).min())
+    return tuple(int(j) for j in best) if cosines(best).min() >= ROTOR_ORDER_MATCH else None
 
 
 def _at_limit(U: np.ndarray) -> np.ndarray:

@@ -118,8 +118,10 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
         else:
             within.append(n)
     say("diagnose: halves of the estimation data " +
-        (f"disagree on {', '.join(out)}" if out else "agree on every parameter") +
-        (f" ({', '.join(within)} apart within what the colour of their residuals gives)" if within else ""))
+        (f"disagree on {', '.join(out)}" if out else "agree on every parameter" if not within else
+         "agree within their own std") +
+        (f" ({', '.join(within)} apart on the white screen, within what the colour of their residuals gives)"
+         if within else ""))
     return out
 
 

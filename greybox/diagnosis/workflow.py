@@ -23,7 +23,7 @@ from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
-from .analysis import command_imbalance, residual_analysis
+from .analysis import command_imbalance, residual_analysis, rotor_order
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
@@ -164,6 +164,15 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                             "model lacks, and its value is not a property of the vehicle")
     remaining = list(candidates) if res.converged else []
     imbalance = command_imbalance(model, est)
+    order = rotor_order(model, est)
+    if order is not None:
+        cols = model.command_names[:len(order)]
+        warnings.insert(0, f"the logged rotor speeds act as the airframe's rotors in another order: "
+                           f"{', '.join(f'{c} as rotor {j + 1}' for c, j in zip(cols, order))} (the roll and pitch "
+                           "they move match the airframe's that way, and not as given): check how the log numbers "
+                           "the motors (Betaflight counts from the rear right, PX4's quad X from the front right, "
+                           "greybox's from the airframe's rotor list) and reorder the columns; with the order as "
+                           "given, what follows reads it as physics")
     # effects the logged commands point at (data only, no model) are refitted whatever their score
     evidence = imbalance.evidence if imbalance is not None else set()
     nominated = [n for n in remaining if evidence & set(getattr(fx.known_effects().get(n), "trim_evidence", ()))]

@@ -632,10 +632,13 @@ def _thrust_pull(model: QuadrotorModel, logs, flights: Sequence[FlightLog], kw: 
     if "K_T" not in res.free_names or len(res.free_names) < 2 or not res.converged:
         return res        # K_T alone: held, nothing is left to fit
     ratio = _thrust_ratio(model, flights, res.value("K_T"))
-    if ratio is None or abs(ratio - 1.0) <= THRUST_BALANCE:
+    per_unit = _thrust_ratio(model, flights, 1.0)
+    if ratio is None or not per_unit or abs(ratio - 1.0) <= THRUST_BALANCE:
         return res
     start = res.p.copy()
-    hover = res.value("K_T") / ratio
+    # the balance's K_T from the thrust per unit K_T: a fit whose K_T went to its bound at 0 has
+    # no ratio to scale (rotor columns in another order: a ZeroDivisionError, a traceback)
+    hover = 1.0 / per_unit
     start[model.param_names.index("K_T")] = hover
     say = progress_callback(kw["progress"])
     say(f"fit: the thrust carries {100 * ratio:.0f} % of the weight: solving again with K_T held at {hover:.4g}, "
