@@ -73,3 +73,18 @@ def test_a_weak_rotor_is_not_named_from_a_second_of_steady_flight(model, tmp_pat
     assert val.evidence == {"steady"}, val
     assert max(val.share, key=lambda n: val.share[n]) == "w2"
     assert val.share["w2"] == pytest.approx(0.064, abs=0.02) and val.share_std["w2"] < 0.02
+
+
+@pytest.mark.slow
+def test_a_force_outside_the_catalogue_is_said_to_bend_the_thrust_coefficient(model, tmp_path):
+    """Translational lift (thrust x (1 + 0.0015 |v_horizontal|²), outside the catalogue): the
+    verdict is an honest null, but the final K_T had been given 4 % high at 161 of its std with
+    no word on it. The final model still misses a force, and a warning says K_T and the drag
+    take it up: this model's compromise, further off than their std say."""
+    d = diagnose(model, _flight(tmp_path, "c9a_etl", 19, 45.0), validation=_flight(tmp_path, "c9a_etl", 109, 30.0),
+                 candidates=[], discover=False, iterate=False)
+    assert d.final_fit.converged and "z" in d.unexplained, d.summary()
+    kt = d.final_fit.value("K_T") / outdoor_sim.TRUE["K_T"] - 1
+    assert kt > 0.02, kt             # the lift's share of the thrust, taken up by K_T
+    words = [w for w in d.warnings if w.startswith("final model: it still misses a force")]
+    assert words and "K_T" in words[0] and "compromise" in words[0], d.warnings
