@@ -197,9 +197,8 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     rows, vbs, blocks, seconds = [], [], [], 0.0
     logs = [lg for lg in ([log] if isinstance(log, FlightLog) else list(log)) if len(lg) >= 10]
     for lg in logs:
-        X = initial_node_states(model, lg, np.arange(len(lg)))
+        X, acc = _states_and_angular_acceleration(model, lg)
         rates = X[:, 9:12]
-        acc = np.gradient(rates, lg.t, axis=0)
         steady = ((np.abs(rates).max(axis=1) < max_rate) & (np.abs(X[:, 3:5]).max(axis=1) < max_tilt)
                   & (np.abs(acc).max(axis=1) < max_angular_acc))
         dt = np.append(np.diff(lg.t), 0.0)[steady]
@@ -215,11 +214,16 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     # relative to what the frame's geometry asks of equal rotors in a hover (all equal on a
     # symmetric frame; an H-frame's rear rotors work harder), so that only the rest is evidence
     hover = model.airframe.hover_shares()
+
+    def shares(w2: np.ndarray) -> np.ndarray:
+        """Each rotor's mean w^2 over the hover share, over their mean, less 1."""
+        m = w2.mean(axis=0) / hover
+        return m / m.mean() - 1.0
+
     mean = W2.mean(axis=0) / hover
     names = model.command_names[:n_rot]
-    share = {name: float(m / mean.mean() - 1.0) for name, m in zip(names, mean)}
-    per_block = np.array([(b.mean(axis=0) / hover) / (b.mean(axis=0) / hover).mean() - 1.0
-                          for b in blocks if len(b)]).reshape(-1, n_rot)
+    share = {name: float(v) for name, v in zip(names, shares(W2))}
+    per_block = np.array([shares(b) for b in blocks if len(b)]).reshape(-1, n_rot)
     scatter = (per_block.std(axis=0, ddof=1) / np.sqrt(len(per_block)) if len(per_block) >= IMBALANCE_MIN_BLOCKS
                else np.full(n_rot, np.nan))
     share_std = {name: float(v) for name, v in zip(names, scatter)}
@@ -259,20 +263,20 @@ def rotor_order(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> 
     for lg in ([log] if isinstance(log, FlightLog) else list(log)):
         if len(lg) < 50:
             continue
-        X = initial_node_states(model, lg, np.arange(len(lg)))
-        acc = np.gradient(X[:, 9:12], lg.t, axis=0)[:, :2]
+        acc = _states_and_angular_acceleration(model, lg)[1][:, :2]
         w2 = lg.inputs[:, :n].astype(float) ** 2
         ok = np.all(np.isfinite(w2), axis=1) & np.all(np.isfinite(acc), axis=1)
         if ok.sum() < 50:
             continue
-        rows_d.append(np.column_stack([w2[ok] - w2[ok].mean(axis=0), np.ones(int(ok.sum()))]))
+        # each flight about its own means (a constant torque, a CoG offset's, is no column's)
+        rows_d.append(w2[ok] - w2[ok].mean(axis=0))
         rows_a.append(acc[ok] - acc[ok].mean(axis=0))
     if not rows_d:
         return None
     D, acc = np.vstack(rows_d), np.vstack(rows_a)
     if np.linalg.matrix_rank(D) < D.shape[1]:
         return None
-    C = np.linalg.lstsq(D, acc, rcond=None)[0][:n].T          # roll, pitch acceleration per column's w^2
+    C = np.linalg.lstsq(D, acc, rcond=None)[0].T          # roll, pitch acceleration per column's w^2
     A = model.airframe.allocation_matrix()[1:3]
 
     def cosines(order) -> np.ndarray:
@@ -284,6 +288,13 @@ def rotor_order(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> 
         return None
     best = max(itertools.permutations(range(n)), key=lambda o: cosines(o).min())
     return tuple(int(j) for j in best) if cosines(best).min() >= ROTOR_ORDER_MATCH else None
+
+
+def _states_and_angular_acceleration(model: QuadrotorModel, lg: FlightLog) -> tuple[np.ndarray, np.ndarray]:
+    """The states smoothed from ``lg``'s measurements at every row, and the body rates'
+    derivative there (rad/s^2)."""
+    X = initial_node_states(model, lg, np.arange(len(lg)))
+    return X, np.gradient(X[:, 9:12], lg.t, axis=0)
 
 
 def _at_limit(U: np.ndarray) -> np.ndarray:

@@ -631,9 +631,11 @@ def _thrust_pull(model: QuadrotorModel, logs, flights: Sequence[FlightLog], kw: 
     that instead."""
     if "K_T" not in res.free_names or len(res.free_names) < 2 or not res.converged:
         return res        # K_T alone: held, nothing is left to fit
-    ratio = _thrust_ratio(model, flights, res.value("K_T"))
     per_unit = _thrust_ratio(model, flights, 1.0)
-    if ratio is None or not per_unit or abs(ratio - 1.0) <= THRUST_BALANCE:
+    if not per_unit:
+        return res
+    ratio = res.value("K_T") * per_unit
+    if abs(ratio - 1.0) <= THRUST_BALANCE:
         return res
     start = res.p.copy()
     # the balance's K_T from the thrust per unit K_T: a fit whose K_T went to its bound at 0 has
