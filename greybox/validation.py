@@ -355,37 +355,49 @@ NAIVE_FIT_WINDOW = 0.05
 """s of measurements before a window's start from which the naive predictor takes its
 state (5 samples of a 100 Hz motion-capture log: long enough to average the noise of a
 velocity, short enough that the vehicle's acceleration does not bend it)."""
+NAIVE_LOOKBACK = 0.5
+"""s: a channel sampled more sparsely than :data:`NAIVE_FIT_WINDOW` (GNSS positions at
+5-10 Hz) gives the naive predictor its last two samples from this far back instead."""
 
 
 def naive_start(log: FlightLog, meas: np.ndarray, a: int, x0: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The naive predictor's state at sample ``a`` from the measurements ``meas`` (n, ny;
-    NaN where not measured) of the last :data:`NAIVE_FIT_WINDOW`: position, velocity, Euler
-    angles and their rates; ``x0`` (the model's estimate) where a channel has no sample."""
+    NaN where not measured) of the last :data:`NAIVE_FIT_WINDOW` (a channel with fewer than
+    two samples there: its last two of :data:`NAIVE_LOOKBACK`), each line through them carried
+    to sample ``a``: position, velocity, Euler angles and their rates; ``x0`` (the model's
+    estimate) where a channel has no sample, and the velocity that carries a lone sample."""
     t = log.t
-    lo = int(np.searchsorted(t, t[a] - NAIVE_FIT_WINDOW - 1e-9, side="left"))
+    lo = int(np.searchsorted(t, t[a] - NAIVE_LOOKBACK - 1e-9, side="left"))
     tt = t[lo:a + 1] - t[a]
+    recent = tt >= -NAIVE_FIT_WINDOW - 1e-9
 
     def samples(c):
         y = meas[lo:a + 1, c]
         k = np.isfinite(y)
+        if np.count_nonzero(k & recent) >= 2:
+            k &= recent
+        else:
+            # sparser than the window (10 Hz GNSS): a line through the last two samples; a
+            # sample 50 ms old held as the present position had been the naive's whole error
+            k[:max(0, np.flatnonzero(k)[-2] if np.count_nonzero(k) >= 2 else 0)] = False
         yk = y[k]
         if c == PSI and yk.size:
             yk = np.unwrap(yk)
         return tt[k], yk
 
-    def line(c, fallback):
+    def line(c, fallback, fallback_rate=0.0):
         tk, yk = samples(c)
         if yk.size == 0:
             return fallback, None
         if yk.size < 2 or np.ptp(tk) <= 0:
-            return float(yk[-1]), None
+            return float(yk[-1] - fallback_rate * tk[-1]), None
         slope, intercept = np.polyfit(tk, yk, 1)
         return float(intercept), float(slope)
 
     pos, vel = np.empty(3), np.empty(3)
     for j in range(3):
-        pos[j], v = line(j, x0[j])
+        pos[j], v = line(j, x0[j], x0[6 + j])
         vel[j] = x0[6 + j] if v is None else v
     om = np.array([x0[9 + j] for j in range(3)], dtype=float)
     gyro = np.zeros(3, dtype=bool)
@@ -404,7 +416,7 @@ def naive_start(log: FlightLog, meas: np.ndarray, a: int, x0: np.ndarray
         rate = np.empty(3)
         fallback_rate = euler_rates_from_body_rates(x0[3], x0[4], om)
         for j in range(3):
-            eul[j], r = line(3 + j, x0[3 + j])
+            eul[j], r = line(3 + j, x0[3 + j], fallback_rate[j])
             rate[j] = fallback_rate[j] if r is None else r
     return np.concatenate([pos, vel]), eul, np.asarray(rate, dtype=float), om
 
