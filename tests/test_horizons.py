@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from greybox import QuadrotorModel, effects, load_airframe, plotting
+from greybox import QuadrotorModel, load_airframe, plotting
 from greybox.cli import main
 from greybox.data import save_log
 from greybox.synth import SensorSpec, model_with_hidden_effects, synthesize
