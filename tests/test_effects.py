@@ -35,7 +35,7 @@ def test_catalogue_is_the_contracts():
     assert set(effects.CATALOGUE) >= {
         "yaw_torque", "linear_drag", "gyroscopic", "quadratic_drag", "rotor_drag", "ground_effect",
         "motor_lag", "cog_offset", "motor_asymmetry", "wind", "thrust_drift", "position_delay",
-        "attitude_bias"}
+        "attitude_bias", "position_offset"}
     for name, cls in effects.CATALOGUE.items():
         e = cls()
         assert e.name == name and cls.__doc__ and cls.summary
@@ -280,6 +280,28 @@ def test_attitude_bias_offsets_roll_and_pitch_readings(base):
     x[3:6] = [0.1, 0.2, 0.3]
     y = out(m, x, [m.hover_speed()] * 4, p)
     assert (y["phi"], y["theta"], y["psi"]) == pytest.approx((0.12, 0.19, 0.3))
+
+
+def test_position_offset_turns_with_the_body(base):
+    """By hand, R = Rz Ry Rx body -> world (NED, FRD): a sensor 10 cm above the CoG
+    (r_pos = (0, 0, -0.1)) on a vehicle rolled right by 0.5 rad reports y + 0.1 sin 0.5 (the
+    top leans right) and z - 0.1 cos 0.5 (it is above); one 0.2 m ahead on a vehicle yawed by
+    90 degrees reports x, y + 0.2 (ahead is east). Nothing else moves: the vehicle's
+    derivatives are those of the base model (a measurement-only effect)."""
+    m = base + effects.PositionOffset()
+    assert effects.measurement_only("position_offset")
+    x = hover_state()
+    x[3] = 0.5
+    y = out(m, x, [m.hover_speed()] * 4, m.parameter_vector({"r_pos": [0.0, 0.0, -0.1]}))
+    assert (y["x"], y["y"], y["z"]) == pytest.approx((0.0, 0.1 * np.sin(0.5), -1.0 - 0.1 * np.cos(0.5)), abs=1e-12)
+    x = hover_state()
+    x[5] = np.pi / 2
+    y = out(m, x, [m.hover_speed()] * 4, m.parameter_vector({"r_pos": [0.2, 0.0, 0.0]}))
+    assert (y["x"], y["y"], y["z"]) == pytest.approx((0.0, 0.2, -1.0), abs=1e-12)
+    assert y["phi"] == 0.0 and y["psi"] == pytest.approx(np.pi / 2)
+    p0, p1 = m.parameter_vector({"r_pos": [0.0] * 3}), m.parameter_vector({"r_pos": [0.2, -0.1, 0.3]})
+    u = [m.hover_speed()] * 4
+    np.testing.assert_allclose(rhs(m, x, u, p1), rhs(m, x, u, p0), atol=1e-12)
 
 
 def test_composition_add_and_without(base):

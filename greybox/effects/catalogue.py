@@ -8,7 +8,7 @@ from .drag import DragMoment, HubRotorDrag, LinearDrag, QuadraticDrag, RotorDrag
 from .ground import GroundEffect
 from .power import BatteryVoltage, CommandDelay, RotorMap, SampledInputs, ThrustDrift
 from .rotor import Gyroscopic, MomentGain, MotorLag, ThrustCurve, YawTorque
-from .sensors import AccelBias, AttitudeBias, PositionDelay
+from .sensors import AccelBias, AttitudeBias, PositionDelay, PositionOffset
 
 __all__ = ["CATALOGUE", "SIGNAL_EFFECTS", "APPLY_ORDER", "BASE_EFFECTS"]
 
@@ -16,7 +16,7 @@ CATALOGUE: dict[str, type[Effect]] = {
     cls.name: cls
     for cls in (YawTorque, LinearDrag, Gyroscopic, QuadraticDrag, RotorDrag, HubRotorDrag, DragMoment, GroundEffect,
                 MotorLag, MomentGain, ThrustCurve, CogOffset, MotorAsymmetry, Wind, ThrustDrift, PositionDelay,
-                AttitudeBias)
+                PositionOffset, AttitudeBias)
 }
 """The catalogue of effects (README, "Effects"), by name, in the order they are applied."""
 

@@ -1,11 +1,11 @@
-"""What the sensors report: latency of the position measurement, offsets of the measured
-roll and pitch, the accelerometer's bias."""
+"""What the sensors report: latency of the position measurement, where the position sensor
+sits on the vehicle, offsets of the measured roll and pitch, the accelerometer's bias."""
 from __future__ import annotations
 
 from ..parameters import Parameter
 from .base import Effect
 
-__all__ = ["PositionDelay", "AttitudeBias", "AccelBias"]
+__all__ = ["PositionDelay", "PositionOffset", "AttitudeBias", "AccelBias"]
 
 
 class PositionDelay(Effect):
@@ -33,6 +33,46 @@ class PositionDelay(Effect):
         tau = ctx.params["tau_pos"]
         for i, ch in enumerate("xyz"):
             y[ch] = y[ch] - tau * ctx.v[i] + 0.5 * tau ** 2 * ctx.acc_world[i]
+
+
+class PositionOffset(Effect):
+    """Where the position sensor sits: a GNSS antenna, or the origin a motion-capture system
+    gives the vehicle's markers, at ``r_pos`` from the centre of gravity (body frame, FRD, m)
+    reports ``p + R r_pos``. The offset turns with the body: an antenna 15 cm above the CoG
+    moves 7.5 cm sideways at 30 degrees of roll, and a yaw turn swings one 10 cm ahead on a
+    circle. It changes what the sensor reports, not how the vehicle moves (PX4 removes it when
+    ``EKF2_GPS_POS_*`` is set; a log from a vehicle where it is not, or a motion-capture body
+    whose origin is not the CoG, carries it). Its constant part in a level hover is the
+    start position's, so the data tell it only through tilts and yaw turns.
+    """
+
+    name = "position_offset"
+    summary = "position sensor (GNSS antenna, motion-capture origin) away from the centre of gravity"
+    excited_by = 'tilts and yaw turns (the offset turns with the body)'
+    fit_advice = 'yaw turns and tilts in several directions'
+    channels = ('x', 'y', 'z')
+    distinguish = {'position_delay': 'yaw turns in a hover: an offset swings the reported position, a delay of '
+                                     'a vehicle at rest moves nothing',
+                   'cog_offset': 'hover: a CoG offset needs a trim moment (the rotors driven unequally), a sensor '
+                                 'offset moves nothing'}
+
+    def parameters(self, airframe):
+        reach = max(0.5, 8.0 * airframe.arm_length)
+        return [Parameter("r_pos", 3, 0.0, "m", -reach, reach, 0.02, 0.0, True,
+                          "position sensor offset from the centre of gravity, body x, y, z (FRD)", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        # an antenna on a short mast, a little ahead: half an arm up, a fifth ahead
+        return {"r_pos": [0.2 * airframe.arm_length, 0.0, -0.5 * airframe.arm_length]}
+
+    def plausible_limits(self, airframe):
+        # a sensor on the airframe or a mast above it: within a few arm lengths of the CoG
+        return {"r_pos": max(0.1, 3.0 * airframe.arm_length)}
+
+    def modify_measurement(self, ctx, y):
+        offset = ctx.R @ ctx.params["r_pos"]
+        for i, ch in enumerate("xyz"):
+            y[ch] = y[ch] + offset[i]
 
 
 class AttitudeBias(Effect):
