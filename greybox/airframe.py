@@ -209,10 +209,10 @@ def _inertia(value: Any, where: str) -> np.ndarray:
     excess = (e[2] - e[0] - e[1]) / e[2]
     if excess > INERTIA_TOLERANCE:
         raise GreyboxInputError(f"{where} is not physical: principal moments {e.tolist()} violate "
-                                f"J1 + J2 >= J3 by {100 * excess:.1f} % (more than the "
+                                f"J1 + J2 >= J3 by {100 * excess:.1f} % of J3 (more than the "
                                 f"{100 * INERTIA_TOLERANCE:.0f} % allowed for measurement error)")
     if excess > 1e-9:
-        _warnings.warn(f"{where}: principal moments {e.tolist()} violate J1 + J2 >= J3 by {100 * excess:.2f} %; "
+        _warnings.warn(f"{where}: principal moments {e.tolist()} violate J1 + J2 >= J3 by {100 * excess:.2f} % of J3; "
                        "accepted as measurement error", AirframeWarning, stacklevel=3)
     return J
 

@@ -1060,11 +1060,14 @@ def test_a_channel_noise_given_weights_the_fit_and_judges_its_residuals(tmp_path
     assert 0.2 < r["certificate"]["residual_over_noise"]["phi"] < 0.45
 
 
-def test_an_attitude_filtered_from_the_gyro_is_named_and_its_accuracy_asked_for(tmp_path, capsys):
+def test_an_attitude_filtered_from_the_gyro_is_weighed_by_its_disagreement_with_the_gyro(tmp_path, capsys):
     """An attitude whose high-frequency content sits at greybox's floor is an estimate filtered
-    from the gyro; its slow error does not show there, and the fit would weigh it as accurate to
-    0.1 mrad: a warning says so and asks for --noise. Given, the channel is not named."""
+    from the gyro; its slow error does not show there, and the fit had weighed it as accurate to
+    0.1 mrad (a warning asked for --noise; a blind audit's diagnoses then found none of four
+    hidden effects). Now its disagreement with the gyro's integral weighs it, and a note says
+    so; a noise the user gives takes its place."""
     from scipy.ndimage import uniform_filter1d
+    from greybox.shooting import filtered_attitude_error
     log = load_log(DEMO).slice(0, 3000)
     cols = {n: j for j, n in enumerate(log.output_names)}
     for ch in ("phi", "theta"):
@@ -1074,13 +1077,21 @@ def test_an_attitude_filtered_from_the_gyro_is_named_and_its_accuracy_asked_for(
         y[ok] = np.interp(log.t[ok] - 0.02, log.t[ok], uniform_filter1d(y[ok], 61))
     path = tmp_path / "filtered.csv"
     save_log(log, path)
+    kin = filtered_attitude_error(load_log(path))
     rc, _ = _cli(capsys, "fit", str(path), "--airframe", PAPER, "--quiet", "--json", str(tmp_path / "r.json"))
-    said = [w for w in json.loads((tmp_path / "r.json").read_text())["warnings"] if "greybox's floor" in w]
+    r = json.loads((tmp_path / "r.json").read_text())
+    said = [w for w in r["warnings"] if "propagated from the gyro" in w]
     assert rc == 0 and len(said) == 1 and said[0].startswith("phi, theta:") and "--noise phi=SD" in said[0]
+    assert not [w for w in r["warnings"] if "greybox's floor" in w]
+    for ch in ("phi", "theta"):
+        # (the fit sees the first 80 %: the estimate there)
+        assert r["certificate"]["sensor_noise"][ch] == pytest.approx(kin[ch], rel=0.1) and kin[ch] > 3e-4
     rc, _ = _cli(capsys, "fit", str(path), "--airframe", PAPER, "--quiet", "--noise", "phi=0.003",
                  "--json", str(tmp_path / "r2.json"))
-    said = [w for w in json.loads((tmp_path / "r2.json").read_text())["warnings"] if "greybox's floor" in w]
+    r2 = json.loads((tmp_path / "r2.json").read_text())
+    said = [w for w in r2["warnings"] if "propagated from the gyro" in w]
     assert rc == 0 and len(said) == 1 and said[0].startswith("theta:")
+    assert r2["certificate"]["sensor_noise"]["phi"] == 0.003
 
 
 def test_a_refit_in_a_fits_formulation_keeps_the_sensor_noise_the_user_gave():

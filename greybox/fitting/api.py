@@ -25,7 +25,7 @@ from ..fitted import FittedModel, provenance
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import (AttitudeMotion, attitude_motion, fitted_trajectory, flight_residuals, output_residuals,
                          whiteness_fraction)
-from ..shooting import NOISE_FLOOR, default_interval, free_indices, noise_levels
+from ..shooting import NOISE_FLOOR, default_interval, filtered_attitude_channels, free_indices, noise_levels
 from ..shooting import sensor_noise as estimated_sensor_noise
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
 from .certificate import (FILTERED_SENSOR_RATIO, GAP_FORCE_SHARE, GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE,
@@ -739,6 +739,20 @@ def _filtered_attitude_warnings(sensor: np.ndarray, resid_rms: Mapping[str, floa
             + "}), in rad"]
 
 
+def _filtered_attitude_notes(logs: Sequence[FlightLog], given: Mapping[str, float]) -> list[str]:
+    """Words for the attitude channels weighed by their disagreement with the gyro rather than
+    their high-frequency noise (:func:`greybox.shooting.filtered_attitude_channels`), the user
+    having given no noise for them."""
+    chans = {ch: v for ch, v in filtered_attitude_channels(logs).items() if ch not in given}
+    if not chans:
+        return []
+    return [f"{', '.join(chans)}: an attitude estimate propagated from the gyro (an autopilot's filter: "
+            "high-frequency noise " + ", ".join(f"{1e3 * hf:.2g}" for _, hf in chans.values()) + " mrad) "
+            "that disagrees with the gyro's integral by " + ", ".join(f"{1e3 * lv:.3g}" for lv, _ in chans.values())
+            + " mrad over 0.5-2 s, its own slow error: the fit weighs it by that (an accuracy given with "
+            + " ".join(f"--noise {ch}=SD" for ch in chans) + " takes its place)"]
+
+
 def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free, fixed, p0,
                      interval, noise, max_iter, tol, reweight, compile, progress, initial_states,
                      process_noise, solver, per_flight, init_window, measured_start, sensor_noise,
@@ -1050,6 +1064,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     cc = cch.sum(axis=1)
     resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
     warnings += _filtered_attitude_warnings(sensor, resid_rms, {**(noise or {}), **sensor_noise})
+    warnings += _filtered_attitude_notes(logs, {**(noise or {}), **sensor_noise})
     node_states, k = [], 0
     for _, M in data.flights:
         node_states.append(X[k:k + M + 1].copy())
