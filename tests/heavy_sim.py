@@ -50,7 +50,6 @@ Usage:
 """
 import argparse
 import json
-import sys
 
 import numpy as np
 from scipy.integrate import solve_ivp
