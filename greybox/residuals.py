@@ -13,6 +13,7 @@ import numpy as np
 from .data import FlightLog
 from .integrate import log_substeps, parallel_map, rk4_step_with_output
 from .model import OUTPUTS, QuadrotorModel
+from .rotations import euler_rate_matrices
 
 __all__ = ["fitted_trajectory", "output_residuals", "flight_residuals", "whiteness_fraction", "long_run_factor",
            "residual_widening", "attitude_motion", "AttitudeMotion", "WHITENESS_LAGS", "MOTION_WINDOW",
@@ -187,12 +188,7 @@ def attitude_motion(residuals: Sequence[np.ndarray], logs: Sequence[FlightLog],
         if ok.sum() < max(50, 0.5 * n):
             continue
         # Euler-angle rates of the rate residuals (ZYX), at the measured roll and pitch
-        sp, cp = np.sin(att[0][ok]), np.cos(att[0][ok])
-        ct = np.cos(att[1][ok])
-        ct = np.where(np.abs(ct) < 1e-3, np.copysign(1e-3, ct), ct)
-        tt = np.sin(att[1][ok]) / ct
-        p_, q_, r_ = rates[ok].T
-        dots = np.column_stack([p_ + (sp * q_ + cp * r_) * tt, cp * q_ - sp * r_, (sp * q_ + cp * r_) / ct])
+        dots = np.einsum("nab,nb->na", euler_rate_matrices(att[0][ok], att[1][ok]), rates[ok])
         dots = np.column_stack([np.interp(t, t[ok], d) for d in dots.T])
         step = np.vstack([np.zeros((1, 3)), 0.5 * (dots[1:] + dots[:-1]) * np.diff(t)[:, None]])
         st = starts[f] if starts is not None and starts[f] is not None else \

@@ -13,7 +13,7 @@ import casadi as ca
 import numpy as np
 
 __all__ = ["rotation_matrix", "rotation_matrices", "rotation", "euler_from_rotation",
-           "euler_rate_matrix", "euler_rates_from_body_rates", "body_rates_from_euler_rates"]
+           "euler_rate_matrix", "euler_rate_matrices", "euler_rates_from_body_rates", "body_rates_from_euler_rates"]
 
 
 def rotation_matrix(phi, theta, psi):
@@ -57,6 +57,19 @@ def euler_rate_matrix(phi, theta):
         ca.horzcat(0, cph, -sph),
         ca.horzcat(0, sph / cth, cph / cth),
     )
+
+
+def euler_rate_matrices(phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) matrices W of :func:`euler_rate_matrix` in numpy, one per attitude (so
+    ``np.einsum("nab,nb->na", W, omega)`` gives the Euler angle rates of body rates ``omega``);
+    ``cos(theta)`` kept at least 1e-3 from zero (a measured pitch at the gimbal lock)."""
+    phi, theta = np.asarray(phi, dtype=float), np.asarray(theta, dtype=float)
+    sp, cp, ct = np.sin(phi), np.cos(phi), np.cos(theta)
+    ct = np.where(np.abs(ct) < 1e-3, np.copysign(1e-3, ct), ct)
+    tt = np.sin(theta) / ct
+    one, zero = np.ones_like(phi), np.zeros_like(phi)
+    return np.stack([np.stack([one, sp * tt, cp * tt], axis=-1), np.stack([zero, cp, -sp], axis=-1),
+                     np.stack([zero, sp / ct, cp / ct], axis=-1)], axis=-2)
 
 
 def euler_rates_from_body_rates(phi: float, theta: float, omega: np.ndarray) -> np.ndarray:

@@ -33,7 +33,7 @@ from .data import FlightLog, median_row_interval
 from .errors import GreyboxInputError
 from .integrate import Substeps, integrate_states_along, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
-from .rotations import body_rates_from_euler_rates
+from .rotations import body_rates_from_euler_rates, euler_rate_matrices
 
 __all__ = ["ShootingProblem", "MappedPair", "BufferedFunction", "ShootingData", "layout", "initial_node_states",
            "estimate_noise", "noise_levels", "NOISE_FLOOR", "sensor_noise", "channel_noise", "filtered_attitude_error",
@@ -637,14 +637,9 @@ def filtered_attitude_error(log: FlightLog) -> dict[str, float]:
         return {}
     Gf = np.column_stack([np.interp(t, t[gk], g[gk]) for g in G.T])
     Ef = np.column_stack([np.interp(t, t[ek], e[ek]) for e in E[:, :2].T])
-    sp, cp, ct = np.sin(Ef[:, 0]), np.cos(Ef[:, 0]), np.cos(Ef[:, 1])
-    ct = np.where(np.abs(ct) < 1e-3, np.copysign(1e-3, ct), ct)
-    tt = np.sin(Ef[:, 1]) / ct
-    one, zero = np.ones(t.size), np.zeros(t.size)
     # the Euler-rate map W (n, 3 angles, 3 body axes) and its running integral, whose product
     # with a constant gyro bias is what the bias adds to each angle's change
-    Wm = np.stack([np.column_stack([one, sp * tt, cp * tt]), np.column_stack([zero, cp, -sp]),
-                   np.column_stack([zero, sp / ct, cp / ct])], axis=1)
+    Wm = euler_rate_matrices(Ef[:, 0], Ef[:, 1])
     dots = np.einsum("nab,nb->na", Wm, Gf)
     half_dt = 0.5 * np.diff(t)
     integral = np.concatenate([np.zeros((1, 3)), np.cumsum((dots[1:] + dots[:-1]) * half_dt[:, None], axis=0)])
@@ -685,9 +680,9 @@ def filtered_attitude_error(log: FlightLog) -> dict[str, float]:
     return {ch: float(best[c]) for c, ch in enumerate(("phi", "theta", "psi")) if np.isfinite(best[c])}
 
 
-def filtered_attitude_levels(log: FlightLog, kinematic: Mapping[str, float] | None = None) -> dict[str, float]:
+def filtered_attitude_levels(log: FlightLog) -> dict[str, float]:
     """The attitude channels of ``log`` weighed by their disagreement with the gyro
-    (:func:`filtered_attitude_error`; ``kinematic``: it, computed already), with that level:
+    (:func:`filtered_attitude_error`), with that level:
     those beyond :data:`FILTERED_ATTITUDE_RATIO` times their high-frequency noise, when the
     channel — or, for roll and pitch, either of the two, which one estimator gives — is an
     estimate propagated from the gyro (noise within :data:`FILTERED_ATTITUDE_HF` of the floor;
@@ -699,7 +694,7 @@ def filtered_attitude_levels(log: FlightLog, kinematic: Mapping[str, float] | No
         smooth |= {"phi", "theta"} & set(hf)
     if not smooth:
         return {}
-    kin = filtered_attitude_error(log) if kinematic is None else kinematic
+    kin = filtered_attitude_error(log)
     return {ch: float(kin[ch]) for ch in smooth if ch in kin and np.isfinite(hf[ch])
             and kin[ch] > FILTERED_ATTITUDE_RATIO * max(hf[ch], floor[ch])}
 

@@ -380,7 +380,9 @@ def naive_start(log: FlightLog, meas: np.ndarray, a: int, x0: np.ndarray
         else:
             # sparser than the window (10 Hz GNSS): a line through the last two samples; a
             # sample 50 ms old held as the present position had been the naive's whole error
-            k[:max(0, np.flatnonzero(k)[-2] if np.count_nonzero(k) >= 2 else 0)] = False
+            measured = np.flatnonzero(k)
+            if measured.size >= 2:
+                k[:measured[-2]] = False
         yk = y[k]
         if c == PSI and yk.size:
             yk = np.unwrap(yk)
