@@ -100,6 +100,7 @@ class Options:
     discover: bool = True
     process_noise: str | None = IF_NEEDED
     input_noise: str = "smooth"
+    outliers: str = "drop"
     import_format: str = "csv"
     pwm_map: str | None = None
     held: str = "interpolate"
@@ -121,6 +122,7 @@ class Options:
                 "pwm_map": self.pwm_map, "held": self.held,
                 # only when given: results of batches before the option stay valid on a rerun
                 **({"angle_unit": self.angle_unit} if self.angle_unit != "auto" else {}),
+                **({"outliers": self.outliers} if self.outliers != "drop" else {}),
                 **({"noise": [[c, v] for c, v in self.noise]} if self.noise else {})}
 
 
@@ -361,7 +363,7 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
     log, read_notes = _read_flight(flight.path, flight.sha, opts)
     notes += read_notes
     before = len(log.notes)
-    log = model_log(model, log, p0, flight.path, opts.input_noise)
+    log = model_log(model, log, p0, flight.path, opts.input_noise, opts.outliers)
     notes += log.notes[before:]
     diag = diagnose(model, log, candidates=list(opts.candidates) if opts.candidates is not None else None,
                     iterate=opts.iterate, p0=p0, process_noise=opts.process_noise, progress=False,
@@ -416,7 +418,7 @@ def run_fleet(flights: Sequence[Flight], opts: Options, nuisance: Sequence[str] 
     logs = []
     for f in flights:
         log, _ = _read_flight(f.path, f.sha, opts)
-        logs.append(model_log(model, log, p0, f.path, opts.input_noise))
+        logs.append(model_log(model, log, p0, f.path, opts.input_noise, opts.outliers))
     parts = [lg.split(0.8) for lg in logs]
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)
@@ -831,7 +833,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
           without: str | Sequence[str] | None = None, sets: Mapping[str, Any] | Sequence[str] | None = None,
           effects_files: Sequence[str | Path] = (), candidates: Sequence[str] | None = None, iterate: bool = True,
           discover: bool = True, process_noise: str | None = IF_NEEDED, input_noise: str = "smooth",
-          noise: Mapping[str, float] | None = None, workers: int = 2, scheduler: str | None = None, joint: bool = False,
+          outliers: str = "drop", noise: Mapping[str, float] | None = None, workers: int = 2, scheduler: str | None = None, joint: bool = False,
           per_flight: str | Sequence[str] | None = "auto", retries: int = 1, progress: bool = True) -> BatchResult:
     """Import (if needed), fit and diagnose every flight in ``inputs`` on Dask distributed;
     results under ``out`` (see the module doc and README, "greybox batch").
@@ -845,7 +847,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
         angle_unit: for ``"nanobench"`` flights without the quaternion, the roll/pitch/yaw
             columns' unit: ``"auto"`` (read from each flight's motion), ``"rad"`` or ``"deg"``.
         effects, without, sets, effects_files, candidates, iterate, discover, process_noise,
-            input_noise, noise: as for ``greybox fit``/``diagnose``.
+            input_noise, outliers, noise: as for ``greybox fit``/``diagnose``.
         workers: processes of the local cluster (one thread each); ignored with ``scheduler``
             (the address of a running Dask scheduler, e.g. ``tcp://127.0.0.1:8786``).
         joint: also fit the shared parameters on all good flights at once and compare each
@@ -902,13 +904,16 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
                    effects_files=tuple(os.path.abspath(p) for p in effects_files),
                    candidates=tuple(candidates) if candidates is not None else None, iterate=bool(iterate),
                    discover=bool(discover),
-                   process_noise=process_noise, input_noise=input_noise, import_format=import_format, pwm_map=pwm_map, held=held,
+                   process_noise=process_noise, input_noise=input_noise, outliers=outliers, import_format=import_format,
+                   pwm_map=pwm_map, held=held,
                    angle_unit=angle_unit, noise=tuple(sorted(check_channel_noise(noise or {}, "noise").items())),
                    per_flight=per_flight if per_flight is None or isinstance(per_flight, str) else tuple(per_flight))
     if process_noise not in (None, "auto", IF_NEEDED):
         raise GreyboxInputError(f"process_noise must be {IF_NEEDED!r}, None or 'auto', got {process_noise!r}")
     if input_noise not in ("smooth", "keep"):
         raise GreyboxInputError(f"input_noise must be 'smooth' or 'keep', got {input_noise!r}")
+    if outliers not in ("drop", "keep"):
+        raise GreyboxInputError(f"outliers must be 'drop' or 'keep', got {outliers!r}")
     # the model, its parameters and the candidates, checked here before any work is sent out
     from . import effects as fx
     the_model, _ = _model(opts)

@@ -239,22 +239,26 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 INPUT_NOISE_HELP = ("the logged rotor speeds' white noise that the vehicle does not follow (the gyro tells): "
                     "'smooth' (default) takes it out before fitting, 'keep' fits the speeds as logged (see README)")
+OUTLIERS_HELP = ("isolated glitches in the position or attitude (a marker swap: samples that leave their "
+                 "neighbours' track by over 10 times the noise and come back): 'drop' (default) leaves them "
+                 "out with a note, 'keep' fits them (see README)")
 
 
 def _load_fit_inputs(args: argparse.Namespace):
     """Model, starting parameters (``--set``) and the logs, each checked before any work."""
     model, brought = model_from_args(args)
     p0 = _parameters(model, brought, args.set)
-    return model, p0, [_load_model_log(model, path, p0, args.input_noise) for path in args.log]
+    return model, p0, [_load_model_log(model, path, p0, args.input_noise, args.outliers) for path in args.log]
 
 
-def _load_model_log(model: QuadrotorModel, path: str, p0: np.ndarray, input_noise: str = "smooth"):
+def _load_model_log(model: QuadrotorModel, path: str, p0: np.ndarray, input_noise: str = "smooth",
+                    outliers: str = "drop"):
     """A rotor-speed log checked against ``model``'s rotors (and their plausible speeds with
     parameters ``p0``) and ready to fit; the speeds' noise that the vehicle does not follow
-    taken out unless ``input_noise`` is ``"keep"``."""
+    taken out unless ``input_noise`` is ``"keep"``, the pose's glitches unless ``outliers`` is."""
     from .data import load_log
     log = load_log(path, inputs="rotor_speeds")
-    log = model_log(model, log, p0, path, input_noise)
+    log = model_log(model, log, p0, path, input_noise, outliers)
     for note in log.notes:
         print(f"note: {note}", file=sys.stderr)
     return log
@@ -583,7 +587,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, p0, logs = _load_fit_inputs(args)
     per_flight = _per_flight(args.per_flight, model)
-    validation = [_load_model_log(model, v, p0, args.input_noise) for v in args.validation] \
+    validation = [_load_model_log(model, v, p0, args.input_noise, args.outliers) for v in args.validation] \
         if args.validation else None
     diag = diagnose(model, logs, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=p0, progress=not args.quiet,
@@ -624,7 +628,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
                 angle_unit=args.angle_unit, effects=args.effects,
                 without=args.without, sets=args.set, effects_files=args.effects_file or (),
                 candidates=_names(args.candidates), iterate=not args.no_iterate, discover=not args.no_discover,
-                process_noise=_process_noise(args), input_noise=args.input_noise, noise=_channel_noise(args.noise),
+                process_noise=_process_noise(args), input_noise=args.input_noise, outliers=args.outliers,
+                noise=_channel_noise(args.noise),
                 workers=args.workers or 2, scheduler=args.scheduler, joint=args.joint,
                 per_flight=_per_flight(args.per_flight), progress=not args.quiet)
     print(res.summary())
@@ -670,6 +675,7 @@ def _batch_parser(sub) -> None:
                         "than 3 std from the fleet")
     b.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
                    help=INPUT_NOISE_HELP)
+    b.add_argument("--outliers", choices=["drop", "keep"], default="drop", help=OUTLIERS_HELP)
     b.add_argument("--noise", action="append", metavar="CH=SD", help=NOISE_HELP)
     b.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with --joint, what each flight gets its own value of: 'auto' (default: wind and "
@@ -806,6 +812,7 @@ def _parser() -> argparse.ArgumentParser:
                         "(real logs); 'none' output error only (see README)")
     f.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
                    help=INPUT_NOISE_HELP)
+    f.add_argument("--outliers", choices=["drop", "keep"], default="drop", help=OUTLIERS_HELP)
     f.add_argument("--noise", action="append", metavar="CH=SD", help=NOISE_HELP)
     f.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with several logs, what each flight gets its own value of: 'auto' (default: the "
@@ -834,6 +841,7 @@ def _parser() -> argparse.ArgumentParser:
                         "(real logs); 'none' output error only (see README)")
     g.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
                    help=INPUT_NOISE_HELP)
+    g.add_argument("--outliers", choices=["drop", "keep"], default="drop", help=OUTLIERS_HELP)
     g.add_argument("--noise", action="append", metavar="CH=SD", help=NOISE_HELP)
     g.add_argument("--per-flight", metavar="auto|none|NAMES",
                    help="with several logs, what each flight gets its own value of (as for fit; default auto: "

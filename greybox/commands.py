@@ -145,12 +145,14 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
 
 
 def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
-              input_noise: str = "smooth") -> FlightLog:
+              input_noise: str = "smooth", outliers: str = "drop") -> FlightLog:
     """``log`` checked against ``model``'s rotors (and their plausible speeds with parameters
     ``p0``) and ready to fit; errors name ``where`` (also used by ``greybox batch``). With
     ``input_noise="smooth"`` the white noise on the logged speeds that the vehicle does not
     follow is taken out (:func:`~greybox.fitting.input_errors.denoise_inputs`; a note on the
-    log says so); ``"keep"`` leaves them as logged."""
+    log says so); ``"keep"`` leaves them as logged. With ``outliers="drop"`` the pose
+    channels' isolated glitches are left out (:meth:`~greybox.data.FlightLog.drop_outliers`,
+    with a note); ``"keep"`` keeps them."""
     if log.input_names != model.command_names:
         raise GreyboxInputError(f"{where}: has rotor speeds {','.join(log.input_names)} but the airframe "
                                 f"has {model.airframe.n_rotors} rotors")
@@ -160,6 +162,10 @@ def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
         log, _ = denoise_inputs(model, log, p0)
     elif input_noise != "keep":
         raise GreyboxInputError(f"input noise: {input_noise!r} is neither 'smooth' nor 'keep'")
+    if outliers == "drop":
+        log = log.drop_outliers()
+    elif outliers != "keep":
+        raise GreyboxInputError(f"outliers: {outliers!r} is neither 'drop' nor 'keep'")
     log = model.prepare_log(log)
     from .fitting.imu import is_imu_only
     if not is_imu_only(log):      # an IMU-only log is fitted by its own equations, which check it

@@ -25,6 +25,7 @@ from ..fitted import FittedModel, provenance
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import (AttitudeMotion, attitude_motion, fitted_trajectory, flight_residuals, output_residuals,
                          whiteness_fraction)
+from ..outliers import find_outliers
 from ..shooting import NOISE_FLOOR, default_interval, filtered_attitude_channels, free_indices, noise_levels
 from ..shooting import sensor_noise as estimated_sensor_noise
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
@@ -739,6 +740,19 @@ def _filtered_attitude_warnings(sensor: np.ndarray, resid_rms: Mapping[str, floa
             + "}), in rad"]
 
 
+def _outlier_warnings(logs: Sequence[FlightLog]) -> list[str]:
+    """A log fitted with glitches in its pose (:func:`greybox.outliers.find_outliers`): they
+    dominate their channels' sums of squares, which the fit reads as a force it lacks."""
+    out = []
+    for i, log in enumerate(logs):
+        found = find_outliers(log)
+        if found:
+            out.append(f"{log.source or f'flight {i + 1}'}: {found.describe(log.t)}: glitches, fitted as data "
+                       "(their residuals dominate the channel's and read as a force the model lacks); "
+                       "log.drop_outliers() leaves them out, as greybox fit and diagnose do")
+    return out
+
+
 def _filtered_attitude_notes(logs: Sequence[FlightLog], given: Mapping[str, float]) -> list[str]:
     """Words for the attitude channels weighed by their disagreement with the gyro rather than
     their high-frequency noise (:func:`greybox.shooting.filtered_attitude_channels`), the user
@@ -1065,6 +1079,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
     warnings += _filtered_attitude_warnings(sensor, resid_rms, {**(noise or {}), **sensor_noise})
     warnings += _filtered_attitude_notes(logs, {**(noise or {}), **sensor_noise})
+    warnings += _outlier_warnings(logs)
     node_states, k = [], 0
     for _, M in data.flights:
         node_states.append(X[k:k + M + 1].copy())
