@@ -113,7 +113,7 @@ def test_a_diagnosis_whose_validation_comparison_failed_says_which_std_went_unch
     from greybox.diagnosis import workflow
     monkeypatch.setattr(workflow, "validation_spread", lambda *a, **k: None)
     truth = paper + effects.ThrustDrift()
-    log = synthesize(truth, truth.parameter_vector({"K_T_drift": 5e-3}), duration=20.0, seed=21, sensors=SENSORS,
+    log = synthesize(truth, truth.parameter_vector({"K_T_drift": -5e-3}), duration=20.0, seed=21, sensors=SENSORS,
                      manoeuvres=MANOEUVRES).log
     d = diagnose(paper, log, candidates=["thrust_drift"], discover=False, iterate=False)
     assert d.verdict == "thrust_drift" and d.final_fit.converged, d.summary()

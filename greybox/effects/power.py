@@ -47,6 +47,20 @@ class ThrustDrift(Effect):
     def plausible_values(self, airframe, K_T):
         return {"K_T_drift": -0.002}
 
+    def plausibility_warnings(self, values, std, airframe):
+        """A thrust per rotor speed rising over the flight, beyond 2 std: a battery sags, and
+        with it the thrust at a given command; nothing in the rotors makes it rise. A blind
+        audit's vehicle that dropped 12 % of its mass at mid-flight (the thrust it needs
+        falling in a step) took a drift of +0.5 %/s, then two more effects to mend the step."""
+        out = super().plausibility_warnings(values, std, airframe)
+        v, s = values.get("K_T_drift"), std.get("K_T_drift")
+        if v is not None and s is not None and np.isfinite(s) and v > 2 * s:
+            out.append(f"K_T_drift = {v:+.3g} 1/s: the thrust at a given rotor speed rising over the flight "
+                       f"({100 * v:+.2g} % per s, {v / s:.1f} std); a battery sags, and the thrust at a given "
+                       "command with it, it does not rise: it stands for something the model lacks (a vehicle "
+                       "getting lighter, a dropped payload; a force that eases over the flight)")
+        return out
+
     def modify(self, ctx):
         ctx.thrust_scale *= 1.0 + ctx.params["K_T_drift"] * ctx.t
 

@@ -196,6 +196,9 @@ class ThrustCurve(Effect):
     distinguish = {
         'moment_gain': 'climbs and descents at constant attitude: a thrust curve changes the vertical '
                        'response to a thrust change as well, a moment gain only roll and pitch',
+        'rotor_map': 'yaw turns at several thrust levels: an offset in the speeds changes each rotor\'s '
+                     'reaction torque as it changes its thrust, a thrust curve the thrust alone; or log '
+                     'the speeds the ESCs measure, which have no offset',
     }
     # about hover its roll and pitch moments are (1 + k_Tw/2) times the commands': a k_Tw below 0
     # can take up part of a torque the controller cancels, as a moment gain below 1 can
@@ -216,6 +219,25 @@ class ThrustCurve(Effect):
         # a propeller's thrust coefficient moves by a few to some tens of per cent over its
         # working speeds (Reynolds number); one that doubles per speed change is a wrong model
         return {"k_Tw": 0.5}
+
+    def interpretation_notes(self, values, std, airframe):
+        """The command-to-speed offset that gives the same thrust change to first order:
+        ``K_T (w + c)^2`` has ``d ln T / d ln w = 2 - 2 c / w_h`` at hover, so ``c = -k_Tw w_h / 2``
+        (``rotor_map``, not a default candidate: a blind audit's speeds logged 40 rad/s above
+        the rotors' were named ``thrust_curve`` with k_Tw = 0.115, i.e. c = -37 rad/s; with
+        ``rotor_map`` among the candidates it was named, LR 4577 against 3371)."""
+        k, kt = values.get("k_Tw"), values.get("K_T")
+        if k is None or "k_Tw" not in std or not kt or kt <= 0 or "w_offset" in values:
+            return []
+        s = std["k_Tw"]
+        if not (np.isfinite(s) and s > 0 and abs(k) > 2 * s):
+            return []
+        w_h = float(np.sqrt(airframe.mass * airframe.gravity / (airframe.n_rotors * kt)))
+        return [f"k_Tw = {k:.3g} is, to first order about hover ({w_h:.0f} rad/s), what logged rotor speeds "
+                f"{abs(k) * w_h / 2:.3g} rad/s {'above' if k > 0 else 'below'} the rotors' give (a command-to-speed "
+                f"map's offset, rotor_map: w = w_log + w_offset, w_offset = {-k * w_h / 2:+.3g} rad/s), which "
+                "changes the yaw torque as well: where the logged speeds are commands, add rotor_map to the "
+                "candidates (--candidates) to tell them apart"]
 
     def modify(self, ctx):
         af = ctx.airframe
