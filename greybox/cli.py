@@ -136,7 +136,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     x0 = _parse_x0(args.x0)         # the options first: a bad one is the only line said
     t, U = _read_inputs(args.inputs, model, p)
     sim = simulate(model, t, U, p, x0, method=args.integrator)
-    log = FlightLog(t, U, model.input_names, sim.outputs, list(model.output_names))
+    Y = sim.outputs.copy()
+    # the angles as a log reports them, each within [-pi, pi) (the same rotation): the
+    # integrated ones of a vehicle that tumbles reach many turns, which greybox fit refuses
+    # as "in degrees?" (a blind audit fitted its own simulated tumble)
+    from .io.base import wrap_angle
+    for name in ("phi", "theta", "psi"):
+        Y[:, model.output_names.index(name)] = wrap_angle(Y[:, model.output_names.index(name)])
+    log = FlightLog(t, U, model.input_names, Y, list(model.output_names))
     save_log(log, args.out)
     print(f"simulated {len(t)} samples ({t[-1] - t[0]:.3f} s), effects {','.join(model.effect_names)}"
           f" -> {args.out}", file=sys.stderr)

@@ -689,7 +689,9 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
         # (an audit's "qq" left the fit without its pitch gyro, with only this note)
         absent = [n for n in OPTIONAL_OUTPUTS if n not in col]
         meant = {h: m[0] for h in extra_names if (m := difflib.get_close_matches(h, absent, n=1, cutoff=0.6))}
-        notes.append(f"{where}: ignored extra column(s) {', '.join(extra_names)} (kept as extras)"
+        # "ignored" read wrong beside a verdict of battery_voltage, which reads vbat (an audit)
+        notes.append(f"{where}: extra column(s) {', '.join(extra_names)}: not measured channels; kept as extras, "
+                     "read by an effect that uses them (battery_voltage reads vbat), unused otherwise"
                      + "".join(f"; did you mean {m!r} for {h!r}?" for h, m in meant.items()))
     return FlightLog(t.copy(), U, in_names, Y, out_names, extras, notes, source).fill_gaps()
 

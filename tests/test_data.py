@@ -25,7 +25,7 @@ def test_multirate_log_loads(tmp_path):
     log = load_log(write(tmp_path, [HEADER + ",vbat"] + [r + ",4.1" for r in good_rows()]))
     assert len(log) == 100 and log.input_names == ["w1", "w2", "w3", "w4"]
     assert np.isfinite(log.output("x")).sum() == 10 and np.isfinite(log.output("phi")).all()
-    assert "vbat" in log.extras and "ignored extra column" in log.notes[0]
+    assert "vbat" in log.extras and "extra column(s) vbat: not measured channels" in log.notes[0]
     assert log.rate("x") == pytest.approx(100.0)
     assert "did you mean" not in log.notes[0]
 
