@@ -145,3 +145,26 @@ def test_a_parameter_the_data_do_not_determine_is_named_with_what_it_trades_with
     assert words[2e-4] == []
     assert len(words[0.0]) == 1 and words[0.0][0].startswith("h_hub = ")
     assert "not determined by these data" in words[0.0][0] and "k_rdh" in words[0.0][0]
+
+
+def test_the_logs_sampling_is_not_compared_between_halves(paper, monkeypatch):
+    """``sampled_inputs``' share of the next row follows how fast the speeds change within a
+    row, so each half of a flight has its own (a blind audit's control flight: 0.56 and 0.70,
+    4 std apart): not flagged as absorbing something missing; a K_T as far apart still is."""
+    from types import SimpleNamespace
+
+    from greybox.diagnosis import consistency
+    model = paper + effects.by_name("sampled_inputs")
+    names = ["K_T", "s_lead"]
+
+    def half(kt, s):
+        vals = {"K_T": kt, "s_lead": s}
+        return SimpleNamespace(value=vals.__getitem__, white_std=np.array([1e-8, 0.02]),
+                               std=np.array([1e-8, 0.02]))
+    monkeypatch.setattr(consistency, "_half_fits", lambda *a: (half(2.0e-5, 0.56), half(2.2e-5, 0.70)))
+    monkeypatch.setattr(consistency, "residual_widening", lambda E, s: 1.0)
+    monkeypatch.setattr(consistency, "_plausible_sizes", lambda m, r: {})
+    res = SimpleNamespace(model=model, free_names=names, per_flight_={}, sigma=None)
+    out = consistency.half_consistency(model, res, [], None, "none", lambda s: None)
+    assert list(out) == ["K_T"]
+    assert effects.by_name("sampled_inputs").describes_sampling and not effects.by_name("motor_lag").describes_sampling

@@ -101,9 +101,11 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
     widen = residual_widening(E, res.sigma)
     sizes = _plausible_sizes(model, res)
     within: list[str] = []
+    sampling = {comp for e in res.model.effects if e.describes_sampling
+                for _, comp, _ in res.model.effect_components(e.name)}
     for i, n in enumerate(res.free_names):
-        if n in res.per_flight_:
-            continue    # a wind or battery sag of other flights: no reason to agree
+        if n in res.per_flight_ or n in sampling:
+            continue    # a wind or battery sag of other flights, the log's sampling: no reason to agree
         sa, sb = (widen * float((f.white_std if f.white_std is not None else f.std)[i]) for f in (a, b))
         if not (np.isfinite(sa) and np.isfinite(sb)) or sa + sb <= 0:
             continue

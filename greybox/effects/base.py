@@ -107,6 +107,12 @@ class Effect:
     """Whether its parameters belong to one flight rather than to the vehicle (the day's
     wind, the battery's state): a fit of several flights with ``per_flight="auto"`` gives
     each flight its own copy of them and shares the rest."""
+    describes_sampling: ClassVar[bool] = False
+    """Whether its parameters describe how the log samples a signal rather than the vehicle
+    (``sampled_inputs``' share of the next row, which follows how fast the speeds change within
+    a row, so each part of a flight has its own): two halves of a flight that disagree on them
+    are no sign of something missing (a blind audit's control flight: s_lead 0.56 and 0.70,
+    warned as "absorbing something the model lacks")."""
     considered_when_logged: ClassVar[tuple[str, ...]] = ()
     """Log columns (inputs, extra signals or measured outputs) whose presence in every flight
     makes :func:`~greybox.diagnose` try this effect although it reads no logged signal

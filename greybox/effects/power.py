@@ -252,6 +252,7 @@ class SampledInputs(Effect):
         "motor_lag": "a lag rounds the response to a command step, sampled speeds already carry the motor's lag",
     }
     considered_when_logged = ("w1",)
+    describes_sampling = True
 
     def parameters(self, airframe):
         return [Parameter("s_lead", 1, 0.0, "sample", 0.0, 1.0, 0.5, 0.0, True,
