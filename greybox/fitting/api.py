@@ -23,9 +23,9 @@ from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxInputError, SolverError
 from ..fitted import FittedModel, provenance
 from ..model import OUTPUTS, QuadrotorModel
+from ..outliers import find_outliers
 from ..residuals import (AttitudeMotion, attitude_motion, fitted_trajectory, flight_residuals, output_residuals,
                          whiteness_fraction)
-from ..outliers import find_outliers
 from ..shooting import NOISE_FLOOR, default_interval, filtered_attitude_channels, free_indices, noise_levels
 from ..shooting import sensor_noise as estimated_sensor_noise
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
@@ -468,40 +468,59 @@ ended with K_T 19 % low (certified, the validation's z nrmse 82) and was not sta
 from the balance it ends 0.03 % from the truth."""
 
 
-def _thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], k_t: float) -> float | None:
-    """The mean vertical rotor thrust ``K_T sum(w^2) cos(phi) cos(theta)`` over the flights
-    over the weight ``m g`` (the tilt from the measured attitude, rows without one taken
-    level); None where the inputs are not rotor speeds or the airframe has no weight."""
-    if model.inputs == "controls":
+THRUST_ROWS = 4000
+"""Rows of each flight, evenly spread, over which :func:`_thrust_ratio` takes the mean thrust."""
+
+
+def _thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], p: np.ndarray) -> float | None:
+    """The mean vertical rotor thrust over the flights over the weight ``m g``, the model's own
+    at parameters ``p`` with every effect's part (a command-to-speed map's offset, the battery's
+    voltage, a thrust curve, the ground): the specific force along the body's z axis it predicts
+    at the measured position and attitude, at rest (no drag), effect states at the logged speeds,
+    times ``cos(phi) cos(theta)``. Proportional to ``K_T``. None where the inputs are not rotor
+    speeds or the airframe has no weight. (A blind audit's speeds logged 40 rad/s above the
+    rotors', fitted with ``rotor_map``, were said to carry 111 % of the weight by the logged
+    speeds alone, and the fit started again from a ``K_T`` 11 % low.)"""
+    if model.inputs == "controls" or not logs:
         return None
-    n = model.airframe.n_rotors
+    iz, n_base = OUTPUTS.index("az"), 12
     vertical = []
     for lg in logs:
-        tilt = np.ones(lg.t.size)
-        if "phi" in lg.output_names and "theta" in lg.output_names:
-            c = np.cos(lg.output("phi")) * np.cos(lg.output("theta"))
-            tilt = np.where(np.isfinite(c), c, 1.0)
-        vertical.append(np.sum(lg.inputs[:, :n] ** 2, axis=1) * tilt)
-    w2 = np.concatenate(vertical) if vertical else np.zeros(0)
-    weight = model.airframe.mass * model.airframe.gravity
-    mean = float(np.nanmean(w2)) if w2.size else 0.0
-    return k_t * mean / weight if weight > 0 and mean > 0 and np.isfinite(mean) else None
+        rows = np.unique(np.linspace(0, len(lg) - 1, min(len(lg), THRUST_ROWS)).astype(int))
+        t = lg.t[rows]
+        X = np.zeros((rows.size, model.nx))
+        for j, name in enumerate(("x", "y", "z", "phi", "theta", "psi")):
+            if name in lg.output_names:
+                y = lg.output(name)
+                ok = np.isfinite(y)
+                if ok.any():
+                    X[:, j] = np.interp(t, lg.t[ok], y[ok])
+        U = lg.inputs[rows]
+        if model.nx > n_base:
+            X[:, n_base:] = np.array([model.initial_state(np.zeros(n_base), u)[n_base:] for u in U])
+        az = np.asarray(model.output.map(rows.size)(X.T, U.T, p, t[None, :]))[iz]
+        vertical.append(-az * np.cos(X[:, 3]) * np.cos(X[:, 4]))
+    mean = float(np.nanmean(np.concatenate(vertical)))
+    g = model.airframe.gravity
+    return mean / g if g > 0 and np.isfinite(mean) and mean > 0 else None
 
 
-def _thrust_balance_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], values: dict) -> list[str]:
+def _thrust_balance_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], values: dict,
+                             p: np.ndarray) -> list[str]:
     """A flight that starts and ends near rest has a mean vertical acceleration near zero, so
     its rotors carry the weight on average (a little more when tilted): a fitted ``K_T`` whose
     mean thrust is far from ``m g`` has the thrust standing in for something the model lacks
     (a 1.2 kg flight with a CoG offset, fitted without it: 30 % of the weight). Logged speeds
-    only (not ``inputs="controls"``)."""
+    only (not ``inputs="controls"``); the thrust is the model's at parameters ``p``
+    (:func:`_thrust_ratio`)."""
     if "K_T" not in values:
         return []
-    ratio = _thrust_ratio(model, logs, values["K_T"])
+    ratio = _thrust_ratio(model, logs, p)
     if ratio is None or abs(ratio - 1.0) <= THRUST_BALANCE:
         return []
     return [f"the fitted thrust carries {100 * ratio:.0f} % of the weight on average over the flight "
-            f"(K_T = {values['K_T']:.4g} with the logged rotor speeds and the airframe's mass): K_T is standing "
-            "in for something the model lacks, or the mass or the rotor speeds' units are wrong"]
+            f"(K_T = {values['K_T']:.4g} with the logged rotor speeds, the model's effects and the airframe's mass): "
+            "K_T is standing in for something the model lacks, or the mass or the rotor speeds' units are wrong"]
 
 
 def _hover_balance_restart(model: QuadrotorModel, logs, flights: Sequence[FlightLog], process_noise, kw: dict,
@@ -520,14 +539,15 @@ def _hover_balance_restart(model: QuadrotorModel, logs, flights: Sequence[Flight
     found."""
     if "K_T" not in first.free_names:
         return first
-    ratio = _thrust_ratio(model, flights, first.value("K_T"))
+    ratio = _thrust_ratio(model, flights, first.p)
     if ratio is None or abs(ratio - 1.0) <= THRUST_BALANCE:
         return first
     p0 = kw["p0"]
     start = (model.parameter_vector(p0) if isinstance(p0, Mapping) else
              model.default_parameters() if p0 is None else np.array(p0, dtype=float))
     k_t = model.param_names.index("K_T")
-    hover = start[k_t] / _thrust_ratio(model, flights, start[k_t])
+    start_ratio = _thrust_ratio(model, flights, start)
+    hover = start[k_t] / start_ratio if start_ratio else float("nan")
     if not np.isfinite(hover) or hover <= 0 or abs(start[k_t] / hover - 1.0) <= THRUST_BALANCE:
         # it started at the balance: what else lets the thrust leave it is the positions'
         # process noise
@@ -553,7 +573,7 @@ def _balanced_or_first(model: QuadrotorModel, flights: Sequence[FlightLog], firs
     """``second`` (a fit of ``first``'s problem tried again) when it is certified and its thrust
     carries the weight, with ``kept`` leading its warnings; otherwise ``first``, with words on
     what ``second`` found after ``tried``."""
-    ratio2 = _thrust_ratio(model, flights, second.value("K_T"))
+    ratio2 = _thrust_ratio(model, flights, second.p)
     if second.converged and ratio2 is not None and abs(ratio2 - 1.0) <= THRUST_BALANCE:
         second.warnings.insert(0, f"{kept}; this fit's thrust carries {100 * ratio2:.0f} % of it")
         second.timings["total"] = first.timings.get("total", 0.0) + second.timings.get("total", 0.0)
@@ -632,9 +652,16 @@ def _thrust_pull(model: QuadrotorModel, logs, flights: Sequence[FlightLog], kw: 
     that instead."""
     if "K_T" not in res.free_names or len(res.free_names) < 2 or not res.converged:
         return res        # K_T alone: held, nothing is left to fit
-    per_unit = _thrust_ratio(model, flights, 1.0)
-    if not per_unit:
+    # the thrust per unit K_T (the thrust is proportional to it), at the fitted K_T or, on its
+    # bound at 0, at the start's
+    k_t = model.param_names.index("K_T")
+    ref = res.p.copy()
+    if ref[k_t] <= 0:
+        ref[k_t] = model.default_parameters()[k_t]
+    at_ref = _thrust_ratio(model, flights, ref)
+    if not at_ref or ref[k_t] <= 0:
         return res
+    per_unit = at_ref / ref[k_t]
     ratio = res.value("K_T") * per_unit
     if abs(ratio - 1.0) <= THRUST_BALANCE:
         return res
@@ -1063,7 +1090,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     for effect in model.effects:
         warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
         warnings += effect.interpretation_notes(values, fitted_std, model.airframe)
-    warnings += _thrust_balance_warnings(model, logs, values)
+    warnings += _thrust_balance_warnings(model, logs, values, p_out)
     if inputs_floor is not None:
         warnings.append("the logged inputs carry white noise the vehicle does not follow (the gyro tells): fed to "
                         "the model it is a random force and torque, and the gains that pass it on come out small "
