@@ -401,3 +401,9 @@ def test_a_verdict_whose_refit_cannot_be_certified_is_said_not_to_be_in_the_fina
     assert d.verdict == "yaw_torque" and "yaw_torque" not in d.final_model.effect_names
     assert any("yaw_torque's refit did not reach a certified optimum" in w for w in d.warnings), d.warnings
     assert "4. added nothing (yaw_torque, named above, is not in the final model: see the warnings)" in d.summary()
+    # the effects added are listed in the order the rounds named them, not the model's order of
+    # application (an audit read "added moment_gain, thrust_curve, thrust_drift" as the rounds')
+    from greybox import effects as fx
+    two = replace(d, final_model=d.model + [fx.by_name("wind"), fx.by_name("cog_offset")],
+                  rounds=[replace(d.rounds[0], verdict="wind"), replace(d.rounds[0], verdict="cog_offset")])
+    assert "4. added wind, cog_offset:" in two.summary()

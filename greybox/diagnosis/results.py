@@ -503,6 +503,9 @@ class Diagnosis:
         lines += self._later_round_lines()
         if self.final_prediction is not None and self.final_model is not None:
             added = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
+            # in the order the rounds named them (the model holds them in its order of application)
+            named = {r.verdict: i for i, r in enumerate(self.rounds) if r.verdict}
+            added.sort(key=lambda e: named.get(e, len(named)))
             f = self.final_prediction
             # a verdict the final model lacks (its refit not certified, or left out since) says so
             # here too: "verdict: motor_lag" above "added nothing" read as a contradiction
