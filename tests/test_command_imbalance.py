@@ -125,6 +125,12 @@ def test_rotor_columns_logged_in_another_order_are_told(base):
     inputs[:, :4] = log.inputs[:, [3, 0, 1, 2]]      # column 1 holds rotor 4's speed, column 2 rotor 1's, ...
     shuffled = replace(log, inputs=inputs)
     assert rotor_order(base, shuffled) == (3, 0, 1, 2)
-    d = diagnose(base, shuffled, candidates=[], discover=False, iterate=False)
+    # every candidate and the discovery by default: none is tried, the verdict null for that reason
+    # (a blind audit's reordered flight took 3 minutes to a discovered "my ~ w2yaw, w2pitch")
+    d = diagnose(base, shuffled, iterate=False)
     assert d.warnings[0].startswith("the logged rotor speeds act as the airframe's rotors in another order: "
                                     "w1 as rotor 4, w2 as rotor 1, w3 as rotor 2, w4 as rotor 3"), d.warnings[0]
+    assert d.verdict is None and d.null_reason == "rotor_order" and not d.ranking and not d.discovered
+    assert d.as_json()["null_reason"] == "rotor_order"
+    assert "w1 as rotor 4, w2 as rotor 1, w3 as rotor 2, w4 as rotor 3): nothing was tested; reorder the columns" \
+        in d.verdict_text()

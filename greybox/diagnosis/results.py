@@ -239,6 +239,9 @@ class Diagnosis:
     discovery: dict = field(default_factory=dict)   # status, text (or why it cannot tell), together
     # words for a null verdict whose catalogue best was set aside for a discovered combination
     outside_catalogue: str = ""
+    # the airframe rotor each logged rotor-speed column acts as, when not as given
+    # (diagnosis.analysis.rotor_order): nothing is tested then
+    rotor_order: tuple[int, ...] | None = None
     # the log's timing settled before the candidates (rotor speeds sampled between rows):
     # effect, s_lead, s_lead_std, nrmse_before, nrmse_after, text; None when the hold stands
     input_timing: dict | None = None
@@ -384,8 +387,9 @@ class Diagnosis:
 
     @property
     def null_reason(self) -> str | None:
-        """Why the verdict is null: ``"uncertified"`` (the baseline fit is not certified, nothing
-        was tested), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
+        """Why the verdict is null: ``"rotor_order"`` (the logged rotor speeds act as the
+        airframe's rotors in another order: nothing was tested), ``"uncertified"`` (the baseline
+        fit is not certified, nothing was tested), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
         physics), ``"random_torque"`` (what is missing acts as a random torque, turbulence, which
         the final model holds as a disturbance), ``"input_noise"`` (the rates are missed by a
         random torque that the noise on the logged rotor speeds gives: cannot tell a turbulence
@@ -396,6 +400,8 @@ class Diagnosis:
         little to say what it is) or ``"nothing_missing"``; None when there is a verdict."""
         if self.verdict:
             return None
+        if self.rotor_order is not None:
+            return "rotor_order"
         if not self.baseline_certified:
             return "uncertified"
         if self.outside_catalogue:
@@ -452,7 +458,10 @@ class Diagnosis:
                      + (f" that round {k}'s model (with the earlier verdicts) left" if k > 1 else "")
                      if top is not None and top.explained is not None else "")
             return f"{self.verdict}{share}"
-        return {"uncertified": "null (cannot tell: the baseline fit is not certified)",
+        order = ", ".join(f"{c} as rotor {j + 1}" for c, j in zip(self.model.command_names, self.rotor_order or ()))
+        return {"rotor_order": f"null -- the logged rotor speeds act as the airframe's rotors in another order "
+                               f"({order}): nothing was tested; reorder the columns",
+                "uncertified": "null (cannot tell: the baseline fit is not certified)",
                 "outside_catalogue": f"null -- {self.outside_catalogue}",
                 "random_torque": "null -- what the model misses acts as a random torque (turbulence), which no "
                                  "catalogue effect holds: the final model holds it as a disturbance (without it the "
