@@ -16,6 +16,7 @@ from .airframe import load_airframe
 from .data import ATOMIC_NAME_EXTRA, FlightLog, atomic_write
 from .errors import GreyboxInputError
 from .model import QuadrotorModel
+from .outliers import drop_outliers
 
 __all__ = ["check_output_path", "write_json", "parse_sets", "build_model", "edit_model", "model_from_args",
            "fit_result_json", "model_log", "fit_json"]
@@ -151,7 +152,7 @@ def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
     ``input_noise="smooth"`` the white noise on the logged speeds that the vehicle does not
     follow is taken out (:func:`~greybox.fitting.input_errors.denoise_inputs`; a note on the
     log says so); ``"keep"`` leaves them as logged. With ``outliers="drop"`` the pose
-    channels' isolated glitches are left out (:meth:`~greybox.data.FlightLog.drop_outliers`,
+    channels' isolated glitches are left out (:func:`~greybox.outliers.drop_outliers`,
     with a note); ``"keep"`` keeps them."""
     if log.input_names != model.command_names:
         raise GreyboxInputError(f"{where}: has rotor speeds {','.join(log.input_names)} but the airframe "
@@ -163,7 +164,7 @@ def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
     elif input_noise != "keep":
         raise GreyboxInputError(f"input noise: {input_noise!r} is neither 'smooth' nor 'keep'")
     if outliers == "drop":
-        log = log.drop_outliers()
+        log = drop_outliers(log)
     elif outliers != "keep":
         raise GreyboxInputError(f"outliers: {outliers!r} is neither 'drop' nor 'keep'")
     log = model.prepare_log(log)

@@ -214,23 +214,6 @@ class FlightLog:
         return FlightLog(t, self.inputs[held], list(self.input_names), Y, list(self.output_names),
                          {n: v[held] for n, v in self.extras.items()}, self.notes + [note], self.source)
 
-    def drop_outliers(self) -> "FlightLog":
-        """The log with its pose channels' isolated glitches (a marker swap, a vision
-        misdetection: samples that leave their neighbours' track by over ten times the noise
-        and come back; :func:`greybox.outliers.find_outliers`) not measured (NaN), with a note
-        naming them; itself when there are none."""
-        from .outliers import OUTLIER_GROUPS, find_outliers
-        found = find_outliers(self)
-        if not found:
-            return self
-        Y = self.outputs.copy()
-        for group, rows in found.rows.items():
-            cols = [self.output_names.index(c) for c in OUTLIER_GROUPS[group] if c in self.output_names]
-            Y[np.ix_(rows, cols)] = np.nan
-        note = f"{self.source or 'log'}: {found.describe(self.t)}: left out as glitches (--outliers keep keeps them)"
-        return FlightLog(self.t, self.inputs, list(self.input_names), Y, list(self.output_names),
-                         dict(self.extras), self.notes + [note], self.source)
-
     @classmethod
     def from_dataframe(cls, df, inputs: str = "auto", optional: Iterable[str] = (),
                        source: str | None = None) -> "FlightLog":

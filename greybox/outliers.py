@@ -25,18 +25,14 @@ the whole pose); up to three passes find a second glitch beside a first.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
-
 import numpy as np
 from scipy.ndimage import median_filter
 
+from .data import FlightLog
 from .rotations import euler_rate_matrices
 
-if TYPE_CHECKING:
-    from .data import FlightLog
-
 __all__ = ["OUTLIER_THRESHOLD", "OUTLIER_SHARE", "OUTLIER_GROUPS", "LOCAL_SAMPLES", "Outliers",
-           "find_outliers", "neighbour_residuals", "gyro_residuals"]
+           "find_outliers", "drop_outliers", "neighbour_residuals", "gyro_residuals"]
 
 OUTLIER_THRESHOLD = 10.0
 """A sample is a glitch when its residual against its neighbours' cubic is beyond this many
@@ -142,7 +138,7 @@ def _scaled(r: np.ndarray, floor: float) -> np.ndarray:
     return np.where(fin, a / scale, 0.0)
 
 
-def _gyro_scaled(log: "FlightLog", k: np.ndarray, y_of: dict[str, np.ndarray]) -> np.ndarray | None:
+def _gyro_scaled(log: FlightLog, k: np.ndarray, y_of: dict[str, np.ndarray]) -> np.ndarray | None:
     """:func:`gyro_residuals` at the attitude samples ``k`` over their scale (as the
     neighbours' cubic's), or None without a gyro (or without all three angles)."""
     if not all(c in log.output_names for c in ("phi", "theta", "psi", "p", "q", "r")) or len(y_of) < 3:
@@ -159,7 +155,7 @@ def _gyro_scaled(log: "FlightLog", k: np.ndarray, y_of: dict[str, np.ndarray]) -
     return np.column_stack([_scaled(r[:, j], _FLOORS[c]) for j, c in enumerate(("phi", "theta", "psi"))])
 
 
-def find_outliers(log: "FlightLog", threshold: float = OUTLIER_THRESHOLD,
+def find_outliers(log: FlightLog, threshold: float = OUTLIER_THRESHOLD,
                   share: float = OUTLIER_SHARE) -> Outliers:
     """The isolated glitches in ``log``'s pose channels (see the module's docstring)."""
     found = Outliers()
@@ -222,3 +218,18 @@ def find_outliers(log: "FlightLog", threshold: float = OUTLIER_THRESHOLD,
             found.samples[group] = int(measured.size)
             found.size.update({c: v for c, v in worst.items() if v > 0})
     return found
+
+
+def drop_outliers(log: FlightLog) -> FlightLog:
+    """``log`` with its pose channels' isolated glitches (:func:`find_outliers`) not measured
+    (NaN), with a note naming them; ``log`` itself when there are none."""
+    found = find_outliers(log)
+    if not found:
+        return log
+    Y = log.outputs.copy()
+    for group, rows in found.rows.items():
+        cols = [log.output_names.index(c) for c in OUTLIER_GROUPS[group] if c in log.output_names]
+        Y[np.ix_(rows, cols)] = np.nan
+    note = f"{log.source or 'log'}: {found.describe(log.t)}: left out as glitches (--outliers keep keeps them)"
+    return FlightLog(log.t, log.inputs, list(log.input_names), Y, list(log.output_names), dict(log.extras),
+                     log.notes + [note], log.source)

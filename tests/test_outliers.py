@@ -1,5 +1,5 @@
 """Isolated glitches in the pose (a motion-capture marker swap) are found and left out
-(greybox.outliers, FlightLog.drop_outliers, greybox fit/diagnose --outliers).
+(greybox.outliers: find_outliers, drop_outliers; greybox fit/diagnose --outliers).
 
 A sixteenth blind audit's 1.2 kg vehicle with 12 position samples 5-20 cm off in 3800 rows of
 1-mm motion capture: fitted as data, its residuals were 3.9 times the noise on x, y, z and the
@@ -14,7 +14,7 @@ from greybox.airframe import airframe_from_dict
 from greybox.cli import main
 from greybox.data import load_log, log_from_arrays, save_log
 from greybox.fitting import fit
-from greybox.outliers import find_outliers, neighbour_residuals
+from greybox.outliers import drop_outliers, find_outliers, neighbour_residuals
 from greybox.rotations import body_rates_from_euler_rates
 
 from test_fit_independent import TRUE, make_flight
@@ -65,7 +65,7 @@ def test_neighbour_residual_of_white_noise_and_of_a_cubic():
 def test_clean_independent_flight_has_no_glitch(clean):
     # 30 Hz vision, 500 Hz attitude with a yaw wrapping past +-pi: nothing found
     assert not find_outliers(clean)
-    assert clean.drop_outliers() is clean
+    assert drop_outliers(clean) is clean
 
 
 def test_filtered_attitude_during_brisk_turns_is_not_a_glitch():
@@ -112,7 +112,7 @@ def test_glitches_found_left_out_and_the_fit_right(clean):
     found = find_outliers(log)
     assert found.rows["position"].tolist() == pos_rows.tolist()
     assert found.rows["attitude"].tolist() == att_rows.tolist()
-    dropped = log.drop_outliers()
+    dropped = drop_outliers(log)
     assert np.isnan(dropped.outputs[pos_rows, 0:3]).all() and np.isnan(dropped.outputs[att_rows, 3:6]).all()
     assert np.isfinite(dropped.outputs[att_rows, 6:9]).all()          # the gyro is left alone
     assert "10 position samples" in dropped.notes[-1] and "5 attitude samples" in dropped.notes[-1]

@@ -776,7 +776,7 @@ def _outlier_warnings(logs: Sequence[FlightLog]) -> list[str]:
         if found:
             out.append(f"{log.source or f'flight {i + 1}'}: {found.describe(log.t)}: glitches, fitted as data "
                        "(their residuals dominate the channel's and read as a force the model lacks); "
-                       "log.drop_outliers() leaves them out, as greybox fit and diagnose do")
+                       "greybox.outliers.drop_outliers(log) leaves them out, as greybox fit and diagnose do")
     return out
 
 
