@@ -486,6 +486,7 @@ def _thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], p: np.ndarra
     iz, n_base = OUTPUTS.index("az"), 12
     vertical = []
     for lg in logs:
+        lg = model.prepare_log(lg)     # the signals the model reads (vbat, earlier commands) as inputs
         rows = np.unique(np.linspace(0, len(lg) - 1, min(len(lg), THRUST_ROWS)).astype(int))
         t = lg.t[rows]
         X = np.zeros((rows.size, model.nx))
