@@ -14,6 +14,11 @@ smooth flight next to nothing. It is a glitch when its residual is
   attitude, 0.1 mrad from sample to sample, leaves residuals of tens of that scale during
   every brisk turn: the local scale rises with them, a lone glitch does not move it);
 - the largest of the five residuals around it (a glitch's neighbours see two thirds of it);
+- such that, with the candidates left out, the samples next to it lie on the cubic through
+  theirs: the track comes back (a brisk manoeuvre bends it, and its neighbours stay off it);
+- for roll, pitch and yaw with a gyro logged, also beyond the threshold against its
+  neighbours carried to its time by the gyro's Euler rates (:func:`gyro_residuals`: a turn is
+  in the gyro, a glitch is not);
 
 and the glitches of a group (position ``x, y, z``; attitude ``phi, theta, psi``) are taken
 out only when they hold more than :data:`OUTLIER_SHARE` of the noise's sum of squares in one
@@ -25,11 +30,14 @@ the whole pose); up to three passes find a second glitch beside a first.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
 import numpy as np
 from scipy.ndimage import median_filter
 
 from .data import FlightLog
+from .model import OUTPUTS
 from .rotations import euler_rate_matrices
+from .shooting import NOISE_FLOOR
 
 __all__ = ["OUTLIER_THRESHOLD", "OUTLIER_SHARE", "OUTLIER_GROUPS", "LOCAL_SAMPLES", "Outliers",
            "find_outliers", "drop_outliers", "neighbour_residuals", "gyro_residuals"]
@@ -48,9 +56,12 @@ LOCAL_SAMPLES = 65
 """Samples over which the local scale of the residuals is taken (a median: 32 on each side)."""
 MAX_PASSES = 3
 _GAP_STEPS = 8.0     # four neighbours spanning more than this many median steps: not judged
-_FLOORS = {"x": 1e-4, "y": 1e-4, "z": 1e-4, "phi": 1e-4, "theta": 1e-4, "psi": 1e-4}
-# the sensors' resolution (greybox.shooting.NOISE_FLOOR's): a noise-free simulated log's
-# residuals are the integrator's, and nothing is a glitch against them
+
+
+def _floor(channel: str) -> float:
+    """The sensor's resolution (:data:`greybox.shooting.NOISE_FLOOR`): a noise-free simulated
+    log's residuals are the integrator's, and nothing is a glitch against them."""
+    return float(NOISE_FLOOR[OUTPUTS.index(channel)])
 
 
 @dataclass
@@ -152,7 +163,7 @@ def _gyro_scaled(log: FlightLog, k: np.ndarray, y_of: dict[str, np.ndarray]) -> 
         omega.append(np.interp(log.t[k], log.t[fin], g[fin]))
     angles = np.column_stack([y_of[c] for c in ("phi", "theta", "psi")])
     r = gyro_residuals(log.t[k], angles, np.column_stack(omega))
-    return np.column_stack([_scaled(r[:, j], _FLOORS[c]) for j, c in enumerate(("phi", "theta", "psi"))])
+    return np.column_stack([_scaled(r[:, j], _floor(c)) for j, c in enumerate(("phi", "theta", "psi"))])
 
 
 def find_outliers(log: FlightLog, threshold: float = OUTLIER_THRESHOLD,
@@ -172,9 +183,10 @@ def find_outliers(log: FlightLog, threshold: float = OUTLIER_THRESHOLD,
         worst = dict.fromkeys(chans, 0.0)
         for _ in range(MAX_PASSES):
             k = measured[~bad[measured]]
+            tk = log.t[k]
             y_of = {c: np.unwrap(Y[k, j]) if group == "attitude" else Y[k, j] for j, c in enumerate(chans)}
-            resid = {c: neighbour_residuals(log.t[k], y) for c, y in y_of.items()}
-            scaled = {c: _scaled(r, _FLOORS[c]) for c, r in resid.items()}
+            resid = {c: neighbour_residuals(tk, y) for c, y in y_of.items()}
+            scaled = {c: _scaled(r, _floor(c)) for c, r in resid.items()}
             peaks = {}
             for c, z in scaled.items():
                 padded = np.pad(z, 2)
@@ -192,7 +204,7 @@ def find_outliers(log: FlightLog, threshold: float = OUTLIER_THRESHOLD,
                 idx = np.flatnonzero(peaks[c])
                 if idx.size == 0:
                     continue
-                r_rest = np.abs(neighbour_residuals(log.t[k][rest], y_of[c][rest]))
+                r_rest = np.abs(neighbour_residuals(tk[rest], y_of[c][rest]))
                 after = np.searchsorted(rest, idx)
                 inside = (after > 0) & (after < rest.size)
                 follow = np.full(idx.size, np.inf)
