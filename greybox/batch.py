@@ -52,6 +52,7 @@ from . import __version__
 from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError
 from .data import check_channel_noise
 from .fitting import IF_NEEDED
+from .shooting import robust_std
 
 __all__ = ["batch", "BatchResult", "FORMATS", "INSTALL_HINT", "fleet_comparison", "SUMMARY_COLUMNS"]
 
@@ -490,7 +491,7 @@ def _excess_scatter(r: np.ndarray, s: np.ndarray) -> float:
     ok = np.isfinite(r) & np.isfinite(s)
     if ok.sum() < 4:
         return 0.0
-    spread = 1.4826 * np.median(np.abs(r[ok] - np.median(r[ok])))
+    spread = robust_std(r[ok])
     return float(math.sqrt(max(0.0, spread ** 2 - float(np.median(s[ok] ** 2)))))
 
 

@@ -37,7 +37,7 @@ from scipy.ndimage import median_filter
 from .data import FlightLog
 from .model import OUTPUTS
 from .rotations import euler_rate_matrices
-from .shooting import NOISE_FLOOR
+from .shooting import NOISE_FLOOR, robust_std
 
 __all__ = ["OUTLIER_THRESHOLD", "OUTLIER_SHARE", "OUTLIER_GROUPS", "LOCAL_SAMPLES", "Outliers",
            "find_outliers", "drop_outliers", "neighbour_residuals", "gyro_residuals"]
@@ -143,7 +143,7 @@ def _scaled(r: np.ndarray, floor: float) -> np.ndarray:
     fin = np.isfinite(r)
     if fin.sum() < 5:
         return np.zeros_like(a)
-    global_scale = 1.4826 * float(np.median(np.abs(r[fin] - np.median(r[fin]))))
+    global_scale = robust_std(r)
     local = 1.4826 * median_filter(a, size=LOCAL_SAMPLES, mode="nearest")
     scale = np.maximum(np.maximum(local, global_scale), floor * np.sqrt(1 + 34 / 36))
     return np.where(fin, a / scale, 0.0)

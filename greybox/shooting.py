@@ -56,6 +56,16 @@ CasADi's virtual machine after which it is compiled in the background (the compi
 shares the cores with the fit for a few seconds, but nothing waits for it)."""
 
 # ------------------------------------------------------------------------------ noise
+def robust_std(x: np.ndarray) -> float:
+    """Standard deviation of the bulk of ``x`` (finite values) from its median absolute
+    deviation: 1.4826 MAD is the std of normal data, and a few wild values do not move it."""
+    v = np.asarray(x, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return float("nan")
+    return 1.4826 * float(np.median(np.abs(v - np.median(v))))
+
+
 def estimate_noise(y: np.ndarray) -> float:
     """Noise standard deviation of a (possibly sparse) channel from robust second
     differences of its measured samples: for white noise ``var(y[k+1]-2y[k]+y[k-1]) = 6 s^2``.
@@ -64,8 +74,7 @@ def estimate_noise(y: np.ndarray) -> float:
     if v.size < 5:
         return float("nan")
     d2 = v[2:] - 2 * v[1:-1] + v[:-2]
-    mad = np.median(np.abs(d2 - np.median(d2)))
-    s = 1.4826 * mad / math.sqrt(6.0)
+    s = robust_std(d2) / math.sqrt(6.0)
     if s <= 0:
         s = float(np.std(d2)) / math.sqrt(6.0)
     return float(s)

@@ -1,3 +1,6 @@
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -147,10 +150,10 @@ def test_measured_inertia_breaking_the_triangle_inequality_slightly_is_accepted_
     """A flat airframe sits on J1 + J2 = J3; a published measurement may break it by 1 %."""
     import warnings
     from greybox.errors import AirframeWarning
-    text = GOOD.replace("[0.0082, 0.0082, 0.0149]", "[1.4e-5, 1.4e-5, 2.8284e-5]")   # 1 % over
+    text = GOOD.replace("[0.0082, 0.0082, 0.0149]", "[0.0082, 0.0082, 0.016566]")   # 1 % over
     with pytest.warns(AirframeWarning, match="by 1.0"):
         af = load_airframe(write(tmp_path, text))
-    assert af.inertia[2, 2] == pytest.approx(2.8284e-5)
+    assert af.inertia[2, 2] == pytest.approx(0.016566)
     with warnings.catch_warnings():
         warnings.simplefilter("error")          # inside the limit: no warning at all
         load_airframe(write(tmp_path, GOOD))
@@ -163,3 +166,29 @@ def test_measured_inertia_breaking_the_triangle_inequality_slightly_is_accepted_
     assert main(["linearize", "--airframe", str(path), "--json", str(tmp_path / "lin.json")]) == 0
     err = capsys.readouterr().err
     assert "greybox: warning:" in err and "J1 + J2 >= J3" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("old,new,unit", [
+    ("mass = 1.0", "mass = 1000.0", "mass in grams"),                     # 1 kg given in grams
+    ("[0.0082, 0.0082, 0.0149]", "[8.2, 8.2, 14.9]", "inertia in g m^2"),  # g m^2 for kg m^2
+    ("arm_length = 0.17", "arm_length = 170", "in cm or mm"),             # mm for m
+])
+def test_mass_inertia_and_arm_of_no_vehicle_name_the_likely_unit(tmp_path, capsys, old, new, unit):
+    """A multirotor's largest moment of inertia lies near 0.15-0.55 x m L^2 (the motors alone,
+    a quarter of the mass at L, give 0.25); a unit slip moves it by 1e3 or more: one error
+    naming the unit, before any log is read (a blind audit's mass in grams was blamed on the
+    rotor speeds' units)."""
+    assert old in GOOD
+    path = write(tmp_path, GOOD.replace(old, new))
+    with pytest.raises(GreyboxInputError, match=re.escape(unit)):
+        load_airframe(path)
+    from greybox.cli import main
+    assert main(["linearize", "--airframe", str(path), "--json", str(tmp_path / "lin.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err and unit in err
+    assert not (tmp_path / "lin.json").exists()
+    # the shipped airframes and a Crazyflie's published numbers (27 g, 46 mm, 1.4e-5 / 2.2e-5) pass
+    for name in ("paper.toml", "x_quad.toml"):
+        load_airframe(Path(__file__).resolve().parents[1] / "greybox" / "data" / "airframes" / name)
+    load_airframe(write(tmp_path, GOOD.replace("mass = 1.0", "mass = 0.027").replace("arm_length = 0.17",
+                  "arm_length = 0.046").replace("[0.0082, 0.0082, 0.0149]", "[1.4e-5, 1.4e-5, 2.2e-5]")))

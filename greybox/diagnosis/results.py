@@ -489,7 +489,7 @@ class Diagnosis:
             lines.append(f"   with the log's timing ({t['effect']}, s_lead = {t['s_lead']:.3g} ± {t['s_lead_std']:.2g}: "
                          f"the rotor speeds are samples of a signal varying between rows; "
                          + (f"the model as given: {t['nrmse_before']:.3f})" if not with_ else
-                            f"judged after the rounds, against the model with {', '.join(with_)}: "
+                            f"judged again once the rounds had added {', '.join(with_)}: "
                             f"{t['nrmse_before']:.3f} -> {t['nrmse_after']:.3f}; in the final model only)"))
         lines.append("2. where it fails:")
         lines += [f"   - {f.text}" for f in self.findings] or ["   - no regime stands out"]
