@@ -1006,6 +1006,15 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
                     f"{where}: columns 'ax', 'ay', 'az': the accelerometer's magnitude is typically {med:.3g}, where "
                     f"{'the positions give' if expected != _STANDARD_GRAVITY else 'an IMU reads'} "
                     f"{expected:.3g} m/s^2 (g on the ground and in hover): {hint}")
+        az = Y[:, col["az"]]
+        az = az[np.isfinite(az)]
+        if az.size >= 20 and float(np.median(az)) > 0.5 * expected:
+            # the thrust points up, along the body's -z (FRD), on the ground and in flight alike
+            raise GreyboxInputError(
+                f"{where}: column 'az': the accelerometer's z reads {float(np.median(az)):+.3g} m/s^2 at its median, "
+                f"where an FRD IMU reads about -{expected:.3g} (the specific force R^T(a - g e3), the thrust along "
+                "the body's -z): is its z up (FLU: negate y and z of the gyro and the accelerometer), or does it log "
+                "gravity rather than the specific force (negate ax, ay, az)?")
     return judged
 
 

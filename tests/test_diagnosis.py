@@ -136,6 +136,39 @@ def test_diagnose_cli_bad_validation_file(tmp_path, normal_flight, paper_airfram
     assert not (tmp_path / "d.json").exists()
 
 
+def test_a_validation_flight_that_cannot_judge_the_diagnosis_is_refused_up_front(paper, normal_flight, tmp_path,
+                                                                                  paper_airframe_path, capsys):
+    """A blind audit's IMU-only validation flight (no position, no vbat) ran two rounds for
+    6 minutes before an error naming a candidate's column; a validation flight without the
+    estimation flights' position, or without a column a candidate reads, is refused at once,
+    and a default candidate reading a column some flight lacks is not tried."""
+    from greybox.data import FlightLog
+    from greybox.diagnosis import default_candidates
+    from greybox.errors import GreyboxInputError
+    log = normal_flight.log
+    est = FlightLog(log.t, log.inputs, log.input_names, log.outputs, list(log.output_names),
+                    {**log.extras, "vbat": np.full(len(log), 4.0)}, [], "est.csv")
+    save_log(est, tmp_path / "f.csv")
+    other = synthesize(paper, duration=8.0, seed=7, sensors=SensorSpec(rate=200.0, vision_rate=50.0,
+                                                                        accel_noise=0.05),
+                       manoeuvres=["hover", "yaw", "step_x"]).log
+    Y = other.outputs.copy()
+    Y[:, [other.output_names.index(c) for c in ("x", "y", "z")]] = np.nan
+    imu = FlightLog(other.t, other.inputs, other.input_names, Y, list(other.output_names), {}, [], "imu.csv")
+    save_log(imu, tmp_path / "imu.csv")
+    rc = main(["diagnose", str(tmp_path / "f.csv"), "--validation", str(tmp_path / "imu.csv"), "--airframe",
+               str(paper_airframe_path), "--quiet", "--json", str(tmp_path / "d.json")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "imu.csv: the validation flight has no x, y, z" in err and "Traceback" not in err, err
+    assert [ln for ln in err.splitlines() if ln.startswith("greybox: error")] == [err.splitlines()[-1]]
+    assert not (tmp_path / "d.json").exists()
+    # a named candidate's column missing in the validation flight: refused before any fit
+    with pytest.raises(GreyboxInputError, match="missing column 'vbat', which candidate 'battery_voltage' reads"):
+        diagnose(paper, est, validation=log, candidates=["battery_voltage"], progress=False)
+    assert "battery_voltage" in default_candidates(paper, [est])
+    assert "battery_voltage" not in default_candidates(paper, [est, log])
+
+
 def test_prediction_change_measures_what_validation_can_see(paper, normal_flight):
     """A change of the predictions as large as the error is 1; none is 0 (psi wrapped)."""
     from greybox.diagnosis.screening import prediction_change

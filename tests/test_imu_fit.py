@@ -57,6 +57,52 @@ def test_imu_only_fit_recovers_thrust_torque_and_motor_lag_on_foreign_data(forei
             assert h.model[ch][i] < 0.2 * h.naive[ch][i], (ch, horizon)
 
 
+def test_where_the_log_says_the_rotors_start_does_not_move_the_fit(foreign):
+    """The lag state starts at the first row's speeds, as nothing tells where the rotors
+    were; a log that opens on a controller's first commands far from them (a blind audit's
+    250 Hz log: 30 % apart) read its 20 ms motors' pitch gain 3 % low at 11 std and its 45 ms
+    motors' 14 %. The steps within 6 time constants of the start are left out: the fit is the
+    same whatever the first row says (here before: g_y 4.4 std low, tau_m 16 ms, b 3.2 std)."""
+    veh, log = foreign
+    model = QuadrotorModel(airframe_from_dict(airframe_dict(veh, K_T_guess_factor=1.3)))
+    base = fit_imu(model, log)
+    U = log.inputs.copy()
+    U[0] *= [0.7, 1.2, 0.8, 1.3]
+    odd = FlightLog(log.t, U, log.input_names, log.outputs, list(log.output_names), dict(log.extras), [],
+                    "foreign-imu.csv")
+    res = fit_imu(model, odd)
+    for name in ("K_T", "b", "g_x", "g_y", "tau_m"):
+        assert res.value(name) == pytest.approx(base.value(name), rel=1e-4), name    # 0.02 of their std
+    for name, true in (("g_x", 1.0), ("g_y", 1.0), ("b", veh.b), ("K_T", veh.K_T)):
+        assert abs(res.value(name) - true) < 3 * res.parameters[name][1], (name, res.value(name), true)
+    assert res.value("tau_m") == pytest.approx(veh.tau_motor, rel=0.05)
+
+
+@pytest.mark.parametrize("change,named", [
+    ({"ax": -1, "ay": -1, "az": -1}, "gravity rather than the specific force"),   # gravity, not specific force
+    ({"q": -1, "r": -1, "ay": -1, "az": -1}, "FLU"),                                # an FLU IMU
+    ({"p": 180 / np.pi, "q": 180 / np.pi, "r": 180 / np.pi}, "deg/s"),              # no attitude to check it by
+    ({"r": -1}, "r's sign"),                                                        # yaw the other way
+])
+def test_an_imu_only_log_in_other_axes_or_units_is_refused_naming_them(foreign, tmp_path, capsys, change, named):
+    """A log without position or attitude has nothing to check the IMU's axes and units by
+    but the physics: a blind audit fitted an accelerometer reading +g, an FLU IMU and a gyro in
+    deg/s with exit 0, to a negative K_T and b, and roll/pitch gains of 67 and 104."""
+    veh, log = foreign
+    Y = log.outputs.copy()
+    for ch, factor in change.items():
+        Y[:, log.output_names.index(ch)] *= factor
+    csv = tmp_path / "imu.csv"
+    save_log(FlightLog(log.t, log.inputs, log.input_names, Y, list(log.output_names), {}, [], "x.csv"), csv)
+    af = tmp_path / "cf.toml"
+    from foreign_sim import airframe_toml
+    af.write_text(airframe_toml(airframe_dict(veh)))
+    assert main(["fit", str(csv), "--airframe", str(af), "--json", str(tmp_path / "r.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("greybox: error: ") and err.count("\n") == 1 and named in err, err
+    assert not (tmp_path / "r.json").exists()
+
+
 def test_imu_only_fit_from_the_command_line(foreign, tmp_path, capsys):
     veh, log = foreign
     csv = tmp_path / "imu.csv"

@@ -98,16 +98,34 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     if not logs:
         raise GreyboxInputError("diagnose: no flight logs")
     timing_candidate = None
+    given_val = [] if validation is None else \
+        [validation] if isinstance(validation, FlightLog) else list(validation)
     if candidates is None:
-        candidates = default_candidates(model, logs)
+        # an effect whose column a validation flight lacks cannot be validated (a blind audit's
+        # battery_voltage, vbat in the estimation flight only, failed after 6 minutes)
+        candidates = default_candidates(model, logs + given_val)
         if fx.SampledInputs.name in candidates:
             # the log's timing, settled before any physical effect is judged (below)
             timing_candidate = fx.SampledInputs.name
             candidates = [c for c in candidates if c != timing_candidate]
     for c in candidates:
-        fx.by_name(c)
+        cls = fx.by_name(c)
         if c in model.effects:
             raise GreyboxInputError(f"candidate {c!r} is already in the model")
+        for lg in logs + given_val:
+            lacking = [s_ for s_ in cls.signals if s_ not in lg.extras and s_ not in lg.input_names]
+            if lacking:
+                raise GreyboxInputError(f"{lg.source or 'log'}: missing column {lacking[0]!r}, which candidate {c!r} "
+                                        "reads: every estimation and validation flight needs it")
+    for v in given_val:
+        # the validation predicts from each window's measured start: a flight without the
+        # estimation flights' position is no yardstick for them (an IMU-only log: fit it alone)
+        lacking = [ch for ch in ("x", "y", "z") if logs[0].measures(ch) and not v.measures(ch)]
+        if lacking:
+            raise GreyboxInputError(f"{v.source or 'log'}: the validation flight has no {', '.join(lacking)} (empty "
+                                    "columns), which the estimation flights measure and the validation predicts "
+                                    "from: validate on a flight with position (an IMU-only log is fitted on its own, "
+                                    "`greybox fit`)")
     if validation is None:
         est, val = map(list, zip(*[lg.split(split) for lg in logs]))
     else:

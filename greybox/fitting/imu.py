@@ -80,6 +80,17 @@ the other leads of :data:`LEAD_GRID` are scored."""
 SMOOTHING_S = 0.02
 """Savitzky-Golay window (s) for the gyro's derivative and, alike, the regressors."""
 
+SETTLE_TAUS = 6.0
+"""Motor time constants at the log's start left out of each equation: the effective speeds
+start at the first row's (nothing tells where the rotors were), and that guess decays as
+``exp(-t / tau_m)`` (to 0.25 % here). Kept in, a blind audit's 250 Hz log that opens on
+commands 30 % apart read its 20 ms motors' roll and pitch gains 1.5 and 3 % low (7 and 11
+std) and its 45 ms motors 7 and 14 % low with the lag 14 % short."""
+
+GYRO_DEGREES_GAIN = 10.0
+"""Roll and pitch torque gains both above this are a gyro logged in deg/s (57.3 times the
+rad/s): a real Crazyflie's are 0.3-0.4, wrong inertias or arms move them by a factor of a few."""
+
 HORIZON_CHANNELS = ("p", "q", "r", "az")
 """Channels whose prediction error against horizon an IMU-only fit reports."""
 
@@ -223,6 +234,27 @@ def _step_means(w: np.ndarray, e: np.ndarray, tau: float, dt: float) -> tuple[np
     a = math.exp(-dt / tau)
     m1, m2 = tau / dt * (1 - a), tau / (2 * dt) * (1 - a * a)
     return held + m1 * d, held ** 2 + 2 * m1 * held * d + m2 * d ** 2
+
+
+def _check_signs_and_units(params: dict[str, tuple[float, float]], where: str) -> None:
+    """One error naming the likely cause when the fitted coefficients can belong to no
+    vehicle: a thrust or a yaw torque that turns the wrong way (a sign of the accelerometer,
+    the gyro or the spins), roll and pitch gains ~57 (a gyro in deg/s). An IMU-only log has no
+    attitude to check the gyro's unit against: a blind audit's uSD-like log with the gyro in
+    deg/s fitted with exit 0 to gains 67 and 104 and b/K_T 1.5 m."""
+    k_t, b = params["K_T"][0], params["b"][0]
+    g_x, g_y = params["g_x"][0], params["g_y"][0]
+    if not k_t > 0:
+        raise GreyboxInputError(f"{where}: the thrust fitted to the accelerometer is negative (K_T = {k_t:.3g}): "
+                                "does the accelerometer read the specific force in FRD (about -9.81 m/s^2 on az in "
+                                "hover)?")
+    if min(g_x, g_y) > GYRO_DEGREES_GAIN:
+        raise GreyboxInputError(f"{where}: the roll and pitch torque gains are {g_x:.3g} and {g_y:.3g} (1 when the "
+                                "airframe's arm and inertia are right): are p, q, r in deg/s? rad/s = deg/s * pi/180")
+    if not b > 0:
+        raise GreyboxInputError(f"{where}: the yaw torque fitted to the gyro turns the wrong way (b = {b:.3g}): "
+                                "check r's sign (FRD: positive turning right seen from above) and the rotors' spins "
+                                "in the airframe")
 
 
 def _horizontal_force(log: FlightLog) -> "tuple[float, float] | None":
@@ -378,6 +410,10 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     val = use & (np.arange(n) >= cut)
     if est.sum() < 50 or val.sum() < 20:
         raise GreyboxInputError(f"{where}: too few usable IMU samples for an IMU-only fit")
+    def rows(tau):
+        """The estimation steps once the guessed start of the lag state has died away."""
+        return est & (np.arange(n) >= math.ceil(SETTLE_TAUS * tau / dt))
+
     known = _known_torque(model)
     known_steps = _known_torque_at(known, om_mid) if known is not None else None
     thrust_side = -m * smooth(az[:-1])
@@ -404,16 +440,22 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     def solve(tau, lead, scored=IMU_EQUATIONS):
         """Least squares of each equation; the cost summed over the equations ``scored``."""
         y_eq, X = equations(tau, lead)
+        fitted = rows(tau)
         coef, cost = {}, 0.0
         for eq, y in y_eq.items():
-            c, *_ = np.linalg.lstsq(X[eq][est], y[est], rcond=None)
-            r = y[est] - X[eq][est] @ c
+            c, *_ = np.linalg.lstsq(X[eq][fitted], y[fitted], rcond=None)
+            r = y[fitted] - X[eq][fitted] @ c
             coef[eq] = c
             if eq in scored:
-                cost += float(r @ r) / max(float(np.var(y[est])) * est.sum(), 1e-300)
+                cost += float(r @ r) / max(float(np.var(y[fitted])) * fitted.sum(), 1e-300)
         return coef, cost, X, y_eq
 
     grid_tau = tuple(tau_grid) if tau_grid is not None else TAU_GRID
+    # a lag so slow that its unknown start settles over most of the log is not profiled
+    grid_tau = tuple(tau_ for tau_ in grid_tau if rows(tau_).sum() >= 50)
+    if not grid_tau:
+        raise GreyboxInputError(f"{where}: too few IMU samples for an IMU-only fit once the motors' lag has "
+                                "settled from the log's start")
     # The lag and the speeds' timing within a row, profiled together: a lag delays and smooths,
     # a lead advances. Held as the contract says, commands a 500-Hz controller sent between an
     # audit's 200 Hz rows gave its 40 ms motors 37.8 ms (6 of its std); with the lead, 40.0.
@@ -442,6 +484,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
                 slope = (c2 - c0) / (t2 - t0) - curv * (t2 + t0 - 2 * t1) / 2
                 tau = float(np.clip(t1 - slope / curv, t0, t2))
         coef, cost, X, y_eq = solve(tau, lead)
+        est = rows(tau)
         if 0 < k < len(grid_tau) - 1:
             # coloured residuals carry less information per sample: widen by their long-run factor
             colour = float(np.median([long_run_factor(y_eq[eq][est] - X[eq][est] @ coef[eq]) for eq in y_eq]))
@@ -486,6 +529,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         else:
             lead = 0.0
     K_T = params["K_T"][0]
+    _check_signs_and_units(params, where)
     notes = []
     if lead > 0:
         notes.append(f"the speeds act as if {lead:g} of each row were the next row's (s_lead, profiled with tau_m "
@@ -520,5 +564,5 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
                      "translational equations, are not determined by the data")
     effects = (["yaw_torque"] + [e for e in model.effect_names if e in KNOWN_TORQUE_EFFECTS] + ["motor_lag"]
                + (["sampled_inputs"] if lead > 0 else []))    # the catalogue's name for s_lead
-    return ImuFit(params, nrmse, [(float(a), float(b)) for a, b in profile], m, int(est.sum()), notes,
+    return ImuFit(params, nrmse, [(float(a), float(b)) for a, b in profile], m, int(rows(tau).sum()), notes,
                   horizons, effects)
