@@ -179,6 +179,15 @@ def test_px4_topics_flight_frames_trimming_and_motors():
     assert np.nanmean(log.output("az")) == pytest.approx(-G0, rel=0.01)
     assert 11.8 <= log.extras["vbat"].min() and log.extras["vbat"].max() <= 12.4
     assert log.extras["armed"].all()
+    # actuator_outputs at 21 Hz (PX4's default profile) are slower than the rate dynamics: said
+    assert any("actuator_outputs at 21 Hz" in n and "slower than the rate dynamics" in n for n in imp.notes)
+    assert any("outputs 5-8 are 0 (unused)" in n for n in imp.notes), imp.notes
+    # a log cut in flight has no touchdown (an audit's truncated ULog was "touchdown at 14.02 s")
+    cut = {name: {k: np.asarray(v)[np.asarray(topic["timestamp"]) <= 1e6 + 10e6] for k, v in topic.items()}
+           for name, topic in _synthetic_px4().items()}
+    imp_cut = import_px4_topics(cut, {"PWM_DISARMED": 900.0}, "cut.ulg")
+    assert any("still in the air when the log ends" in n for n in imp_cut.notes), imp_cut.notes
+    assert not any("touchdown at" in n for n in imp_cut.notes)
     # ESC RPM, when reported, are the rotor speeds
     imp = import_px4_topics(_synthetic_px4(rpm=True), {"PWM_DISARMED": 900.0}, "synthetic.ulg")
     np.testing.assert_allclose(imp.log.inputs, 5000 * np.pi / 30)

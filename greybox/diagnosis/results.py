@@ -633,8 +633,10 @@ class Diagnosis:
                 and self.final_prediction.total < min(found):
             # read beside a verdict, a "significant" residual force looked like a second finding
             # (a 1 cm CoG offset's torque fitted as my ~ w2sum^2 on a peer simulator's flight)
+            a, b = self.final_prediction.total, min(found)
+            digits = 3 if f"{a:.3f}" != f"{b:.3f}" else 5     # "0.038 against 0.038" read as a contradiction
             lines.append(f"   (found on the model as given; the final model predicts better, nrmse "
-                         f"{self.final_prediction.total:.3f} against {min(found):.3f}: it is what the verdict "
+                         f"{a:.{digits}f} against {b:.{digits}f}: it is what the verdict "
                          "holds, seen from outside the catalogue)")
         elif found and not self.verdict and not self.outside_catalogue:
             # a null verdict beside a "significant" combination read as a contradiction (a blind

@@ -308,6 +308,15 @@ def longest_run(mask: np.ndarray) -> tuple[int, int] | None:
     return int(starts[j]), int(ends[j])
 
 
+def span_words(t: np.ndarray, k0: int, k1: int) -> str:
+    """"take-off at .. s, touchdown at .. s" for the flight of rows ``k0..k1`` of times ``t``,
+    or that the log begins or ends in the air (a log cut in flight has no touchdown)."""
+    start = (f"in the air when the log begins ({t[k0]:.2f} s)" if k0 == 0 else f"take-off at {t[k0]:.2f} s")
+    end = (f"still in the air when the log ends ({t[k1]:.2f} s)" if k1 == t.size - 1 else
+           f"touchdown at {t[k1]:.2f} s")
+    return f"{start}, {end}"
+
+
 def flight_from_height(t: np.ndarray, height: np.ndarray, running: np.ndarray, where: str,
                        takeoff_height: float = 0.01, min_samples: int = 20,
                        hint: str = "") -> FlightSpan:
@@ -339,7 +348,7 @@ def flight_from_height(t: np.ndarray, height: np.ndarray, running: np.ndarray, w
     k0, k1 = longest_run(airborne)
     on_ground = ~airborne
     mid_contact = int(on_ground[k0:k1 + 1].sum())
-    note = (f"take-off at {t[k0]:.2f} s, touchdown at {t[k1]:.2f} s (resting height {rest:.3f} m)"
+    note = (f"{span_words(t, k0, k1)} (resting height {rest:.3f} m)"
             + (f"; {mid_contact} samples in between touch the ground" if mid_contact else ""))
     return FlightSpan(k0, k1, on_ground, rest, note)
 

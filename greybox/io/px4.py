@@ -46,7 +46,11 @@ import numpy as np
 from ..errors import GreyboxInputError
 from .base import (PX4_PWM_MAP, FlightSpan, ImportResult, PwmMap, trimmed_log, commands_on_grid, euler_from_quaternion,
                    flight_from_height, grid_with, interpolate_samples, longest_run, rpm_to_rad_s, setpoint_extras, snap,
-                   time_base)
+                   span_words, time_base)
+
+SLOW_ACTUATOR_HZ = 100.0
+"""actuator_outputs logged more slowly than this get a note: the motors' commands change
+within the attitude loop's tens of milliseconds (PX4's default logging profile: about 20 Hz)."""
 
 __all__ = ["import_px4", "import_px4_topics", "read_px4_topics", "ulog_cut_at", "px4_airframe_toml", "PX4_TOPICS",
            "MAV_TYPE_ROTORS"]
@@ -334,10 +338,14 @@ def import_px4_topics(topics: Topics, params: Mapping[str, float], where: str,
         if silent:
             raise GreyboxInputError(f"{where}: actuator outputs {silent} (motors by {n_from}) are 0 all along: not "
                                     "the motors' outputs?")
-        others = [i + 1 for i in active if i >= n_rot]
+        others = [i + 1 for i in active if i >= n_rot and np.ptp(outs[:, i]) > 0]
+        constant = sorted({float(outs[0, i]) for i in active if i >= n_rot and np.ptp(outs[:, i]) == 0})
         notes.append(f"{n_rot} motors ({n_from}): actuator outputs 1-{n_rot}"
-                     + (f"; outputs {others} also carry a signal (not motors: ignored)" if others
-                        else f"; outputs {n_rot + 1}-{n_out} are 0 (unused)" if n_out > n_rot else ""))
+                     + (f"; outputs {others} also carry a signal (not motors: ignored)" if others else "")
+                     + (f"; outputs beyond {n_rot} held at {', '.join(f'{v:g}' for v in constant)} (unused)"
+                        if constant else "")
+                     + (f"; outputs {n_rot + 1}-{n_out} are 0 (unused)" if n_out > n_rot and not others and not constant
+                        else ""))
         pwm = outs[:, :n_rot]
         nonfin = np.argwhere(~np.isfinite(pwm))
         if nonfin.size:
@@ -354,8 +362,16 @@ def import_px4_topics(topics: Topics, params: Mapping[str, float], where: str,
         pwm_grid = commands_on_grid(t_boot, t_o, pwm, "hold", off=off)
         pwm_used = commands_on_grid(t_boot, t_o, pwm, held, off=off)
         motor_fresh = np.nan_to_num(snap(t_boot, t_o, np.ones(t_o.size)))
-        notes.append(f"actuator_outputs at {rate(t_o):.0f} Hz: motor commands "
-                     + ("interpolated" if held == "interpolate" else "held") + " between samples")
+        out_rate = rate(t_o)
+        notes.append(f"actuator_outputs at {out_rate:.0f} Hz: motor commands "
+                     + ("interpolated" if held == "interpolate" else "held") + " between samples"
+                     # the attitude loop moves the motors within tens of ms: what they did between
+                     # samples is guessed, and the rotational parameters carry it (an audit's
+                     # 21-Hz log: b 9.5 of its std off, the fit inadequate)
+                     + (f": slower than the rate dynamics ({1e3 / out_rate:.0f} ms between samples), so b, tau_m "
+                        "and the roll/pitch torques carry what the motors did between them (log actuator_outputs "
+                        "at the controller's rate: SDLOG_PROFILE's high-rate profile)"
+                        if out_rate < SLOW_ACTUATOR_HZ else ""))
     elif esc is None:
         raise GreyboxInputError(f"{where}: no actuator_outputs and no esc_status: no motor commands (the model's "
                                 "inputs)")
@@ -428,7 +444,7 @@ def import_px4_topics(topics: Topics, params: Mapping[str, float], where: str,
             before = np.isfinite(height[:k0])
             rest_guess = float(np.median(height[:k0][before])) if before.sum() >= 5 else math.nan
             span = FlightSpan(k0, k1, ~airborne, rest_guess,
-                              f"take-off at {t_all[k0]:.2f} s, touchdown at {t_all[k1]:.2f} s (vehicle_land_detected)")
+                              f"{span_words(t_all, k0, k1)} (vehicle_land_detected)")
         else:
             span = flight_from_height(t_all, height, running, where, takeoff_height,
                                       hint=why + ("; keep_ground (--keep-ground) imports it anyway"
@@ -498,7 +514,7 @@ inertia = [{jx:.6g}, {jx:.6g}, {jz:.6g}]
 arm_length = {arm_length!r}
 rotor_inertia = 0.0        # unknown; gyroscopic torque neglected
 gravity = {g!r}
-ground_z = {ground_z!r}    # NED z of the floor plane (ground effect height = ground_z - z)
+ground_z = {ground_z!r}    # ASSUMED: the floor 0.10 m below the resting position's z (rotors above the feet); NED z of the floor plane (ground effect height = ground_z - z)
 
 [[rotor]]   # 1 front-right, CCW
 position = [{a:.6f}, {a:.6f}, 0.0]
