@@ -199,9 +199,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     evidence = imbalance.evidence if imbalance is not None else set()
     nominated = [n for n in remaining if evidence & set(getattr(fx.known_effects().get(n), "trim_evidence", ()))]
 
-    # the log's timing judged again after each verdict of the rounds (below), kept when the final
-    # model holds it: (words, words of the verdicts it showed to be stand-ins) and the certified
-    # fits it was judged against
+    # the log's timing as judged after a round's verdict (below): its words, the words on verdicts
+    # it showed to be stand-ins, the refit with it free; kept when the final model holds it.
+    # timing_judged: the fits it was judged against (not judged again after the rounds)
     in_round = {"timing": None, "refit": None, "words": []}
     timing_judged: list = []
 
