@@ -85,6 +85,7 @@ class QuadrotorModel:
         self.airframe = airframe
         self.inputs = inputs
         self._functions: tuple[ca.Function, ca.Function] | None = None
+        self._settle: ca.Function | None = None      # settled_states' effect rows and Jacobian
         self._check_parameter_names()
         self._check_airframe_parameters()
 
@@ -335,6 +336,30 @@ class QuadrotorModel:
             else u0[:self.airframe.n_rotors]
         parts = [base] + [e.initial_state(self.airframe, w0) for e in self.effects]
         return np.concatenate(parts)
+
+    def settled_states(self, X: np.ndarray, U: np.ndarray, p: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """``X`` (n, nx) with each row's effect states moved to where their own dynamics rest
+        under that row's inputs ``U`` (n, nu), parameters ``p`` and times ``t`` (n,): a motor
+        lag's speeds at the speeds its target asks for, after every effect before it (a
+        battery's scaling: :meth:`initial_state` takes the logged speeds as they are). States
+        with no dynamics of their own (a random-walk disturbance) keep their values. Two
+        Newton steps on ``rhs``'s effect rows; exact for the linear lags."""
+        X = np.array(X, dtype=float)
+        if self.nx <= 12 or X.shape[0] == 0:
+            return X
+        if self._settle is None:
+            x, u = ca.SX.sym("x", self.nx), ca.SX.sym("u", self.nu)
+            q, tt = ca.SX.sym("p", self.n_params), ca.SX.sym("t")
+            f = self.rhs(x, u, q, tt)[12:]
+            self._settle = ca.Function("settle", [x, u, q, tt], [f, ca.jacobian(f, x[12:])])
+        mapped = self._settle.map(X.shape[0])
+        for _ in range(2):
+            f, jac = mapped(X.T, np.asarray(U, dtype=float).T, np.asarray(p, dtype=float), np.asarray(t)[None, :])
+            ne = self.nx - 12
+            f = np.asarray(f).T                                     # (n, ne)
+            jac = np.asarray(jac).reshape(ne, X.shape[0], ne).transpose(1, 0, 2)   # (n, ne, ne)
+            X[:, 12:] -= np.einsum("nij,nj->ni", np.linalg.pinv(jac, rcond=1e-10), f)
+        return X
 
     def rotor_speeds_from_inputs(self, u: np.ndarray, p: np.ndarray | None = None) -> np.ndarray:
         """Rotor speeds that realise control inputs u1..u4 (numeric, for ``controls`` models)."""

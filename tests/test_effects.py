@@ -507,3 +507,24 @@ def test_rotor_gains_linear_in_position_are_a_cog_offset_and_a_weak_rotor_is_not
     assert e.reduces_to("cog_offset", dict(zip(names, weak[:-1])), np.diag(np.full(n - 1, 0.002 ** 2)), names,
                         af) == ""
     assert e.reduces_to("wind", dict(zip(names, weak[:-1])), cov, names, af) == ""
+
+
+def test_settled_states_put_a_motor_lag_where_the_battery_scaled_speeds_ask():
+    """By hand: behind a battery's scaling w (1 + K_vbat (vbat - 4)) a first-order motor lag
+    rests at the scaled speeds, not at the logged ones that initial_state takes (the thrust
+    balance of an audit's correct flights at 3.7-4.1 V read 95-112 % of the weight); a state
+    with no dynamics of its own (a random-walk disturbance) keeps its value."""
+    model = QuadrotorModel(make_airframe("x")) + effects.BatteryVoltage() + effects.MotorLag() \
+        + effects.DisturbanceTorque()
+    p = model.default_parameters()
+    names = model.param_names
+    p[names.index("K_vbat")] = 0.2
+    w, vbat = np.array([400.0, 410.0, 390.0, 405.0]), 3.75
+    u = np.r_[w, vbat]
+    x = model.initial_state(np.zeros(12), u)
+    np.testing.assert_allclose(x[12:16], w)                      # the logged speeds, as they are
+    x[16:] = [0.01, -0.02, 0.003]
+    settled = model.settled_states(x[None, :], u[None, :], p, np.zeros(1))[0]
+    np.testing.assert_allclose(settled[12:16], w * (1 + 0.2 * (vbat - 4.0)), rtol=1e-10)
+    np.testing.assert_allclose(settled[16:], [0.01, -0.02, 0.003])
+    np.testing.assert_allclose(settled[:12], 0.0)

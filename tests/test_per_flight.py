@@ -216,3 +216,23 @@ def test_soft_fit_of_several_flights_gives_each_its_own_process_noise(tmp_path):
     assert kw["process_noise"]["p"] == q_p[1] and len(kw["initial_states"]) == 1
     weak_alone = fit(model, weak, p0=both.p, free=both.free_names, max_iter=100, **kw)
     assert weak_alone.converged and weak_alone.process_noise["p"] == q_p[1]
+
+
+def test_flights_whose_rotors_carry_different_shares_of_the_weight_are_told_to_get_their_own_thrust():
+    """A blind audit's three flights at 4.15, 3.95 and 3.75 V without the voltage logged were
+    fitted with one K_T and nothing said (the diagnosis named a thrust drift, Kd[2] 26 times
+    the truth): each flight's rotors carry its weight on average, so at one thrust per speed²
+    they carry different shares of it. Here two flights of the other simulator, the second
+    with 8 % less thrust per speed² (a weaker battery): a warning names --per-flight K_T, and
+    with it each flight's K_T is its own and the warning is gone."""
+    veh = one_kg()
+    weak = one_kg(K_T=0.92 * veh.K_T)
+    logs = [simulate_flight(v, duration=10.0, seed=30 + i, log_rate=200.0).log for i, v in enumerate((veh, weak))]
+    model = QuadrotorModel(airframe_from_dict(airframe_dict(veh, K_T_guess_factor=1.3)))
+    res = fit(model, logs, per_flight=None)
+    spread = [w for w in res.warnings if "carry" in w and "--per-flight K_T" in w]
+    assert spread, res.warnings
+    own = fit(model, logs, per_flight=["K_T"])
+    assert not [w for w in own.warnings if "--per-flight K_T" in w], own.warnings
+    k_t = own.per_flight_["K_T"]["value"]
+    assert k_t[0] == pytest.approx(veh.K_T, rel=0.01) and k_t[1] == pytest.approx(weak.K_T, rel=0.01)
