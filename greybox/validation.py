@@ -36,7 +36,7 @@ from .integrate import Substeps, log_substeps, parallel_map, rk4_step_with_outpu
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import euler_rates_from_body_rates
 
-__all__ = ["Prediction", "HorizonErrors", "HorizonAccumulator", "measured_outputs", "DEFAULT_HORIZONS", "POSE_CHANNELS", "startable", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
+__all__ = ["Prediction", "HorizonErrors", "HorizonAccumulator", "measured_outputs", "DEFAULT_HORIZONS", "POSE_CHANNELS", "startable", "check_validation_length", "predict", "predict_flights", "pool_predictions", "nrmse", "compare_plot", "residual_plot", "estimate_states",
            "DEFAULT_HORIZON", "DEFAULT_INIT_WINDOW", "prediction_options", "predict_after_fit",
            "horizon_errors_after", "horizon_errors", "HORIZON_START_EVERY", "INIT_WINDOWS",
            "choose_horizon_predictor", "HELD_MOMENT_WINDOWS", "estimation_tails", "INIT_WINDOW_DATA",
@@ -277,6 +277,18 @@ def _predict_windows(model: QuadrotorModel, p: np.ndarray, log: FlightLog, start
     U = log.inputs[idx.ravel()].T
     Yp = np.asarray(F(x0.T, U, p, t[idx.ravel()][None, :], h.ravel()[None, :]))   # (ny, nW*n_steps)
     return Yp.reshape(model.ny, len(starts), n_steps).transpose(1, 2, 0), x0
+
+
+def check_validation_length(log: FlightLog, init_window: float = DEFAULT_INIT_WINDOW) -> None:
+    """The error :func:`predict` gives a log too short to start one window on, raised before
+    any fit (an audit's 0.6-s flight among others was refused after the whole fit had run)."""
+    t = log.t
+    if t.size < 3:
+        raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: {t.size} samples")
+    dt = float(np.median(np.diff(t)))
+    if not _windows(t, max(int(round(init_window / dt)), 3), DEFAULT_HORIZON):
+        raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
+                                f"{init_window + 2 * dt:.3f} s")
 
 
 def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,

@@ -198,6 +198,27 @@ def test_fit_cli_bad_log(tmp_path, paper_airframe_path, capsys):
     assert not (tmp_path / "r.json").exists()
 
 
+def test_fit_cli_refuses_a_flight_too_short_to_validate_before_fitting(tmp_path, flight, capsys, monkeypatch,
+                                                                      paper_airframe_path):
+    """A blind audit's 0.6-s flight among others: the whole fit ran, then exit 2 "too short
+    for validation"; now the same error comes before any fit."""
+    from greybox.data import FlightLog
+    import greybox.fitting
+    log = flight.log
+    n = int(np.searchsorted(log.t, 0.6))
+    short = FlightLog(log.t[:n], log.inputs[:n], log.input_names, log.outputs[:n], list(log.output_names),
+                      {k: v[:n] for k, v in log.extras.items()}, [], "short.csv")
+    save_log(log, tmp_path / "f.csv")
+    save_log(short, tmp_path / "short.csv")
+
+    def no_fit(*a, **k):
+        raise AssertionError("fitted")
+    monkeypatch.setattr(greybox.fitting, "fit", no_fit)
+    rc = main(["fit", str(tmp_path / "f.csv"), str(tmp_path / "short.csv"), "--airframe", str(paper_airframe_path)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "short.csv: too short for validation" in err and "Traceback" not in err, err
+
+
 def test_fit_cli_wrong_rotor_count(tmp_path, flight, capsys):
     (tmp_path / "hex.toml").write_text("[airframe]\nmass=1\ninertia=[0.01,0.01,0.02]\n" + "".join(
         f"[[rotor]]\nposition=[{np.cos(k):.3f},{np.sin(k):.3f},0]\nspin={(-1) ** k}\n" for k in range(6)))

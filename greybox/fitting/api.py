@@ -197,6 +197,12 @@ class FitResult(FittedModel):
             v, s = self.value(name), float(self.std[self.free_names.index(name)])
             rel = f"{abs(s / v) * 100:6.2f}%" if v != 0 else "     - "
             lines.append(f"{name:<12} {v:13.6g} {s:11.3g} {rel:>7}")
+            each = (getattr(self, "per_flight_", None) or {}).get(name)
+            if each:
+                # the row above is the flights' mean (an audit read it as the one value)
+                lines[-1] += "  (mean over the flights)"
+                lines += [f"  flight {f + 1:<3} {fv:13.6g} {fs:11.3g}" for f, (fv, fs) in
+                          enumerate(zip(each["value"], each["std"]))]
         lines.append(f"status: {self.status}; {self.iterations} iterations; "
                      f"evaluator: {self.evaluator}")
         if self.certificate is not None:
