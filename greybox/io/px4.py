@@ -514,7 +514,7 @@ inertia = [{jx:.6g}, {jx:.6g}, {jz:.6g}]
 arm_length = {arm_length!r}
 rotor_inertia = 0.0        # unknown; gyroscopic torque neglected
 gravity = {g!r}
-ground_z = {ground_z!r}    # ASSUMED: the floor 0.10 m below the resting position's z (rotors above the feet); NED z of the floor plane (ground effect height = ground_z - z)
+ground_z = {ground_z!r}    # ASSUMED: NED z of the floor plane (ground effect height = ground_z - z)
 
 [[rotor]]   # 1 front-right, CCW
 position = [{a:.6f}, {a:.6f}, 0.0]
