@@ -279,6 +279,12 @@ def _predict_windows(model: QuadrotorModel, p: np.ndarray, log: FlightLog, start
     return Yp.reshape(model.ny, len(starts), n_steps).transpose(1, 2, 0), x0
 
 
+def _too_short(log: FlightLog, init_window: float, dt: float) -> GreyboxInputError:
+    """The error for a log too short to start one validation window on."""
+    return GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
+                             f"{init_window + 2 * dt:.3f} s")
+
+
 def check_validation_length(log: FlightLog, init_window: float = DEFAULT_INIT_WINDOW) -> None:
     """The error :func:`predict` gives a log too short to start one window on, raised before
     any fit (an audit's 0.6-s flight among others was refused after the whole fit had run)."""
@@ -287,8 +293,7 @@ def check_validation_length(log: FlightLog, init_window: float = DEFAULT_INIT_WI
         raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: {t.size} samples")
     dt = float(np.median(np.diff(t)))
     if not _windows(t, max(int(round(init_window / dt)), 3), DEFAULT_HORIZON):
-        raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
-                                f"{init_window + 2 * dt:.3f} s")
+        raise _too_short(log, init_window, dt)
 
 
 def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float = DEFAULT_HORIZON,
@@ -322,8 +327,7 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
     L = max(int(round(init_window / dt)), 3)
     anywhere = _windows(t, L, horizon)
     if not anywhere:
-        raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
-                                f"{init_window + 2 * dt:.3f} s")
+        raise _too_short(log, init_window, dt)
     # windows that start from an outage only where nothing else can start (a log shorter than
     # an outage and a start stretch): as before, rather than no validation at all
     wins = _windows(t, L, horizon, startable(log, L)) or anywhere
@@ -605,8 +609,7 @@ def horizon_windows(log: FlightLog, longest: float, init_window: float = DEFAULT
     n_steps = int(np.searchsorted(t - t[0], longest * 1.2 + dt, side="right")) + 1
     last = t.size - 2
     if last <= L:
-        raise GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
-                                f"{init_window + 2 * dt:.3f} s")
+        raise _too_short(log, init_window, dt)
     step = max(1, int(round(start_every / dt)), int(math.ceil((last - L) / HORIZON_MAX_STARTS)))
     starts = np.arange(L, last, step)
     can = startable(log, L)[starts]

@@ -704,6 +704,12 @@ def tie_explanation(taken: CandidateResult, other: CandidateResult, group: Seque
     return f"it is taken by the tie rule over the group ({', '.join(c.effect for c in group)})"
 
 
+def lacking_signals(effect, log: FlightLog) -> list[str]:
+    """The logged signals (:attr:`~greybox.effects.Effect.signals`) ``effect`` reads that
+    ``log`` carries neither as an extra column nor as an input."""
+    return [s for s in effect.signals if s not in log.extras and s not in log.input_names]
+
+
 def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list[str]:
     """The effects :func:`diagnose` tries by default: the catalogue and the effects
     registered by the user (files, plugins) that are not in the model, and the effects that
@@ -711,6 +717,6 @@ def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list
     when every flight has it."""
     return [n for n, cls in fx.known_effects().items() if n not in model.effects
             and (n in fx.CATALOGUE or n in fx.registered_effects() or cls.signals or cls.considered_when_logged)
-            and all(all(s in lg.extras or s in lg.input_names for lg in logs) for s in cls.signals)
+            and not any(lacking_signals(cls, lg) for lg in logs)
             and all(all(s in lg.extras or s in lg.input_names or s in lg.output_names for lg in logs)
                     for s in cls.considered_when_logged)]

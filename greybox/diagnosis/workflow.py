@@ -31,7 +31,7 @@ from .consistency import half_consistency, half_spread, undetermined_parameters,
 from .elimination import backward_elimination, fit_without
 from .screening import negligible_effect
 from .ranking import (MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
-                      rank_round, tie_explanation, tie_numbers, validation_ties)
+                      lacking_signals, rank_round, tie_explanation, tie_numbers, validation_ties)
 from .results import UNEXPLAINED_RATIO, Diagnosis, Round
 
 __all__ = ["diagnose", "UNEXPLAINED_RATIO", "distinguishing_manoeuvre"]
@@ -113,7 +113,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         if c in model.effects:
             raise GreyboxInputError(f"candidate {c!r} is already in the model")
         for lg in logs + given_val:
-            lacking = [s_ for s_ in cls.signals if s_ not in lg.extras and s_ not in lg.input_names]
+            lacking = lacking_signals(cls, lg)
             if lacking:
                 raise GreyboxInputError(f"{lg.source or 'log'}: missing column {lacking[0]!r}, which candidate {c!r} "
                                         "reads: every estimation and validation flight needs it")
@@ -205,6 +205,18 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     in_round = {"timing": None, "refit": None, "words": []}
     timing_judged: list = []
 
+    def timing_against_verdicts(m, fr, pr, words):
+        """The log's timing judged against ``m`` (the model as given plus the verdicts so far):
+        ``(model, fit, prediction, words, refit)`` as :func:`_input_timing` gives them, with the
+        verdicts that stood in for the timing left out when it stands (their words to ``words``)."""
+        added = [e for e in m.effect_names if e not in model.effect_names]
+        say(f"diagnose: the log's timing judged again, against the model with {', '.join(added)}")
+        m, fr, pr, found, refit, _ = _input_timing(m, fr, pr, est, val, timing_candidate, compile, n_refit, say,
+                                                   against=added)
+        if found:
+            m, fr, pr = _drop_stand_ins(m, fr, pr, added, est, val, compile, horizon, say, words)
+        return m, fr, pr, found, refit
+
     def run_rounds(m, fr, pr, remaining, label="", judge_timing=False):
         """Rank the candidates round after round from the certified fit ``fr`` of ``m``, adding
         each round's verdict; returns the rounds and the final model, fit and prediction.
@@ -245,15 +257,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                 # round must not screen without it: a half row of lag left in the inputs is what
                 # a physical candidate then fits (a blind audit's battery flight, ESC speeds at
                 # 200 Hz: a hub rotor drag in round 2, Kd 4 std off; with the timing none)
-                added = [e for e in m.effect_names if e not in model.effect_names]
-                say(f"diagnose: the log's timing judged again, against the model with {', '.join(added)}")
                 timing_judged.append(fr)
-                m_t, fr_t, pr_t, found, refit, _ = _input_timing(m, fr, pr, est, val, timing_candidate, compile,
-                                                                 n_refit, say, against=added)
-                in_round["refit"] = refit
+                words: list[str] = []
+                m_t, fr_t, pr_t, found, in_round["refit"] = timing_against_verdicts(m, fr, pr, words)
                 if found:
-                    words: list[str] = []
-                    m, fr, pr = _drop_stand_ins(m_t, fr_t, pr_t, added, est, val, compile, horizon, say, words)
+                    m, fr, pr = m_t, fr_t, pr_t
                     in_round.update(timing=found, words=words)
         return out, m, fr, pr
 
@@ -400,14 +408,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # not significant; against the model with the verdicts it may be. Left out, its half
         # sample of lag goes into what the verdicts fit (another simulator's 30 g vehicle, motor
         # commands logged at 100 Hz: tau_m 15.5 ms for its 20 ms motors).
-        added = [e for e in cur_model.effect_names if e not in model.effect_names]
-        say(f"diagnose: the log's timing judged again, against the model with {', '.join(added)}")
-        cur_model, cur_res, cur_pred, timing, timing_refit, _ = _input_timing(
-            cur_model, cur_res, cur_pred, est, val, timing_candidate, compile, n_refit, say, against=added)
+        cur_model, cur_res, cur_pred, timing, timing_refit = timing_against_verdicts(cur_model, cur_res, cur_pred,
+                                                                                     warnings)
         if timing:
             warnings.insert(0, timing["text"])
-            cur_model, cur_res, cur_pred = _drop_stand_ins(cur_model, cur_res, cur_pred, added, est, val, compile,
-                                                           horizon, say, warnings)
     if iterate and cur_res is not res:
         # backward elimination: does each earlier verdict still stand with the later ones in?
         found = [(rd.verdict, len(rd.ranking)) for rd in rounds

@@ -632,5 +632,5 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
                      "translational equations, are not determined by the data")
     effects = (["yaw_torque"] + [e for e in model.effect_names if e in KNOWN_TORQUE_EFFECTS] + ["motor_lag"]
                + (["sampled_inputs"] if lead > 0 else []))    # the catalogue's name for s_lead
-    return ImuFit(params, nrmse, [(float(a), float(b)) for a, b in profile], m, int(rows(tau).sum()), notes,
+    return ImuFit(params, nrmse, [(float(a), float(b)) for a, b in profile], m, int(fitted.sum()), notes,
                   horizons, effects, over_noise, share)
