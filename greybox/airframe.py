@@ -103,7 +103,7 @@ class Airframe:
         # lever): one built in Python from rotors alone gets the hubs' mean distance from the
         # centre, as load_airframe gives rotor tables without arm_length, not a 1-mm floor.
         if not self.arm_length > 0 and self.rotors:
-            self.arm_length = float(np.mean([math.hypot(r.position[0], r.position[1]) for r in self.rotors]))
+            self.arm_length = hub_reach(self.rotors)
 
     @property
     def n_rotors(self) -> int:
@@ -224,11 +224,15 @@ a quarter of the mass at L, give about 0.25): outside by a factor 20 is a unit, 
 vehicle (a blind audit's mass of 1200 for 1.2 kg was reported as rotor speeds in rev/s)."""
 
 
+def hub_reach(rotors: Sequence[Rotor]) -> float:
+    """The hubs' mean horizontal distance from the centre of gravity, m (the arm when none is given)."""
+    return float(np.mean([math.hypot(r.position[0], r.position[1]) for r in rotors]))
+
+
 def _check_scale(mass: float, J: np.ndarray, rotors: Sequence[Rotor], source: str) -> None:
     """One error naming the likely unit when mass, inertia and the rotors' distance cannot
     belong to one vehicle (:data:`INERTIA_SCALE`)."""
-    P = np.array([r.position for r in rotors], dtype=float)
-    reach = float(np.mean(np.hypot(P[:, 0], P[:, 1])))
+    reach = hub_reach(rotors)
     if reach <= 0:
         return
     j3 = float(np.max(np.linalg.eigvalsh(J)))

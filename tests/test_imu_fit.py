@@ -12,7 +12,7 @@ from greybox.cli import main
 from greybox.data import FlightLog, save_log
 from greybox.fitting.imu import fit_imu, is_imu_only
 
-from foreign_sim import airframe_dict, crazyflie, simulate_flight
+from foreign_sim import airframe_dict, airframe_toml, crazyflie, simulate_flight
 
 USD = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "crazyflie_usd" / "log10"
 
@@ -32,6 +32,14 @@ def foreign():
     veh = crazyflie()
     fl = simulate_flight(veh, duration=20.0, seed=2, accel=True, log_commands=True)
     return veh, _imu_only(fl.log)
+
+
+@pytest.fixture
+def airframe_file(foreign, tmp_path):
+    """The foreign vehicle's true airframe as a TOML file."""
+    af = tmp_path / "cf.toml"
+    af.write_text(airframe_toml(airframe_dict(foreign[0])))
+    return af
 
 
 def test_imu_only_fit_recovers_thrust_torque_and_motor_lag_on_foreign_data(foreign):
@@ -80,7 +88,7 @@ def test_where_the_log_says_the_rotors_start_does_not_move_the_fit(foreign):
     assert res.value("tau_m") == pytest.approx(veh.tau_motor, rel=0.05)
 
 
-def test_a_weak_rotor_makes_the_imu_only_fit_inadequate_and_says_so(foreign, tmp_path, capsys):
+def test_a_weak_rotor_makes_the_imu_only_fit_inadequate_and_says_so(foreign, airframe_file, tmp_path, capsys):
     """A blind audit's 8 % weak rotor gave roll/pitch gains 0.93 at 8 std and no word: the
     torque equations, averaged over 0.1 s where the gyro's noise averages out, leave a
     systematic torque beyond it; a rotor 3 % weak on the other simulator is enough."""
@@ -90,9 +98,7 @@ def test_a_weak_rotor_makes_the_imu_only_fit_inadequate_and_says_so(foreign, tmp
     log = _imu_only(fl.log)
     csv = tmp_path / "weak.csv"
     save_log(log, csv)
-    af = tmp_path / "cf.toml"
-    from foreign_sim import airframe_toml
-    af.write_text(airframe_toml(airframe_dict(veh)))
+    af = airframe_file
     assert main(["fit", str(csv), "--airframe", str(af), "--json", str(tmp_path / "r.json")]) == 0
     r = json.loads((tmp_path / "r.json").read_text())
     assert r["adequate"] is False and max(r["systematic_share"].values()) > 0.05, r["systematic_share"]
@@ -106,7 +112,8 @@ def test_a_weak_rotor_makes_the_imu_only_fit_inadequate_and_says_so(foreign, tmp
     ({"p": 180 / np.pi, "q": 180 / np.pi, "r": 180 / np.pi}, "deg/s"),              # no attitude to check it by
     ({"r": -1}, "r's sign"),                                                        # yaw the other way
 ])
-def test_an_imu_only_log_in_other_axes_or_units_is_refused_naming_them(foreign, tmp_path, capsys, change, named):
+def test_an_imu_only_log_in_other_axes_or_units_is_refused_naming_them(foreign, airframe_file, tmp_path, capsys,
+                                                                        change, named):
     """A log without position or attitude has nothing to check the IMU's axes and units by
     but the physics: a blind audit fitted an accelerometer reading +g, an FLU IMU and a gyro in
     deg/s with exit 0, to a negative K_T and b, and roll/pitch gains of 67 and 104."""
@@ -116,22 +123,18 @@ def test_an_imu_only_log_in_other_axes_or_units_is_refused_naming_them(foreign, 
         Y[:, log.output_names.index(ch)] *= factor
     csv = tmp_path / "imu.csv"
     save_log(FlightLog(log.t, log.inputs, log.input_names, Y, list(log.output_names), {}, [], "x.csv"), csv)
-    af = tmp_path / "cf.toml"
-    from foreign_sim import airframe_toml
-    af.write_text(airframe_toml(airframe_dict(veh)))
+    af = airframe_file
     assert main(["fit", str(csv), "--airframe", str(af), "--json", str(tmp_path / "r.json")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("greybox: error: ") and err.count("\n") == 1 and named in err, err
     assert not (tmp_path / "r.json").exists()
 
 
-def test_imu_only_fit_from_the_command_line(foreign, tmp_path, capsys):
+def test_imu_only_fit_from_the_command_line(foreign, airframe_file, tmp_path, capsys):
     veh, log = foreign
     csv = tmp_path / "imu.csv"
     save_log(log, csv)
-    af = tmp_path / "cf.toml"
-    from foreign_sim import airframe_toml
-    af.write_text(airframe_toml(airframe_dict(veh)))
+    af = airframe_file
     assert main(["fit", str(csv), "--airframe", str(af), "--json", str(tmp_path / "r.json")]) == 0
     r = json.loads((tmp_path / "r.json").read_text())
     assert r["imu_only"] is True and set(r["parameters"]) >= {"K_T", "b", "tau_m", "g_x", "g_y"}

@@ -509,7 +509,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
 
     def estimate(lead, profile):
         """The coefficients, their std, the validation nrmse and the lag at the input lead
-        ``lead`` from its ``tau`` profile ``profile``."""
+        ``lead`` from its ``tau`` profile ``profile``; with the equations they were solved on."""
         k = int(np.argmin([c for _, c in profile]))
         tau = grid_tau[k]
         # the profile's curvature at its minimum gives tau's std (cost is a sum of normalised
@@ -553,9 +553,9 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
             params[g] = (v / K_T, math.hypot(s / K_T, v * sK / K_T ** 2))
         params["tau_m"] = (float(tau), tau_std)
         params["s_lead"] = (float(lead), float("nan"))
-        return params, nrmse, coef, tau, k, profile
+        return params, nrmse, coef, tau, k, profile, (y_eq, X)
 
-    params, nrmse, coef, tau, k, profile = estimate(0.0, held_profile)
+    params, nrmse, coef, tau, k, profile, (y_eq, X) = estimate(0.0, held_profile)
     lead = min(best, key=lambda s_: (best[s_], s_))
     if lead > 0:
         # the timing counts when it moves what is fitted (the diagnosis's rule for a log's
@@ -564,12 +564,11 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         led = estimate(lead, [(tau_, solve(tau_, lead)[1]) for tau_ in grid_tau])
         shifts = [abs(led[0][n][0] - v) / sd for n, (v, sd) in params.items() if math.isfinite(sd) and sd > 0]
         if shifts and max(shifts) > LEAD_SHIFT:
-            params, nrmse, coef, tau, k, profile = led
+            params, nrmse, coef, tau, k, profile, (y_eq, X) = led
         else:
             lead = 0.0
     K_T = params["K_T"][0]
     _check_signs_and_units(params, where)
-    y_eq, X = equations(tau, lead)
     fitted = rows(tau)
     # the gyro's white noise through the equations' own derivative: diff / dt, smoothed, times J
     # (over ADEQUACY_WINDOW_S, where the noise averages out and a systematic torque does not)
