@@ -21,7 +21,8 @@ import numpy as np
 from .data import read_text_file
 from .errors import AirframeWarning, GreyboxInputError
 
-__all__ = ["Rotor", "Airframe", "load_airframe", "airframe_from_dict", "rotors_for_layout", "INERTIA_TOLERANCE"]
+__all__ = ["Rotor", "Airframe", "load_airframe", "airframe_from_dict", "rotors_for_layout", "INERTIA_TOLERANCE", "INERTIA_SCALE",
+           "hub_reach"]
 
 INERTIA_TOLERANCE = 0.05
 """Relative excess of ``J3 - J1 - J2`` over ``J3`` accepted (with an :class:`AirframeWarning`)

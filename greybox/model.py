@@ -522,11 +522,17 @@ class QuadrotorModel:
         slow_fast = top * self.ROTOR_SPEED_PLAUSIBLE_FACTOR < hover
         if w.shape[0] >= 10 and (slow_fast or typical_rms * self.ROTOR_SPEED_TYPICAL_FACTOR < hover):
             level = top if slow_fast else typical_rms
-            ratio = hover / max(level, 1e-300)
             given = "K_T" in self.airframe.parameters
             what = (f"stay below {top:.4g} (column {self.command_names[j]}'s 90th percentile, the fastest)"
                     if slow_fast else f"are typically {typical_rms:.4g} (the RMS over the rotors, three "
                                       "quarters of the log below it)")
+            if not level > 0:
+                problem = (f"{where}: the rotor speeds {what}: the rotors do not turn in most of the log, and "
+                           "nothing can be identified from it (are the speed columns the right ones, or filled?)")
+                if too_slow == "note":
+                    return [problem]
+                raise GreyboxInputError(problem)
+            ratio = hover / level
             problem = (
                 f"{where}: the rotor speeds {what}, 1/{ratio:.1f} of the hover speed {hover:.4g} rad/s that mass "
                 f"{self.airframe.mass:g} kg and K_T {p[self.param_names.index('K_T')]:.3g} imply (thrust "

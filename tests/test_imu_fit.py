@@ -111,6 +111,8 @@ def test_a_weak_rotor_makes_the_imu_only_fit_inadequate_and_says_so(foreign, air
     ({"q": -1, "r": -1, "ay": -1, "az": -1}, "FLU"),                                # an FLU IMU
     ({"p": 180 / np.pi, "q": 180 / np.pi, "r": 180 / np.pi}, "deg/s"),              # no attitude to check it by
     ({"r": -1}, "r's sign"),                                                        # yaw the other way
+    ({"p": -1}, "roll"),                                                            # roll the other way
+    ({"p": 180 / np.pi, "q": -180 / np.pi, "r": 180 / np.pi}, "deg/s"),             # deg/s, one axis flipped
 ])
 def test_an_imu_only_log_in_other_axes_or_units_is_refused_naming_them(foreign, airframe_file, tmp_path, capsys,
                                                                         change, named):
@@ -128,6 +130,48 @@ def test_an_imu_only_log_in_other_axes_or_units_is_refused_naming_them(foreign, 
     err = capsys.readouterr().err
     assert err.startswith("greybox: error: ") and err.count("\n") == 1 and named in err, err
     assert not (tmp_path / "r.json").exists()
+
+
+def _low_passed(log: FlightLog, cutoff_hz: float) -> FlightLog:
+    """``log`` with its gyro through a 2nd-order Butterworth low-pass, as autopilots filter it."""
+    from scipy.signal import butter, lfilter
+    b, a = butter(2, cutoff_hz / (0.5 / float(np.median(np.diff(log.t)))))
+    Y = log.outputs.copy()
+    for ch in ("p", "q", "r"):
+        Y[:, log.output_names.index(ch)] = lfilter(b, a, Y[:, log.output_names.index(ch)])
+    return FlightLog(log.t, log.inputs, log.input_names, Y, list(log.output_names), dict(log.extras), [], "lp.csv")
+
+
+def test_a_low_passed_gyro_is_not_read_as_a_missing_torque(foreign):
+    """An autopilot's gyro is low-passed: its second differences then understate its noise
+    (80 Hz at 500 Hz: 3.6x), and a flight with nothing missing read NOT ADEQUATE against them.
+    The noise is read where its fourth differences stop growing (an upper bound, said so);
+    where they never do, the adequacy is not judged. A weak rotor stays NOT ADEQUATE."""
+    veh, log = foreign
+    model = QuadrotorModel(airframe_from_dict(airframe_dict(veh, K_T_guess_factor=1.3)))
+    res = fit_imu(model, _low_passed(log, 80.0))
+    assert res.adequate is True, (res.residual_over_noise, res.systematic_share)
+    assert any("the gyro's noise is filtered" in n and "conservative" in n for n in res.notes)
+    assert res.value("g_x") == pytest.approx(1.0, abs=0.03) and res.value("g_y") == pytest.approx(1.0, abs=0.03)
+    # the filter's delay (1.4 / (2 pi 80 Hz) = 2.8 ms) goes into the lag, as the note says
+    assert veh.tau_motor < res.value("tau_m") < veh.tau_motor + 0.006
+    slow = fit_imu(model, _low_passed(log, 30.0))
+    assert slow.adequate is None and any("adequacy is not judged" in n for n in slow.notes)
+    assert slow.as_dict()["adequate"] is None and "not judged" in slow.summary()
+    fl = simulate_flight(veh, duration=20.0, seed=2, accel=True, log_commands=True,
+                         motor_gains=[0.97, 1.01, 1.01, 1.01])
+    weak = fit_imu(model, _low_passed(_imu_only(fl.log), 80.0))
+    assert weak.adequate is False and max(weak.systematic_share.values()) > 0.05
+
+
+def test_rotors_that_never_turn_are_one_clear_error(foreign, airframe_file, tmp_path, capsys):
+    veh, log = foreign
+    csv = tmp_path / "still.csv"
+    save_log(FlightLog(log.t, np.zeros_like(log.inputs), log.input_names, log.outputs, list(log.output_names),
+                       {}, [], "x.csv"), csv)
+    assert main(["fit", str(csv), "--airframe", str(airframe_file)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("greybox: error: ") and err.count("\n") == 1 and "do not turn" in err, err
 
 
 def test_imu_only_fit_from_the_command_line(foreign, airframe_file, tmp_path, capsys):

@@ -220,6 +220,21 @@ def test_px4_topics_errors():
                                   "system_type": np.full(t["vehicle_status"]["timestamp"].size, 1)})
     with pytest.raises(GreyboxInputError, match="MAV_TYPE 1 is not a multirotor"):
         import_px4_topics(bad, {}, "x.ulg")
+    # one actuator_outputs sample: one clear error (was a ZeroDivisionError on its rate)
+    ao = t["actuator_outputs"]
+    one = dict(t, actuator_outputs={k: np.asarray(v)[:1] for k, v in ao.items()})
+    with pytest.raises(GreyboxInputError, match="actuator_outputs has 1 sample"):
+        import_px4_topics(one, {"PWM_DISARMED": 900.0}, "x.ulg")
+    # the motor count guessed from the outputs: outputs held at a constant (a servo's 1500) or
+    # holding a NaN are not motors, and the note says which are which
+    outs = dict(ao)
+    outs["output[4]"] = outs["output[5]"] = np.full(ao["timestamp"].size, 1500.0)
+    outs["output[6]"] = np.where(np.arange(ao["timestamp"].size) == 3, np.nan, 0.0)
+    no_type = {k: v for k, v in t.items() if k != "vehicle_status"}
+    imp = import_px4_topics({**no_type, "actuator_outputs": outs}, {"PWM_DISARMED": 900.0}, "x.ulg")
+    assert imp.n_rotors == 4
+    assert any("4 motors (outputs that carry a signal)" in n and "held at 1500 (unused)" in n
+               for n in imp.notes), imp.notes
 
 
 @pytest.fixture(scope="module")

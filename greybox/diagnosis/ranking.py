@@ -27,7 +27,7 @@ from .screening import (explained_fraction, held_on_bound, replaced_base_terms, 
                         screen, screen_jointly, within_row_timing)
 
 __all__ = ["PARAMETER_SHIFT", "parameter_shifts", "ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "validation_falls", "confirmed_on_validation", "timing_stand_in", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
-           "rank_round", "order_refitted", "default_candidates", "far_channels"]
+           "rank_round", "order_refitted", "default_candidates", "far_channels", "lacking_signals"]
 
 ALPHA = 0.01
 """Family-wise significance level of the likelihood-ratio tests (Bonferroni over candidates)."""
@@ -704,7 +704,7 @@ def tie_explanation(taken: CandidateResult, other: CandidateResult, group: Seque
     return f"it is taken by the tie rule over the group ({', '.join(c.effect for c in group)})"
 
 
-def lacking_signals(effect, log: FlightLog) -> list[str]:
+def lacking_signals(effect: "type[fx.Effect] | fx.Effect", log: FlightLog) -> list[str]:
     """The logged signals (:attr:`~greybox.effects.Effect.signals`) ``effect`` reads that
     ``log`` carries neither as an extra column nor as an input."""
     return [s for s in effect.signals if s not in log.extras and s not in log.input_names]

@@ -129,7 +129,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     if validation is None:
         est, val = map(list, zip(*[lg.split(split) for lg in logs]))
     else:
-        val = [validation] if isinstance(validation, FlightLog) else list(validation)
+        val = list(given_val)
         for v in val + logs[1:]:
             if list(v.input_names) != list(logs[0].input_names):
                 raise GreyboxInputError(f"{v.source or 'log'}: inputs {','.join(v.input_names)} differ from the "
@@ -207,7 +207,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
 
     def timing_against_verdicts(m, fr, pr, words):
         """The log's timing judged against ``m`` (the model as given plus the verdicts so far):
-        ``(model, fit, prediction, words, refit)`` as :func:`_input_timing` gives them, with the
+        ``(model, fit, prediction, found, refit)`` as :func:`_input_timing` gives them, with the
         verdicts that stood in for the timing left out when it stands (their words to ``words``)."""
         added = [e for e in m.effect_names if e not in model.effect_names]
         say(f"diagnose: the log's timing judged again, against the model with {', '.join(added)}")

@@ -36,7 +36,7 @@ from .input_errors import INPUT_NOISE_SHARE, input_noise_process_scale
 from .robust import long_run_covariance, upper_covariance
 
 __all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS",
-           "TRUST_REGION", "IF_NEEDED"]
+           "TRUST_REGION", "IF_NEEDED", "THRUST_SPREAD"]
 
 IF_NEEDED = "if_needed"
 """``fit``'s default ``process_noise``: output error, then soft continuity when output error
@@ -482,7 +482,8 @@ def _thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], p: np.ndarra
     """The mean vertical rotor thrust over the flights over the weight ``m g``, the model's own
     at parameters ``p`` with every effect's part (a command-to-speed map's offset, the battery's
     voltage, a thrust curve, the ground): the specific force along the body's z axis it predicts
-    at the measured position and attitude, at rest (no drag), effect states at the logged speeds,
+    at the measured position and attitude, at rest (no drag), effect states where their dynamics
+    rest at the logged speeds (:meth:`~greybox.model.QuadrotorModel.settled_states`),
     times ``cos(phi) cos(theta)``. Proportional to ``K_T``. None where the inputs are not rotor
     speeds or the airframe has no weight. (A blind audit's speeds logged 40 rad/s above the
     rotors', fitted with ``rotor_map``, were said to carry 111 % of the weight by the logged

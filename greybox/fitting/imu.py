@@ -44,12 +44,13 @@ from ..data import FlightLog
 from ..errors import GreyboxInputError
 from ..model import QuadrotorModel
 from ..residuals import long_run_factor
-from ..shooting import estimate_noise
+from ..shooting import estimate_noise, robust_std
 from ..validation import DEFAULT_HORIZONS, HorizonErrors
 from .certificate import NOISE_RATIO_COLOURED
 
 __all__ = ["ImuFit", "fit_imu", "is_imu_only", "IMU_EQUATIONS", "TAU_GRID", "HORIZON_CHANNELS",
-           "KNOWN_TORQUE_EFFECTS", "DRAG_NOTE_RATIO", "LEAD_GRID", "LEAD_SHIFT"]
+           "KNOWN_TORQUE_EFFECTS", "DRAG_NOTE_RATIO", "LEAD_GRID", "LEAD_SHIFT", "SETTLE_TAUS", "ADEQUACY_WINDOW_S",
+           "SYSTEMATIC_SHARE", "WHITE_DIFFERENCES", "FILTERED_NOISE_SPACING_S", "gyro_noise_on_average"]
 
 KNOWN_TORQUE_EFFECTS = ("gyroscopic",)
 """Effects whose torque depends on the body rates and rotor speeds alone, with parameters the
@@ -99,6 +100,47 @@ trajectory fit's :data:`~greybox.fitting.certificate.NOISE_RATIO_COLOURED`) make
 inadequate: physically non-negligible. On a blind audit's flights: 0 with nothing missing,
 0.9 % with its 45 ms motors (gains 0.6 % low), 6-9 % with the airframe's rotor inertia
 where the vehicle had none, 14-16 % with an 8 % weak rotor."""
+
+
+WHITE_DIFFERENCES = 0.8
+"""A gyro's noise is taken as white when the noise level read from its fourth differences is
+at least this share of the one from its second (1.00 +- 0.02 for white noise over thousands of
+samples, 0.98-1.01 on two blind audits' simulated gyros; a second-order low-pass at 30-200 Hz
+on 500-1000 Hz samples gives 0.36-0.56, as autopilots filter their gyros)."""
+
+FILTERED_NOISE_SPACING_S = 0.02
+"""The longest spacing (s) at which a filtered gyro's noise level is looked for: where its
+fourth differences stop growing, the noise is uncorrelated (a 30 Hz low-pass at 500 Hz: 16 ms)."""
+
+
+def _difference_noise(y: np.ndarray, k: int, order: int) -> float:
+    """Noise level of ``y`` from robust differences of ``order`` (2 or 4) at spacing ``k``:
+    white noise gives its standard deviation; a low-passed noise less, until ``k`` spans its
+    correlation; a smooth signal adds least to the fourth."""
+    weights = {2: (1, -2, 1), 4: (1, -4, 6, -4, 1)}[order]
+    n = y.size - order * k
+    if n < 20:
+        return float("nan")
+    d = sum(c * y[j * k:j * k + n] for j, c in enumerate(weights))
+    return robust_std(d) / math.sqrt(sum(c * c for c in weights))
+
+
+def gyro_noise_on_average(y: np.ndarray, dt: float, through: float, window_s: float) -> tuple[float, str]:
+    """The RMS that the gyro's noise in ``y`` (rad/s, samples ``dt`` apart) leaves on its
+    derivative averaged over ``window_s``, and how it was read: ``"white"`` (the exact gain
+    ``through`` of the derivative and average), ``"filtered"`` (a low-passed noise: its level
+    read where its fourth differences stop growing, and taken unsmoothed into the average, whose
+    derivative then telescopes to a difference of two samples ``window_s`` apart: an upper
+    bound), or ``"unknown"`` (no such spacing within :data:`FILTERED_NOISE_SPACING_S`: nan)."""
+    v = y[np.isfinite(y)]
+    s2, s4 = _difference_noise(v, 1, 2), _difference_noise(v, 1, 4)
+    if not s4 < WHITE_DIFFERENCES * s2:
+        return through * s2, "white"
+    levels = [_difference_noise(v, k, 4) for k in range(1, max(2, int(FILTERED_NOISE_SPACING_S / dt)) + 2)]
+    for a, b in zip(levels, levels[1:]):
+        if b < 1.05 * a:      # grown to the noise's own level (a smooth signal grows it as k^4)
+            return math.sqrt(2.0) * a / window_s, "filtered"
+    return float("nan"), "unknown"
 
 
 def _misses(over_noise: float, share: float) -> bool:
@@ -156,10 +198,14 @@ class ImuFit:
     torque, both averaged over :data:`ADEQUACY_WINDOW_S`."""
 
     @property
-    def adequate(self) -> bool:
+    def adequate(self) -> bool | None:
         """Whether no torque equation leaves a systematic torque beyond the gyro's noise that is
-        physically non-negligible (:data:`SYSTEMATIC_SHARE` of the fitted torque)."""
-        return not any(_misses(v, self.systematic_share.get(eq, 0.0)) for eq, v in self.residual_over_noise.items())
+        physically non-negligible (:data:`SYSTEMATIC_SHARE` of the fitted torque); None when
+        not judged (no torque to compare with, or a gyro noise that could not be read)."""
+        if any(_misses(v, self.systematic_share.get(eq, 0.0)) for eq, v in self.residual_over_noise.items()):
+            return False
+        judged = self.residual_over_noise and all(math.isfinite(v) for v in self.residual_over_noise.values())
+        return True if judged else None
 
     @property
     def total(self) -> float:
@@ -188,7 +234,8 @@ class ImuFit:
         if self.residual_over_noise:
             lines.append(f"  torque equations over {1e3 * ADEQUACY_WINDOW_S:.0f} ms, residual / the gyro's noise: "
                          + ", ".join(f"{k} {v:.2f}" for k, v in self.residual_over_noise.items())
-                         + ("  (adequate)" if self.adequate else "  (NOT ADEQUATE: see the note)"))
+                         + {True: "  (adequate)", False: "  (NOT ADEQUATE: see the note)",
+                            None: "  (not judged: see the note)"}[self.adequate])
         lines += [f"  note: {n}" for n in self.notes]
         return "\n".join(lines)
 
@@ -275,21 +322,34 @@ def _step_means(w: np.ndarray, e: np.ndarray, tau: float, dt: float) -> tuple[np
     return held + m1 * d, held ** 2 + 2 * m1 * held * d + m2 * d ** 2
 
 
+def _check_thrust(k_t: float, where: str) -> None:
+    """One error when the thrust fitted to the accelerometer is not positive (before anything
+    is divided by it): the accelerometer's sign, or speeds that do not move."""
+    if not k_t > 0:
+        raise GreyboxInputError(f"{where}: the thrust fitted to the accelerometer is not positive (K_T = {k_t:.3g}): "
+                                "does the accelerometer read the specific force in FRD (about -9.81 m/s^2 on az in "
+                                "hover), and do the rotor speeds change?")
+
+
 def _check_signs_and_units(params: dict[str, tuple[float, float]], where: str) -> None:
     """One error naming the likely cause when the fitted coefficients can belong to no
-    vehicle: a thrust or a yaw torque that turns the wrong way (a sign of the accelerometer,
-    the gyro or the spins), roll and pitch gains ~57 (a gyro in deg/s). An IMU-only log has no
-    attitude to check the gyro's unit against: a blind audit's uSD-like log with the gyro in
-    deg/s fitted with exit 0 to gains 67 and 104 and b/K_T 1.5 m."""
-    k_t, b = params["K_T"][0], params["b"][0]
-    g_x, g_y = params["g_x"][0], params["g_y"][0]
-    if not k_t > 0:
-        raise GreyboxInputError(f"{where}: the thrust fitted to the accelerometer is negative (K_T = {k_t:.3g}): "
-                                "does the accelerometer read the specific force in FRD (about -9.81 m/s^2 on az in "
-                                "hover)?")
-    if min(g_x, g_y) > GYRO_DEGREES_GAIN:
+    vehicle: a yaw, roll or pitch torque that turns the wrong way (a sign of the gyro, the
+    spins or the rotor positions), roll and pitch gains ~57 (a gyro in deg/s). An IMU-only log
+    has no attitude to check the gyro's unit against: a blind audit's uSD-like log with the
+    gyro in deg/s fitted with exit 0 to gains 67 and 104 and b/K_T 1.5 m."""
+    _check_thrust(params["K_T"][0], where)
+    b = params["b"][0]
+    (g_x, s_x), (g_y, s_y) = params["g_x"], params["g_y"]
+    if min(abs(g_x), abs(g_y)) > GYRO_DEGREES_GAIN:
         raise GreyboxInputError(f"{where}: the roll and pitch torque gains are {g_x:.3g} and {g_y:.3g} (1 when the "
                                 "airframe's arm and inertia are right): are p, q, r in deg/s? rad/s = deg/s * pi/180")
+    # clearly negative only: a gain the closed loop pulls towards zero may straddle it
+    wrong = [f"{axis} ({g:.3g} ± {sd:.2g})" for axis, g, sd in (("roll", g_x, s_x), ("pitch", g_y, s_y))
+             if g < 0 and not g + 3 * sd >= 0]
+    if wrong:
+        raise GreyboxInputError(f"{where}: the {' and '.join(wrong)} torque gain turns the wrong way (1 when the "
+                                "airframe is right): check p's and q's signs (FRD: x forward, y right) and the rotor "
+                                "positions in the airframe (x forward, y right, not mirrored)")
     if not b > 0:
         raise GreyboxInputError(f"{where}: the yaw torque fitted to the gyro turns the wrong way (b = {b:.3g}): "
                                 "check r's sign (FRD: positive turning right seen from above) and the rotors' spins "
@@ -404,15 +464,15 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     dt = float(np.median(steps))
     # rows a steady rate apart with a little jitter in their stamps are the samples themselves
     # (a grid of the median step drifts across them: 5 ms over 20 s of a 200 Hz log)
-    rows = bool(np.all(np.abs(steps - dt) < 0.25 * dt))
-    grid = t.copy() if rows else np.arange(t[0], t[-1] + 0.5 * dt, dt)
+    on_rows = bool(np.all(np.abs(steps - dt) < 0.25 * dt))
+    grid = t.copy() if on_rows else np.arange(t[0], t[-1] + 0.5 * dt, dt)
     win = max(5, int(round(SMOOTHING_S / dt)) | 1)
     if grid.size < 10 * win:
         raise GreyboxInputError(f"{where}: too short for an IMU-only fit ({t[-1] - t[0]:.2f} s)")
 
     def on_grid(y):
         ok = np.isfinite(y)
-        if rows:
+        if on_rows:
             return np.interp(np.arange(t.size), np.flatnonzero(ok), y[ok]), ~ok
         return np.interp(grid, t[ok], y[ok]), np.interp(grid, t, (~ok).astype(float)) > 0.5
     cols, gaps = [], np.zeros(grid.size, bool)
@@ -422,7 +482,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         gaps |= miss
     om, az = np.column_stack(cols[:3]), cols[3]
     # the speeds as held (contract §2): each row's from its time to the next row's
-    held = np.arange(t.size) if rows else np.clip(np.searchsorted(t, grid + 1e-9 * dt, side="right") - 1, 0,
+    held = np.arange(t.size) if on_rows else np.clip(np.searchsorted(t, grid + 1e-9 * dt, side="right") - 1, 0,
                                                   len(t) - 1)
     w = log.inputs[held, :n_rot].astype(float)
     smooth = lambda y: savgol_filter(y, win, 2, axis=0)  # noqa: E731
@@ -476,10 +536,11 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         X["az"] = smooth(e[:-1] ** 2).sum(axis=1)[:, None]
         return {"az": thrust_side, "p_dot": rot[:, 0], "q_dot": rot[:, 1], "r_dot": rot[:, 2]}, X
 
-    def solve(tau, lead, scored=IMU_EQUATIONS):
-        """Least squares of each equation; the cost summed over the equations ``scored``."""
+    def solve(tau, lead, scored=IMU_EQUATIONS, fitted=None):
+        """Least squares of each equation on the rows ``fitted`` (default: :func:`rows` at
+        ``tau``); the cost summed over the equations ``scored``."""
         y_eq, X = equations(tau, lead)
-        fitted = rows(tau)
+        fitted = rows(tau) if fitted is None else fitted
         coef, cost = {}, 0.0
         for eq, y in y_eq.items():
             c, *_ = np.linalg.lstsq(X[eq][fitted], y[fitted], rcond=None)
@@ -495,17 +556,21 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     if not grid_tau:
         raise GreyboxInputError(f"{where}: too few IMU samples for an IMU-only fit once the motors' lag has "
                                 "settled from the log's start")
+    # every point of the profiles is scored on the same rows (those the longest lag keeps): on
+    # its own rows a long lag would also leave out the log's opening (a take-off's large
+    # residuals) and score better for it
+    common = rows(grid_tau[-1])
     # The lag and the speeds' timing within a row, profiled together: a lag delays and smooths,
     # a lead advances. Held as the contract says, commands a 500-Hz controller sent between an
     # audit's 200 Hz rows gave its 40 ms motors 37.8 ms (6 of its std); with the lead, 40.0.
     # A lead moves the lag's optimum by a row or so: beside the held speeds' whole profile, the
     # other leads are scored near its minimum, and the best gets its whole profile.
-    held_profile = [(tau, solve(tau, 0.0)[1]) for tau in grid_tau]
+    held_profile = [(tau, solve(tau, 0.0, fitted=common)[1]) for tau in grid_tau]
     k0 = int(np.argmin([c for _, c in held_profile]))
     near = range(max(k0 - PROFILE_NEAR, 0), min(k0 + 2 * PROFILE_NEAR, len(grid_tau) - 1) + 1)
     # scored on the torques alone: the thrust equation lacks the vertical drag, and its misfit
     # chose a lead on a 30 g vehicle at 1 kHz that moved its 15 ms lag by 9 std the wrong way
-    best = {s_: min(solve(grid_tau[i], s_, TORQUE_EQUATIONS)[1] for i in near) for s_ in LEAD_GRID}
+    best = {s_: min(solve(grid_tau[i], s_, TORQUE_EQUATIONS, common)[1] for i in near) for s_ in LEAD_GRID}
 
     def estimate(lead, profile):
         """The coefficients, their std, the validation nrmse and the lag at the input lead
@@ -527,7 +592,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         if 0 < k < len(grid_tau) - 1:
             # coloured residuals carry less information per sample: widen by their long-run factor
             colour = float(np.median([long_run_factor(y_eq[eq][est] - X[eq][est] @ coef[eq]) for eq in y_eq]))
-            tau_std = math.sqrt(c1 / (2 * est.sum()) / curv * colour) if curv > 0 else float("nan")
+            tau_std = math.sqrt(c1 / (2 * common.sum()) / curv * colour) if curv > 0 else float("nan")
         else:
             tau_std = float("nan")
         params: dict[str, tuple[float, float]] = {}
@@ -548,6 +613,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
             else:
                 params[f"g_{'x' if eq == 'p_dot' else 'y'}"] = (float(c[0]), float(std[0]))
         K_T, sK = params["K_T"]
+        _check_thrust(K_T, where)
         for g in ("g_x", "g_y"):     # torque coefficient over K_T: the gain against the geometry
             v, s = params[g]
             params[g] = (v / K_T, math.hypot(s / K_T, v * sK / K_T ** 2))
@@ -561,7 +627,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         # the timing counts when it moves what is fitted (the diagnosis's rule for a log's
         # timing, ranking.PARAMETER_SHIFT): a lead that fits a little better and moves nothing
         # is no evidence against the contract's hold
-        led = estimate(lead, [(tau_, solve(tau_, lead)[1]) for tau_ in grid_tau])
+        led = estimate(lead, [(tau_, solve(tau_, lead, fitted=common)[1]) for tau_ in grid_tau])
         shifts = [abs(led[0][n][0] - v) / sd for n, (v, sd) in params.items() if math.isfinite(sd) and sd > 0]
         if shifts and max(shifts) > LEAD_SHIFT:
             params, nrmse, coef, tau, k, profile, (y_eq, X) = led
@@ -577,17 +643,34 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     impulse = np.zeros(4 * win + 2 * slow + 1)
     impulse[2 * win + slow] = 1.0
     through = float(np.sqrt(np.sum(np.convolve(savgol_filter(np.diff(impulse) / dt, win, 2), box) ** 2)))
-    gyro_noise = np.array([estimate_noise(log.output(ch)) for ch in ("p", "q", "r")])
+    read = [gyro_noise_on_average(log.output(ch), dt, through, slow * dt) for ch in ("p", "q", "r")]
+    gyro_noise = np.array([level for level, _ in read])
+    # only averages whose whole window is usable: a gap's interpolation must not leak into them
+    averaged = fitted & (np.convolve(use.astype(float), box, mode="same") > 1 - 1e-9)
     over_noise: dict[str, float] = {}
     share: dict[str, float] = {}
     for i, eq in enumerate(TORQUE_EQUATIONS):
-        r = np.convolve(y_eq[eq] - X[eq] @ coef[eq], box, mode="same")[fitted]
-        torque = np.convolve(X[eq] @ coef[eq], box, mode="same")[fitted]
-        expected = through * float(np.sqrt(np.sum((J[i] * gyro_noise) ** 2)))
-        if expected > 0 and np.std(torque) > 0:
+        r = np.convolve(y_eq[eq] - X[eq] @ coef[eq], box, mode="same")[averaged]
+        torque = np.convolve(X[eq] @ coef[eq], box, mode="same")[averaged]
+        expected = float(np.sqrt(np.sum((J[i] * gyro_noise) ** 2)))
+        if r.size and np.std(torque) > 0 and not expected > 0:
+            over_noise[eq] = share[eq] = float("nan")      # a noise greybox cannot read: not judged
+        elif r.size and expected > 0 and np.std(torque) > 0:
             over_noise[eq] = float(np.sqrt(np.mean(r ** 2)) / expected)
             share[eq] = math.sqrt(max(float(np.mean(r ** 2)) - expected ** 2, 0.0)) / float(np.std(torque))
     notes = []
+    how = {how for _, how in read}
+    if "unknown" in how:
+        notes.append("the torque equations' adequacy is not judged: the gyro's noise is filtered (its fourth "
+                     "differences well below its second) and its level could not be read from the log (no spacing up "
+                     f"to {1e3 * FILTERED_NOISE_SPACING_S:.0f} ms where they stop growing): greybox cannot tell a "
+                     "missing torque from that noise")
+    elif "filtered" in how:
+        notes.append(f"the gyro's noise is filtered (low-passed, as autopilots do): its level over "
+                     f"{1e3 * ADEQUACY_WINDOW_S:.0f} ms is an upper bound read where it stops being correlated, so "
+                     "the adequacy check is conservative (it misses small missing torques sooner than it "
+                     "invents one); the filter also delays the measured rates, and that delay is fitted as part of "
+                     "tau_m (a 2nd-order 80 Hz low-pass on a simulated 20 ms motor's gyro: tau_m 23 ms)")
     off = [eq for eq in over_noise if _misses(over_noise[eq], share[eq])]
     if off:
         # an 8 % weak rotor in a blind audit's log: gains 0.93 at 8 std, and nothing said

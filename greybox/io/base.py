@@ -51,7 +51,7 @@ __all__ = ["trimmed_log", "G0", "CRAZYFLIE_PWM_MAP", "PX4_PWM_MAP", "PwmMap", "I
            "flu_to_frd", "zup_to_ned", "euler_zup_to_ned", "euler_from_quaternion", "wrap_angle",
            "deg_to_rad", "g_to_ms2", "rpm_to_rad_s", "pwm_to_rotor_speed", "parse_pwm_map",
            "time_base", "fresh_rows", "interpolate_fresh", "interpolate_samples", "setpoint_extras", "commands_on_grid", "flight_from_height",
-           "flight_from_imu", "longest_run", "grid_with", "snap", "assemble_log"]
+           "flight_from_imu", "longest_run", "grid_with", "snap", "assemble_log", "span_words"]
 
 G0 = 9.80665
 """Standard gravity, m/s^2: one g of an accelerometer that logs in g."""

@@ -326,20 +326,28 @@ def import_px4_topics(topics: Topics, params: Mapping[str, float], where: str,
         n_out = int(np.max(_field(ao, "noutputs", io_))) if "noutputs" in ao else \
             sum(1 for k in ao if k.startswith("output["))
         outs = np.column_stack([_field(ao, f"output[{i}]", io_) for i in range(n_out)])
-        active = [i for i in range(n_out) if np.any(outs[:, i] != 0)]
+        if t_o.size < 2 or not t_o[-1] > t_o[0]:
+            raise GreyboxInputError(f"{where}: actuator_outputs has {t_o.size} sample(s) at one time: no motor "
+                                    "commands over the flight")
+        active = [i for i in range(n_out) if np.any(np.nan_to_num(outs[:, i]) != 0)]
+        # an output's span over its numbers (a NaN in it is not a signal, nor a constant)
+        span = [float(np.nanmax(outs[:, i]) - np.nanmin(outs[:, i])) if np.any(np.isfinite(outs[:, i])) else 0.0
+                for i in range(n_out)]
         if n_rot is None:
-            n_rot, n_from = len(active), "outputs that carry a signal"
-            if n_rot not in (3, 4, 6, 8):
-                raise GreyboxInputError(f"{where}: {n_rot} actuator outputs carry a signal ({active}); cannot tell "
-                                        "which are motors: give the number of motors (n_motors)")
+            # outputs held at a constant (a servo's or a disarmed channel's 1500) are not motors
+            moving = [i for i in active if span[i] > 0]
+            n_rot, n_from = len(moving), "outputs that carry a signal"
+            if n_rot not in (3, 4, 6, 8) or moving != list(range(n_rot)):
+                raise GreyboxInputError(f"{where}: actuator outputs {[i + 1 for i in moving]} carry a signal; cannot "
+                                        "tell which are motors: give the number of motors (n_motors)")
         if n_rot > n_out:
             raise GreyboxInputError(f"{where}: {n_rot} motors ({n_from}) but actuator_outputs has {n_out} outputs")
         silent = [i + 1 for i in range(n_rot) if i not in active]
         if silent:
             raise GreyboxInputError(f"{where}: actuator outputs {silent} (motors by {n_from}) are 0 all along: not "
                                     "the motors' outputs?")
-        others = [i + 1 for i in active if i >= n_rot and np.ptp(outs[:, i]) > 0]
-        constant = sorted({float(outs[0, i]) for i in active if i >= n_rot and np.ptp(outs[:, i]) == 0})
+        others = [i + 1 for i in active if i >= n_rot and span[i] > 0]
+        constant = sorted({float(outs[np.isfinite(outs[:, i]), i][0]) for i in active if i >= n_rot and span[i] == 0})
         notes.append(f"{n_rot} motors ({n_from}): actuator outputs 1-{n_rot}"
                      + (f"; outputs {others} also carry a signal (not motors: ignored)" if others else "")
                      + (f"; outputs beyond {n_rot} held at {', '.join(f'{v:g}' for v in constant)} (unused)"
