@@ -94,6 +94,18 @@ class FittedModel:
         """``{component name: value}`` of every parameter."""
         return self.model.parameter_dict(self.p)
 
+    @property
+    def parameters(self) -> dict[str, dict[str, float | None]]:
+        """``{name: {"value": v, "std": s or None (fixed)}}`` for every component (a saved
+        and loaded model's as the fit's)."""
+        out: dict[str, dict[str, float | None]] = {}
+        for name, v in zip(self.model.param_names, self.p):
+            s = None
+            if name in self.free_names:
+                s = float(self.std[self.free_names.index(name)])
+            out[name] = {"value": float(v), "std": s}
+        return out
+
     def value(self, name: str) -> float:
         """One parameter component's value."""
         return float(self.p[self.model.param_names.index(name)])

@@ -50,6 +50,8 @@ def test_fit_result_is_a_fitted_model_that_saves_and_reloads_bit_for_bit(fitted,
     assert back.model.effect_names == fitted.model.effect_names
     assert np.array_equal(back.p, fitted.p)                       # exact floats
     assert np.array_equal(back.covariance, fitted.covariance)
+    # the README's res.parameters["K_T"] reads the same off a loaded model (a blind audit)
+    assert back.parameters == fitted.parameters and back.parameters["K_T"]["std"] > 0
     a, b = fitted.predict(val), back.predict(val)
     assert a.total == b.total and all(a.nrmse[c] == b.nrmse[c] for c in a.nrmse)
     np.testing.assert_array_equal(a.predicted, b.predicted)

@@ -237,3 +237,24 @@ def test_save_round_trip(tmp_path):
     assert np.nanmean(log.output("az")) == pytest.approx(-9.81, abs=0.05)   # hover: -g
     af = load_airframe(paths["airframe"])
     assert af.parameters["K_T"] == pytest.approx(2.3e-8) and af.layout == "x"
+
+
+@pytest.mark.slow
+def test_a_log_fitted_with_another_vehicles_airframe_is_not_certified(tmp_path, capsys):
+    """A blind audit fitted a Crazyflie log with a 2.5 kg airframe: its speeds 4.2 times that
+    airframe's hover (under the 5x unit check), exit 0, "optimum certified" with K_T on its
+    lower bound carrying 0 % of the weight. No thrust makes that vehicle fly as logged: the
+    fit is not converged, and the CLI says why (exit 1, the mass and the units named)."""
+    from greybox.cli import main
+    from greybox.data import save_log
+    from foreign_sim import airframe_dict, airframe_toml, simulate_flight
+    small = simulate_flight(crazyflie(), duration=8.0, seed=1)
+    doc = airframe_dict(one_kg())
+    doc["airframe"]["mass"] = 1.6          # hover 4.2 times below the logged speeds
+    save_log(small.log, tmp_path / "cf.csv")
+    (tmp_path / "big.toml").write_text(airframe_toml(doc))
+    rc = main(["fit", str(tmp_path / "cf.csv"), "--airframe", str(tmp_path / "big.toml"), "--quiet",
+               "--json", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "of the weight" in err and "mass 1.6 kg" in err and "rad/s" in err, err
+    assert not (tmp_path / "r.json").exists()

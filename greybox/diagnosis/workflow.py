@@ -98,12 +98,16 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     if not logs:
         raise GreyboxInputError("diagnose: no flight logs")
     timing_candidate = None
+    untried: list[str] = []
     given_val = [] if validation is None else \
         [validation] if isinstance(validation, FlightLog) else list(validation)
     if candidates is None:
         # an effect whose column a validation flight lacks cannot be validated (a blind audit's
         # battery_voltage, vbat in the estimation flight only, failed after 6 minutes)
         candidates = default_candidates(model, logs + given_val)
+        untried = [c for c in default_candidates(model, logs) if c not in candidates]
+        if untried:
+            say(f"diagnose: {', '.join(untried)} not tried: a validation flight lacks the column they read")
         if fx.SampledInputs.name in candidates:
             # the log's timing, settled before any physical effect is judged (below)
             timing_candidate = fx.SampledInputs.name
@@ -160,6 +164,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     # the baseline's own warnings say so: after the final model in the report, a "K_T carries 14 %
     # of the weight" read as if about it (a weak rotor on another simulator's 0.4 kg vehicle)
     warnings: list[str] = ([timing["text"]] if timing else []) + [f"baseline fit: {w}" for w in res.warnings]
+    if untried:
+        warnings.append(f"{', '.join(untried)} {'was' if len(untried) == 1 else 'were'} not tried: the estimation "
+                        f"flights log the column {'it reads' if len(untried) == 1 else 'they read'} "
+                        f"({', '.join(sorted({s for c in untried for s in (*fx.by_name(c).signals, *fx.by_name(c).considered_when_logged)}))}) and a validation "
+                        "flight does not, so it could not be validated there")
     if res.certificate is not None:
         say(f"diagnose: baseline {res.certificate.text()}")
     if not res.converged:

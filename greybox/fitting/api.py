@@ -35,7 +35,7 @@ from .gauss_newton import FitSession, GaussNewton, Solver, budget_spent
 from .input_errors import INPUT_NOISE_SHARE, input_noise_process_scale
 from .robust import long_run_covariance, upper_covariance
 
-__all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS",
+__all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS", "THRUST_IMPOSSIBLE",
            "TRUST_REGION", "IF_NEEDED", "THRUST_SPREAD"]
 
 IF_NEEDED = "if_needed"
@@ -176,20 +176,6 @@ class FitResult(FittedModel):
             p[self.model.param_names.index(name)] = v["value"][flight]
         return p
 
-    @property
-    def parameters(self) -> dict[str, dict[str, float | None]]:
-        """``{name: {"value": v, "std": s or None (fixed)}}`` for every component."""
-        out: dict[str, dict[str, float | None]] = {}
-        for name, v in zip(self.model.param_names, self.p):
-            s = None
-            if name in self.free_names:
-                s = float(self.std[self.free_names.index(name)])
-            out[name] = {"value": float(v), "std": s}
-        return out
-
-    def value(self, name: str) -> float:
-        return float(self.p[self.model.param_names.index(name)])
-
     def summary(self) -> str:
         """A readable table of the fitted parameters."""
         lines = [f"{'parameter':<12} {'value':>13} {'std':>11} {'rel':>7}"]
@@ -326,6 +312,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         flights = [logs] if isinstance(logs, FlightLog) else list(logs)
         res = _hover_balance_restart(model, logs, flights, process_noise, kw, first)
         res = _thrust_pull(model, logs, flights, kw, res)
+        _refuse_flightless_thrust(model, flights, res)
     for w in caught:     # a first fit's non-convergence is the user's news only when it is kept
         if res is first or not issubclass(w.category, ConvergenceWarning):
             _warnings.warn(w.message, w.category, stacklevel=2)
@@ -515,6 +502,31 @@ def _thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], p: np.ndarra
     mean = float(np.nanmean(np.concatenate(vertical)))
     g = model.airframe.gravity
     return mean / g if g > 0 and np.isfinite(mean) and mean > 0 else None
+
+
+THRUST_IMPOSSIBLE = 4.0
+"""A fit whose rotors carry less than the weight over this factor, or more than this many
+times it, on average over flights that start and end near rest is no vehicle's optimum, however
+certified: it is not :attr:`FitResult.converged` (a blind audit's Crazyflie log fitted with a
+2.5 kg airframe: K_T on its lower bound, 0 % of the weight, "certified"). The worst real
+Crazyflie base fits, missing a force, carried 62-88 %."""
+
+
+def _refuse_flightless_thrust(model: QuadrotorModel, flights: Sequence[FlightLog], res: FitResult) -> None:
+    """Mark ``res`` not converged, with the reason, when its thrust cannot be a flying
+    vehicle's (:data:`THRUST_IMPOSSIBLE`)."""
+    if "K_T" not in res.free_names:
+        return
+    ratio = _thrust_ratio(model, flights, res.p)
+    if ratio is None or 1.0 / THRUST_IMPOSSIBLE <= ratio <= THRUST_IMPOSSIBLE:
+        return
+    res.converged = False
+    res.status = (f"the fitted thrust carries {100 * ratio:.0f} % of the weight (K_T = {res.value('K_T'):.3g}): no "
+                  "thrust per speed² makes this airframe fly as the log does: is the airframe (or model) this "
+                  f"vehicle's (mass {model.airframe.mass:g} kg, inertia {', '.join(f'{j:.3g}' for j in np.diag(model.airframe.inertia))} "
+                  "kg m^2), and are the rotor speeds in rad/s?")
+    res.warnings.insert(0, f"not a vehicle's optimum: {res.status}")
+    _warnings.warn(f"fit did not converge: {res.status}", ConvergenceWarning)
 
 
 def _thrust_balance_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], values: dict,
