@@ -464,13 +464,14 @@ def discover(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seque
 
 
 def refit_with(sig: Sequence[Discovered], res: FitResult, est: Sequence[FlightLog], val: Sequence[FlightLog],
-               horizon: float, compile: str = "auto") -> tuple[FitResult, Prediction]:
+               horizon: float, compile: str = "auto") -> tuple[FitResult, Prediction, float, float]:
     """The fitted model ``res`` (any model: the baseline, or one with a catalogue effect
     added) with the refitted discovered combinations ``sig`` added, refitted from ``res``'s
-    optimum; its fit and validation prediction. :func:`discover` must have refitted ``sig``
-    (their ``effect`` is set)."""
-    _, fr, pr, _, _ = _fit_with(sig, res.model, res, est, val, compile, 1, horizon)
-    return fr, pr
+    optimum; its fit, validation prediction, and the likelihood ratio of what ``sig`` adds to
+    ``res`` with its p-value. :func:`discover` must have refitted ``sig`` (their ``effect`` is
+    set)."""
+    _, fr, pr, lr, p = _fit_with(sig, res.model, res, est, val, compile, 1, horizon)
+    return fr, pr, lr, p
 
 
 def _fit_with(sig: Sequence[Discovered], model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog],
