@@ -148,7 +148,7 @@ class DiscoveredEffect(Effect):
     features: ClassVar[tuple[str, ...]] = ()
     coefficients: ClassVar[tuple[float, ...]] = ()
     scales: ClassVar[tuple[float, ...]] = ()
-    excited_by = "flight in which the discovered features vary"
+    excited_by = "manoeuvres in which the discovered features vary"
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
