@@ -238,6 +238,13 @@ def test_rate_damping_is_discovered_refitted_and_written(paper, damped, tmp_path
     assert together < single
     between = replace(beside, final_prediction=SimpleNamespace(total=0.5 * (together + single)))
     assert "what the verdict holds" not in "\n".join(between._discovery_lines())
+    # numbers that agree to five digits are printed with as many as tell them apart (an audit's
+    # "nrmse 0.04194 against 0.04194")
+    import re
+    close = replace(beside, final_prediction=SimpleNamespace(total=together * (1 - 3e-7)))
+    line = next(ln for ln in close._discovery_lines() if "predicts better" in ln)
+    a, b = re.search(r"nrmse (\S+) against (\S+):", line).groups()
+    assert a != b and float(a) < float(b), line
     # a null verdict not taken as outside the catalogue says why beside the "significant" ones
     # (the model predicting 1.02 times what the best found does: 2 % better with it)
     null = replace(d, verdict=None, outside_catalogue="", final_prediction=SimpleNamespace(total=1.02 * together))

@@ -634,7 +634,8 @@ class Diagnosis:
             # read beside a verdict, a "significant" residual force looked like a second finding
             # (a 1 cm CoG offset's torque fitted as my ~ w2sum^2 on a peer simulator's flight)
             a, b = self.final_prediction.total, min(found)
-            digits = 3 if f"{a:.3f}" != f"{b:.3f}" else 5     # "0.038 against 0.038" read as a contradiction
+            # "0.038 against 0.038" read as a contradiction: as many digits as tell them apart
+            digits = next((n for n in range(3, 10) if f"{a:.{n}f}" != f"{b:.{n}f}"), 9)
             lines.append(f"   (found on the model as given; the final model predicts better, nrmse "
                          f"{a:.{digits}f} against {b:.{digits}f}: it is what the verdict "
                          "holds, seen from outside the catalogue)")
