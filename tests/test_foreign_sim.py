@@ -258,3 +258,45 @@ def test_a_log_fitted_with_another_vehicles_airframe_is_not_certified(tmp_path, 
     err = capsys.readouterr().err
     assert rc == 1 and "of the weight" in err and "mass 1.6 kg" in err and "rad/s" in err, err
     assert not (tmp_path / "r.json").exists()
+
+
+def test_an_x_quad_read_with_a_plus_airframe_is_told_and_nothing_is_tested():
+    """The foreign simulator's x-layout Crazyflie read with a "plus" airframe: its rotors'
+    roll and pitch moments match no order of the airframe's, and match them turned by 45
+    degrees. A blind audit's plus flight read as "x" had been diagnosed as a 1-s motor lag."""
+    from greybox import QuadrotorModel
+    from greybox.airframe import airframe_from_dict
+    from greybox.diagnosis import diagnose
+    from greybox.diagnosis.analysis import layout_rotation, rotor_order
+    from foreign_sim import airframe_dict
+    log = simulate_flight(crazyflie(), duration=10.0, seed=4).log     # 8 s estimated: 6 s pitch too little
+    right = QuadrotorModel(airframe_from_dict(airframe_dict(crazyflie())))
+    assert layout_rotation(right, log) is None and rotor_order(right, log) is None
+    doc = airframe_dict(crazyflie())
+    doc["airframe"]["layout"] = "plus"
+    wrong = QuadrotorModel(airframe_from_dict(doc))
+    turned = layout_rotation(wrong, log)
+    assert rotor_order(wrong, log) is None and turned is not None and abs(abs(math.degrees(turned)) - 45) < 1e-9
+    d = diagnose(wrong, log, iterate=False, progress=False)
+    assert d.verdict is None and d.null_reason == "rotor_layout" and not d.ranking and not d.discovered
+    assert "turned by" in d.warnings[0] and "layout 'plus'" in d.warnings[0], d.warnings[0]
+    assert d.as_json()["null_reason"] == "rotor_layout" and "nothing was tested" in d.verdict_text()
+
+
+@pytest.mark.slow
+def test_a_validation_flight_of_another_vehicle_is_refused():
+    """A blind audit validated a 2.5 kg vehicle's diagnosis on a Crazyflie's flight: nrmse 38.5
+    and "nothing significant is missing". With the thrust fitted to the estimation flight, the
+    validation flight's rotors carry many times its weight: one error naming it."""
+    from greybox import QuadrotorModel
+    from greybox.airframe import airframe_from_dict
+    from greybox.diagnosis import diagnose
+    from greybox.errors import GreyboxInputError
+    from foreign_sim import airframe_dict
+    big = simulate_flight(one_kg(), duration=10.0, seed=2).log
+    small = simulate_flight(crazyflie(), duration=8.0, seed=1).log
+    small.source = "cf.csv"
+    model = QuadrotorModel(airframe_from_dict(airframe_dict(one_kg(), K_T_guess_factor=1.3)))
+    with pytest.raises(GreyboxInputError, match=r"cf.csv: with the thrust fitted to the estimation flights its "
+                                                r"rotors carry \d+ % of the weight: is the validation flight"):
+        diagnose(model, big, validation=small, progress=False)

@@ -18,7 +18,7 @@ from ..residuals import flight_residuals, whiteness_fraction
 from ..shooting import initial_node_states
 from ..validation import Prediction
 
-__all__ = ["Finding", "CommandImbalance", "command_imbalance", "rotor_order", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
+__all__ = ["Finding", "CommandImbalance", "command_imbalance", "rotor_order", "layout_rotation", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
            "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE"]
 
 
@@ -241,21 +241,11 @@ ROTOR_ORDER_MISMATCH = 0.5
 """...where the order as given explains the roll or the pitch moments this poorly or worse."""
 
 
-def rotor_order(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> tuple[int, ...] | None:
-    """Whether the logged rotor-speed columns act as the airframe's rotors in another order:
-    the body's angular accelerations (from the measured rates, smoothed) regressed on every
-    column's ``w^2``, and the roll and pitch rows compared (cosine) with the airframe's
-    (:meth:`~greybox.airframe.Airframe.allocation_matrix`) for every order of the columns.
-    Returns ``order`` (``order[j]``: the airframe rotor that column ``j`` acts as) when the order
-    as given explains the roll or the pitch moments no better than :data:`ROTOR_ORDER_MISMATCH`
-    and another explains both to :data:`ROTOR_ORDER_MATCH`; None otherwise, or without the
-    data to tell (no gyro or attitude, rotor speeds not the inputs, more than eight rotors).
-    A blind audit's PX4-style flight logged in Betaflight's motor order (rear-right first)
-    had been read as physics outside the catalogue, roll moments proportional to the yaw mix:
-    as given -0.00 and -1.00, the order ``(3, 0, 1, 2)`` (columns w1..w4 acting as rotors 4, 1, 2,
-    3) 1.00 and 1.00. On real Crazyflie flights in
-    their own order (motor lag, PWM-mapped speeds) the order as given reaches 0.1-0.9 and no
-    other order 0.95 on both."""
+def _moments_per_column(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> np.ndarray | None:
+    """The roll and pitch angular accelerations per logged column's ``w^2`` (2, rotors): the
+    body's angular accelerations (from the measured rates, smoothed) regressed on every
+    column's ``w^2``, each flight about its own means; None without the data to tell (no gyro
+    or attitude, rotor speeds not the inputs, more than eight rotors)."""
     n = model.airframe.n_rotors
     if model.inputs != "rotor_speeds" or n > 8:
         return None
@@ -276,18 +266,66 @@ def rotor_order(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> 
     D, acc = np.vstack(rows_d), np.vstack(rows_a)
     if np.linalg.matrix_rank(D) < D.shape[1]:
         return None
-    C = np.linalg.lstsq(D, acc, rcond=None)[0].T          # roll, pitch acceleration per column's w^2
-    A = model.airframe.allocation_matrix()[1:3]
+    return np.linalg.lstsq(D, acc, rcond=None)[0].T
 
-    def cosines(order) -> np.ndarray:
-        G = A[:, list(order)]
-        return np.array([float(np.dot(C[k], G[k]) / max(np.linalg.norm(C[k]) * np.linalg.norm(G[k]), 1e-300))
-                         for k in range(2)])
 
-    if cosines(range(n)).min() > ROTOR_ORDER_MISMATCH:
+def _cosines(C: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """Cosine between each row of the moments per column ``C`` and of the geometry ``G``."""
+    return np.array([float(np.dot(C[k], G[k]) / max(np.linalg.norm(C[k]) * np.linalg.norm(G[k]), 1e-300))
+                     for k in range(2)])
+
+
+def rotor_order(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> tuple[int, ...] | None:
+    """Whether the logged rotor-speed columns act as the airframe's rotors in another order:
+    the roll and pitch moments per column (:func:`_moments_per_column`) compared (cosine) with
+    the airframe's (:meth:`~greybox.airframe.Airframe.allocation_matrix`) for every order of
+    the columns. Returns ``order`` (``order[j]``: the airframe rotor that column ``j`` acts as)
+    when the order as given explains the roll or the pitch moments no better than
+    :data:`ROTOR_ORDER_MISMATCH` and another explains both to :data:`ROTOR_ORDER_MATCH`; None
+    otherwise, or without the data to tell.
+    A blind audit's PX4-style flight logged in Betaflight's motor order (rear-right first)
+    had been read as physics outside the catalogue, roll moments proportional to the yaw mix:
+    as given -0.00 and -1.00, the order ``(3, 0, 1, 2)`` (columns w1..w4 acting as rotors 4, 1, 2,
+    3) 1.00 and 1.00. On real Crazyflie flights in
+    their own order (motor lag, PWM-mapped speeds) the order as given reaches 0.1-0.9 and no
+    other order 0.95 on both."""
+    C = _moments_per_column(model, log)
+    if C is None:
         return None
-    best = max(itertools.permutations(range(n)), key=lambda o: cosines(o).min())
-    return tuple(int(j) for j in best) if cosines(best).min() >= ROTOR_ORDER_MATCH else None
+    n = model.airframe.n_rotors
+    A = model.airframe.allocation_matrix()[1:3]
+    if _cosines(C, A).min() > ROTOR_ORDER_MISMATCH:
+        return None
+    best = max(itertools.permutations(range(n)), key=lambda o: _cosines(C, A[:, list(o)]).min())
+    return tuple(int(j) for j in best) if _cosines(C, A[:, list(best)]).min() >= ROTOR_ORDER_MATCH else None
+
+
+def layout_rotation(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> float | None:
+    """The angle (rad, about the body's z) by which the airframe's rotor positions would have
+    to turn for the logged speeds' roll and pitch moments to match them, when they match no
+    order of the rotors as given (as given no better than :data:`ROTOR_ORDER_MISMATCH`, no order
+    to :data:`ROTOR_ORDER_MATCH`: :func:`rotor_order`) but, turned by an odd multiple of
+    ``pi / n`` (an "x" quad read as "plus", and back), some order explains both to
+    :data:`ROTOR_ORDER_MATCH`; None otherwise (up to six rotors). A blind audit's plus-layout
+    flight given an "x" airframe was diagnosed as a 1-second motor lag: as given -0.71 on roll,
+    no order above 0.5, turned by 45 degrees 1.00 and 1.00."""
+    C = _moments_per_column(model, log)
+    n = model.airframe.n_rotors
+    if C is None or n > 6:
+        return None
+    A = model.airframe.allocation_matrix()[1:3]
+    orders = list(itertools.permutations(range(n)))
+    if _cosines(C, A).min() > ROTOR_ORDER_MISMATCH or \
+            max(_cosines(C, A[:, list(o)]).min() for o in orders) >= ROTOR_ORDER_MATCH:
+        return None      # as given, or in another order (rotor_order)
+    P = model.airframe.rotor_positions
+    for k in range(1, 2 * n, 2):
+        angle = k * math.pi / n
+        c, s_ = math.cos(angle), math.sin(angle)
+        G = np.vstack([-(P[:, 0] * s_ + P[:, 1] * c), P[:, 0] * c - P[:, 1] * s_])   # roll -y', pitch x'
+        if max(_cosines(C, G[:, list(o)]).min() for o in orders) >= ROTOR_ORDER_MATCH:
+            return float(math.remainder(angle, 2 * math.pi))
+    return None
 
 
 def _states_and_angular_acceleration(model: QuadrotorModel, lg: FlightLog) -> tuple[np.ndarray, np.ndarray]:

@@ -242,6 +242,9 @@ class Diagnosis:
     # the airframe rotor each logged rotor-speed column acts as, when not as given
     # (diagnosis.analysis.rotor_order): nothing is tested then
     rotor_order: tuple[int, ...] | None = None
+    # the angle (rad) the airframe's rotors would have to turn about the body's z for the logged
+    # speeds' moments to match them (diagnosis.analysis.layout_rotation): nothing is tested then
+    layout_rotation: float | None = None
     # the log's timing settled before the candidates (rotor speeds sampled between rows):
     # effect, s_lead, s_lead_std, nrmse_before, nrmse_after, text; None when the hold stands
     input_timing: dict | None = None
@@ -388,7 +391,9 @@ class Diagnosis:
     @property
     def null_reason(self) -> str | None:
         """Why the verdict is null: ``"rotor_order"`` (the logged rotor speeds act as the
-        airframe's rotors in another order: nothing was tested), ``"uncertified"`` (the baseline
+        airframe's rotors in another order: nothing was tested), ``"rotor_layout"`` (they act as
+        the airframe's rotors turned about the body's z, an "x" layout read as "plus" or back:
+        nothing was tested), ``"uncertified"`` (the baseline
         fit is not certified, nothing was tested), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
         physics), ``"random_torque"`` (what is missing acts as a random torque, turbulence, which
         the final model holds as a disturbance), ``"input_noise"`` (the rates are missed by a
@@ -402,6 +407,8 @@ class Diagnosis:
             return None
         if self.rotor_order is not None:
             return "rotor_order"
+        if self.layout_rotation is not None:
+            return "rotor_layout"
         if not self.baseline_certified:
             return "uncertified"
         if self.outside_catalogue:
@@ -461,6 +468,9 @@ class Diagnosis:
         order = ", ".join(f"{c} as rotor {j + 1}" for c, j in zip(self.model.command_names, self.rotor_order or ()))
         return {"rotor_order": f"null -- the logged rotor speeds act as the airframe's rotors in another order "
                                f"({order}): nothing was tested; reorder the columns",
+                "rotor_layout": f"null -- the logged rotor speeds act as the airframe's rotors turned by "
+                                f"{math.degrees(self.layout_rotation or 0.0):+.0f} degrees about the body's z axis: "
+                                "nothing was tested; check the airframe's layout and rotor positions",
                 "uncertified": "null (cannot tell: the baseline fit is not certified)",
                 "outside_catalogue": f"null -- {self.outside_catalogue}",
                 "random_torque": "null -- what the model misses acts as a random torque (turbulence), which no "

@@ -17,13 +17,13 @@ from .. import effects as fx
 from ..data import FlightLog, median_row_interval
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..controller_law import closed_loop_or_why
-from ..fitting import IF_NEEDED, FitResult, fit, progress_callback
+from ..fitting import IF_NEEDED, THRUST_IMPOSSIBLE, FitResult, fit, progress_callback, thrust_ratio
 from ..fitting.input_errors import followed_share
 from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
-from .analysis import command_imbalance, residual_analysis, rotor_order
+from .analysis import command_imbalance, layout_rotation, residual_analysis, rotor_order
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
@@ -153,6 +153,16 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             # one more go from where it stopped, in its formulation, with the weights it reached
             say(f"diagnose: the baseline fit is not certified ({res.status}); solving on")
             res = fit(model, est, p0=res.p, compile=compile, max_iter=200, **res.settings())
+    if res.converged and "K_T" in res.free_names:
+        for v in given_val:
+            # a flight of another vehicle (a blind audit's Crazyflie log beside a 2.5 kg
+            # vehicle's: nrmse 38.5, and "nothing significant is missing")
+            share = thrust_ratio(res.model, [v], res.p)
+            if share is not None and not 1 / THRUST_IMPOSSIBLE <= share <= THRUST_IMPOSSIBLE:
+                raise GreyboxInputError(
+                    f"{v.source or 'log'}: with the thrust fitted to the estimation flights its rotors carry "
+                    f"{100 * share:.0f} % of the weight: is the validation flight this vehicle's (mass "
+                    f"{model.airframe.mass:g} kg), with its rotor speeds in the estimation flights' units?")
     pred = predict_after_fit(res, est, val, compile=compile, horizon=horizon)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split, 1, horizon)})")
     timing = timing_refit = timing_unconfirmed = None
@@ -204,6 +214,15 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                            "the motors (Betaflight counts from the rear right, PX4's quad X from the front right, "
                            "greybox's from the airframe's rotor list) and reorder the columns; with the order as "
                            "given, what follows reads it as physics")
+    turned = layout_rotation(model, est) if order is None else None
+    if turned is not None:
+        # a plus-layout flight read with an "x" airframe was diagnosed as a 1-s motor lag
+        remaining = []
+        warnings.insert(0, f"the roll and pitch moments the logged rotor speeds move match the airframe's rotors turned "
+                           f"by {math.degrees(turned):+.0f} degrees about the body's z axis, and no order of them as "
+                           f"given: is the airframe's layout right (layout {model.airframe.layout!r}: an 'x' quad has "
+                           "its rotors between the body's axes, a 'plus' one on them), and its rotor positions in "
+                           "FRD (x forward, y right)? With the geometry as given, what follows reads it as physics")
     # effects the logged commands point at (data only, no model) are refitted whatever their score
     evidence = imbalance.evidence if imbalance is not None else set()
     nominated = [n for n in remaining if evidence & set(getattr(fx.known_effects().get(n), "trim_evidence", ()))]
@@ -354,9 +373,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                             "predict with the model as given, or over horizons shorter than the torque changes in")
     discovered, discovery_note = [], {"status": "not run", "text": "not run (discover=False)", "together": None}
     outside = ""
-    if order is not None:
+    if order is not None or turned is not None:
         discovery_note = {"status": "not run", "text": "not run: the logged rotor speeds act as the airframe's "
-                                                         "rotors in another order", "together": None}
+                                                         "rotors " + ("in another order" if order is not None else
+                                                                      "turned about the body's z"), "together": None}
     elif discover:
         # on the model as given, like the candidates (the same nrmse before): a catalogue
         # effect added in its place may be a compensating stand-in, and the residual forces
@@ -524,7 +544,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      input_timing=timing, closed_loop_fit=yaw.fit, attitude_motion=motion,
                      command_predictability=predictability, rates_from_input_noise=by_inputs,
                      input_noise_corrected=corrected, final_spread=spread, final_validation_spread=val_spread,
-                     timing_bound=timing_bound, rotor_order=order)
+                     timing_bound=timing_bound, rotor_order=order, layout_rotation=turned)
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile, est=est)

@@ -36,7 +36,7 @@ from .input_errors import INPUT_NOISE_SHARE, input_noise_process_scale
 from .robust import long_run_covariance, upper_covariance
 
 __all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS", "THRUST_IMPOSSIBLE",
-           "TRUST_REGION", "IF_NEEDED", "THRUST_SPREAD"]
+           "TRUST_REGION", "IF_NEEDED", "THRUST_SPREAD", "thrust_ratio"]
 
 IF_NEEDED = "if_needed"
 """``fit``'s default ``process_noise``: output error, then soft continuity when output error
@@ -462,10 +462,10 @@ from the balance it ends 0.03 % from the truth."""
 
 
 THRUST_ROWS = 4000
-"""Rows of each flight, evenly spread, over which :func:`_thrust_ratio` takes the mean thrust."""
+"""Rows of each flight, evenly spread, over which :func:`thrust_ratio` takes the mean thrust."""
 
 
-def _thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], p: np.ndarray) -> float | None:
+def thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], p: np.ndarray) -> float | None:
     """The mean vertical rotor thrust over the flights over the weight ``m g``, the model's own
     at parameters ``p`` with every effect's part (a command-to-speed map's offset, the battery's
     voltage, a thrust curve, the ground): the specific force along the body's z axis it predicts
@@ -517,7 +517,7 @@ def _refuse_flightless_thrust(model: QuadrotorModel, flights: Sequence[FlightLog
     vehicle's (:data:`THRUST_IMPOSSIBLE`)."""
     if "K_T" not in res.free_names:
         return
-    ratio = _thrust_ratio(model, flights, res.p)
+    ratio = thrust_ratio(model, flights, res.p)
     if ratio is None or 1.0 / THRUST_IMPOSSIBLE <= ratio <= THRUST_IMPOSSIBLE:
         return
     res.converged = False
@@ -536,10 +536,10 @@ def _thrust_balance_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], v
     mean thrust is far from ``m g`` has the thrust standing in for something the model lacks
     (a 1.2 kg flight with a CoG offset, fitted without it: 30 % of the weight). Logged speeds
     only (not ``inputs="controls"``); the thrust is the model's at parameters ``p``
-    (:func:`_thrust_ratio`)."""
+    (:func:`thrust_ratio`)."""
     if "K_T" not in values:
         return []
-    ratio = _thrust_ratio(model, logs, p)
+    ratio = thrust_ratio(model, logs, p)
     if ratio is None or abs(ratio - 1.0) <= THRUST_BALANCE:
         return []
     return [f"the fitted thrust carries {100 * ratio:.0f} % of the weight on average over the flight "
@@ -549,7 +549,7 @@ def _thrust_balance_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], v
 
 THRUST_SPREAD = 0.05
 """Largest difference between flights fitted together of their rotors' mean thrust over the
-weight (:func:`_thrust_ratio`, each at its own parameters) that goes without a warning: each
+weight (:func:`thrust_ratio`, each at its own parameters) that goes without a warning: each
 flight starts and ends near rest, so its rotors carry its weight on average."""
 
 
@@ -562,7 +562,7 @@ def _thrust_spread_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], ve
     parameters; ``per_flight``: what each flight has its own value of."""
     if len(logs) < 2 or "K_T" in per_flight or "K_T" not in model.param_names:
         return []
-    ratios = [_thrust_ratio(model, [lg], v) for lg, v in zip(logs, vectors)]
+    ratios = [thrust_ratio(model, [lg], v) for lg, v in zip(logs, vectors)]
     if any(r is None for r in ratios) or max(ratios) - min(ratios) <= THRUST_SPREAD:
         return []
     return [f"the flights' rotors carry {', '.join(f'{100 * r:.0f} %' for r in ratios)} of the weight on average "
@@ -588,14 +588,14 @@ def _hover_balance_restart(model: QuadrotorModel, logs, flights: Sequence[Flight
     found."""
     if "K_T" not in first.free_names:
         return first
-    ratio = _thrust_ratio(model, flights, first.p)
+    ratio = thrust_ratio(model, flights, first.p)
     if ratio is None or abs(ratio - 1.0) <= THRUST_BALANCE:
         return first
     p0 = kw["p0"]
     start = (model.parameter_vector(p0) if isinstance(p0, Mapping) else
              model.default_parameters() if p0 is None else np.array(p0, dtype=float))
     k_t = model.param_names.index("K_T")
-    start_ratio = _thrust_ratio(model, flights, start)
+    start_ratio = thrust_ratio(model, flights, start)
     hover = start[k_t] / start_ratio if start_ratio else float("nan")
     if not np.isfinite(hover) or hover <= 0 or abs(start[k_t] / hover - 1.0) <= THRUST_BALANCE:
         # it started at the balance: what else lets the thrust leave it is the positions'
@@ -622,7 +622,7 @@ def _balanced_or_first(model: QuadrotorModel, flights: Sequence[FlightLog], firs
     """``second`` (a fit of ``first``'s problem tried again) when it is certified and its thrust
     carries the weight, with ``kept`` leading its warnings; otherwise ``first``, with words on
     what ``second`` found after ``tried``."""
-    ratio2 = _thrust_ratio(model, flights, second.p)
+    ratio2 = thrust_ratio(model, flights, second.p)
     if second.converged and ratio2 is not None and abs(ratio2 - 1.0) <= THRUST_BALANCE:
         second.warnings.insert(0, f"{kept}; this fit's thrust carries {100 * ratio2:.0f} % of it")
         second.timings["total"] = first.timings.get("total", 0.0) + second.timings.get("total", 0.0)
@@ -707,7 +707,7 @@ def _thrust_pull(model: QuadrotorModel, logs, flights: Sequence[FlightLog], kw: 
     ref = res.p.copy()
     if ref[k_t] <= 0:
         ref[k_t] = model.default_parameters()[k_t]
-    at_ref = _thrust_ratio(model, flights, ref)
+    at_ref = thrust_ratio(model, flights, ref)
     if not at_ref or ref[k_t] <= 0:
         return res
     per_unit = at_ref / ref[k_t]
