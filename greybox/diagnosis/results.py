@@ -482,7 +482,12 @@ class Diagnosis:
                                " times the gyro's noise per row): cannot tell a turbulence from it",
                 "sensor_error": f"null -- nothing the model misses shows: {self._far_off()}",
                 "unexplained": f"null -- the model is missing something no candidate explains: {self._far_off()}"
-                               + (f"; {self.findings[0].text}" if self.findings else ""),
+                               + (f"; {self.findings[0].text}" if self.findings else "")
+                               # "no candidate explains" read wrong where one does in the fit (an
+                               # audit's own true climb-rate thrust loss on a 35 g vehicle)
+                               + "".join(f"; {c.effect} explains part of it in the fit (LR {c.lr:.3g}) but is not "
+                                         "confirmed on the validation data" for c in self.ranking
+                                         if c.not_confirmed and c.lr is not None)[:1000],
                 "small_misfit": "null -- no catalogue effect is significant, and the model is not at the noise "
                                 f"in {', '.join(self.misfit())}: too small a misfit to tell what it is (below "
                                 f"{UNEXPLAINED_RATIO:g}x the noise)",
