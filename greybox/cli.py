@@ -495,17 +495,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting.imu import is_imu_only
     from . import plotting
     from .controller_law import closed_loop_or_why
-    from .validation import (DEFAULT_INIT_WINDOW, INIT_WINDOWS, check_validation_length, horizon_errors_after,
-                             predict, prediction_options)
+    from .validation import check_validation_length, horizon_errors_after, predict, prediction_options
     model, p0, logs = _load_fit_inputs(args)
     if any(is_imu_only(log) for log in logs):
         return _fit_imu_only(args, model, logs)
     parts = [log.split(0.8) for log in logs]
-    # a fit that may take process noise may validate from its shortest start window
-    shortest = min(INIT_WINDOWS) if _process_noise(args) else DEFAULT_INIT_WINDOW
     for _, val in parts:
         # each flight's last 20 % is validated: too short for it is said before the fit runs
-        check_validation_length(val, shortest)
+        check_validation_length(val)
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # said below, once, as the error
         # several flights: shared parameters, each flight its own states

@@ -201,35 +201,22 @@ def test_fit_cli_bad_log(tmp_path, paper_airframe_path, capsys):
 def test_fit_cli_refuses_a_flight_too_short_to_validate_before_fitting(tmp_path, flight, capsys, monkeypatch,
                                                                       paper_airframe_path):
     """A blind audit's 0.6-s flight among others: the whole fit ran, then exit 2 "too short
-    for validation"; now the same error comes before any fit. A fit that may take process noise
-    may validate from its shortest start window (0.05 s): only without it is the 0.5-s one
-    asked for up front."""
+    for validation"; now the same error comes before any fit."""
     from greybox.data import FlightLog
     import greybox.fitting
     log = flight.log
+    n = int(np.searchsorted(log.t, 0.6))
+    short = FlightLog(log.t[:n], log.inputs[:n], log.input_names, log.outputs[:n], list(log.output_names),
+                      {k: v[:n] for k, v in log.extras.items()}, [], "short.csv")
     save_log(log, tmp_path / "f.csv")
-
-    def cut(seconds):
-        n = int(np.searchsorted(log.t, seconds))
-        short = FlightLog(log.t[:n], log.inputs[:n], log.input_names, log.outputs[:n], list(log.output_names),
-                          {k: v[:n] for k, v in log.extras.items()}, [], "short.csv")
-        save_log(short, tmp_path / "short.csv")
-
-    class Fitted(Exception):
-        pass
+    save_log(short, tmp_path / "short.csv")
 
     def no_fit(*a, **k):
-        raise Fitted
+        raise AssertionError("fitted")
     monkeypatch.setattr(greybox.fitting, "fit", no_fit)
-    for seconds, options in ((0.25, []), (0.6, ["--process-noise", "none"])):
-        cut(seconds)
-        rc = main(["fit", str(tmp_path / "f.csv"), str(tmp_path / "short.csv"), "--airframe", str(paper_airframe_path),
-                   *options])
-        err = capsys.readouterr().err
-        assert rc == 2 and "short.csv: too short for validation" in err and "Traceback" not in err, err
-    cut(0.6)      # its last 0.12 s hold a window after a 0.05-s start: the fit is not refused
-    with pytest.raises(Fitted):
-        main(["fit", str(tmp_path / "f.csv"), str(tmp_path / "short.csv"), "--airframe", str(paper_airframe_path)])
+    rc = main(["fit", str(tmp_path / "f.csv"), str(tmp_path / "short.csv"), "--airframe", str(paper_airframe_path)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "short.csv: too short for validation" in err and "Traceback" not in err, err
 
 
 def test_fit_cli_wrong_rotor_count(tmp_path, flight, capsys):
