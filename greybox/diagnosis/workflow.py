@@ -99,6 +99,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         raise GreyboxInputError("diagnose: no flight logs")
     timing_candidate = None
     untried: list[str] = []
+    untried_columns: list[str] = []
     given_val = [] if validation is None else \
         [validation] if isinstance(validation, FlightLog) else list(validation)
     if candidates is None:
@@ -106,6 +107,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # battery_voltage, vbat in the estimation flight only, failed after 6 minutes)
         candidates = default_candidates(model, logs + given_val)
         untried = [c for c in default_candidates(model, logs) if c not in candidates]
+        # the columns the validation flights lack that kept them out
+        untried_columns = sorted({col for c in untried for v in given_val for col in
+                                  lacking_signals(fx.by_name(c), v) + [s for s in fx.by_name(c).considered_when_logged
+                                                                     if s not in v.extras and s not in v.input_names
+                                                                     and s not in v.output_names]})
         if untried:
             say(f"diagnose: {', '.join(untried)} not tried: a validation flight lacks the column they read")
         if fx.SampledInputs.name in candidates:
@@ -177,7 +183,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     if untried:
         warnings.append(f"{', '.join(untried)} {'was' if len(untried) == 1 else 'were'} not tried: the estimation "
                         f"flights log the column {'it reads' if len(untried) == 1 else 'they read'} "
-                        f"({', '.join(sorted({s for c in untried for s in (*fx.by_name(c).signals, *fx.by_name(c).considered_when_logged)}))}) and a validation "
+                        f"({', '.join(untried_columns)}) and a validation "
                         "flight does not, so it could not be validated there")
     if res.certificate is not None:
         say(f"diagnose: baseline {res.certificate.text()}")

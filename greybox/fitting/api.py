@@ -312,7 +312,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         flights = [logs] if isinstance(logs, FlightLog) else list(logs)
         res = _hover_balance_restart(model, logs, flights, process_noise, kw, first)
         res = _thrust_pull(model, logs, flights, kw, res)
-        _refuse_flightless_thrust(model, flights, res)
+    # every fit, a solve-on from another fit's optimum too (diagnose's): it would certify it again
+    _refuse_flightless_thrust(model, [logs] if isinstance(logs, FlightLog) else list(logs), res)
     for w in caught:     # a first fit's non-convergence is the user's news only when it is kept
         if res is first or not issubclass(w.category, ConvergenceWarning):
             _warnings.warn(w.message, w.category, stacklevel=2)
@@ -521,6 +522,9 @@ def _refuse_flightless_thrust(model: QuadrotorModel, flights: Sequence[FlightLog
     if ratio is None or 1.0 / THRUST_IMPOSSIBLE <= ratio <= THRUST_IMPOSSIBLE:
         return
     res.converged = False
+    if res.certificate is not None:
+        res.certificate.optimal = False
+        res.certificate.reasons.append(f"the thrust carries {100 * ratio:.0f} % of the weight: no vehicle's optimum")
     res.status = (f"the fitted thrust carries {100 * ratio:.0f} % of the weight (K_T = {res.value('K_T'):.3g}): no "
                   "thrust per speed² makes this airframe fly as the log does: is the airframe (or model) this "
                   f"vehicle's (mass {model.airframe.mass:g} kg, inertia {', '.join(f'{j:.3g}' for j in np.diag(model.airframe.inertia))} "
