@@ -36,7 +36,7 @@ from .model import OUTPUTS, QuadrotorModel
 from .rotations import body_rates_from_euler_rates, euler_rate_matrices
 
 __all__ = ["ShootingProblem", "MappedPair", "BufferedFunction", "ShootingData", "layout", "initial_node_states",
-           "estimate_noise", "robust_std", "noise_levels", "NOISE_FLOOR", "sensor_noise", "channel_noise", "filtered_attitude_error",
+           "estimate_noise", "difference_noise", "robust_std", "noise_levels", "NOISE_FLOOR", "sensor_noise", "channel_noise", "filtered_attitude_error",
            "filtered_attitude_levels", "filtered_attitude_channels", "free_indices", "parameter_bounds",
            "DEFAULT_INTERVAL_S", "default_interval"]
 
@@ -66,18 +66,37 @@ def robust_std(x: np.ndarray) -> float:
     return 1.4826 * float(np.median(np.abs(v - np.median(v))))
 
 
+def difference_noise(y: np.ndarray, spacing: int = 1, order: int = 2, min_rows: int = 3) -> float:
+    """Noise standard deviation of the measured samples of ``y`` from robust differences of
+    ``order`` (2 or 4) between samples ``spacing`` apart: white noise gives its standard
+    deviation (``var(y[k+1]-2y[k]+y[k-1]) = 6 s^2``, 70 for the fourth); a low-passed noise
+    less, until ``spacing`` spans its correlation; a smooth signal adds least to the fourth.
+    Where the robust spread is 0 (a quantised signal's differences, mostly 0), their standard
+    deviation; nan with fewer than ``min_rows`` differences."""
+    v = y[np.isfinite(y)]
+    k = spacing
+    n = v.size - order * k
+    if n < min_rows:
+        return float("nan")
+    if order == 2:
+        d, scale = v[2 * k:] - 2 * v[k:k + n] + v[:n], math.sqrt(6.0)
+    elif order == 4:
+        d, scale = v[4 * k:] - 4 * v[3 * k:3 * k + n] + 6 * v[2 * k:2 * k + n] - 4 * v[k:k + n] + v[:n], math.sqrt(70.0)
+    else:
+        raise ValueError(f"difference_noise: order {order} (2 or 4)")
+    s = robust_std(d) / scale
+    if s <= 0:
+        s = float(np.std(d)) / scale
+    return float(s)
+
+
 def estimate_noise(y: np.ndarray) -> float:
     """Noise standard deviation of a (possibly sparse) channel from robust second
-    differences of its measured samples: for white noise ``var(y[k+1]-2y[k]+y[k-1]) = 6 s^2``.
-    """
+    differences of its measured samples (:func:`difference_noise`)."""
     v = y[np.isfinite(y)]
     if v.size < 5:
         return float("nan")
-    d2 = v[2:] - 2 * v[1:-1] + v[:-2]
-    s = robust_std(d2) / math.sqrt(6.0)
-    if s <= 0:
-        s = float(np.std(d2)) / math.sqrt(6.0)
-    return float(s)
+    return difference_noise(v)
 
 
 # ------------------------------------------------------------------------------ initial states

@@ -18,7 +18,7 @@ from ..residuals import flight_residuals, whiteness_fraction
 from ..shooting import initial_node_states
 from ..validation import Prediction
 
-__all__ = ["Finding", "CommandImbalance", "command_imbalance", "rotor_order", "layout_rotation", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
+__all__ = ["Finding", "CommandImbalance", "command_imbalance", "rotor_order", "layout_rotation", "rotor_geometry", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
            "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE"]
 
 
@@ -275,6 +275,33 @@ def _cosines(C: np.ndarray, G: np.ndarray) -> np.ndarray:
                      for k in range(2)])
 
 
+def rotor_geometry(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]
+                   ) -> tuple[tuple[int, ...] | None, float | None]:
+    """``(order, angle)``: :func:`rotor_order`'s and :func:`layout_rotation`'s answers from one
+    regression of the moments per column (at most one of them is not None)."""
+    C = _moments_per_column(model, log)
+    if C is None:
+        return None, None
+    n = model.airframe.n_rotors
+    A = model.airframe.allocation_matrix()[1:3]
+    if _cosines(C, A).min() > ROTOR_ORDER_MISMATCH:
+        return None, None
+    orders = list(itertools.permutations(range(n)))
+    best = max(orders, key=lambda o: _cosines(C, A[:, list(o)]).min())
+    if _cosines(C, A[:, list(best)]).min() >= ROTOR_ORDER_MATCH:
+        return tuple(int(j) for j in best), None
+    if n > 6:
+        return None, None
+    P = model.airframe.rotor_positions
+    for k in range(1, 2 * n, 2):
+        angle = k * math.pi / n
+        c, s_ = math.cos(angle), math.sin(angle)
+        G = np.vstack([-(P[:, 0] * s_ + P[:, 1] * c), P[:, 0] * c - P[:, 1] * s_])   # roll -y', pitch x'
+        if max(_cosines(C, G[:, list(o)]).min() for o in orders) >= ROTOR_ORDER_MATCH:
+            return None, float(math.remainder(angle, 2 * math.pi))
+    return None, None
+
+
 def rotor_order(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> tuple[int, ...] | None:
     """Whether the logged rotor-speed columns act as the airframe's rotors in another order:
     the roll and pitch moments per column (:func:`_moments_per_column`) compared (cosine) with
@@ -289,15 +316,7 @@ def rotor_order(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> 
     3) 1.00 and 1.00. On real Crazyflie flights in
     their own order (motor lag, PWM-mapped speeds) the order as given reaches 0.1-0.9 and no
     other order 0.95 on both."""
-    C = _moments_per_column(model, log)
-    if C is None:
-        return None
-    n = model.airframe.n_rotors
-    A = model.airframe.allocation_matrix()[1:3]
-    if _cosines(C, A).min() > ROTOR_ORDER_MISMATCH:
-        return None
-    best = max(itertools.permutations(range(n)), key=lambda o: _cosines(C, A[:, list(o)]).min())
-    return tuple(int(j) for j in best) if _cosines(C, A[:, list(best)]).min() >= ROTOR_ORDER_MATCH else None
+    return rotor_geometry(model, log)[0]
 
 
 def layout_rotation(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> float | None:
@@ -309,23 +328,7 @@ def layout_rotation(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog])
     :data:`ROTOR_ORDER_MATCH`; None otherwise (up to six rotors). A blind audit's plus-layout
     flight given an "x" airframe was diagnosed as a 1-second motor lag: as given -0.71 on roll,
     no order above 0.5, turned by 45 degrees 1.00 and 1.00."""
-    C = _moments_per_column(model, log)
-    n = model.airframe.n_rotors
-    if C is None or n > 6:
-        return None
-    A = model.airframe.allocation_matrix()[1:3]
-    orders = list(itertools.permutations(range(n)))
-    if _cosines(C, A).min() > ROTOR_ORDER_MISMATCH or \
-            max(_cosines(C, A[:, list(o)]).min() for o in orders) >= ROTOR_ORDER_MATCH:
-        return None      # as given, or in another order (rotor_order)
-    P = model.airframe.rotor_positions
-    for k in range(1, 2 * n, 2):
-        angle = k * math.pi / n
-        c, s_ = math.cos(angle), math.sin(angle)
-        G = np.vstack([-(P[:, 0] * s_ + P[:, 1] * c), P[:, 0] * c - P[:, 1] * s_])   # roll -y', pitch x'
-        if max(_cosines(C, G[:, list(o)]).min() for o in orders) >= ROTOR_ORDER_MATCH:
-            return float(math.remainder(angle, 2 * math.pi))
-    return None
+    return rotor_geometry(model, log)[1]
 
 
 def _states_and_angular_acceleration(model: QuadrotorModel, lg: FlightLog) -> tuple[np.ndarray, np.ndarray]:

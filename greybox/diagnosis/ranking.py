@@ -27,7 +27,7 @@ from .screening import (explained_fraction, held_on_bound, replaced_base_terms, 
                         screen, screen_jointly, within_row_timing)
 
 __all__ = ["PARAMETER_SHIFT", "parameter_shifts", "ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "validation_falls", "confirmed_on_validation", "timing_stand_in", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
-           "rank_round", "order_refitted", "default_candidates", "far_channels", "lacking_signals"]
+           "rank_round", "order_refitted", "default_candidates", "far_channels", "lacking_signals", "missing_columns"]
 
 ALPHA = 0.01
 """Family-wise significance level of the likelihood-ratio tests (Bonferroni over candidates)."""
@@ -710,6 +710,14 @@ def lacking_signals(effect: "type[fx.Effect] | fx.Effect", log: FlightLog) -> li
     return [s for s in effect.signals if s not in log.extras and s not in log.input_names]
 
 
+def missing_columns(effect: "type[fx.Effect] | fx.Effect", log: FlightLog) -> list[str]:
+    """The columns ``effect`` needs to be a default candidate that ``log`` lacks: the signals it
+    reads (:func:`lacking_signals`) and the columns it is tied to
+    (:attr:`~greybox.effects.Effect.considered_when_logged`), as extras, inputs or outputs."""
+    return lacking_signals(effect, log) + [s for s in effect.considered_when_logged if s not in log.extras
+                                           and s not in log.input_names and s not in log.output_names]
+
+
 def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list[str]:
     """The effects :func:`diagnose` tries by default: the catalogue and the effects
     registered by the user (files, plugins) that are not in the model, and the effects that
@@ -717,6 +725,4 @@ def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list
     when every flight has it."""
     return [n for n, cls in fx.known_effects().items() if n not in model.effects
             and (n in fx.CATALOGUE or n in fx.registered_effects() or cls.signals or cls.considered_when_logged)
-            and not any(lacking_signals(cls, lg) for lg in logs)
-            and all(all(s in lg.extras or s in lg.input_names or s in lg.output_names for lg in logs)
-                    for s in cls.considered_when_logged)]
+            and not any(missing_columns(cls, lg) for lg in logs)]

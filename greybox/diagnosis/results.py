@@ -487,7 +487,7 @@ class Diagnosis:
                                # audit's own true climb-rate thrust loss on a 35 g vehicle)
                                + "".join(f"; {c.effect} explains part of it in the fit (LR {c.lr:.3g}) but is not "
                                          "confirmed on the validation data" for c in self.ranking
-                                         if c.not_confirmed and c.lr is not None)[:1000],
+                                         if c.not_confirmed and c.lr is not None),
                 "small_misfit": "null -- no catalogue effect is significant, and the model is not at the noise "
                                 f"in {', '.join(self.misfit())}: too small a misfit to tell what it is (below "
                                 f"{UNEXPLAINED_RATIO:g}x the noise)",

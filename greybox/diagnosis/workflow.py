@@ -23,7 +23,7 @@ from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
-from .analysis import command_imbalance, layout_rotation, residual_analysis, rotor_order
+from .analysis import command_imbalance, residual_analysis, rotor_geometry
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
@@ -31,7 +31,7 @@ from .consistency import half_consistency, half_spread, undetermined_parameters,
 from .elimination import backward_elimination, fit_without
 from .screening import negligible_effect
 from .ranking import (ALPHA, MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
-                      lacking_signals, rank_round, tie_explanation, tie_numbers, validation_ties)
+                      lacking_signals, missing_columns, rank_round, tie_explanation, tie_numbers, validation_ties)
 from .results import UNEXPLAINED_RATIO, Diagnosis, Round
 
 __all__ = ["diagnose", "UNEXPLAINED_RATIO", "distinguishing_manoeuvre"]
@@ -108,10 +108,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         candidates = default_candidates(model, logs + given_val)
         untried = [c for c in default_candidates(model, logs) if c not in candidates]
         # the columns the validation flights lack that kept them out
-        untried_columns = sorted({col for c in untried for v in given_val for col in
-                                  lacking_signals(fx.by_name(c), v) + [s for s in fx.by_name(c).considered_when_logged
-                                                                     if s not in v.extras and s not in v.input_names
-                                                                     and s not in v.output_names]})
+        untried_columns = sorted({col for c in untried for v in given_val
+                                  for col in missing_columns(fx.by_name(c), v)})
         if untried:
             say(f"diagnose: {', '.join(untried)} not tried: a validation flight lacks the column they read")
         if fx.SampledInputs.name in candidates:
@@ -207,7 +205,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                             "model lacks, and its value is not a property of the vehicle")
     remaining = list(candidates) if res.converged else []
     imbalance = command_imbalance(model, est)
-    order = rotor_order(model, est)
+    order, turned = rotor_geometry(model, est)
     if order is not None:
         # nothing is tested: read in the wrong order, what the columns do is "physics" no
         # effect holds (a blind audit's reordered flight: 3 minutes, and a discovered moment
@@ -220,7 +218,6 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                            "the motors (Betaflight counts from the rear right, PX4's quad X from the front right, "
                            "greybox's from the airframe's rotor list) and reorder the columns; with the order as "
                            "given, what follows reads it as physics")
-    turned = layout_rotation(model, est) if order is None else None
     if turned is not None:
         # a plus-layout flight read with an "x" airframe was diagnosed as a 1-s motor lag
         remaining = []

@@ -44,7 +44,7 @@ from ..data import FlightLog
 from ..errors import GreyboxInputError
 from ..model import QuadrotorModel
 from ..residuals import long_run_factor
-from ..shooting import estimate_noise, robust_std
+from ..shooting import difference_noise, estimate_noise
 from ..validation import DEFAULT_HORIZONS, HorizonErrors
 from .certificate import NOISE_RATIO_COLOURED
 
@@ -108,24 +108,12 @@ at least this share of the one from its second (1.00 +- 0.02 for white noise ove
 samples, 0.98-1.01 on two blind audits' simulated gyros; a second-order low-pass at 30-200 Hz
 on 500-1000 Hz samples gives 0.36-0.56, as autopilots filter their gyros)."""
 
+MIN_DIFFERENCES = 20
+"""Fewest differences from which :func:`gyro_noise_on_average` reads a noise level."""
+
 FILTERED_NOISE_SPACING_S = 0.02
 """The longest spacing (s) at which a filtered gyro's noise level is looked for: where its
 fourth differences stop growing, the noise is uncorrelated (a 30 Hz low-pass at 500 Hz: 16 ms)."""
-
-
-def _difference_noise(y: np.ndarray, k: int, order: int) -> float:
-    """Noise level of ``y`` from robust differences of ``order`` (2 or 4) at spacing ``k``:
-    white noise gives its standard deviation; a low-passed noise less, until ``k`` spans its
-    correlation; a smooth signal adds least to the fourth."""
-    weights = {2: (1, -2, 1), 4: (1, -4, 6, -4, 1)}[order]
-    n = y.size - order * k
-    if n < 20:
-        return float("nan")
-    d = sum(c * y[j * k:j * k + n] for j, c in enumerate(weights))
-    s = robust_std(d)
-    if s <= 0:      # a quantised gyro's differences are mostly 0: their spread, not their median
-        s = float(np.std(d))
-    return s / math.sqrt(sum(c * c for c in weights))
 
 
 def gyro_noise_on_average(y: np.ndarray, dt: float, through: float, window_s: float) -> tuple[float, str]:
@@ -136,10 +124,11 @@ def gyro_noise_on_average(y: np.ndarray, dt: float, through: float, window_s: fl
     derivative then telescopes to a difference of two samples ``window_s`` apart: an upper
     bound), or ``"unknown"`` (no such spacing within :data:`FILTERED_NOISE_SPACING_S`: nan)."""
     v = y[np.isfinite(y)]
-    s2, s4 = _difference_noise(v, 1, 2), _difference_noise(v, 1, 4)
+    s2, s4 = difference_noise(v, 1, 2, MIN_DIFFERENCES), difference_noise(v, 1, 4, MIN_DIFFERENCES)
     if not s4 < WHITE_DIFFERENCES * s2:
         return through * s2, "white"
-    levels = [_difference_noise(v, k, 4) for k in range(1, max(2, int(FILTERED_NOISE_SPACING_S / dt)) + 2)]
+    levels = [difference_noise(v, k, 4, MIN_DIFFERENCES)
+              for k in range(1, max(2, int(FILTERED_NOISE_SPACING_S / dt)) + 2)]
     for a, b in zip(levels, levels[1:]):
         if b < 1.05 * a:      # grown to the noise's own level (a smooth signal grows it as k^4)
             return math.sqrt(2.0) * a / window_s, "filtered"
@@ -648,7 +637,8 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     through = float(np.sqrt(np.sum(np.convolve(savgol_filter(np.diff(impulse) / dt, win, 2), box) ** 2)))
     read = [gyro_noise_on_average(log.output(ch), dt, through, slow * dt) for ch in ("p", "q", "r")]
     gyro_noise = np.array([level for level, _ in read])
-    if any(how_ == "unknown" for _, how_ in read):
+    how = {how_ for _, how_ in read}
+    if "unknown" in how:
         # a gyro filtered so that one axis's noise cannot be read: the others' bound is no safer
         # (a 30 Hz low-pass at 500 Hz: yaw 3.05 % "systematic" on a clean flight, its delay not
         # a first-order lag's shape)
@@ -663,13 +653,13 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         # the rates this equation's inertia row couples (a diagonal J: its own rate alone)
         coupled = J[i] != 0
         expected = float(np.sqrt(np.sum((J[i][coupled] * gyro_noise[coupled]) ** 2)))
-        if r.size and np.std(torque) > 0 and not expected > 0:
-            over_noise[eq] = share[eq] = float("nan")      # a noise greybox cannot read: not judged
-        elif r.size and expected > 0 and np.std(torque) > 0:
-            over_noise[eq] = float(np.sqrt(np.mean(r ** 2)) / expected)
-            share[eq] = math.sqrt(max(float(np.mean(r ** 2)) - expected ** 2, 0.0)) / float(np.std(torque))
+        if r.size and np.std(torque) > 0:
+            if expected > 0:
+                over_noise[eq] = float(np.sqrt(np.mean(r ** 2)) / expected)
+                share[eq] = math.sqrt(max(float(np.mean(r ** 2)) - expected ** 2, 0.0)) / float(np.std(torque))
+            else:
+                over_noise[eq] = share[eq] = float("nan")      # a noise greybox cannot read: not judged
     notes = []
-    how = {how for _, how in read}
     if not np.all(gyro_noise[np.isfinite(gyro_noise)] > 0):
         notes.append("the torque equations' adequacy is not judged where the gyro shows no noise to compare with "
                      "(a noiseless or coarsely quantised rate)")
