@@ -80,7 +80,7 @@ def test_crazyflie_hub_rotor_drag_discovery_reads_only_a_certified_baseline():
     """The hub-velocity rotor drag damps a 30 g vehicle's rates (yaw: mz ~ -k l^2 sum(w) r / J_z;
     roll/pitch through the hub height: mx ~ vy_b, my ~ vx_b). Discovery reads the residual
     forces of a certified baseline only: while the output-error baseline of this flight ends
-    uncertified (README, "On flights greybox did not generate"), it says "cannot tell"."""
+    uncertified (docs/VALIDATION.md, "On flights greybox did not generate"), it says "cannot tell"."""
     est, val = _flights(crazyflie(), rotor_drag_hub=1e-6)
     d = diagnose(_model(crazyflie()), est.log, validation=val.log, candidates=[])
     if not d.baseline_certified:
