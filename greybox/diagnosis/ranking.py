@@ -113,6 +113,161 @@ def confirmed_on_validation(falls: dict[str, float], best_ch: str | None, gain: 
     return best_ch is not None and not (falls[best_ch] < MIN_VALIDATION_GAIN or gain < -MAX_VALIDATION_LOSS)
 
 
+class _Refits:
+    """A round's refits: each candidate refitted onto the baseline ``res`` (validation
+    prediction ``pred``) and judged (its statistics, and the words on it); capped refits that
+    already predict best solved on. ``rcompile``: how the refits compile; ``cold``: refitted
+    from the airframe's guesses (``starts``: each one's cold screen); ``restart``: each refit
+    also tried from the airframe's guesses (a baseline far off or bent)."""
+
+    def __init__(self, model: QuadrotorModel, res: FitResult, pred: Prediction, est: Sequence[FlightLog],
+                 val: Sequence[FlightLog], compile: str, say: Callable[[str], None], n_tests: int, *,
+                 rcompile: str, cold: bool, starts: dict[str, FitResult], restart: bool, min_explained: float,
+                 min_explained_inadequate: float, size_in_parameters: bool):
+        self.model, self.res, self.pred, self.est, self.val = model, res, pred, est, val
+        self.compile, self.say, self.n_tests = compile, say, n_tests
+        self.rcompile, self.cold, self.starts, self.restart = rcompile, cold, starts, restart
+        self.min_explained, self.min_explained_inadequate = min_explained, min_explained_inadequate
+        self.size_in_parameters = size_in_parameters
+
+    def judge(self, cand: CandidateResult, ext: QuadrotorModel, fr: FitResult, pr: Prediction) -> None:
+        """The candidate's statistics at its refit ``fr`` (validation ``pr``), and the verdict
+        on it in words."""
+        cand.significant = cand.unconfirmable = cand.validation_tie = cand.not_confirmed = False
+        E = estimation_residuals(ext, fr, self.est)
+        cand.lr, cand.p_value = lr_test(self.res, fr, E, cand.df, null_on_bound(ext, cand.effect), self.n_tests)
+        cand.fit, cand.prediction = fr, pr
+        cand.nrmse_after, cand.channels_after = pr.total, dict(pr.nrmse)
+        cand.nrmse_common_start = self.common_start_nrmse(fr, pr)
+        falls, best_ch, gain = validation_falls(self.pred, pr)
+        cand.explained = explained_fraction(self.res, fr)
+        negligible = negligible_effect(fr, cand.effect, self.est)
+        shifted = parameter_shifts(self.res, fr) if negligible and self.size_in_parameters else {}
+        if shifted:
+            negligible = ""
+        within_row = within_row_timing(ext, cand.effect, {n: fr.value(n) for n in fr.free_names}, self.est)
+        implausible = physically_implausible(fr, cand.effect)
+        on_bound = held_on_bound(fr, cand.effect)
+        if implausible and fr.status.startswith(STOPPED):
+            # stopped on a bound beyond the plausible (HeldBeyondPlausible): refused there
+            cand.reason = (f"physically implausible: {implausible}; its refit held it on a bound and was stopped "
+                           f"there (LR {cand.lr:.3g} a lower bound)")
+        elif cand.p_value >= ALPHA:
+            cand.reason = f"not significant (p = {cand.p_value:.2g})"
+        elif within_row:
+            cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but {within_row}"
+        elif negligible:
+            cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but physically negligible: {negligible}"
+        elif implausible:
+            cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but physically implausible: {implausible}"
+        elif on_bound:
+            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but held on a bound: {on_bound}; "
+                           "it stands in for something the model lacks")
+        elif cand.explained is not None and cand.explained < self.min_explained:
+            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but " +
+                           (f"it removes only {100 * cand.explained:.1f} % of what the model misses above the "
+                            "sensor noise" if cand.explained > 0 else
+                            f"with it the model misses {-100 * cand.explained:.1f} % more above the sensor "
+                            "noise") + ": it is not what is missing")
+        elif cand.explained is not None and cand.explained < self.min_explained_inadequate and \
+                fr.certificate is not None and not fr.certificate.adequate:
+            off = fr.certificate.off_channels() or fr.certificate.off_states()
+            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but it removes only "
+                           f"{100 * cand.explained:.1f} % of what the model misses above the sensor noise, and with "
+                           f"it the model is still far from the data ({', '.join(off)}): a sliver that a "
+                           "correlation with the unexplained rest can give (a controller answers an unmodelled "
+                           "force or moment through the commands); cannot tell")
+        elif not confirmed_on_validation(falls, best_ch, gain):
+            cand.reason = (f"significant in the fit but not confirmed on validation (best channel {best_ch} "
+                           f"{-100 * falls[best_ch]:+.1f} %, total {-100 * gain:+.1f} %)")
+            cand.validation_tie = gain >= -MAX_VALIDATION_LOSS
+            cand.not_confirmed = True
+            moved = prediction_change(self.pred, pr)
+            if max(moved.values(), default=0.0) < MIN_VALIDATION_GAIN:
+                # the refit moves the validation predictions too little to be judged there:
+                # the validation data lack the regime, which is not evidence against the effect
+                cand.unconfirmable = True
+                cand.reason += (f"; the validation data hardly exercise it (its predictions there move by "
+                                f"< {100 * MIN_VALIDATION_GAIN:.0f} % of the error in every channel)")
+        elif gain < MIN_VALIDATION_GAIN and (replaced := replaced_base_terms(self.res, fr, cand.effect)):
+            # not an addition but another form of physics the model has: one channel's gain
+            # cannot tell two forms of the same force apart, the whole prediction must
+            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) and on validation {best_ch} "
+                           f"{-100 * falls[best_ch]:+.1f} %, but its refit holds the model's own {replaced}: it "
+                           f"replaces them, another form of what the model has, which must predict the validation "
+                           f"data better in total by {100 * MIN_VALIDATION_GAIN:.0f} % to be taken (total "
+                           f"{-100 * gain:+.1f} %)")
+        else:
+            cand.significant = True
+            cand.reason = f"p = {cand.p_value:.2g}; validation {best_ch} {-100 * falls[best_ch]:+.0f} %, " \
+                          f"total {-100 * gain:+.0f} %"
+            if shifted:
+                cand.reason += ("; small in force terms, but without it " +
+                                ", ".join(f"{n} sits {v:.1f} std off" for n, v in shifted.items()))
+
+    def common_start_nrmse(self, fr: FitResult, pr: Prediction) -> float:
+        """The refit's validation nrmse with its windows started as the baseline's: its own
+        when it chose the same start, else predicted again (a prediction is a second at most)."""
+        base_start = prediction_options(self.res)
+        if not self.val or prediction_options(fr) == base_start:
+            return pr.total
+        try:
+            return predict_after_fit(fr, self.est, self.val, compile=self.compile, horizon=self.pred.horizon,
+                                     **base_start).total
+        except GreyboxInputError:
+            return math.nan
+
+    def refit_batch(self, batch: list[CandidateResult]) -> None:
+        """Refit, judge and (where it pays) solve on each candidate of ``batch``."""
+        for cand in batch:
+            t0 = time.perf_counter()
+            ext, fr, pr = refit(self.model, self.res, self.est, self.val, cand.effect, self.res.sigma, self.rcompile,
+                                cold=self.cold, start=self.starts.get(cand.effect),
+                                max_iter=COLD_CONTINUE[1] if self.cold else None, restart=self.restart,
+                                horizon=self.pred.horizon)
+            self.judge(cand, ext, fr, pr)
+            # a refit short of its optimum (capped) has an LR that is a lower bound (0 while still
+            # on its way past the baseline)
+            capped = "" if fr.converged else \
+                ", stopped on a bound beyond the plausible: LR a lower bound" if fr.status.startswith(STOPPED) else \
+                ", short of its optimum: LR a lower bound"
+            self.say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  "
+                     f"nrmse {self.pred.total:.3f} -> {pr.total:.3f}  ({time.perf_counter() - t0:.1f} s{capped})")
+        # A capped refit's statistic is a lower bound only when it has got past the baseline; one
+        # stopped on its way there (open shooting gaps, a likelihood below the baseline's) says
+        # nothing yet. When such a refit already predicts the validation data better than every
+        # certified one does, it is solved on before it is judged: hidden motor lag, refitted cold
+        # in 20 iterations, had LR 0 while its validation nrmse fell 0.50 -> 0.10, and the verdict
+        # went to a weaker candidate.
+        certified_best = min((c.nrmse_after for c in batch if c.fit is not None and c.fit.converged),
+                             default=self.pred.total)
+        # One whose capped values are already beyond what the effect physically does is not:
+        # it could be the verdict only by travelling back (a real flight's moment gain, capped
+        # at k_M 0.02 after being refused at 0.024 in the round before, took 40 s of a 285-s
+        # diagnosis to be refused again).
+        for cand in sorted(batch, key=lambda c: c.nrmse_after):
+            if cand.fit is None or cand.fit.converged or \
+                    not cand.nrmse_after < (1 - MIN_VALIDATION_GAIN) * min(self.pred.total, certified_best):
+                continue
+            if physically_implausible(cand.fit, cand.effect):
+                cand.reason += f" (its refit stopped short: {cand.fit.status}; not solved on)"
+                continue
+            if self.solve_on(cand):
+                certified_best = min(certified_best, cand.nrmse_after)
+
+    def solve_on(self, cand: CandidateResult) -> bool:
+        """Continue ``cand``'s capped refit from where it stopped and judge it again; whether
+        it is now certified."""
+        t0 = time.perf_counter()
+        ext, fr, pr = refit(self.model, self.res, self.est, self.val, cand.effect, self.res.sigma, self.compile,
+                            start=cand.fit, max_iter=200, horizon=self.pred.horizon)
+        self.judge(cand, ext, fr, pr)
+        self.say(f"  solved on {cand.effect:<13} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  "
+                 f"nrmse {self.pred.total:.3f} -> {pr.total:.3f}  "
+                 f"({'certified' if fr.converged else fr.status}; {time.perf_counter() - t0:.1f} s)")
+        return fr.converged
+
+
 def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Sequence[FlightLog],
                val: Sequence[FlightLog],
                candidates: Sequence[str], compile: str, say: Callable[[str], None], n_refit: int,
@@ -237,140 +392,10 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
         say(f"  cold screen ({time.perf_counter() - t0:.1f} s): continuing "
             f"{', '.join(c.effect for c in to_refit)}")
 
-    def judge(cand: CandidateResult, ext: QuadrotorModel, fr: FitResult, pr: Prediction) -> None:
-        """The candidate's statistics at its refit ``fr`` (validation ``pr``), and the verdict
-        on it in words."""
-        cand.significant = cand.unconfirmable = cand.validation_tie = cand.not_confirmed = False
-        E = estimation_residuals(ext, fr, est)
-        cand.lr, cand.p_value = lr_test(res, fr, E, cand.df, null_on_bound(ext, cand.effect), n_tests)
-        cand.fit, cand.prediction = fr, pr
-        cand.nrmse_after, cand.channels_after = pr.total, dict(pr.nrmse)
-        cand.nrmse_common_start = common_start_nrmse(fr, pr)
-        falls, best_ch, gain = validation_falls(pred, pr)
-        cand.explained = explained_fraction(res, fr)
-        negligible = negligible_effect(fr, cand.effect, est)
-        shifted = parameter_shifts(res, fr) if negligible and size_in_parameters else {}
-        if shifted:
-            negligible = ""
-        within_row = within_row_timing(ext, cand.effect, {n: fr.value(n) for n in fr.free_names}, est)
-        implausible = physically_implausible(fr, cand.effect)
-        on_bound = held_on_bound(fr, cand.effect)
-        if implausible and fr.status.startswith(STOPPED):
-            # stopped on a bound beyond the plausible (HeldBeyondPlausible): refused there
-            cand.reason = (f"physically implausible: {implausible}; its refit held it on a bound and was stopped "
-                           f"there (LR {cand.lr:.3g} a lower bound)")
-        elif cand.p_value >= ALPHA:
-            cand.reason = f"not significant (p = {cand.p_value:.2g})"
-        elif within_row:
-            cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but {within_row}"
-        elif negligible:
-            cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but physically negligible: {negligible}"
-        elif implausible:
-            cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but physically implausible: {implausible}"
-        elif on_bound:
-            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but held on a bound: {on_bound}; "
-                           "it stands in for something the model lacks")
-        elif cand.explained is not None and cand.explained < min_explained:
-            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but " +
-                           (f"it removes only {100 * cand.explained:.1f} % of what the model misses above the "
-                            "sensor noise" if cand.explained > 0 else
-                            f"with it the model misses {-100 * cand.explained:.1f} % more above the sensor "
-                            "noise") + ": it is not what is missing")
-        elif cand.explained is not None and cand.explained < min_explained_inadequate and \
-                fr.certificate is not None and not fr.certificate.adequate:
-            off = fr.certificate.off_channels() or fr.certificate.off_states()
-            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) but it removes only "
-                           f"{100 * cand.explained:.1f} % of what the model misses above the sensor noise, and with "
-                           f"it the model is still far from the data ({', '.join(off)}): a sliver that a "
-                           "correlation with the unexplained rest can give (a controller answers an unmodelled "
-                           "force or moment through the commands); cannot tell")
-        elif not confirmed_on_validation(falls, best_ch, gain):
-            cand.reason = (f"significant in the fit but not confirmed on validation (best channel {best_ch} "
-                           f"{-100 * falls[best_ch]:+.1f} %, total {-100 * gain:+.1f} %)")
-            cand.validation_tie = gain >= -MAX_VALIDATION_LOSS
-            cand.not_confirmed = True
-            moved = prediction_change(pred, pr)
-            if max(moved.values(), default=0.0) < MIN_VALIDATION_GAIN:
-                # the refit moves the validation predictions too little to be judged there:
-                # the validation data lack the regime, which is not evidence against the effect
-                cand.unconfirmable = True
-                cand.reason += (f"; the validation data hardly exercise it (its predictions there move by "
-                                f"< {100 * MIN_VALIDATION_GAIN:.0f} % of the error in every channel)")
-        elif gain < MIN_VALIDATION_GAIN and (replaced := replaced_base_terms(res, fr, cand.effect)):
-            # not an addition but another form of physics the model has: one channel's gain
-            # cannot tell two forms of the same force apart, the whole prediction must
-            cand.reason = (f"significant in the fit (p = {cand.p_value:.2g}) and on validation {best_ch} "
-                           f"{-100 * falls[best_ch]:+.1f} %, but its refit holds the model's own {replaced}: it "
-                           f"replaces them, another form of what the model has, which must predict the validation "
-                           f"data better in total by {100 * MIN_VALIDATION_GAIN:.0f} % to be taken (total "
-                           f"{-100 * gain:+.1f} %)")
-        else:
-            cand.significant = True
-            cand.reason = f"p = {cand.p_value:.2g}; validation {best_ch} {-100 * falls[best_ch]:+.0f} %, " \
-                          f"total {-100 * gain:+.0f} %"
-            if shifted:
-                cand.reason += ("; small in force terms, but without it " +
-                                ", ".join(f"{n} sits {v:.1f} std off" for n, v in shifted.items()))
-
-    def common_start_nrmse(fr: FitResult, pr: Prediction) -> float:
-        """The refit's validation nrmse with its windows started as the baseline's: its own
-        when it chose the same start, else predicted again (a prediction is a second at most)."""
-        base_start = prediction_options(res)
-        if not val or prediction_options(fr) == base_start:
-            return pr.total
-        try:
-            return predict_after_fit(fr, est, val, compile=compile, horizon=pred.horizon, **base_start).total
-        except GreyboxInputError:
-            return math.nan
-
-    def refit_batch(batch: list[CandidateResult]) -> None:
-        """Refit, judge and (where it pays) solve on each candidate of ``batch``."""
-        for cand in batch:
-            t0 = time.perf_counter()
-            ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, rcompile, cold=cold,
-                                 start=starts.get(cand.effect), max_iter=COLD_CONTINUE[1] if cold else None,
-                                 restart=bool(far_off) or bent_soft, horizon=pred.horizon)
-            judge(cand, ext, fr, pr)
-            # a refit short of its optimum (capped) has an LR that is a lower bound (0 while still
-            # on its way past the baseline)
-            capped = "" if fr.converged else \
-                ", stopped on a bound beyond the plausible: LR a lower bound" if fr.status.startswith(STOPPED) else \
-                ", short of its optimum: LR a lower bound"
-            say(f"  refit  {cand.effect:<16} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
-                f"{pr.total:.3f}  ({time.perf_counter() - t0:.1f} s{capped})")
-        # A capped refit's statistic is a lower bound only when it has got past the baseline; one
-        # stopped on its way there (open shooting gaps, a likelihood below the baseline's) says
-        # nothing yet. When such a refit already predicts the validation data better than every
-        # certified one does, it is solved on before it is judged: hidden motor lag, refitted cold
-        # in 20 iterations, had LR 0 while its validation nrmse fell 0.50 -> 0.10, and the verdict
-        # went to a weaker candidate.
-        certified_best = min((c.nrmse_after for c in batch if c.fit is not None and c.fit.converged),
-                             default=pred.total)
-        # One whose capped values are already beyond what the effect physically does is not:
-        # it could be the verdict only by travelling back (a real flight's moment gain, capped
-        # at k_M 0.02 after being refused at 0.024 in the round before, took 40 s of a 285-s
-        # diagnosis to be refused again).
-        for cand in sorted(batch, key=lambda c: c.nrmse_after):
-            if cand.fit is None or cand.fit.converged or \
-                    not cand.nrmse_after < (1 - MIN_VALIDATION_GAIN) * min(pred.total, certified_best):
-                continue
-            if physically_implausible(cand.fit, cand.effect):
-                cand.reason += f" (its refit stopped short: {cand.fit.status}; not solved on)"
-                continue
-            if solve_on(cand):
-                certified_best = min(certified_best, cand.nrmse_after)
-
-    def solve_on(cand: CandidateResult) -> bool:
-        """Continue ``cand``'s capped refit from where it stopped and judge it again; whether
-        it is now certified."""
-        t0 = time.perf_counter()
-        ext, fr, pr = refit(model, res, est, val, cand.effect, res.sigma, compile, start=cand.fit, max_iter=200,
-                            horizon=pred.horizon)
-        judge(cand, ext, fr, pr)
-        say(f"  solved on {cand.effect:<13} LR {cand.lr:12.1f}  p {cand.p_value:.2g}  nrmse {pred.total:.3f} -> "
-            f"{pr.total:.3f}  ({'certified' if fr.converged else fr.status}; {time.perf_counter() - t0:.1f} s)")
-        return fr.converged
-
+    refits = _Refits(model, res, pred, est, val, compile, say, n_tests, rcompile=rcompile, cold=cold, starts=starts,
+                     restart=bool(far_off) or bent_soft, min_explained=min_explained,
+                     min_explained_inadequate=min_explained_inadequate, size_in_parameters=size_in_parameters)
+    refit_batch, solve_on = refits.refit_batch, refits.solve_on
     refit_batch(to_refit)
     # When none of the best by score stands and the model is far from the data, the scores
     # were led by what the unexplained rest correlates with: under a random torque the moment
