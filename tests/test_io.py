@@ -110,6 +110,31 @@ def test_time_held_samples_and_one_time_base():
     assert y[np.flatnonzero(grid == 0.55)[0]] == 3.0
 
 
+
+def test_a_command_that_stays_put_is_held_not_ramped():
+    """A blind audit's 418-Hz uSD command stream, constant for the 567 ms on the ground before
+    take-off, was ramped across them towards the next change (97 rad/s RMS off, K_T 2.3 % low
+    in the IMU fit). A gap far longer than the samples' spacing is a command that stayed put:
+    held, and ramped over one typical spacing only; short gaps are interpolated as before."""
+    t = np.arange(0.0, 1.0, 0.001)                      # 1 kHz rows
+    # a 500 Hz controller's command, constant 48658 until 0.567 s, then moving
+    true = np.where(t < 0.567, 48658.0, 48658.0 + 3000 * np.sin(5 * (t - 0.567)))
+    logged = np.unique(np.round(np.arange(0.0, 1.0, 1 / 418) * 1000).astype(int))   # 418 Hz of fresh samples
+    cmd = true[logged]
+    fresh = fresh_rows(cmd)
+    t_cmd, c = t[logged][fresh], cmd[fresh]
+    grid = commands_on_grid(t, t_cmd, c, "interpolate").ravel()
+    ground = t < 0.56
+    np.testing.assert_array_equal(grid[ground], 48658.0)       # was a ramp up to 30 PWM off
+    moving = (t > 0.6) & (t < t_cmd[-1])
+    assert np.sqrt(np.mean((grid[moving] - true[moving]) ** 2)) < 5.0   # interpolated where it moves
+    # the knot: one typical spacing before the end of the long gap
+    from greybox.io import held_run_knots
+    tk, ck = held_run_knots(t_cmd, c[:, None])
+    k = int(np.argmax(np.diff(t_cmd)))
+    typical = np.median(np.diff(t_cmd))
+    assert tk.size == t_cmd.size + 1 and np.isclose(tk[k + 1], t_cmd[k + 1] - typical) and ck[k + 1, 0] == c[k]
+
 def test_ground_contact_from_height_and_from_imu():
     t = np.arange(0, 10, 0.01)
     h = np.where((t > 2) & (t < 8), 1.0, 0.05)
