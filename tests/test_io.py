@@ -144,6 +144,16 @@ def test_ground_contact_from_height_and_from_imu():
     assert span.rest_height == pytest.approx(0.05)
     with pytest.raises(GreyboxInputError, match="never leaves the ground.*HINT"):
         flight_from_height(t, np.full(t.size, 0.05), running, "f", hint=" HINT")
+    # a 0.1-s mocap dropout at 1 m is bridged (a blind audit's cut the first 5 s of a flight away,
+    # without a word); a 2-s one parts the flight, and the left-out part is said
+    hole = h.copy()
+    hole[(t > 4.0) & (t < 4.11)] = np.nan
+    span = flight_from_height(t, hole, running, "f", 0.01)
+    assert t[span.k0] == pytest.approx(2.01) and t[span.k1] == pytest.approx(7.99)
+    assert f"{np.isnan(hole).sum()} samples without a height in flight taken as airborne" in span.note
+    hole[(t > 3.0) & (t < 5.0)] = np.nan
+    span = flight_from_height(t, hole, running, "f", 0.01)
+    assert t[span.k0] == pytest.approx(5.0, abs=0.011) and "airborne samples outside it left out" in span.note
     f = np.tile([0.0, 0.0, -G0], (t.size, 1))
     f[700:710] = [0, 0, -6 * G0]                      # a crash at 7 s
     span = flight_from_imu(t, f, running, "f")

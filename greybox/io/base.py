@@ -342,6 +342,11 @@ def span_words(t: np.ndarray, k0: int, k1: int) -> str:
     return f"{start}, {end}"
 
 
+HEIGHT_GAP_BRIDGED = 1.0
+"""s: the longest stretch without a height measurement that :func:`flight_from_height` bridges
+(the height interpolated across it to tell whether the vehicle is airborne)."""
+
+
 def flight_from_height(t: np.ndarray, height: np.ndarray, running: np.ndarray, where: str,
                        takeoff_height: float = 0.01, min_samples: int = 20,
                        hint: str = "") -> FlightSpan:
@@ -366,15 +371,24 @@ def flight_from_height(t: np.ndarray, height: np.ndarray, running: np.ndarray, w
         rest = float(np.nanmin(height))
     else:
         raise GreyboxInputError(f"{where}: no height measurement: cannot tell when the vehicle flies{hint}")
-    airborne = np.isfinite(height) & (height - rest > takeoff_height) & running
+    # a height lost for a moment in flight (a mocap dropout) is bridged: a blind audit's
+    # 0.1-s gap at 1 m cut the flight in two, and the first 5 s were dropped without a word
+    bridged = interpolate_samples(t, height, HEIGHT_GAP_BRIDGED)
+    airborne = np.isfinite(bridged) & (bridged - rest > takeoff_height) & running
     if airborne.sum() < min_samples:
         raise GreyboxInputError(f"{where}: the vehicle never leaves the ground (never {takeoff_height:g} m above "
                                 f"its resting height {rest:.3f} m): nothing to identify{hint}")
     k0, k1 = longest_run(airborne)
     on_ground = ~airborne
     mid_contact = int(on_ground[k0:k1 + 1].sum())
+    unmeasured = int((~np.isfinite(height[k0:k1 + 1])).sum())
+    dropped = int(airborne.sum()) - (k1 - k0 + 1 - mid_contact)
     note = (f"{span_words(t, k0, k1)} (resting height {rest:.3f} m)"
-            + (f"; {mid_contact} samples in between touch the ground" if mid_contact else ""))
+            + (f"; {mid_contact} samples in between touch the ground" if mid_contact else "")
+            + (f"; {unmeasured} samples without a height in flight taken as airborne" if unmeasured else "")
+            + (f"; {dropped} airborne samples outside it left out (the flight is the longest airborne run; "
+               f"a gap without height over {HEIGHT_GAP_BRIDGED:g} s, or a touch of the ground, parts it)"
+               if dropped > 0.05 * (k1 - k0 + 1) else ""))
     return FlightSpan(k0, k1, on_ground, rest, note)
 
 
