@@ -38,6 +38,7 @@ from typing import Callable
 
 import casadi as ca
 import numpy as np
+from scipy.optimize import minimize_scalar
 from scipy.signal import lfilter, savgol_filter
 
 from ..data import FlightLog
@@ -64,6 +65,12 @@ TORQUE_EQUATIONS = IMU_EQUATIONS[1:]
 
 TAU_GRID = tuple(float(x) for x in np.r_[0.0, np.arange(0.005, 0.3001, 0.005)])
 """Motor time constants (s) the profile is taken over."""
+
+TAU_TOLERANCE = 1e-5
+"""s: how closely the lag's minimum is found between the grid's points."""
+
+TAU_CURVATURE_STEP = 1e-3
+"""s: the step of the finite difference that gives the profile's curvature at its minimum."""
 
 LEAD_GRID = (0.0, 0.125, 0.25, 0.375, 0.5)
 """Shares of the next row's speeds in the speeds acting over a row (``s_lead``) the profile is
@@ -557,7 +564,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     # audit's 200 Hz rows gave its 40 ms motors 37.8 ms (6 of its std); with the lead, 40.0.
     # A lead moves the lag's optimum by a row or so: beside the held speeds' whole profile, the
     # other leads are scored near its minimum, and the best gets its whole profile.
-    held_profile = [(tau, solve(tau, 0.0, fitted=common)[1]) for tau in grid_tau]
+    held_profile = [(tau, solve(tau, 0.0, TORQUE_EQUATIONS, common)[1]) for tau in grid_tau]
     k0 = int(np.argmin([c for _, c in held_profile]))
     near = range(max(k0 - PROFILE_NEAR, 0), min(k0 + 2 * PROFILE_NEAR, len(grid_tau) - 1) + 1)
     # scored on the torques alone: the thrust equation lacks the vertical drag, and its misfit
@@ -569,16 +576,23 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         ``lead`` from its ``tau`` profile ``profile``; with the equations they were solved on."""
         k = int(np.argmin([c for _, c in profile]))
         tau = grid_tau[k]
-        # the profile's curvature at its minimum gives tau's std (cost is a sum of normalised
-        # squares: 2 / curvature per unit of normalised variance, scaled by the residual level)
         if 0 < k < len(grid_tau) - 1:
-            (t0, c0), (t1, c1), (t2, c2) = profile[k - 1], profile[k], profile[k + 1]
-            curv = 2 * ((c2 - c1) / (t2 - t1) - (c1 - c0) / (t1 - t0)) / (t2 - t0)
-            if curv > 0:
-                # the parabola's vertex between the grid's points: a std finer than the grid's
-                # 5 ms means nothing at a grid point (a 40 ms lag came out 45 ms at 20 "std")
-                slope = (c2 - c0) / (t2 - t0) - curv * (t2 + t0 - 2 * t1) / 2
-                tau = float(np.clip(t1 - slope / curv, t0, t2))
+            # the minimum between the grid's neighbours, found (a std finer than the grid's 5 ms
+            # means nothing at a grid point: a 40 ms lag came out 45 ms at 20 "std"; a parabola
+            # through three points of a skewed profile put a blind audit's 30 ms lag at 28.3 ms,
+            # 5 std off)
+            def scored(t_: float) -> float:
+                return solve(t_, lead, TORQUE_EQUATIONS, common)[1]
+
+            found = minimize_scalar(scored, bounds=(grid_tau[k - 1], grid_tau[k + 1]), method="bounded",
+                                    options={"xatol": TAU_TOLERANCE})
+            tau, c1 = float(found.x), float(found.fun)
+            if c1 > profile[k][1]:
+                tau, c1 = grid_tau[k], profile[k][1]
+            # the profile's curvature at its minimum gives tau's std (cost is a sum of normalised
+            # squares: 2 / curvature per unit of normalised variance, scaled by the residual level)
+            h = min(TAU_CURVATURE_STEP, max(tau, TAU_TOLERANCE) / 2)
+            curv = (scored(tau + h) - 2 * c1 + scored(tau - h)) / h ** 2
         coef, cost, X, y_eq = solve(tau, lead)
         est = rows(tau)
         if 0 < k < len(grid_tau) - 1:
@@ -619,7 +633,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         # the timing counts when it moves what is fitted (the diagnosis's rule for a log's
         # timing, ranking.PARAMETER_SHIFT): a lead that fits a little better and moves nothing
         # is no evidence against the contract's hold
-        led = estimate(lead, [(tau_, solve(tau_, lead, fitted=common)[1]) for tau_ in grid_tau])
+        led = estimate(lead, [(tau_, solve(tau_, lead, TORQUE_EQUATIONS, common)[1]) for tau_ in grid_tau])
         shifts = [abs(led[0][n][0] - v) / sd for n, (v, sd) in params.items() if math.isfinite(sd) and sd > 0]
         if shifts and max(shifts) > LEAD_SHIFT:
             params, nrmse, coef, tau, k, profile, (y_eq, X) = led
