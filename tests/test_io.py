@@ -134,6 +134,15 @@ def test_a_command_that_stays_put_is_held_not_ramped():
     k = int(np.argmax(np.diff(t_cmd)))
     typical = np.median(np.diff(t_cmd))
     assert tk.size == t_cmd.size + 1 and np.isclose(tk[k + 1], t_cmd[k + 1] - typical) and ck[k + 1, 0] == c[k]
+    # the audit's 79-Hz NanoBench log on 100 Hz rows: an integer command clamped for 5 rows, then
+    # a step, was ramped over the 4 rows before it; a logger's one- and two-row gaps still are
+    t = np.arange(0.0, 0.2, 0.01)
+    cmd = np.array([100, 110, 110, 120, 130, 140, 140, 150, 500, 500, 500, 500, 500, 300, 310, 320, 320, 330,
+                    340, 350], float)
+    fresh = fresh_rows(cmd)
+    grid = commands_on_grid(t, t[fresh], cmd[fresh], "interpolate").ravel()
+    np.testing.assert_allclose(grid[8:13], 500.0)                            # held, then the step
+    np.testing.assert_allclose(grid[[1, 2, 5, 6]], [110, 115, 140, 145])     # short gaps: ramps
 
 def test_ground_contact_from_height_and_from_imu():
     t = np.arange(0, 10, 0.01)

@@ -262,13 +262,16 @@ def interpolate_samples(t: np.ndarray, y: np.ndarray, max_gap: float = 1.0) -> n
     return out
 
 
-HELD_RUN_LIMIT = 10.0
+HELD_RUN_LIMIT = 3.5
 """A gap between fresh command samples longer than this many of their typical (median)
 spacing is no logger's held sample but a command that stayed put (a vehicle on the ground
-before take-off, a saturated motor): it is held, and ramped to the next sample over one
-typical spacing only. (A logger's jitter gives gaps of a few spacings: a 42 % chance of a
-fresh row gives one of 10 spacings in 10^5.) A blind audit's 418-Hz uSD log, its command constant for the 567 ms
-on the ground, was ramped across them (97 rad/s RMS off, K_T 2.3 % low in the IMU fit)."""
+before take-off, a clamped or saturated motor): it is held, and ramped to the next sample
+over one typical spacing only. A blind audit's 418-Hz uSD log, its command constant for the
+567 ms on the ground, was ramped across them (97 rad/s RMS off, K_T 2.3 % low in the IMU
+fit); its 79-Hz NanoBench log's integer command, constant for 5 rows of 100 Hz and then
+stepping, was ramped over the 4 rows before the step (up to 459 rad/s off). A logger that
+misses rows at random leaves gaps of 2-3 spacings; 4 in a row at a 21 % chance each is
+1 in 500."""
 
 
 def held_run_knots(t_cmd: np.ndarray, cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
