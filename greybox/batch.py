@@ -52,6 +52,7 @@ from . import __version__
 from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError
 from .data import check_channel_noise
 from .fitting import IF_NEEDED
+from .fitting.imu import fit_imu, is_imu_only
 from .shooting import robust_std
 
 __all__ = ["batch", "BatchResult", "FORMATS", "INSTALL_HINT", "fleet_comparison", "SUMMARY_COLUMNS"]
@@ -60,6 +61,7 @@ INSTALL_HINT = "pip install 'greybox[batch]'"
 FORMATS = ("csv", "nanobench", "px4", "crazyflie-usd")
 """Input formats: ``csv`` (greybox's flight log, the default) or an importer's."""
 SUMMARY_COLUMNS = ("flight", "status", "reason", "verdict", "nrmse_before", "nrmse_after", "wall_s")
+IMU_ONLY_PARAMETERS = ("K_T", "b", "g_x", "g_y", "tau_m", "s_lead")
 """The summary's first columns; each parameter's value and ``_std`` follow, then ``added``
 (effects the diagnosis added), ``input`` and, with ``joint``, ``fleet`` (the flight's
 parameters more than 3 std from the fleet's, in words)."""
@@ -366,6 +368,8 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
     before = len(log.notes)
     log = model_log(model, log, p0, flight.path, opts.input_noise, opts.outliers)
     notes += log.notes[before:]
+    if is_imu_only(log):
+        return _process_imu_only(model, log, files)
     diag = diagnose(model, log, candidates=list(opts.candidates) if opts.candidates is not None else None,
                     iterate=opts.iterate, p0=p0, process_noise=opts.process_noise, progress=False,
                     discover=opts.discover, noise=dict(opts.noise) or None)
@@ -396,6 +400,31 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
         out.update(status="ok", reason="")
     else:
         out.update(status="failed", reason=f"fit did not converge: {base.status}")
+    return out
+
+
+IMU_ONLY_REASON = ("an IMU-only log (gyro and accelerometer, no position): fitted by its own equations, as `greybox "
+                   "fit` does (K_T, b, the motor lag, the torque gains), and not diagnosed: a diagnosis validates "
+                   "on predicted positions")
+
+
+def _process_imu_only(model, log, files: dict[str, bytes]) -> dict:
+    """A flight without position (a Crazyflie uSD log): the IMU-only fit
+    (:func:`~greybox.fitting.imu.fit_imu`), its JSON as ``greybox fit --json`` writes it."""
+    res = fit_imu(model, log)
+    fitj = res.as_dict()
+    files["fit.json"] = _json_bytes(fitj)
+    # the contract's per-flight files: a diagnosis that tested nothing, and why
+    files["diagnose.json"] = _json_bytes({"baseline": {"nrmse": fitj["validation"]["nrmse"],
+                                                       "channels": fitj["validation"]["channels"]},
+                                          "ranking": [], "verdict": None, "null_reason": "imu_only",
+                                          "warnings": [IMU_ONLY_REASON], "imu_only": True})
+    files["report/summary.txt"] = (res.summary() + "\n").encode()
+    out: dict[str, Any] = {"verdict": None, "nrmse_before": None, "nrmse_after": None, "added": "",
+                           "status": "ok", "reason": IMU_ONLY_REASON}
+    for name, (v, s) in res.parameters.items():
+        out[name] = _num(v)
+        out[f"{name}_std"] = _num(s)
     return out
 
 
@@ -683,7 +712,9 @@ class _Progress:
 
     def flight(self, rec: dict) -> None:
         self.done += 1
-        if rec["status"] == "ok":
+        if rec["status"] == "ok" and rec.get("reason") == IMU_ONLY_REASON:
+            what = "ok, IMU-only fit (no position: not diagnosed)"
+        elif rec["status"] == "ok":
             verdict = rec.get("verdict") or "null"
             b, a = rec.get("nrmse_before"), rec.get("nrmse_after")
             what = f"ok, verdict {verdict}" + (f", nrmse {b:.4g} -> {a:.4g}" if b is not None and a is not None else "")
@@ -1013,7 +1044,10 @@ def _check_address(address: str) -> None:
 
 def _columns(model, records: Sequence[dict], joint: bool) -> list[str]:
     cols = list(SUMMARY_COLUMNS)
-    for n in model.param_names:
+    names = list(model.param_names)
+    # an IMU-only flight's own parameters (the torque gains, the motor lag, the speeds' timing)
+    names += [n for n in IMU_ONLY_PARAMETERS if n not in names and any(n in r for r in records)]
+    for n in names:
         cols += [n, f"{n}_std"]
     cols += ["added", "input"]
     if joint:
@@ -1089,7 +1123,7 @@ def _fleet(engine: _Engine | None, scheduler, workers, flights: Sequence[Flight]
     fit of shared parameters can pull every parameter off), and compared with it like the
     others. The joint fit is cached like a flight's results (by the hashes of its flights)."""
     from .data import atomic_write
-    good, fits = [], {}
+    good, fits, imu_only = [], {}, []
     for f in flights:
         if records[f.name]["status"] not in ("ok", "skipped"):
             continue
@@ -1101,12 +1135,18 @@ def _fleet(engine: _Engine | None, scheduler, workers, flights: Sequence[Flight]
             good.append(f)
         except (OSError, ValueError):
             try:
-                fits[f.name] = json.loads((out / f.name / "fit.json").read_text(encoding="utf-8"))
-                good.append(f)
+                fitj = json.loads((out / f.name / "fit.json").read_text(encoding="utf-8"))
             except (OSError, ValueError):
-                pass
+                continue
+            if fitj.get("imu_only"):
+                imu_only.append(f.name)    # fitted on its own equations: no joint trajectory fit
+                continue
+            fits[f.name] = fitj
+            good.append(f)
     if len(good) < 2:
-        return {"error": f"no joint fit: it needs at least two good flights, {len(good)} here", "flights": []}
+        return {"error": f"no joint fit: it needs at least two good flights with position, {len(good)} here"
+                         + (f" ({', '.join(imu_only)}: IMU-only, fitted on their own)" if imu_only else ""),
+                "flights": []}
     n_rotors = model.airframe.n_rotors
     from . import effects as fx
 

@@ -429,3 +429,39 @@ def test_batch_against_a_scheduler_and_a_worker_started_apart(flights, tmp_path)
             if p is not None:
                 os.killpg(p.pid, 15)
                 p.wait(timeout=30)
+
+
+def test_imu_only_flights_get_the_imu_only_fit_and_stay_out_of_the_joint_fit(tmp_path, capsys):
+    """A nineteenth blind audit's uSD logs (gyro, accelerometer, motors; no position) all failed
+    in a batch ("column 'x' is empty") where `greybox fit` fits them by the IMU-only equations:
+    a batch now does the same, its summary holding the torque gains and the motor lag, and the
+    joint trajectory fit leaves them out, saying why."""
+    from foreign_sim import airframe_dict, airframe_toml, crazyflie, simulate_flight
+    from greybox.data import FlightLog, save_log
+    veh = crazyflie()
+    d = tmp_path / "imu"
+    d.mkdir()
+    for seed in (2, 3):
+        log = simulate_flight(veh, duration=12.0, seed=seed, accel=True, log_commands=True).log
+        Y = log.outputs.copy()
+        for c in ("x", "y", "z", "phi", "theta", "psi"):
+            Y[:, log.output_names.index(c)] = np.nan
+        save_log(FlightLog(log.t, log.inputs, log.input_names, Y, list(log.output_names), dict(log.extras), [],
+                           f"imu{seed}.csv"), d / f"imu{seed}.csv")
+    af = tmp_path / "cf.toml"
+    af.write_text(airframe_toml(airframe_dict(veh, K_T_guess_factor=1.3)))
+    rc = main(["batch", str(d), "--airframe", str(af), "--out", str(tmp_path / "out"), "--workers", "1", "--joint"])
+    said = capsys.readouterr()
+    err = said.err + said.out
+    assert rc == 0, err
+    rows = _rows(tmp_path / "out" / "summary.csv")
+    assert [r["status"] for r in rows] == ["ok", "ok"] and all("IMU-only" in r["reason"] for r in rows)
+    for r in rows:
+        assert float(r["K_T"]) == pytest.approx(veh.K_T, rel=0.01)
+        assert float(r["tau_m"]) == pytest.approx(veh.tau_motor, rel=0.1)
+        assert abs(float(r["g_x"]) - 1.0) < 3 * float(r["g_x_std"]) < 0.05 and r["verdict"] == ""
+    assert json.loads((tmp_path / "out" / "imu2" / "fit.json").read_text())["imu_only"] is True
+    diag = json.loads((tmp_path / "out" / "imu2" / "diagnose.json").read_text())
+    assert diag["verdict"] is None and diag["null_reason"] == "imu_only" and diag["ranking"] == []
+    assert "K_T" in (tmp_path / "out" / "imu2" / "report" / "summary.txt").read_text()
+    assert "IMU-only fit (no position: not diagnosed)" in err and "IMU-only, fitted on their own" in err
