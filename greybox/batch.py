@@ -987,14 +987,31 @@ def _batch_run(flights: list, out: Path, opts, the_model, workers: int, schedule
     say = _Progress(len(flights), progress)
     records: dict[str, dict] = {}
     todo = []
+    first_of: dict[str, str] = {}
     for f in flights:
+        if f.sha in first_of:
+            # a copy is no second flight: fitted twice it would count as independent evidence
+            # (a blind audit's joint fit of a flight and its copy had every std /sqrt(2))
+            records[f.name] = {"flight": f.name, "status": "skipped", "verdict": None, "nrmse_before": None,
+                               "nrmse_after": None, "wall_s": 0.0, "duplicate_of": first_of[f.sha],
+                               "reason": f"the same bytes as {first_of[f.sha]}: a copy is no second flight "
+                                         "(left out, and out of the joint fit)"}
+            continue
+        first_of[f.sha] = f.name
+    copies = [f.name for f in flights if f.name in records]
+    if copies:
+        say.say(f"{', '.join(copies)}: the same bytes as another input: left out")
+    for f in flights:
+        if f.name in records:
+            continue
         rec = _complete(out, f.name, f.key)
         if rec is not None:
             records[f.name] = {**rec, "status": "skipped"}
         else:
             todo.append(f)
-    if records:
-        say.say(f"{len(records)} of {len(flights)} flights unchanged since their results were written: skipped")
+    unchanged = len(records) - len(copies)
+    if unchanged:
+        say.say(f"{unchanged} of {len(flights)} flights unchanged since their results were written: skipped")
     say.total = len(todo)
     fleet = None
     need_fleet = joint
@@ -1125,7 +1142,7 @@ def _fleet(engine: _Engine | None, scheduler, workers, flights: Sequence[Flight]
     from .data import atomic_write
     good, fits, imu_only = [], {}, []
     for f in flights:
-        if records[f.name]["status"] not in ("ok", "skipped"):
+        if records[f.name]["status"] not in ("ok", "skipped") or records[f.name].get("duplicate_of"):
             continue
         try:
             # each flight by its final model (a flight flown in wind, fitted without it, has its

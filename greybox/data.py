@@ -17,13 +17,13 @@ import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Mapping
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from .errors import GreyboxInputError
 
-__all__ = ["FlightLog", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write",
+__all__ = ["FlightLog", "check_distinct_flights", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write",
            "ATOMIC_NAME_EXTRA", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "median_row_interval",
@@ -133,6 +133,14 @@ class FlightLog:
                          list(self.output_names),
                          {k: v[start:stop].copy() for k, v in self.extras.items()},
                          list(self.notes), self.source)
+
+    def same_flight(self, other: "FlightLog") -> bool:
+        """Whether ``other`` holds the same samples (times, inputs and outputs, NaN for NaN):
+        a copy of this flight, whatever its file is called."""
+        return (len(self) == len(other) and list(self.input_names) == list(other.input_names)
+                and list(self.output_names) == list(other.output_names) and np.array_equal(self.t, other.t)
+                and np.array_equal(self.inputs, other.inputs)
+                and np.array_equal(self.outputs, other.outputs, equal_nan=True))
 
     def split(self, fraction: float = 0.8) -> tuple["FlightLog", "FlightLog"]:
         """Estimation part (first ``fraction`` of the samples) and validation part (the rest).
@@ -488,6 +496,17 @@ def _csv_rows(path: Path, text: str) -> tuple[list[list[str]], list[int]]:
                if "field limit" in str(e) else f"malformed CSV ({e})")
         raise GreyboxInputError(f"{path}: row {start}: {why}") from None
     return rows, lines
+
+
+def check_distinct_flights(logs: Sequence[FlightLog], what: str = "flights") -> None:
+    """Refuse a flight given twice (the same samples under two names): fitted as two flights a
+    copy counts as independent evidence, every std shrinking by sqrt(2) (a blind audit's joint
+    fit of a flight and its copy)."""
+    for j, b in enumerate(logs):
+        for a in logs[:j]:
+            if a is b or a.same_flight(b):
+                raise GreyboxInputError(f"{b.source or 'log'}: the same flight as {a.source or 'another log'} "
+                                        f"(the same samples): give each of the {what} once")
 
 
 def median_row_interval(logs: Iterable[FlightLog]) -> float:

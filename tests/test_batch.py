@@ -123,6 +123,18 @@ def test_folder_with_a_corrupt_file_then_a_rerun_skips_and_retries(flights, tmp_
     third = {r["flight"]: r for r in _rows(out / "summary.csv")}
     assert third["corrupt"]["status"] == "ok" and third["good1"]["status"] == "skipped"
 
+    # a copy of a flight is no second flight: left out, and out of the joint fit (a blind audit's
+    # joint fit of a flight and its copy had every std /sqrt(2))
+    shutil.copy(flights / "good1.csv", flights / "good1_copy.csv")
+    rc = main(["batch", str(flights), "--airframe", PAPER, "--out", str(out), "--workers", "1", "--joint"] + QUICK)
+    said = capsys.readouterr()
+    assert rc == 0
+    fourth = {r["flight"]: r for r in _rows(out / "summary.csv")}
+    assert fourth["good1_copy"]["status"] == "skipped" and "the same bytes as good1" in fourth["good1_copy"]["reason"]
+    assert "good1_copy: the same bytes as another input" in said.out + said.err
+    fleet = json.loads((out / "fleet.json").read_text())
+    assert "good1" in fleet["flights"] and "good1_copy" not in fleet["flights"]
+
 
 def test_a_worker_that_dies_costs_only_its_own_flight(flights, tmp_path, monkeypatch):
     """The hook ends the worker process (os._exit) on good1 every time (failed after one

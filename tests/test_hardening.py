@@ -1127,3 +1127,25 @@ def test_diagnose_takes_the_channel_noise_given_for_its_baseline_and_refits(tmp_
     assert diag.baseline.sensor_given == {"phi": 0.01} and diag.baseline.sigma["phi"] == 0.01
     refits = [c.fit for c in diag.ranking if c.fit is not None]
     assert refits and all(r.sensor_given == {"phi": 0.01} and r.certificate.sensor_noise["phi"] == 0.01 for r in refits)
+
+
+def test_a_flight_given_twice_is_refused(short_log, tmp_path, capsys):
+    """A copy of a flight fitted beside it counts as independent evidence (a blind audit's joint
+    fit of a flight and its copy had every std /sqrt(2)); validated on its own estimation data a
+    diagnosis would confirm anything: one error naming both files, exit 2, before any fit."""
+    import shutil
+    from greybox import diagnose, fit
+    copy = Path(shutil.copy(short_log, tmp_path / "copy.csv"))
+    rc, err = _cli(capsys, "fit", str(short_log), str(copy), "--airframe", PAPER)
+    assert rc == 2 and "copy.csv: the same flight as" in _one_error(err) and "short.csv" in err
+    rc, err = _cli(capsys, "diagnose", str(short_log), "--validation", str(copy), "--airframe", PAPER)
+    assert rc == 2 and "copy.csv: the same flight as" in _one_error(err)
+    model = QuadrotorModel(load_airframe(PAPER))
+    log = load_log(short_log)
+    with pytest.raises(GreyboxInputError, match="the same flight as"):
+        fit(model, [log, load_log(copy)])
+    with pytest.raises(GreyboxInputError, match="the same flight as"):
+        diagnose(model, log, validation=log)
+    other = load_log(short_log)
+    other.outputs[5, 3] += 1e-3                     # one sample apart: another flight
+    assert not log.same_flight(other) and log.same_flight(load_log(copy))

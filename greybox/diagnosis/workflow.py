@@ -14,7 +14,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from .. import effects as fx
-from ..data import FlightLog, median_row_interval
+from ..data import FlightLog, check_distinct_flights, median_row_interval
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..controller_law import closed_loop_or_why
 from ..fitting import IF_NEEDED, THRUST_IMPOSSIBLE, FitResult, fit, progress_callback, thrust_ratio
@@ -349,6 +349,7 @@ def _flights_and_candidates(model: QuadrotorModel, log: FlightLog | Sequence[Fli
     untried_columns: list[str] = []
     given_val = [] if validation is None else \
         [validation] if isinstance(validation, FlightLog) else list(validation)
+    check_distinct_flights(logs + given_val, "estimation and validation flights")
     if candidates is None:
         # an effect whose column a validation flight lacks cannot be validated (a blind audit's
         # battery_voltage, vbat in the estimation flight only, failed after 6 minutes)

@@ -19,7 +19,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..data import FlightLog
+from ..data import FlightLog, check_distinct_flights
 from ..errors import ConvergenceWarning, GreyboxInputError, SolverError
 from ..fitted import FittedModel, provenance
 from ..model import OUTPUTS, QuadrotorModel
@@ -864,6 +864,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     if not logs or not all(isinstance(lg, FlightLog) for lg in logs):
         raise GreyboxInputError(f"fit takes a FlightLog or a list of them, got {type(given).__name__} "
                                 "(a pandas DataFrame: FlightLog.from_dataframe(df))")
+    check_distinct_flights(logs)
     if interval is None:
         # with process noise too: a model trusted one sample ahead only (every sample a node)
         # is an equation-error fit, biased on closed-loop data where the commands answer the
