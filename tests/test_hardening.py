@@ -1149,3 +1149,20 @@ def test_a_flight_given_twice_is_refused(short_log, tmp_path, capsys):
     other = load_log(short_log)
     other.outputs[5, 3] += 1e-3                     # one sample apart: another flight
     assert not log.same_flight(other) and log.same_flight(load_log(copy))
+
+
+def test_rows_flagged_on_the_ground_are_said_when_fitted(short_log):
+    """A log imported with --keep-ground flags its ground rows (on_ground) and the importer says
+    not to fit them; fitted anyway (a blind audit: Kd[2] on its bound, 17 times the truth) the
+    fit says how many rows are on the ground."""
+    from greybox import fit
+    from greybox.data import FlightLog
+    log = load_log(short_log)
+    flag = np.zeros(len(log))
+    flag[:150] = 1.0
+    grounded = FlightLog(log.t, log.inputs, log.input_names, log.outputs, list(log.output_names),
+                         {**log.extras, "on_ground": flag}, [], "grounded.csv")
+    model = QuadrotorModel(load_airframe(PAPER))
+    res = fit(model, grounded, max_iter=5)
+    assert any("grounded.csv: 25 % of its rows are flagged on the ground" in w for w in res.warnings), res.warnings
+    assert not any("on the ground" in w for w in fit(model, log, max_iter=5).warnings)

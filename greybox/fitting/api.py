@@ -1119,6 +1119,14 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     P = T @ P @ T.T
     var = np.diag(cov)
     warnings: list[str] = []
+    for lg in logs:
+        grounded = np.asarray(lg.extras.get("on_ground", np.zeros(0)), dtype=float) > 0
+        if grounded.any():
+            # an importer's --keep-ground flags them and says not to fit them; fitted anyway
+            # they bend the fit (a blind audit's Kd[2] on its bound, 17 times the truth)
+            warnings.append(f"{lg.source or 'log'}: {100 * grounded.mean():.0f} % of its rows are flagged on the "
+                            "ground (its on_ground column, written by an importer's --keep-ground): the model has "
+                            "no ground reaction force, so those rows bend the fit; import without --keep-ground")
     if np.any(var <= 0) or not np.all(np.isfinite(var)):
         warnings.append("information matrix is singular: some parameters are not identifiable from these data")
     # a non-positive variance is no variance: its std is unknown (NaN), not sqrt(|v|), and it
