@@ -510,8 +510,16 @@ def cmd_fit(args: argparse.Namespace) -> int:
                   interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
                   process_noise=_process_noise(args), per_flight=_per_flight(args.per_flight, model),
                   noise=_channel_noise(args.noise))
+    geometry: list[str] = []
+    if not res.converged or (res.certificate is not None and not res.certificate.adequate):
+        # a fit that fails or leaves residuals beyond the noise: rotor columns in another order,
+        # or a layout read wrong, are named (a blind audit's M2/M4 swapped: "certified", p and q
+        # 1.7x the noise, nothing said)
+        from .diagnosis.analysis import rotor_geometry, rotor_geometry_warnings
+        geometry = rotor_geometry_warnings(model, *rotor_geometry(model, [est for est, _ in parts]))
     if not res.converged:
-        raise GreyboxError(f"fit did not converge: {res.status}")
+        raise GreyboxError(f"fit did not converge: {res.status}" + "".join(f"; {w}" for w in geometry))
+    res.warnings[:0] = geometry
     # each flight validated with its own values of the per-flight parameters (wind, battery sag)
     preds = [predict(model, res.flight_p(i), val, horizon=args.horizon, **prediction_options(res))
              for i, (_, val) in enumerate(parts)]

@@ -96,3 +96,36 @@ def test_a_battery_sag_with_held_commands_leaves_no_word_on_the_timing_nor_a_wro
     for name, true in (("K_vbat", 0.15), ("b", truth["b"]), ("K_T", truth["K_T"])):
         j = fr.free_names.index(name)
         assert abs(fr.value(name) - true) < max(3 * fr.std[j], 0.002 * abs(true)), (name, fr.value(name), true)
+
+
+def test_the_control_flight_is_null_and_its_copy_with_two_motors_swapped_is_named(tmp_path, capsys):
+    """The audit's control flight (nothing missing, commands held): null. The same file with the
+    columns of M2 and M4 swapped was fitted "optimum certified" with p and q 1.7 times their
+    noise and no word of why; the fit's first warning now names the order."""
+    import csv
+    import json
+
+    from greybox.cli import main
+    truth = sim.nanobench_flight(tmp_path / "nb_control.csv", 1)
+    with open(tmp_path / "nb_control.csv", newline="") as fh:
+        rows = list(csv.reader(fh))
+    i2, i4 = rows[0].index("motor_motor_m2"), rows[0].index("motor_motor_m4")
+    for r in rows[1:]:
+        r[i2], r[i4] = r[i4], r[i2]
+    with open(tmp_path / "nb_swap24.csv", "w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    model = _model(tmp_path, -0.029038363)
+    log = import_nanobench(tmp_path / "nb_control.csv", held="hold").log
+    d = diagnose(model, log)
+    assert d.verdict is None and d.baseline.converged, d.warnings
+    for name in ("K_T", "b"):
+        assert abs(d.baseline.value(name) / truth[name] - 1) < 0.001
+    assert main(["import", "nanobench", str(tmp_path / "nb_swap24.csv"), "--out", str(tmp_path / "swap.csv"),
+                 "--held", "hold"]) == 0
+    rc = main(["fit", str(tmp_path / "swap.csv"), "--airframe", str(tmp_path / "cf_off.toml"), "--quiet", "--json",
+               str(tmp_path / "r.json")])
+    capsys.readouterr()
+    assert rc == 0
+    warnings = json.loads((tmp_path / "r.json").read_text())["warnings"]
+    assert warnings[0].startswith("the logged rotor speeds act as the airframe's rotors in another order: "
+                                  "w1 as rotor 1, w2 as rotor 4, w3 as rotor 3, w4 as rotor 2"), warnings

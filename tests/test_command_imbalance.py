@@ -134,3 +134,25 @@ def test_rotor_columns_logged_in_another_order_are_told(base):
     assert d.as_json()["null_reason"] == "rotor_order"
     assert "w1 as rotor 4, w2 as rotor 1, w3 as rotor 2, w4 as rotor 3): nothing was tested; reorder the columns" \
         in d.verdict_text()
+
+
+def test_a_fit_whose_rotor_columns_are_in_another_order_says_so(base, tmp_path, capsys):
+    """A nineteenth blind audit's NanoBench flight with M2 and M4 swapped was fitted "certified"
+    with p and q 1.7 times their noise and nothing said of why (its IMU-only fit named it): the
+    fit's inadequate certificate now asks the rotor geometry, and the warning names the order."""
+    from dataclasses import replace
+    from greybox.cli import main
+    from greybox.data import save_log
+
+    m0, p0 = model_with_hidden_effects(base, [])
+    log = synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log
+    inputs = log.inputs.copy()
+    inputs[:, :4] = log.inputs[:, [0, 3, 2, 1]]      # M2 and M4 swapped
+    save_log(replace(log, inputs=inputs), tmp_path / "swapped.csv")
+    rc = main(["fit", str(tmp_path / "swapped.csv"), "--airframe", str(AIRFRAMES / "x_quad.toml"), "--quiet",
+               "--json", str(tmp_path / "r.json")])
+    said = capsys.readouterr()
+    words = ("the logged rotor speeds act as the airframe's rotors in another order: "
+             "w1 as rotor 1, w2 as rotor 4, w3 as rotor 3, w4 as rotor 2")
+    # not certified here (the audit's was, and its first warning said it): the error says why
+    assert rc == 1 and "fit did not converge" in said.err and words in said.err, said.err

@@ -18,7 +18,7 @@ from ..residuals import flight_residuals, whiteness_fraction
 from ..shooting import initial_node_states
 from ..validation import Prediction
 
-__all__ = ["Finding", "CommandImbalance", "command_imbalance", "rotor_order", "layout_rotation", "rotor_geometry", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
+__all__ = ["Finding", "CommandImbalance", "command_imbalance", "rotor_order", "layout_rotation", "rotor_geometry", "rotor_geometry_warnings", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
            "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE"]
 
 
@@ -300,6 +300,34 @@ def rotor_geometry(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]
         if max(_cosines(C, G[:, list(o)]).min() for o in orders) >= ROTOR_ORDER_MATCH:
             return None, float(math.remainder(angle, 2 * math.pi))
     return None, None
+
+
+def rotor_geometry_warnings(model: QuadrotorModel, order: Sequence[int] | None, turned: float | None) -> list[str]:
+    """The words when the logged rotor speeds act as the airframe's rotors in another order,
+    or turned about the body's z (:func:`rotor_geometry`'s ``order`` and ``turned``): the
+    diagnosis tests nothing then, and a fit says it (its residuals are not noise)."""
+    words: list[str] = []
+    if order is not None:
+        # nothing is tested: read in the wrong order, what the columns do is "physics" no
+        # effect holds (a blind audit's reordered flight: 3 minutes, and a discovered moment
+        # "my ~ w2yaw, w2pitch" as the verdict's reason)
+        cols = model.command_names[:len(order)]
+        words.insert(0, f"the logged rotor speeds act as the airframe's rotors in another order: "
+                           f"{', '.join(f'{c} as rotor {j + 1}' for c, j in zip(cols, order))} (the roll and pitch "
+                           "they move match the airframe's that way, and not as given): check how the log numbers "
+                           "the motors (Betaflight counts from the rear right, PX4's quad X from the front right, "
+                           "greybox's from the airframe's rotor list) and reorder the columns; with the order as "
+                           "given, what follows reads it as physics")
+    if turned is not None:
+        # a plus-layout flight read with an "x" airframe was diagnosed as a 1-s motor lag
+        words.insert(0, f"the roll and pitch moments the logged rotor speeds move match the airframe's rotors turned "
+                           f"by {math.degrees(turned):+.0f} degrees about the body's z axis, and no order of them as "
+                           f"given: is the airframe's layout right (layout {model.airframe.layout!r}: an 'x' quad has "
+                           "its rotors between the body's axes, a 'plus' one on them), and its rotor positions in "
+                           "FRD (x forward, y right)? With the geometry as given, what follows reads it as physics")
+    return words
+
+
 
 
 def rotor_order(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> tuple[int, ...] | None:

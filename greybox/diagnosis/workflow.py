@@ -23,7 +23,8 @@ from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
-from .analysis import command_imbalance, estimation_residuals, residual_analysis, rotor_geometry
+from .analysis import (command_imbalance, estimation_residuals, residual_analysis, rotor_geometry,
+                       rotor_geometry_warnings)
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
@@ -114,7 +115,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     remaining = list(candidates) if res.converged else []
     imbalance = command_imbalance(model, est)
     order, turned = rotor_geometry(model, est)
-    geometry = _geometry_warnings(model, order, turned)
+    geometry = rotor_geometry_warnings(model, order, turned)
     if geometry:
         # nothing is tested: read in the wrong order or turned, what the columns do is "physics"
         # no effect holds
@@ -457,32 +458,6 @@ def _baseline_warnings(model: QuadrotorModel, res: FitResult, timing: dict | Non
             warnings.append(f"{n} = {res.value(n):.4g} sits on its bound: it is compensating for something the "
                             "model lacks, and its value is not a property of the vehicle")
     return warnings
-
-
-def _geometry_warnings(model: QuadrotorModel, order: Sequence[int] | None, turned: float | None) -> list[str]:
-    """The words when the logged rotor speeds act as the airframe's rotors in another order,
-    or turned about the body's z (:func:`~greybox.diagnosis.analysis.rotor_geometry`):
-    nothing is tested then."""
-    words: list[str] = []
-    if order is not None:
-        # nothing is tested: read in the wrong order, what the columns do is "physics" no
-        # effect holds (a blind audit's reordered flight: 3 minutes, and a discovered moment
-        # "my ~ w2yaw, w2pitch" as the verdict's reason)
-        cols = model.command_names[:len(order)]
-        words.insert(0, f"the logged rotor speeds act as the airframe's rotors in another order: "
-                           f"{', '.join(f'{c} as rotor {j + 1}' for c, j in zip(cols, order))} (the roll and pitch "
-                           "they move match the airframe's that way, and not as given): check how the log numbers "
-                           "the motors (Betaflight counts from the rear right, PX4's quad X from the front right, "
-                           "greybox's from the airframe's rotor list) and reorder the columns; with the order as "
-                           "given, what follows reads it as physics")
-    if turned is not None:
-        # a plus-layout flight read with an "x" airframe was diagnosed as a 1-s motor lag
-        words.insert(0, f"the roll and pitch moments the logged rotor speeds move match the airframe's rotors turned "
-                           f"by {math.degrees(turned):+.0f} degrees about the body's z axis, and no order of them as "
-                           f"given: is the airframe's layout right (layout {model.airframe.layout!r}: an 'x' quad has "
-                           "its rotors between the body's axes, a 'plus' one on them), and its rotor positions in "
-                           "FRD (x forward, y right)? With the geometry as given, what follows reads it as physics")
-    return words
 
 
 def _judged_with_a_disturbance(model: QuadrotorModel, res: FitResult, pred, nothing_stands: bool,
