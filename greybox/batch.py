@@ -7,8 +7,10 @@ files — ``fit.json`` (``greybox fit --json``'s format), ``diagnose.json`` (``g
 diagnose --json``'s), ``model.json`` (the final fitted model, as ``--save`` writes it) and
 ``report/`` — to the client, which writes them atomically under ``DIR/<flight>/`` together
 with ``batch.json`` (the flight's summary record and the hash of what produced it; written
-last, so a flight is complete exactly when it has one). ``DIR/summary.csv`` and
-``DIR/summary.json`` hold one record per flight.
+last, so a flight is complete exactly when it has one). A flight without position gets the
+IMU-only fit instead (``fit.json`` its JSON, a ``diagnose.json`` that tested nothing, no
+``model.json``); a byte-identical copy of an earlier input is recorded skipped.
+``DIR/summary.csv`` and ``DIR/summary.json`` hold one record per flight.
 
 The engine is Dask distributed: a ``LocalCluster`` of ``workers`` processes with one thread
 each (BLAS, OpenMP and CasADi's maps set to one thread in them), or a running scheduler
@@ -61,10 +63,12 @@ INSTALL_HINT = "pip install 'greybox[batch]'"
 FORMATS = ("csv", "nanobench", "px4", "crazyflie-usd")
 """Input formats: ``csv`` (greybox's flight log, the default) or an importer's."""
 SUMMARY_COLUMNS = ("flight", "status", "reason", "verdict", "nrmse_before", "nrmse_after", "wall_s")
-IMU_ONLY_PARAMETERS = ("K_T", "b", "g_x", "g_y", "tau_m", "s_lead")
 """The summary's first columns; each parameter's value and ``_std`` follow, then ``added``
 (effects the diagnosis added), ``input`` and, with ``joint``, ``fleet`` (the flight's
 parameters more than 3 std from the fleet's, in words)."""
+IMU_ONLY_PARAMETERS = ("K_T", "b", "g_x", "g_y", "tau_m", "s_lead")
+"""What an IMU-only flight's fit gives (:func:`~greybox.fitting.imu.fit_imu`): the summary's
+columns for those the model does not hold."""
 OUTLIER_STD = 3.0
 FLEET_MIN_DEVIATION = 0.02
 """A flight's parameter is named against the fleet only when it is also this far from the

@@ -139,7 +139,7 @@ class FlightLog:
         a copy of this flight, whatever its file is called."""
         return (len(self) == len(other) and list(self.input_names) == list(other.input_names)
                 and list(self.output_names) == list(other.output_names) and np.array_equal(self.t, other.t)
-                and np.array_equal(self.inputs, other.inputs)
+                and np.array_equal(self.inputs, other.inputs, equal_nan=True)
                 and np.array_equal(self.outputs, other.outputs, equal_nan=True))
 
     def split(self, fraction: float = 0.8) -> tuple["FlightLog", "FlightLog"]:

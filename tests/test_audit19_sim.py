@@ -99,8 +99,8 @@ def test_a_battery_sag_with_held_commands_leaves_no_word_on_the_timing_nor_a_wro
 
 
 def test_the_control_flight_is_null_and_its_copy_with_two_motors_swapped_is_named(tmp_path, capsys):
-    """The audit's control flight (nothing missing, commands held): null. The same file with the
-    columns of M2 and M4 swapped was fitted "optimum certified" with p and q 1.7 times their
+    """The audit's control flight (nothing missing, commands held): null, imported held and by
+    default (it was "unexplained" by default). The same file with the columns of M2 and M4 swapped was fitted "optimum certified" with p and q 1.7 times their
     noise and no word of why; the fit's first warning now names the order."""
     import csv
     import json
@@ -120,6 +120,10 @@ def test_the_control_flight_is_null_and_its_copy_with_two_motors_swapped_is_name
     assert d.verdict is None and d.baseline.converged, d.warnings
     for name in ("K_T", "b"):
         assert abs(d.baseline.value(name) / truth[name] - 1) < 0.001
+    # imported by default its truly held commands are interpolated, except where they stay put
+    # for over 3.5 fresh spacings (they were ramped there too, and the verdict was "unexplained")
+    d = diagnose(model, import_nanobench(tmp_path / "nb_control.csv").log)
+    assert d.verdict is None and d.null_reason == "nothing_missing", (d.verdict, d.null_reason)
     assert main(["import", "nanobench", str(tmp_path / "nb_swap24.csv"), "--out", str(tmp_path / "swap.csv"),
                  "--held", "hold"]) == 0
     rc = main(["fit", str(tmp_path / "swap.csv"), "--airframe", str(tmp_path / "cf_off.toml"), "--quiet", "--json",

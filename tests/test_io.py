@@ -123,7 +123,7 @@ def test_a_command_that_stays_put_is_held_not_ramped():
     cmd = true[logged]
     fresh = fresh_rows(cmd)
     t_cmd, c = t[logged][fresh], cmd[fresh]
-    grid = commands_on_grid(t, t_cmd, c, "interpolate").ravel()
+    grid = commands_on_grid(t, t_cmd, c, "interpolate", repeated_between=True).ravel()
     ground = t < 0.56
     np.testing.assert_array_equal(grid[ground], 48658.0)       # was a ramp up to 30 PWM off
     moving = (t > 0.6) & (t < t_cmd[-1])
@@ -140,9 +140,13 @@ def test_a_command_that_stays_put_is_held_not_ramped():
     cmd = np.array([100, 110, 110, 120, 130, 140, 140, 150, 500, 500, 500, 500, 500, 300, 310, 320, 320, 330,
                     340, 350], float)
     fresh = fresh_rows(cmd)
-    grid = commands_on_grid(t, t[fresh], cmd[fresh], "interpolate").ravel()
+    grid = commands_on_grid(t, t[fresh], cmd[fresh], "interpolate", repeated_between=True).ravel()
     np.testing.assert_allclose(grid[8:13], 500.0)                            # held, then the step
     np.testing.assert_allclose(grid[[1, 2, 5, 6]], [110, 115, 140, 145])     # short gaps: ramps
+    # between messages (PX4's; a dropout) the command is not known to stay put: interpolated
+    t_msg = np.r_[0.0, 0.01, 0.02, 0.1, 0.11]
+    msgs = np.array([100.0, 110.0, 120.0, 200.0, 210.0])
+    np.testing.assert_allclose(commands_on_grid(np.array([0.06]), t_msg, msgs, "interpolate").ravel(), 160.0)
 
 def test_ground_contact_from_height_and_from_imu():
     t = np.arange(0, 10, 0.01)

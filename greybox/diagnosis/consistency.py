@@ -71,10 +71,12 @@ def undetermined_parameters(res: FitResult, effects: Sequence[str]) -> list[str]
 
 
 def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], E: np.ndarray,
-                     compile: str, say: Callable[[str], None]) -> dict[str, tuple[float, float, float, float]]:
+                     compile: str, say: Callable[[str], None]
+                     ) -> dict[str, tuple[float, float, float, float]] | None:
     """Fit each half of the estimation data (warm-started at the baseline, its weights) and
     return the parameters whose two estimates disagree, ``{name: (first, first_std, second,
-    second_std)}``: a constant of the vehicle is the same in both halves; a parameter absorbing
+    second_std)}`` (None when a half cannot be fitted or its fit is not certified: nothing
+    was compared): a constant of the vehicle is the same in both halves; a parameter absorbing
     a missing effect follows what each half happens to exercise.
 
     They disagree when they differ by more than :data:`CONSISTENCY_Z` standard deviations of
@@ -96,7 +98,7 @@ def half_consistency(model: QuadrotorModel, res: FitResult, est: Sequence[Flight
     out: dict[str, tuple[float, float, float, float]] = {}
     fits = _half_fits(model, res, est, compile, say)
     if fits is None:
-        return out
+        return None
     a, b = fits
     widen = residual_widening(E, res.sigma)
     sizes = _plausible_sizes(model, res)

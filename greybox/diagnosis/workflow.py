@@ -110,7 +110,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                                                             validation_is_tail=validation is None)
     if res.certificate is not None:
         say(f"diagnose: baseline {res.certificate.text()}")
-    inconsistent = half_consistency(model, res, est, E, compile, say) if res.converged else {}
+    inconsistent = (half_consistency(model, res, est, E, compile, say) if res.converged else None) or {}
     warnings = _baseline_warnings(model, res, timing, untried_warning, inconsistent)
     remaining = list(candidates) if res.converged else []
     imbalance = command_imbalance(model, est)
@@ -286,8 +286,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # the baseline's b apart between the halves may be what the verdicts explain (a blind
         # audit's battery sag: the final b right to 0.01 %, and a disturbance refit's 1.5 % low
         # offered as "take this b"): asked of the final model
-        b_halves = "b" in half_consistency(cur_model, cur_res, est, estimation_residuals(cur_model, cur_res, est),
-                                           compile, say)
+        final_halves = half_consistency(cur_model, cur_res, est, estimation_residuals(cur_model, cur_res, est),
+                                        compile, say)
+        if final_halves is not None:      # not compared: the baseline's word stands
+            b_halves = "b" in final_halves
     yaw = closed_loop_yaw(cur_res, est, baseline=res, halves_disagree=b_halves, compile=compile, say=say)
     if yaw.words:
         warnings.append(yaw.words)
@@ -811,12 +813,13 @@ def _timing_without(fr: FitResult, name: str, added: Sequence[str], est: Sequenc
     when, with the verdicts ``added`` in, it is no longer significant and moves no parameter
     by :data:`~greybox.diagnosis.ranking.PARAMETER_SHIFT` of its std: ``(fit, prediction,
     words)``; None when it still stands (or the refit without it is not certified)."""
+    df = sum(1 for _, c, _ in fr.model.effect_components(name) if c in fr.free_names)
+    if not df:        # held at its value: nothing to test
+        return None
     reduced = fit_without(fr, name, est, compile)
     if not reduced.converged:
         return None
-    df = sum(1 for _, c, _ in fr.model.effect_components(name) if c in fr.free_names)
-    lr, p = lr_test(reduced, fr, estimation_residuals(fr.model, fr, est), max(df, 1), null_on_bound(fr.model, name),
-                    1)
+    lr, p = lr_test(reduced, fr, estimation_residuals(fr.model, fr, est), df, null_on_bound(fr.model, name), 1)
     shifted = parameter_shifts(reduced, fr)
     say(f"diagnose: does the log's timing still stand with {', '.join(added)}? "
         f"{'yes' if p < ALPHA or shifted else 'no'} (LR {lr:.3g}, p = {p:.2g})")

@@ -19,7 +19,7 @@ quadrotors with motor delays does):
   off the left side, computed by the model itself (left in, a 2.5 kg vehicle's roll and
   pitch gains came out 0.957 and 1.030 where its geometry was exact);
 * the rotors' first-order lag ``w_eff' = (w - w_eff)/tau_m``, chosen by profiling the
-  equations' joint fit over ``tau_m``.
+  torque equations' joint fit over ``tau_m`` (the thrust equation lacks the vertical drag).
 
 Identified: ``K_T`` (relative to the mass you give), ``b``, ``tau_m``, and the roll/pitch
 torque gains ``g_x, g_y`` (a check of arm and inertia). Not identified: drag (it needs the
@@ -175,8 +175,8 @@ def is_imu_only(log: FlightLog) -> bool:
 class ImuFit:
     """An IMU-only identification (:func:`fit_imu`). ``parameters[name] = (value, std)``;
     ``nrmse[eq]`` the validation error of each equation (RMS residual over the RMS of the
-    measured side about its mean) on the last part of the log; ``tau_profile`` the joint
-    cost against ``tau_m``; ``horizons`` the open-loop prediction error of the body rates
+    measured side about its mean) on the last part of the log; ``tau_profile`` the torque
+    equations' joint cost against ``tau_m``; ``horizons`` the open-loop prediction error of the body rates
     and the specific force against horizon on that part, beside the naive predictor's
     (:func:`fit_imu`)."""
 
@@ -591,14 +591,19 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
                 tau, c1 = grid_tau[k], profile[k][1]
             # the profile's curvature at its minimum gives tau's std (cost is a sum of normalised
             # squares: 2 / curvature per unit of normalised variance, scaled by the residual level)
-            h = min(TAU_CURVATURE_STEP, max(tau, TAU_TOLERANCE) / 2)
-            curv = (scored(tau + h) - 2 * c1 + scored(tau - h)) / h ** 2
+            h = min(TAU_CURVATURE_STEP, tau / 2)
+            # a minimum at the grid's 0 has no curvature to read (no std)
+            curv = (scored(tau + h) - 2 * c1 + scored(tau - h)) / h ** 2 if h >= TAU_TOLERANCE else float("nan")
         coef, cost, X, y_eq = solve(tau, lead)
         est = rows(tau)
         if 0 < k < len(grid_tau) - 1:
             # coloured residuals carry less information per sample: widen by their long-run factor
-            colour = float(np.median([long_run_factor(y_eq[eq][est] - X[eq][est] @ coef[eq]) for eq in y_eq]))
-            tau_std = math.sqrt(c1 / (2 * common.sum()) / curv * colour) if curv > 0 else float("nan")
+            colour = float(np.median([long_run_factor(y_eq[eq][est] - X[eq][est] @ coef[eq])
+                                      for eq in TORQUE_EQUATIONS]))
+            # the profile's cost sums len(TORQUE_EQUATIONS) normalised squares, each about c1 / that
+            # many: -log L = n len / (2 c1) * cost, its curvature gives the variance
+            tau_std = math.sqrt(2 * c1 / (len(TORQUE_EQUATIONS) * common.sum()) / curv * colour) \
+                if curv > 0 else float("nan")
         else:
             tau_std = float("nan")
         params: dict[str, tuple[float, float]] = {}

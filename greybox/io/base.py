@@ -289,13 +289,16 @@ def held_run_knots(t_cmd: np.ndarray, cmd: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def commands_on_grid(t_grid: np.ndarray, t_cmd: np.ndarray, cmd: np.ndarray, held: str = "interpolate",
-                     off: float = 0.0) -> np.ndarray:
+                     off: float = 0.0, repeated_between: bool = False) -> np.ndarray:
     """Motor commands (m, k) logged at times ``t_cmd`` (their fresh samples) on the rows
     ``t_grid``: ``"interpolate"`` linearly between samples, ``"hold"`` the last sample at or
     before the row (zero-order hold; the first sample before it). Where the held command is
     at or below ``off`` (a stopped motor) the row keeps it: a motor is never interpolated
-    into or out of a stop; nor across a gap far longer than the samples' typical spacing (a
-    command that stayed put: :func:`held_run_knots`). Returns (n, k)."""
+    into or out of a stop. ``repeated_between``: ``t_cmd`` are the rows where a logged command
+    changed, the rows between repeating it (a value-change log, as the NanoBench and uSD
+    importers find them): a gap far longer than the samples' typical spacing is then a command
+    that stayed put, held (:func:`held_run_knots`); between messages (PX4's, a dropout) the
+    command is unknown and interpolated. Returns (n, k)."""
     if held not in ("interpolate", "hold"):
         raise GreyboxInputError(f"held must be 'interpolate' or 'hold', got {held!r}")
     t_grid = np.asarray(t_grid, dtype=float)
@@ -305,7 +308,7 @@ def commands_on_grid(t_grid: np.ndarray, t_cmd: np.ndarray, cmd: np.ndarray, hel
     zoh = cmd[idx]
     if held == "hold":
         return zoh
-    t_knots, knots = held_run_knots(t_cmd, cmd)
+    t_knots, knots = held_run_knots(t_cmd, cmd) if repeated_between else (t_cmd, cmd)
     out = np.column_stack([np.interp(t_grid, t_knots, knots[:, i]) for i in range(cmd.shape[1])])
     stopped = zoh <= off
     out[stopped] = zoh[stopped]

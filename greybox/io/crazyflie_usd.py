@@ -279,7 +279,7 @@ def import_crazyflie_usd(path: str | Path, pwm_map: tuple[float, float] = CRAZYF
                                 f"0..{PWM_MAX:g}")
     fresh = fresh_rows(pwm)
     pwm_grid = commands_on_grid(t_all, t_pwm[fresh], pwm[fresh], "hold", off=0.0)
-    pwm_used = commands_on_grid(t_all, t_pwm[fresh], pwm[fresh], held, off=0.0)
+    pwm_used = commands_on_grid(t_all, t_pwm[fresh], pwm[fresh], held, off=0.0, repeated_between=True)
     motor_fresh = snap(t_all, t_pwm[fresh], np.ones(int(fresh.sum()))) if mev != ev else fresh.astype(float)
     motor_fresh = np.nan_to_num(motor_fresh)
     w = rotor(pwm_used)

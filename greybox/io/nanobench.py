@@ -192,7 +192,8 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
     motor_fresh = fresh_rows(pwm)
     if held == "interpolate":
         # between fresh samples; a motor that is off stays off (PWM 0 is never interpolated)
-        pwm_used = commands_on_grid(t_all, t_all[motor_fresh], pwm[motor_fresh], "interpolate", off=0.0)
+        pwm_used = commands_on_grid(t_all, t_all[motor_fresh], pwm[motor_fresh], "interpolate", off=0.0,
+                                    repeated_between=True)
     else:
         pwm_used = pwm
     w = rotor(pwm_used)
