@@ -477,3 +477,23 @@ def test_imu_only_flights_get_the_imu_only_fit_and_stay_out_of_the_joint_fit(tmp
     assert diag["verdict"] is None and diag["null_reason"] == "imu_only" and diag["ranking"] == []
     assert "K_T" in (tmp_path / "out" / "imu2" / "report" / "summary.txt").read_text()
     assert "IMU-only fit (no position: not diagnosed)" in err and "IMU-only, fitted on their own" in err
+
+
+def test_the_final_models_values_stand_beside_the_baselines(weak_flight, flights, tmp_path):
+    """A blind audit's hidden motor lag was the verdict, but the summary held the baseline's
+    values (Kd[2] 4.6 std off) and no tau_m: where a diagnosis added effects, the final model's
+    values follow as final_NAME (empty on the other rows)."""
+    folder = tmp_path / "in"
+    folder.mkdir()
+    shutil.copy(weak_flight, folder / "weak.csv")
+    shutil.copy(flights / "good1.csv", folder / "good1.csv")
+    rc = main(["batch", str(folder), "--airframe", PAPER, "--out", str(tmp_path / "out"), "--workers", "1",
+               "--quiet", "--candidates", "motor_asymmetry", "--no-iterate", "--no-discover"])
+    assert rc == 0
+    rows = {r["flight"]: r for r in _rows(tmp_path / "out" / "summary.csv")}
+    weak, good = rows["weak"], rows["good1"]
+    assert weak["verdict"] == "motor_asymmetry" and good["verdict"] == ""
+    dev, std = float(weak["final_K_T_dev[1]"]), float(weak["final_K_T_dev[1]_std"])
+    assert abs(dev - (-0.076923)) < 3 * std < 0.02, (dev, std)
+    assert good["final_K_T"] == "" and "K_T_dev[1]" not in weak       # the baseline holds no K_T_dev
+    assert float(weak["final_K_T"]) == pytest.approx(2.3351e-05, rel=0.01)
