@@ -193,8 +193,18 @@ def diagnose_hexa_alone(directory: Path, case: str, seeds: tuple[int, int], smoo
     return d.final_fit
 
 
+AS_LOGGED_THRUST = (
+    "since every fit refuses a thrust that carries under a quarter of the weight (2026-12-05), the "
+    "base model's optimum on this flight's noisy speeds, K_T at 14 % of the weight with Kd[2] 18 on its "
+    "bound, twice reached from K_T 140 % and 100 %, is refused: the verdict is null, 'cannot tell: the "
+    "baseline fit is not certified'. The rounds had found cog_offset from that unphysical baseline; "
+    "a baseline held where the rotors carry the weight is not yet taken instead")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("seeds, smooth", [((41, 42), False), ((21, 22), True)], ids=["as_logged", "smoothed"])
+@pytest.mark.parametrize("seeds, smooth", [
+    pytest.param((41, 42), False, marks=pytest.mark.xfail(strict=True, reason=AS_LOGGED_THRUST)),
+    ((21, 22), True)], ids=["as_logged", "smoothed"])
 def test_a_cog_offset_with_every_default_candidate_is_all_that_is_added(tmp_path, seeds, smooth):
     """A 15, -10 mm CoG offset, 1 % noise on the logged speeds, every default candidate, rounds
     until nothing stands: cog_offset and nothing else of the catalogue (the log's timing may be
