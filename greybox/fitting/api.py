@@ -306,14 +306,14 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
         _warnings.simplefilter("always")
         first = _fit_from(model, logs, process_noise, kw)
     res = first
+    flights = [logs] if isinstance(logs, FlightLog) else list(logs)
     if initial_states is None and reweight:
         # not with fixed weights or given node states: a refit in another fit's formulation (a
         # candidate's, a SIMEX draw's) whose comparison with that fit a second basin would break
-        flights = [logs] if isinstance(logs, FlightLog) else list(logs)
         res = _hover_balance_restart(model, logs, flights, process_noise, kw, first)
         res = _thrust_pull(model, logs, flights, kw, res)
     # every fit, a solve-on from another fit's optimum too (diagnose's): it would certify it again
-    _refuse_flightless_thrust(model, [logs] if isinstance(logs, FlightLog) else list(logs), res)
+    _refuse_flightless_thrust(model, flights, res)
     for w in caught:     # a first fit's non-convergence is the user's news only when it is kept
         if res is first or not issubclass(w.category, ConvergenceWarning):
             _warnings.warn(w.message, w.category, stacklevel=2)

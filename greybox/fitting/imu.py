@@ -564,12 +564,16 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     # audit's 200 Hz rows gave its 40 ms motors 37.8 ms (6 of its std); with the lead, 40.0.
     # A lead moves the lag's optimum by a row or so: beside the held speeds' whole profile, the
     # other leads are scored near its minimum, and the best gets its whole profile.
-    held_profile = [(tau, solve(tau, 0.0, TORQUE_EQUATIONS, common)[1]) for tau in grid_tau]
+    def profile_cost(tau_: float, lead_: float) -> float:
+        """The lag's profile: the torque equations' cost at ``tau_``, on the common rows."""
+        return solve(tau_, lead_, TORQUE_EQUATIONS, common)[1]
+
+    held_profile = [(tau, profile_cost(tau, 0.0)) for tau in grid_tau]
     k0 = int(np.argmin([c for _, c in held_profile]))
     near = range(max(k0 - PROFILE_NEAR, 0), min(k0 + 2 * PROFILE_NEAR, len(grid_tau) - 1) + 1)
     # scored on the torques alone: the thrust equation lacks the vertical drag, and its misfit
     # chose a lead on a 30 g vehicle at 1 kHz that moved its 15 ms lag by 9 std the wrong way
-    best = {s_: min(solve(grid_tau[i], s_, TORQUE_EQUATIONS, common)[1] for i in near) for s_ in LEAD_GRID}
+    best = {s_: min(profile_cost(grid_tau[i], s_) for i in near) for s_ in LEAD_GRID}
 
     def estimate(lead, profile):
         """The coefficients, their std, the validation nrmse and the lag at the input lead
@@ -582,7 +586,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
             # through three points of a skewed profile put a blind audit's 30 ms lag at 28.3 ms,
             # 5 std off)
             def scored(t_: float) -> float:
-                return solve(t_, lead, TORQUE_EQUATIONS, common)[1]
+                return profile_cost(t_, lead)
 
             found = minimize_scalar(scored, bounds=(grid_tau[k - 1], grid_tau[k + 1]), method="bounded",
                                     options={"xatol": TAU_TOLERANCE})
@@ -638,7 +642,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
         # the timing counts when it moves what is fitted (the diagnosis's rule for a log's
         # timing, ranking.PARAMETER_SHIFT): a lead that fits a little better and moves nothing
         # is no evidence against the contract's hold
-        led = estimate(lead, [(tau_, solve(tau_, lead, TORQUE_EQUATIONS, common)[1]) for tau_ in grid_tau])
+        led = estimate(lead, [(tau_, profile_cost(tau_, lead)) for tau_ in grid_tau])
         shifts = [abs(led[0][n][0] - v) / sd for n, (v, sd) in params.items() if math.isfinite(sd) and sd > 0]
         if shifts and max(shifts) > LEAD_SHIFT:
             params, nrmse, coef, tau, k, profile, (y_eq, X) = led
