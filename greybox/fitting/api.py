@@ -29,9 +29,8 @@ from ..residuals import (AttitudeMotion, attitude_motion, fitted_trajectory, fli
 from ..shooting import NOISE_FLOOR, default_interval, filtered_attitude_channels, free_indices, noise_levels
 from ..shooting import sensor_noise as estimated_sensor_noise
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
-from .certificate import (FILTERED_SENSOR_RATIO, GAP_FORCE_SHARE, GAP_TOLERANCE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE,
-                          NOISE_RATIO_COLOURED, STEP_TOLERANCE, WHITENESS_ADEQUATE, Certificate)
-from .gauss_newton import FitSession, GaussNewton, Solver, budget_spent
+from .certificate import FILTERED_SENSOR_RATIO, GAP_FORCE_SHARE, GAP_VISIBLE, Certificate
+from .gauss_newton import FitSession, Solver, budget_spent
 from .input_errors import INPUT_NOISE_SHARE, input_noise_process_scale
 from .robust import long_run_covariance, upper_covariance
 
@@ -847,6 +846,325 @@ def _filtered_attitude_notes(logs: Sequence[FlightLog], given: Mapping[str, floa
             + " ".join(f"--noise {ch}=SD" for ch in chans) + " takes its place)"]
 
 
+def _process_noise_given(model: QuadrotorModel, process_noise, n_flights: int) -> dict:
+    """The states' process noise the caller gave (``{state: std}``, empty for ``"auto"``),
+    checked before anything is built."""
+    if isinstance(process_noise, str) and process_noise != "auto":
+        raise GreyboxInputError(f"process_noise must be {IF_NEEDED!r}, None, 'auto' or {{state: std}}, "
+                                f"got {process_noise!r}")
+    q_given = {} if isinstance(process_noise, str) else dict(process_noise)
+    for k, v in q_given.items():
+        if k not in model.state_names:
+            raise GreyboxInputError(f"process_noise: unknown state {k!r}; states are "
+                                    f"{', '.join(model.state_names)}")
+        arr = np.atleast_1d(np.asarray(v, dtype=float))
+        if arr.size not in (1, n_flights) or not np.all(np.isfinite(arr) & (arr > 0)):
+            raise GreyboxInputError(f"process_noise[{k!r}]: a positive std, or one per flight ({n_flights}), "
+                                    f"got {v!r}")
+    return q_given
+
+
+def _start_nodes(model: QuadrotorModel, ses: FitSession, p: np.ndarray, initial_states) -> np.ndarray:
+    """The node states the solve starts from: the caller's guesses per flight, checked against
+    this model's states and interval, else from the data."""
+    if initial_states is None:
+        return ses.initial_nodes(p)
+    guesses = [np.array(s, dtype=float) for s in initial_states]
+    want = [(len(idx), model.nx) for idx in ses.data.node_index]
+    got = [g.shape for g in guesses]
+    if got != want:
+        # e.g. the node states of a fit of another model (motor_lag adds four states)
+        raise GreyboxInputError(f"initial_states: one array per flight of shape (nodes, states) = "
+                                f"{', '.join(map(str, want))} for this model ({model.nx} states: "
+                                f"{', '.join(model.state_names)}) and interval, got {', '.join(map(str, got))}")
+    return np.vstack(guesses)
+
+
+class _Solves:
+    """The solves of one formulation of :func:`fit` from one start, and what they share: the
+    first solve, then the process noise re-estimated (soft continuity) or the channel noise
+    (output error), solving on while the end point is not certified, and a second strategy
+    (a trust region on the parameters) from the same start when the first ends uncertified.
+    :meth:`run` returns ``(X, th, mu, iterations, converged, status, blocks, P, s2,
+    optimality)``: node states, scaled parameters, damping, the solver's word, the evaluated
+    blocks, the Gauss–Newton covariance and residual variance, and the certificate's
+    optimality check ``(step_std, state_step, gap, held, reasons)``."""
+
+    def __init__(self, model: QuadrotorModel, logs: Sequence[FlightLog], ses: FitSession, *, process_noise,
+                 q_given: Mapping, noise: Mapping[str, float] | None, sensor_noise: Mapping[str, float],
+                 reweight: bool, probe: bool, max_iter: int, tol: float, say: Callable[[str], None]):
+        self.model, self.logs, self.ses = model, logs, ses
+        self.soft, self.process_noise, self.q_given = process_noise is not None, process_noise, q_given
+        self.reweight, self.probe, self.max_iter, self.tol, self.say = reweight, probe, max_iter, tol, say
+        self.n_c = ses.data.mask.sum(axis=1)
+        self.user_sigma = np.array([n in (noise or {}) for n in OUTPUTS])
+        self.inputs_floor: np.ndarray | None = None
+        sensor = estimated_sensor_noise(logs)
+        # a noise the user gave is the sensor's: the residual check judges against it too
+        self.sensor = np.array([float(sensor_noise[n]) if n in sensor_noise else v for n, v in zip(OUTPUTS, sensor)])
+        self.n_res = int(ses.data.mask.sum())
+        self.dof = max(self.n_res - ses.nth - ses.nx * len(logs), 1)
+
+    def residual_rms(self, c: np.ndarray) -> np.ndarray:
+        n_c = self.n_c
+        return np.sqrt(np.where(n_c > 0, c.sum(axis=1) / np.maximum(n_c, 1), 1.0))
+
+    def start_process_noise(self, X: np.ndarray, th: np.ndarray, p: np.ndarray, interval: int) -> None:
+        """Soft continuity's first process noise: the gaps at the start, at least the random
+        walk the logged inputs' white noise gives the states."""
+        model, ses = self.model, self.ses
+        self.inputs_floor = input_noise_process_scale(model, self.logs, ses.data.node_index, X, p, interval)
+        if self.inputs_floor is not None:
+            self.say("fit: process noise at least what the logged inputs' noise gives: " +
+                     ", ".join(f"{n}={v:.2g}" for n, v in zip(model.state_names, self.inputs_floor.max(axis=0)) if v > 0))
+        ses.q = self.estimate_q(X, th, first=True)
+        self.say("fit: process noise (gap scale per state): " + _q_text(model, ses))
+
+    def estimate_q(self, X_: np.ndarray, th_: np.ndarray, first: bool = False) -> np.ndarray:
+        ses, inputs_floor = self.ses, self.inputs_floor
+        xe = ses.evaluate(X_, th_, blocks=False)[0]
+        gaps = ses.gaps(X_, xe)
+        floor = 1e-6 * (np.abs(X_).max(axis=0) + 1e-3)
+        # Several flights: each its own process noise. One flight the model cannot follow
+        # (a weak rotor among healthy ones) has gaps 10^4 times the others'; a common q
+        # would let every flight's states drift that much, and the shared parameters
+        # went 26 % off.
+        # At the start, the gaps' RMS: a process noise that lets the states follow the data
+        # while the parameters are still far off (robust: the solve converges). After a
+        # solve, their random part (process_noise_scale), at most Q_STEP down per
+        # round: what consecutive gaps share is then a model error that the parameters
+        # should take, and a lower q makes them take it.
+        if first:
+            rms = np.vstack([np.sqrt(np.mean(gaps[sl] ** 2, axis=0)) for sl in ses.interval_slices])
+            # a disturbance state (zero at the start, so no gaps of its own) starts at what
+            # the state it drives misses per second: the rate gaps over one interval
+            for d, src in ses.disturbance_sources.items():
+                rms[:, d] = rms[:, src] / ses.interval_duration
+        else:
+            rms = np.vstack([process_noise_scale(gaps[sl]) for sl in ses.interval_slices])
+        q = np.maximum(rms, floor)
+        if inputs_floor is not None:
+            q = np.maximum(q, inputs_floor)
+        for name, v in self.q_given.items():
+            q[:, self.model.state_names.index(name)] = np.broadcast_to(np.asarray(v, dtype=float), len(self.logs))
+        q = q[0] if len(self.logs) == 1 else q[ses.flight_of_interval]
+        if ses.q is not None:
+            # only downwards: grown process noise would let the states follow measurement
+            # noise, and the gaps grow with it (the degenerate end of joint Q estimation)
+            q = np.clip(q, Q_STEP * ses.q, ses.q)
+            if inputs_floor is not None:
+                q = np.maximum(q, inputs_floor[ses.flight_of_interval] if len(self.logs) > 1 else inputs_floor[0])
+        return q
+
+    def check(self, X_: np.ndarray, th_: np.ndarray, blocks_):
+        """``(P, s2, optimality)`` at an end point."""
+        ses = self.ses
+        P_ = ses.covariance(X_, blocks_)
+        s2_ = 2 * ses.total_cost(X_, blocks_[0], blocks_[4]) / self.dof
+        return P_, s2_, ses.optimality(X_, th_, blocks_, P_, s2_, self.sensor)
+
+    def attempt(self, X: np.ndarray, th: np.ndarray):
+        """One strategy from ``(X, th)``, to a certified end point if it gets there."""
+        ses, say, soft, n_c = self.ses, self.say, self.soft, self.n_c
+        max_iter, tol, reweight = self.max_iter, self.tol, self.reweight
+        if reweight and not soft:
+            # Where the starting model misses a channel by far more than the sensor noise (real
+            # data: unmodelled physics dwarfs a mocap's 0.1 mm), noise weights would let that one
+            # channel dictate the fit; start from weights of the size of the starting residuals.
+            rms0 = self.residual_rms(ses.evaluate(X, th, blocks=False)[1])
+            inflate = np.where((n_c > 0) & ~self.user_sigma & (rms0 > 10.0), rms0 / 10.0, 1.0)
+            if np.any(inflate > 1):
+                ses.set_sigma(ses.sigma * inflate)
+                say("fit: starting weights from the first residuals: " +
+                    ", ".join(f"{n}={s:.3g}" for n, s, k in zip(OUTPUTS, ses.sigma, inflate) if k > 1))
+        polished = not (reweight and not soft)
+        X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-3, max_iter, tol, rough=not polished)
+        total_iters = iters
+        if self.probe and converged and not soft:
+            # output error tried first (fit's "if_needed"): residuals this far above the sensor
+            # noise once the first solve has settled are not what new weights can bring to it
+            sensor = self.sensor
+            far = self.residual_rms(blocks[4]) * ses.sigma / np.where(sensor > 0, sensor, np.inf)
+            if np.any((n_c > 0) & (far > CANNOT_FOLLOW)):
+                raise _CannotFollow("its residuals are far above the sensor noise once its first solve settles (" +
+                                    ", ".join(f"{n} {f:.3g}x" for n, f, k in zip(OUTPUTS, far, n_c)
+                                              if k and f > CANNOT_FOLLOW) + ")")
+        if self.probe and not converged and not soft:
+            # the first solve stopped with the states far from continuous: the model cannot
+            # follow the data open loop (a missing torque on an unstable body). Restarts and a
+            # second strategy would spend most of the fit learning that again (greybox's own
+            # flight without yaw_torque: 335 iterations, 38 s, then process noise in 6 s);
+            # should the soft fit fail too, output error is solved to its end after all
+            _, _, (_, _, gap, _, _) = self.check(X, th, blocks)
+            if gap > CANNOT_FOLLOW_GAP:
+                raise _CannotFollow(f"its first solve stopped ({status}) with shooting gaps open up to "
+                                    f"{gap:.3g} times the states' noise scale")
+        for _ in range(Q_ROUNDS if soft and self.process_noise == "auto" else 0):
+            if not converged:
+                break
+            q_new = self.estimate_q(X, th)
+            if np.all(np.abs(q_new / ses.q - 1) < 0.2):
+                break
+            kept = (X, th, mu, converged, status, blocks, ses.q)
+            ses.q = q_new
+            say("fit: process noise re-estimated: " + _q_text(self.model, ses))
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
+            total_iters += iters
+            if not converged:
+                # a process noise this low lets the solve no longer converge (a model that
+                # misses a torque for good, with gaps alike from one interval to the next):
+                # the last certified one is where it stops
+                say(f"fit: with that process noise the solve stopped ({status}); keeping the last one")
+                X, th, mu, converged, status, blocks, ses.q = kept
+                break
+        for _ in range(3 if reweight and not soft else 0):
+            if not converged:
+                break
+            # channel noise re-estimated from the residuals: weights match the data
+            rms_w = self.residual_rms(blocks[4])
+            fix = np.where((n_c > 0) & ~self.user_sigma, rms_w, 1.0)
+            if not np.any(np.abs(fix - 1) > 0.05):
+                break
+            ses.set_sigma(ses.sigma * fix)
+            say("fit: noise re-estimated from residuals: " +
+                ", ".join(f"{n}={s:.3g}" for n, s, k in zip(OUTPUTS, ses.sigma, n_c) if k))
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
+            total_iters += iters
+            polished = True
+        if not polished and converged:
+            # the weights did not change: finish the settled solve to the full tolerance
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, mu, max_iter, tol)
+            total_iters += iters
+        P, s2, opt = self.check(X, th, blocks)
+        for _ in range(MAX_RESTARTS):
+            if not opt[4] or budget_spent(status):   # the user's budget is spent, or their rule said stop
+                break
+            # Not there yet: a line search that found no decrease on an l1 merit whose weights
+            # only grow, or an iteration cap. Solve on from here with fresh damping and merit
+            # weights; the certificate, not the solver's stopping rule, decides.
+            say(f"fit: not certified ({'; '.join(opt[4])}): solving on with fresh damping and merit weights")
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-3, max_iter, tol)
+            total_iters += iters
+            P, s2, opt = self.check(X, th, blocks)
+        return X, th, mu, total_iters, converged, status, blocks, P, s2, opt
+
+    def run(self, X: np.ndarray, th: np.ndarray):
+        """:meth:`attempt` from ``(X, th)``; when it ends uncertified (and the user's budget is
+        not spent), again from the same start with a trust region, and the certified one kept."""
+        ses = self.ses
+        start = (X.copy(), th.copy(), ses.sigma.copy(), None if ses.q is None else ses.q.copy())
+        first = self.attempt(X, th)
+        opt, status = first[9], first[5]
+        if not opt[4] or budget_spent(status):
+            return first
+        # A second strategy from the same start: a trust region on the parameters. Far from
+        # the optimum a linearisation can ask for a sign change or a tenfold value in one step
+        # (a foreign 1 kg flight with a weak rotor went there and never came back); kept for
+        # the retry because it slows a fit that would have got there anyway.
+        self.say(f"fit: not certified ({'; '.join(opt[4])}); again from the start with a trust region "
+                 f"of {100 * TRUST_REGION:.0f} % per iteration on the parameters")
+        kept_sigma, kept_q = ses.sigma.copy(), ses.q
+        X0, th0, sigma0, q0 = start
+        ses.set_sigma(sigma0)
+        ses.q = q0
+        ses.max_step = TRUST_REGION
+        second = self.attempt(X0.copy(), th0.copy())
+        ses.max_step = None
+        if second[9][4]:      # not certified either: keep the first, and its weights
+            ses.set_sigma(kept_sigma)
+            ses.q = kept_q
+            return first[:3] + (first[3] + second[3],) + first[4:]
+        return second[:3] + (second[3] + first[3],) + second[4:]
+
+
+def _parameter_covariance(ses: FitSession, X: np.ndarray, blocks, P: np.ndarray, s2: float, n_free: int):
+    """The free parameters' covariance ``(cov, cov_all, white_std, P, T)``: the Gauss–Newton
+    one scaled by the residual variance, widened where the residuals are coloured; a
+    parameter fitted per flight reported by its mean over the flights (``T`` averages its
+    copies; a linear map, so the covariance follows exactly). ``cov_all`` is every copy's."""
+    scale, nth = ses.scale, ses.nth
+    cov_all = s2 * P * np.outer(scale, scale)
+    cov_white = cov_all
+    # what coloured residuals leave of that: the long-run covariance of the intervals' shares
+    # of the estimate (a sandwich), never below the noise's own
+    try:
+        shares = ses.influence(X, blocks)
+        cov_all = upper_covariance(cov_all, long_run_covariance(shares, ses.interval_slices) * np.outer(scale, scale))
+    except SolverError:
+        pass    # a singular system: the Gauss-Newton covariance (and its warning) stand
+    n_flights = len(ses.interval_slices)
+    T = np.zeros((n_free, nth))
+    for f in range(n_flights):
+        T[np.arange(n_free), ses.theta_index[f]] += 1.0 / n_flights   # shared: one column, sum 1
+    cov = T @ cov_all @ T.T
+    var_white = np.diag(T @ cov_white @ T.T)
+    white_std = np.where(var_white > 0, np.sqrt(np.abs(var_white)), np.nan)
+    return cov, cov_all, white_std, T @ P @ T.T, T
+
+
+def _parameter_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], free_names: list[str], p_out: np.ndarray,
+                        free_idx, std: np.ndarray, var: np.ndarray, corr: np.ndarray, P: np.ndarray,
+                        vectors: Sequence[np.ndarray], spread: Sequence[int], inputs_floor) -> list[str]:
+    """What a fit says about its flights and parameters: rows flagged on the ground, a singular
+    information matrix, identifiability, each effect's plausibility and interpretation, the
+    thrust's balance against the weight and its spread over flights, noise on the inputs."""
+    warnings: list[str] = []
+    for lg in logs:
+        grounded = np.asarray(lg.extras.get("on_ground", np.zeros(0)), dtype=float) > 0
+        if grounded.any():
+            # an importer's --keep-ground flags them and says not to fit them; fitted anyway
+            # they bend the fit (a blind audit's Kd[2] on its bound, 17 times the truth)
+            warnings.append(f"{lg.source or 'log'}: {100 * grounded.mean():.0f} % of its rows are flagged on the "
+                            "ground (its on_ground column, written by an importer's --keep-ground): the model has "
+                            "no ground reaction force, so those rows bend the fit; import without --keep-ground")
+    if np.any(var <= 0) or not np.all(np.isfinite(var)):
+        warnings.append("information matrix is singular: some parameters are not identifiable from these data")
+    warnings += _identifiability_warnings(model, free_names, p_out[free_idx], std, corr, P)
+    values, fitted_std = model.parameter_dict(p_out), dict(zip(free_names, map(float, std)))
+    for effect in model.effects:
+        warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
+        warnings += effect.interpretation_notes(values, fitted_std, model.airframe)
+    warnings += _thrust_balance_warnings(model, logs, values, p_out)
+    warnings += _thrust_spread_warnings(model, logs, vectors, [free_names[j] for j in spread])
+    if inputs_floor is not None:
+        warnings.append("the logged inputs carry white noise the vehicle does not follow (the gyro tells): fed to "
+                        "the model it is a random force and torque, and the gains that pass it on come out small "
+                        "(errors in variables); the process noise was held at least at the random walk it gives "
+                        "the states. Smoothing takes it out before a fit (greybox.fitting.denoise_inputs, which "
+                        "greybox fit and diagnose apply where the whole log's noise makes up "
+                        f"{100 * INPUT_NOISE_SHARE:g} % of a speed's variance)")
+    return warnings
+
+
+def _residual_check(model: QuadrotorModel, logs: Sequence[FlightLog], data, node_states: list[np.ndarray],
+                    vectors: Sequence[np.ndarray], free_names: list[str], converged: bool, status: str,
+                    interval: int, soft: bool, n_c: np.ndarray) -> tuple[dict[str, float], dict[str, float]]:
+    """The certificate's residual check: per channel, the mean whiteness of the residual series
+    and their RMS over the flights. With process noise the fitted states follow the data
+    through the gaps, so residuals at the nodes say nothing about the model: it is judged open
+    loop instead, over intervals of the default length (50 ms) started from the fitted states
+    (or over the fit's own intervals when they are longer than one sample)."""
+    white: dict[str, list[float]] = {}
+    sq: dict[str, list[float]] = {}
+    check_n = default_interval(logs) if soft and interval == 1 else interval
+    for f, log in enumerate(logs):
+        nodes, idx = node_states[f], data.node_index[f]
+        if check_n != interval:
+            M = math.ceil(len(log) / check_n)
+            idx = np.minimum(np.arange(M + 1) * check_n, len(log) - 1)
+            nodes = nodes[idx]          # soft fits have a node at every sample
+        probe = FitResult(model, vectors[f], free_names, np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0)), converged,
+                          status, 0, 0.0, 0, {}, {}, [nodes], [idx], interval=check_n)
+        E = output_residuals(log, fitted_trajectory(model, probe, log, 0)[1])
+        for c, n in enumerate(OUTPUTS):
+            if n_c[c]:
+                white.setdefault(n, []).append(whiteness_fraction(E[:, c]))
+                sq.setdefault(n, []).append(float(np.nansum(E[:, c] ** 2)))
+    check_rms = {n: math.sqrt(sum(sq[n]) / n_c[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}
+    whiteness = {n: float(np.nanmean(v)) if np.any(np.isfinite(v)) else float("nan") for n, v in white.items()}
+    return check_rms, whiteness
+
+
 def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free, fixed, p0,
                      interval, noise, max_iter, tol, reweight, compile, progress, initial_states,
                      process_noise, solver, per_flight, init_window, measured_start, sensor_noise,
@@ -874,19 +1192,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     if interval < 1:
         raise GreyboxInputError(f"interval must be >= 1 sample, got {interval}")
     soft = process_noise is not None
-    if soft:   # checked before anything is built
-        if isinstance(process_noise, str) and process_noise != "auto":
-            raise GreyboxInputError(f"process_noise must be {IF_NEEDED!r}, None, 'auto' or {{state: std}}, "
-                                    f"got {process_noise!r}")
-        q_given = {} if isinstance(process_noise, str) else dict(process_noise)
-        for k, v in q_given.items():
-            if k not in model.state_names:
-                raise GreyboxInputError(f"process_noise: unknown state {k!r}; states are "
-                                        f"{', '.join(model.state_names)}")
-            arr = np.atleast_1d(np.asarray(v, dtype=float))
-            if arr.size not in (1, len(logs)) or not np.all(np.isfinite(arr) & (arr > 0)):
-                raise GreyboxInputError(f"process_noise[{k!r}]: a positive std, or one per flight ({len(logs)}), "
-                                        f"got {v!r}")
+    q_given = _process_noise_given(model, process_noise, len(logs)) if soft else {}
     logs = [model.prepare_log(log) for log in logs]
     for log in logs:
         log.check_fittable(min_samples=max(2 * interval, 20))
@@ -906,187 +1212,17 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         f"parameters, interval {interval} samples; interval function: {ses.prob.how}"
         f"{' (compiled once that pays)' if ses.prob.compiles_when_it_pays else ''}"
         f" ({ses.t_build:.1f} s)")
-    if initial_states is not None:
-        guesses = [np.array(s, dtype=float) for s in initial_states]
-        want = [(len(idx), model.nx) for idx in ses.data.node_index]
-        got = [g.shape for g in guesses]
-        if got != want:
-            # e.g. the node states of a fit of another model (motor_lag adds four states)
-            raise GreyboxInputError(f"initial_states: one array per flight of shape (nodes, states) = "
-                                    f"{', '.join(map(str, want))} for this model ({model.nx} states: "
-                                    f"{', '.join(model.state_names)}) and interval, got {', '.join(map(str, got))}")
-        X = np.vstack(guesses)
-    else:
-        X = ses.initial_nodes(p)
+    X = _start_nodes(model, ses, p, initial_states)
     th = ses.theta(p)
     data = ses.data
-    n_c = data.mask.sum(axis=1)
-    user_sigma = np.array([n in (noise or {}) for n in OUTPUTS])
-    inputs_floor = None
-
-    def residual_rms(c: np.ndarray) -> np.ndarray:
-        return np.sqrt(np.where(n_c > 0, c.sum(axis=1) / np.maximum(n_c, 1), 1.0))
 
     t0 = time.perf_counter()
+    solves = _Solves(model, logs, ses, process_noise=process_noise, q_given=q_given, noise=noise,
+                     sensor_noise=sensor_noise, reweight=reweight, probe=probe, max_iter=max_iter, tol=tol, say=say)
     if soft:
-        def estimate_q(X_, th_, first: bool = False) -> np.ndarray:
-            xe = ses.evaluate(X_, th_, blocks=False)[0]
-            gaps = ses.gaps(X_, xe)
-            floor = 1e-6 * (np.abs(X_).max(axis=0) + 1e-3)
-            # Several flights: each its own process noise. One flight the model cannot follow
-            # (a weak rotor among healthy ones) has gaps 10^4 times the others'; a common q
-            # would let every flight's states drift that much, and the shared parameters
-            # went 26 % off.
-            # At the start, the gaps' RMS: a process noise that lets the states follow the data
-            # while the parameters are still far off (robust: the solve converges). After a
-            # solve, their random part (process_noise_scale), at most Q_STEP down per
-            # round: what consecutive gaps share is then a model error that the parameters
-            # should take, and a lower q makes them take it.
-            if first:
-                rms = np.vstack([np.sqrt(np.mean(gaps[sl] ** 2, axis=0)) for sl in ses.interval_slices])
-                # a disturbance state (zero at the start, so no gaps of its own) starts at what
-                # the state it drives misses per second: the rate gaps over one interval
-                for d, src in ses.disturbance_sources.items():
-                    rms[:, d] = rms[:, src] / ses.interval_duration
-            else:
-                rms = np.vstack([process_noise_scale(gaps[sl]) for sl in ses.interval_slices])
-            q = np.maximum(rms, floor)
-            if inputs_floor is not None:
-                q = np.maximum(q, inputs_floor)
-            for name, v in q_given.items():
-                q[:, model.state_names.index(name)] = np.broadcast_to(np.asarray(v, dtype=float), len(logs))
-            q = q[0] if len(logs) == 1 else q[ses.flight_of_interval]
-            if ses.q is not None:
-                # only downwards: grown process noise would let the states follow measurement
-                # noise, and the gaps grow with it (the degenerate end of joint Q estimation)
-                q = np.clip(q, Q_STEP * ses.q, ses.q)
-                if inputs_floor is not None:
-                    q = np.maximum(q, inputs_floor[ses.flight_of_interval] if len(logs) > 1 else inputs_floor[0])
-            return q
-
-        inputs_floor = input_noise_process_scale(model, logs, data.node_index, X, p, interval)
-        if inputs_floor is not None:
-            say("fit: process noise at least what the logged inputs' noise gives: " +
-                ", ".join(f"{n}={v:.2g}" for n, v in zip(model.state_names, inputs_floor.max(axis=0)) if v > 0))
-        ses.q = estimate_q(X, th, first=True)
-        say("fit: process noise (gap scale per state): " + _q_text(model, ses))
-    sensor = estimated_sensor_noise(logs)
-    # a noise the user gave is the sensor's: the residual check judges against it too
-    sensor = np.array([float(sensor_noise[n]) if n in sensor_noise else v for n, v in zip(OUTPUTS, sensor)])
-    n_res = int(data.mask.sum())
-    dof = max(n_res - ses.nth - ses.nx * len(logs), 1)
-
-    def check(X_, th_, blocks_):
-        P_ = ses.covariance(X_, blocks_)
-        s2_ = 2 * ses.total_cost(X_, blocks_[0], blocks_[4]) / dof
-        return P_, s2_, ses.optimality(X_, th_, blocks_, P_, s2_, sensor)
-
-    def attempt(X, th):
-        if reweight and not soft:
-            # Where the starting model misses a channel by far more than the sensor noise (real
-            # data: unmodelled physics dwarfs a mocap's 0.1 mm), noise weights would let that one
-            # channel dictate the fit; start from weights of the size of the starting residuals.
-            rms0 = residual_rms(ses.evaluate(X, th, blocks=False)[1])
-            inflate = np.where((n_c > 0) & ~user_sigma & (rms0 > 10.0), rms0 / 10.0, 1.0)
-            if np.any(inflate > 1):
-                ses.set_sigma(ses.sigma * inflate)
-                say("fit: starting weights from the first residuals: " +
-                    ", ".join(f"{n}={s:.3g}" for n, s, k in zip(OUTPUTS, ses.sigma, inflate) if k > 1))
-        polished = not (reweight and not soft)
-        X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-3, max_iter, tol, rough=not polished)
-        total_iters = iters
-        if probe and converged and not soft:
-            # output error tried first (fit's "if_needed"): residuals this far above the sensor
-            # noise once the first solve has settled are not what new weights can bring to it
-            far = residual_rms(blocks[4]) * ses.sigma / np.where(sensor > 0, sensor, np.inf)
-            if np.any((n_c > 0) & (far > CANNOT_FOLLOW)):
-                raise _CannotFollow("its residuals are far above the sensor noise once its first solve settles (" +
-                                    ", ".join(f"{n} {f:.3g}x" for n, f, k in zip(OUTPUTS, far, n_c)
-                                              if k and f > CANNOT_FOLLOW) + ")")
-        if probe and not converged and not soft:
-            # the first solve stopped with the states far from continuous: the model cannot
-            # follow the data open loop (a missing torque on an unstable body). Restarts and a
-            # second strategy would spend most of the fit learning that again (greybox's own
-            # flight without yaw_torque: 335 iterations, 38 s, then process noise in 6 s);
-            # should the soft fit fail too, output error is solved to its end after all
-            _, _, (_, _, gap, _, _) = check(X, th, blocks)
-            if gap > CANNOT_FOLLOW_GAP:
-                raise _CannotFollow(f"its first solve stopped ({status}) with shooting gaps open up to "
-                                    f"{gap:.3g} times the states' noise scale")
-        for _ in range(Q_ROUNDS if soft and process_noise == "auto" else 0):
-            if not converged:
-                break
-            q_new = estimate_q(X, th)
-            if np.all(np.abs(q_new / ses.q - 1) < 0.2):
-                break
-            kept = (X, th, mu, converged, status, blocks, ses.q)
-            ses.q = q_new
-            say("fit: process noise re-estimated: " + _q_text(model, ses))
-            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
-            total_iters += iters
-            if not converged:
-                # a process noise this low lets the solve no longer converge (a model that
-                # misses a torque for good, with gaps alike from one interval to the next):
-                # the last certified one is where it stops
-                say(f"fit: with that process noise the solve stopped ({status}); keeping the last one")
-                X, th, mu, converged, status, blocks, ses.q = kept
-                break
-        for _ in range(3 if reweight and not soft else 0):
-            if not converged:
-                break
-            # channel noise re-estimated from the residuals: weights match the data
-            rms_w = residual_rms(blocks[4])
-            fix = np.where((n_c > 0) & ~user_sigma, rms_w, 1.0)
-            if not np.any(np.abs(fix - 1) > 0.05):
-                break
-            ses.set_sigma(ses.sigma * fix)
-            say("fit: noise re-estimated from residuals: " +
-                ", ".join(f"{n}={s:.3g}" for n, s, k in zip(OUTPUTS, ses.sigma, n_c) if k))
-            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
-            total_iters += iters
-            polished = True
-        if not polished and converged:
-            # the weights did not change: finish the settled solve to the full tolerance
-            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, mu, max_iter, tol)
-            total_iters += iters
-        P, s2, opt = check(X, th, blocks)
-        for _ in range(MAX_RESTARTS):
-            if not opt[4] or budget_spent(status):   # the user's budget is spent, or their rule said stop
-                break
-            # Not there yet: a line search that found no decrease on an l1 merit whose weights
-            # only grow, or an iteration cap. Solve on from here with fresh damping and merit
-            # weights; the certificate, not the solver's stopping rule, decides.
-            say(f"fit: not certified ({'; '.join(opt[4])}): solving on with fresh damping and merit weights")
-            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-3, max_iter, tol)
-            total_iters += iters
-            P, s2, opt = check(X, th, blocks)
-        return X, th, mu, total_iters, converged, status, blocks, P, s2, opt
-
-    start = (X.copy(), th.copy(), ses.sigma.copy(), None if ses.q is None else ses.q.copy())
-    X, th, mu, total_iters, converged, status, blocks, P, s2, opt = attempt(X, th)
-    if opt[4] and not budget_spent(status):
-        # A second strategy from the same start: a trust region on the parameters. Far from
-        # the optimum a linearisation can ask for a sign change or a tenfold value in one step
-        # (a foreign 1 kg flight with a weak rotor went there and never came back); kept for
-        # the retry because it slows a fit that would have got there anyway.
-        say(f"fit: not certified ({'; '.join(opt[4])}); again from the start with a trust region "
-            f"of {100 * TRUST_REGION:.0f} % per iteration on the parameters")
-        first = (X, th, mu, total_iters, converged, status, blocks, P, s2, opt)
-        kept_sigma, kept_q = ses.sigma.copy(), ses.q
-        X0, th0, sigma0, q0 = start
-        ses.set_sigma(sigma0)
-        ses.q = q0
-        ses.max_step = TRUST_REGION
-        second = attempt(X0.copy(), th0.copy())
-        ses.max_step = None
-        if second[9][4]:      # not certified either: keep the first, and its weights
-            ses.set_sigma(kept_sigma)
-            ses.q = kept_q
-            X, th, mu, total_iters, converged, status, blocks, P, s2, opt = first
-            total_iters += second[3]
-        else:
-            X, th, mu, total_iters, converged, status, blocks, P, s2, opt = second
-            total_iters += first[3]
+        solves.start_process_noise(X, th, p, interval)
+    X, th, mu, total_iters, converged, status, blocks, P, s2, opt = solves.run(X, th)
+    sensor, n_c, inputs_floor = solves.sensor, solves.n_c, solves.inputs_floor
     step_std, state_step, gap, held, reasons = opt
     if not reasons and not converged:
         status = f"converged (certified optimum; the solver stopped on: {status})"
@@ -1094,41 +1230,12 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         status = f"{'' if status.startswith('converged') else status + '; '}optimum not certified: {'; '.join(reasons)}"
     converged = not reasons
     t_solve = time.perf_counter() - t0
-    sigma, scale, nth = ses.sigma, ses.scale, ses.nth
+    sigma, scale = ses.sigma, ses.scale
     cch = blocks[4]
     cost = ses.total_cost(X, blocks[0], cch)
-    # Reported per free parameter: a parameter fitted per flight by its mean over the flights
-    # (``T`` averages its copies; a linear map, so the covariance follows exactly), each
-    # flight's own value and std in ``per_flight_``.
-    cov_all = s2 * P * np.outer(scale, scale)
-    cov_white = cov_all
-    # what coloured residuals leave of that: the long-run covariance of the intervals' shares
-    # of the estimate (a sandwich), never below the noise's own
-    try:
-        shares = ses.influence(X, blocks)
-        cov_all = upper_covariance(cov_all, long_run_covariance(shares, ses.interval_slices) * np.outer(scale, scale))
-    except SolverError:
-        pass    # a singular system: the Gauss-Newton covariance (and its warning) stand
     n_flights = len(logs)
-    T = np.zeros((len(free_idx), nth))
-    for f in range(n_flights):
-        T[np.arange(len(free_idx)), ses.theta_index[f]] += 1.0 / n_flights   # shared: one column, sum 1
-    cov = T @ cov_all @ T.T
-    var_white = np.diag(T @ cov_white @ T.T)
-    white_std = np.where(var_white > 0, np.sqrt(np.abs(var_white)), np.nan)
-    P = T @ P @ T.T
+    cov, cov_all, white_std, P, T = _parameter_covariance(ses, X, blocks, P, s2, len(free_idx))
     var = np.diag(cov)
-    warnings: list[str] = []
-    for lg in logs:
-        grounded = np.asarray(lg.extras.get("on_ground", np.zeros(0)), dtype=float) > 0
-        if grounded.any():
-            # an importer's --keep-ground flags them and says not to fit them; fitted anyway
-            # they bend the fit (a blind audit's Kd[2] on its bound, 17 times the truth)
-            warnings.append(f"{lg.source or 'log'}: {100 * grounded.mean():.0f} % of its rows are flagged on the "
-                            "ground (its on_ground column, written by an importer's --keep-ground): the model has "
-                            "no ground reaction force, so those rows bend the fit; import without --keep-ground")
-    if np.any(var <= 0) or not np.all(np.isfinite(var)):
-        warnings.append("information matrix is singular: some parameters are not identifiable from these data")
     # a non-positive variance is no variance: its std is unknown (NaN), not sqrt(|v|), and it
     # has no correlations (a correlation outside [-1, 1] was once reported from one)
     std = np.where(var > 0, np.sqrt(np.abs(var)), np.nan)
@@ -1142,26 +1249,13 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         "value": [float(th[ses.theta_index[f, j]] * scale[ses.theta_index[f, j]]) for f in range(n_flights)],
         "std": [float(np.sqrt(var_all[ses.theta_index[f, j]])) if var_all[ses.theta_index[f, j]] > 0
                 else float("nan") for f in range(n_flights)]} for j in spread}
-
-    def flight_vector(f: int) -> np.ndarray:
+    vectors = []          # each flight's parameters (its own copies of those fitted per flight)
+    for f in range(n_flights):
         pf = p_out.copy()
         pf[free_idx] = ses.flight_theta(th, f)
-        return pf
-    warnings += _identifiability_warnings(model, free_names, p_out[free_idx], std, corr, P)
-    values, fitted_std = model.parameter_dict(p_out), dict(zip(free_names, map(float, std)))
-    for effect in model.effects:
-        warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
-        warnings += effect.interpretation_notes(values, fitted_std, model.airframe)
-    warnings += _thrust_balance_warnings(model, logs, values, p_out)
-    warnings += _thrust_spread_warnings(model, logs, [flight_vector(f) for f in range(n_flights)],
-                                        [free_names[j] for j in spread])
-    if inputs_floor is not None:
-        warnings.append("the logged inputs carry white noise the vehicle does not follow (the gyro tells): fed to "
-                        "the model it is a random force and torque, and the gains that pass it on come out small "
-                        "(errors in variables); the process noise was held at least at the random walk it gives "
-                        "the states. Smoothing takes it out before a fit (greybox.fitting.denoise_inputs, which "
-                        "greybox fit and diagnose apply where the whole log's noise makes up "
-                        f"{100 * INPUT_NOISE_SHARE:g} % of a speed's variance)")
+        vectors.append(pf)
+    warnings = _parameter_warnings(model, logs, free_names, p_out, free_idx, std, var, corr, P, vectors, spread,
+                                   inputs_floor)
     if not converged:
         warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
         _warnings.warn(f"fit did not converge: {status}", ConvergenceWarning)
@@ -1175,36 +1269,14 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     for _, M in data.flights:
         node_states.append(X[k:k + M + 1].copy())
         k += M + 1
-    # the residual check: RMS against the noise of the data, whiteness of the residual series.
-    # With process noise the fitted states follow the data through the gaps, so residuals at
-    # the nodes say nothing about the model: it is judged open loop instead, over intervals of
-    # the default length (50 ms) started from the fitted states (or over the fit's own
-    # intervals when they are longer than one sample).
-    white: dict[str, list[float]] = {}
-    sq: dict[str, list[float]] = {}
-    check_n = default_interval(logs) if soft and interval == 1 else interval
-    for f, log in enumerate(logs):
-        nodes, idx = node_states[f], data.node_index[f]
-        if check_n != interval:
-            M = math.ceil(len(log) / check_n)
-            idx = np.minimum(np.arange(M + 1) * check_n, len(log) - 1)
-            nodes = nodes[idx]          # soft fits have a node at every sample
-        probe = FitResult(model, flight_vector(f), free_names, np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0)), converged,
-                          status, 0, 0.0, 0, {}, {}, [nodes], [idx], interval=check_n)
-        E = output_residuals(log, fitted_trajectory(model, probe, log, 0)[1])
-        for c, n in enumerate(OUTPUTS):
-            if n_c[c]:
-                white.setdefault(n, []).append(whiteness_fraction(E[:, c]))
-                sq.setdefault(n, []).append(float(np.nansum(E[:, c] ** 2)))
-    check_rms = {n: math.sqrt(sum(sq[n]) / n_c[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}
+    check_rms, whiteness = _residual_check(model, logs, data, node_states, vectors, free_names, converged, status,
+                                           interval, soft, n_c)
     certificate = Certificate(
         converged, step_std, state_step, gap, held,
         {n: float(check_rms[n] / sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
-        {n: float(np.nanmean(v)) if np.any(np.isfinite(v)) else float("nan") for n, v in white.items()},
-        {n: float(sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, reasons,
+        whiteness, {n: float(sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, reasons,
         _systematic_gaps(model, ses, X, th, sensor) if soft else {}, soft=soft)
     if init_window is None and soft:
-        vectors = [flight_vector(f) for f in range(n_flights)]
         if measured_start is None:
             init_window, measured_start = choose_start(model, vectors, logs, compile=compile)
         else:
@@ -1216,7 +1288,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     timings = {"build": ses.t_build, "solve": t_solve, "total": time.perf_counter() - t_start}
     say(f"fit: {status} after {total_iters} iterations in {timings['total']:.2f} s")
     return FitResult(model, p_out, free_names, std, cov, corr, converged, status, total_iters, cost,
-                     n_res, {n: float(sigma[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, resid_rms,
+                     solves.n_res, {n: float(sigma[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, resid_rms,
                      node_states, data.node_index, warnings, timings, ses.prob.how, interval,
                      {n: float(cc[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
                      {n: int(n_c[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
