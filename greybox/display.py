@@ -109,7 +109,13 @@ def _added(d: "Diagnosis") -> list[str]:
 
 
 def _verdict_words(d: "Diagnosis") -> str:
-    return d.verdict or {"uncertified": "null (cannot tell: the baseline fit is not certified)",
+    return d.verdict or {"rotor_order": "null (the logged rotor speeds act as the airframe's rotors in another order: "
+                                        "nothing was tested)",
+                         "rotor_layout": "null (the logged rotor speeds act as the airframe's rotors turned about the "
+                                         "body's z axis: nothing was tested)",
+                         "uncertified": "null (cannot tell: the baseline fit is not certified)",
+                         "input_noise": "null (the rates are missed by a random torque that the noise on the logged "
+                                        "rotor speeds gives: cannot tell a turbulence from it)",
                          "outside_catalogue": "null (what is missing is outside the catalogue: see the discovered "
                                               "combinations)",
                          "random_torque": "null (what is missing acts as a random torque: the final model holds "
@@ -119,7 +125,8 @@ def _verdict_words(d: "Diagnosis") -> str:
                                          "motion)",
                          "small_misfit": "null (no catalogue effect is significant; the model is a little "
                                          "off the noise, too little to tell what it is)",
-                         "nothing_missing": "null (nothing significant is missing)"}[d.null_reason]
+                         "nothing_missing": "null (nothing significant is missing)"}.get(d.null_reason,
+                                                                                        f"null ({d.null_reason})")
 
 
 def diagnosis_text(d: "Diagnosis") -> str:

@@ -258,6 +258,12 @@ def test_a_log_fitted_with_another_vehicles_airframe_is_not_certified(tmp_path, 
     err = capsys.readouterr().err
     assert rc == 1 and "of the weight" in err and "mass 1.6 kg" in err and "rad/s" in err, err
     assert not (tmp_path / "r.json").exists()
+    # diagnosed: the plus airframe's layout is told before anything is tested (an x quad read
+    # as plus), and the verdict's words name it (they raised a KeyError in repr)
+    from greybox import QuadrotorModel, diagnose, load_airframe
+    d = diagnose(QuadrotorModel(load_airframe(tmp_path / "big.toml")), small.log)
+    assert d.verdict is None and d.null_reason == "rotor_layout" and d.ranking == [], d.summary()
+    assert "turned about the body's z axis: nothing was tested" in repr(d)
 
 
 def test_an_x_quad_read_with_a_plus_airframe_is_told_and_nothing_is_tested():

@@ -518,7 +518,7 @@ class Diagnosis:
             lr = f"LR {c.lr:10.1f} p={c.p_value:.1e}" if c.lr is not None else f"score {c.score:10.1f}        "
             lines.append(f"   {'*' if c.significant else ' '} {c.effect:<16} {lr}  nrmse {c.nrmse_before:.3f} -> "
                          f"{after}  {c.reason}")
-        if not self.baseline_certified:
+        if not self.baseline_certified and not self.ranking:
             lines.append("   (no candidate tested: the baseline fit is not at a certified optimum, and a test "
                          "statistic against it would be meaningless)")
         lines.append(f"   verdict: {self.verdict_text()}")

@@ -103,16 +103,20 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     pred = predict_after_fit(res, est, val, compile=compile, horizon=horizon)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split, 1, horizon)})")
     timing = timing_refit = timing_unconfirmed = None
-    if timing_candidate and res.converged:
+    # an optimum of the base model's problem that no vehicle flies (a large missing torque
+    # traded for the thrust) is still one candidates can be tested against: only a refit that
+    # makes the vehicle fly is certified, so only such a candidate can stand
+    tested = _tests_hold(res)
+    if timing_candidate and tested:
         model, res, pred, timing, timing_refit, timing_unconfirmed = _input_timing(
             model, res, pred, est, val, timing_candidate, compile, n_refit, say)
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
                                                             validation_is_tail=validation is None)
     if res.certificate is not None:
         say(f"diagnose: baseline {res.certificate.text()}")
-    inconsistent = (half_consistency(model, res, est, E, compile, say) if res.converged else None) or {}
+    inconsistent = (half_consistency(model, res, est, E, compile, say) if tested else None) or {}
     warnings = _baseline_warnings(model, res, timing, untried_warning, inconsistent)
-    remaining = list(candidates) if res.converged else []
+    remaining = list(candidates) if tested else []
     imbalance = command_imbalance(model, est)
     order, turned = rotor_geometry(model, est)
     geometry = rotor_geometry_warnings(model, order, turned)
@@ -403,6 +407,12 @@ def _flights_and_candidates(model: QuadrotorModel, log: FlightLog | Sequence[Fli
     return logs, est, val, given_val, candidates, timing_candidate, untried_warning
 
 
+def _tests_hold(res: FitResult) -> bool:
+    """Whether candidates can be tested against ``res``: certified, or the certified optimum
+    of its problem that no vehicle flies (:attr:`~greybox.fitting.Certificate.flightless`)."""
+    return bool(res.converged or (res.certificate is not None and res.certificate.optimum_of_problem))
+
+
 def _baseline_fit(model: QuadrotorModel, est: Sequence[FlightLog], given_val: Sequence[FlightLog], p0,
                   compile: str, process_noise, per_flight, noise, say: Callable[[str], None]) -> FitResult:
     """The baseline: the model as given fitted to the estimation flights (solved on once when
@@ -415,7 +425,7 @@ def _baseline_fit(model: QuadrotorModel, est: Sequence[FlightLog], given_val: Se
         # and test statistics there would credit any extra parameter with the distance
         res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise,
                   per_flight=per_flight, noise=noise)
-        if not res.converged:
+        if not _tests_hold(res):
             # one more go from where it stopped, in its formulation, with the weights it reached
             say(f"diagnose: the baseline fit is not certified ({res.status}); solving on")
             res = fit(model, est, p0=res.p, compile=compile, max_iter=200, **res.settings())
@@ -442,7 +452,12 @@ def _baseline_warnings(model: QuadrotorModel, res: FitResult, timing: dict | Non
     warnings: list[str] = ([timing["text"]] if timing else []) + [f"baseline fit: {w}" for w in res.warnings]
     if untried_warning:
         warnings.append(untried_warning)
-    if not res.converged:
+    if _tests_hold(res) and not res.converged:
+        warnings.insert(0, f"the base model's optimum carries {100 * res.certificate.flightless:.0f} % of the weight: "
+                           "no vehicle flies so, but it is the optimum of the model as given, and the candidates are "
+                           "tested against it; a candidate can stand only where its refit carries the weight "
+                           f"({100 / THRUST_IMPOSSIBLE:.0f}-{100 * THRUST_IMPOSSIBLE:.0f} %), else greybox cannot tell")
+    elif not res.converged:
         # neither formulation reached a certified optimum: "cannot tell", with where the
         # model fails, is an answer a person can act on
         warnings.insert(0, f"the baseline fit did not reach a certified optimum ({res.status}): no candidate is "

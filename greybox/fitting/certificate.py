@@ -87,6 +87,17 @@ class Certificate:
     soft: bool = False
     """The fit had process noise: its shooting gaps are part of the cost, not held closed
     (``gap_over_noise`` is 0 by construction; :attr:`systematic_gaps` judges them)."""
+    flightless: float | None = None
+    """Set where the end point passed every check of optimality but its rotors' mean thrust
+    cannot be a flying vehicle's (:data:`~greybox.fitting.THRUST_IMPOSSIBLE`): their share of
+    the weight. ``optimal`` is then False: the optimum of the problem as posed, and no
+    vehicle's (a model that misses a large torque can trade the thrust for it)."""
+
+    @property
+    def optimum_of_problem(self) -> bool:
+        """Whether the end point is the optimum of its own problem, where test statistics mean
+        something: :attr:`optimal`, or optimal but :attr:`flightless`."""
+        return self.optimal or self.flightless is not None
 
     @property
     def adequate(self) -> bool:
@@ -176,7 +187,7 @@ class Certificate:
                 "sensor_noise": {k: _finite(v) for k, v in self.sensor_noise.items()},
                 "systematic_gaps": {k: _finite(v) for k, v in self.systematic_gaps.items()},
                 "sensor_error": {k: _finite(v) for k, v in self.sensor_error.items()},
-                "reasons": list(self.reasons), "text": self.text()}
+                "reasons": list(self.reasons), "flightless": self.flightless, "text": self.text()}
 
 
 def _finite(v: float) -> float | None:
