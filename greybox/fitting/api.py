@@ -244,11 +244,13 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             ``None``: output error only: the model is exact between measurements, the
             shooting gaps must close. ``"auto"`` or ``{state: std}``: the
             gaps are process noise, penalised by ``|gap_i|^2 / (2 q_i^2)`` (a filter-error
-            / smoothing formulation); with ``"auto"`` ``q`` starts as the scale of each
-            state's gaps at the starting point (the RMS of their interval-to-interval
-            differences over sqrt(2): :func:`process_noise_scale`; what consecutive gaps share
-            is a model error, not noise) and is re-estimated (downwards only) after each
-            solve, each flight its own, never below the random walk that white noise on the
+            / smoothing formulation); with ``"auto"`` ``q`` starts as the RMS of each
+            state's gaps at the starting point (the states may follow the data while the
+            parameters are far off) and is re-estimated, downwards only, as their random part
+            (the RMS of their interval-to-interval differences over sqrt(2):
+            :func:`process_noise_scale`; what consecutive gaps share is a model error, not
+            noise) after each solve whose end point passes the certificate's optimality
+            check (also on the iteration cap), each flight its own, never below the random walk that white noise on the
             logged inputs gives the state (:mod:`greybox.fitting.input_errors`, where that
             noise is at least 1 % of an input's variance); a std in ``{state: std}`` may be
             one per flight. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
