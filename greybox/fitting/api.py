@@ -249,8 +249,7 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             parameters are far off) and is re-estimated, downwards only, as their random part
             (the RMS of their interval-to-interval differences over sqrt(2):
             :func:`process_noise_scale`; what consecutive gaps share is a model error, not
-            noise) after each solve whose end point passes the certificate's optimality
-            check (also on the iteration cap), each flight its own, never below the random walk that white noise on the
+            noise) after each solve that converged, each flight its own, never below the random walk that white noise on the
             logged inputs gives the state (:mod:`greybox.fitting.input_errors`, where that
             noise is at least 1 % of an input's variance); a std in ``{state: std}`` may be
             one per flight. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
@@ -967,11 +966,6 @@ class _Solves:
         s2_ = 2 * ses.total_cost(X_, blocks_[0], blocks_[4]) / self.dof
         return P_, s2_, ses.optimality(X_, th_, blocks_, P_, s2_, self.sensor)
 
-    def settled(self, converged: bool, X: np.ndarray, th: np.ndarray, blocks) -> bool:
-        """Whether a solve ended where the process noise may be re-estimated: the solver's
-        own convergence, or an end point the certificate's optimality check passes."""
-        return converged or not self.check(X, th, blocks)[2][4]
-
     def attempt(self, X: np.ndarray, th: np.ndarray):
         """One strategy from ``(X, th)``, to a certified end point if it gets there."""
         ses, say, soft, n_c = self.ses, self.say, self.soft, self.n_c
@@ -1009,10 +1003,7 @@ class _Solves:
                 raise _CannotFollow(f"its first solve stopped ({status}) with shooting gaps open up to "
                                     f"{gap:.3g} times the states' noise scale")
         for _ in range(Q_ROUNDS if soft and self.process_noise == "auto" else 0):
-            # re-estimated at a certified end point, also where the solver stopped on its
-            # iteration cap (a hexacopter's CoG offset: the first q, from the gaps of a start
-            # 40 % off in K_T, let the velocity take the weight, and K_T stayed at 14 %)
-            if not self.settled(converged, X, th, blocks):
+            if not converged:
                 break
             q_new = self.estimate_q(X, th)
             if np.all(np.abs(q_new / ses.q - 1) < 0.2):
@@ -1022,7 +1013,7 @@ class _Solves:
             say("fit: process noise re-estimated: " + _q_text(self.model, ses))
             X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
             total_iters += iters
-            if not self.settled(converged, X, th, blocks):
+            if not converged:
                 # a process noise this low lets the solve no longer converge (a model that
                 # misses a torque for good, with gaps alike from one interval to the next):
                 # the last certified one is where it stops
