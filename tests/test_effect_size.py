@@ -163,3 +163,58 @@ def test_a_candidate_that_takes_the_place_of_a_base_term_is_named_and_one_that_a
     with_rotor_drag = fit(base + effects.RotorDrag(), plain, progress=False)
     assert as_given.converged and with_rotor_drag.converged
     assert replaced_base_terms(as_given, with_rotor_drag, "rotor_drag") == ""
+
+
+def _certificate(residual: dict, whiteness: dict, gaps: dict, soft: bool = True):
+    from greybox.fitting import Certificate
+    return Certificate(optimal=True, step_over_std=0.01, state_step_over_noise=0.0, gap_over_noise=0.0, held=[],
+                       residual_over_noise=residual, whiteness=whiteness, sensor_noise={k: 1.0 for k in residual},
+                       systematic_gaps=gaps, soft=soft)
+
+
+def test_what_a_candidate_explains_counts_the_systematic_gaps_it_takes_out():
+    """A blind audit's hidden ground effect (two low passes, 100 Hz): the soft baseline's
+    residuals are near the noise but for q (1.44x, coloured by the log's timing), and vz's gaps
+    are 70 times their random part; the ground effect's refit takes the gaps out and leaves q.
+    By the channels alone it removed 11 % and was refused as a sliver; with the gaps it removes
+    all but (1.2^2 - 1) / (70^2 - 1) of what the baseline missed in vz."""
+    from types import SimpleNamespace
+    from greybox.diagnosis.screening import explained_fraction
+    channels = {"z": 1.03, "p": 1.14, "q": 1.44, "r": 1.13}
+    white = {"z": 0.4, "p": 0.2, "q": 0.37, "r": 0.7}
+    base = SimpleNamespace(certificate=_certificate(channels, white, {"vz": 70.3, "x": 1.2}))
+    after = {**channels, "z": 1.0, "q": 1.40}
+    ground = SimpleNamespace(certificate=_certificate(after, white, {"vz": 1.2}))
+    by_channels = 1 - sum(max(v * v - 1, 0) for v in after.values()) / sum(max(v * v - 1, 0) for v in channels.values())
+    assert explained_fraction(ground, ground) is not None
+    assert explained_fraction(base, ground) == pytest.approx(1 - (1.2 ** 2 - 1) / (70.3 ** 2 - 1))
+    assert by_channels < 0.2
+    # gaps the refit leaves invisible are random (no systematic part); a refit that keeps them
+    # is judged by the channels alone
+    gone = SimpleNamespace(certificate=_certificate(after, white, {}))
+    assert explained_fraction(base, gone) == pytest.approx(1.0)
+    kept = SimpleNamespace(certificate=_certificate(after, white, {"vz": 70.3}))
+    assert explained_fraction(base, kept) == pytest.approx(by_channels)
+    # an output-error baseline has no gaps to count
+    oe = SimpleNamespace(certificate=_certificate(channels, white, {}, soft=False))
+    assert explained_fraction(oe, ground) == pytest.approx(by_channels)
+
+
+def test_a_ground_effect_larger_than_the_rotors_that_fit_on_the_airframe_is_implausible():
+    """k_ge = (R/4)^2 and rotors do not overlap: R is at most half the distance between
+    neighbouring hubs; the limit allows twice that. An audit's 0.5 kg "x" vehicle (arm 0.125 m:
+    hubs 0.177 m apart) that never came below 1.2 m took k_ge 0.0143 m^2 for a thrust term it
+    lacked (a 0.48 m rotor): implausible now; its true 5-inch rotors' 2.5e-4 m^2 and greybox's
+    own synthetic size are not."""
+    from greybox.airframe import airframe_from_dict
+    from greybox.effects.ground import GroundEffect
+    af = airframe_from_dict({"airframe": {"mass": 0.5, "inertia": [2.4e-3, 2.6e-3, 4.5e-3], "arm_length": 0.125,
+                                          "layout": "x"}})
+    ge = GroundEffect()
+    limit = ge.plausible_limits(af)["k_ge"]
+    assert limit == pytest.approx((0.125 * np.sqrt(2) / 4) ** 2)
+    assert ge.plausibility_warnings({"k_ge": 0.0143}, {"k_ge": 0.002}, af)
+    for k in (2.5202e-4, ge.plausible_values(af, 5e-7)["k_ge"]):
+        assert ge.plausibility_warnings({"k_ge": k}, {"k_ge": 1e-5}, af) == []
+    plus = load_airframe(PAPER)       # hubs 0.17 m from the centre on the axes: 0.24 m apart
+    assert ge.plausible_limits(plus)["k_ge"] == pytest.approx((0.17 * np.sqrt(2) / 4) ** 2)

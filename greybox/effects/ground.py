@@ -35,6 +35,18 @@ class GroundEffect(Effect):
         r_rotor = 0.5 * max(airframe.arm_length, 1e-3)
         return {"k_ge": (r_rotor / 4) ** 2 * 4}
 
+    def plausible_limits(self, airframe):
+        # Rotors do not overlap: a rotor's radius is at most half the distance to its nearest
+        # neighbour; twice that bounds k_ge = (R/4)^2 with room for hubs above the centre of
+        # gravity's plane. A blind audit's 0.5 kg vehicle that never came below 1.2 m took
+        # k_ge 0.0143 m^2 (a 0.48 m rotor on a 0.125 m arm) for a thrust term it lacked.
+        P = np.asarray(airframe.rotor_positions, dtype=float)
+        if len(P) < 2:
+            return {}
+        d = np.linalg.norm(P[:, None, :2] - P[None, :, :2], axis=-1)
+        nearest = float(np.min(d[~np.eye(len(P), dtype=bool)]))
+        return {"k_ge": (nearest / 4) ** 2} if nearest > 0 else {}
+
     def interpretation_notes(self, values, std, airframe):
         # k_ge is tied to the heights the airframe gives its rotors: a fit with the hubs in the
         # CoG's plane while they sit higher is right for its model but reads low as a rotor size
