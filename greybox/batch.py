@@ -410,7 +410,12 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
     if base.converged:
         out.update(status="ok", reason="")
     else:
-        out.update(status="failed", reason=f"fit did not converge: {base.status}")
+        # rotor columns in another order, or a layout read wrong, named first (a blind audit's
+        # swapped M2/M4: the reason held only "is the airframe this vehicle's, are the speeds
+        # in rad/s?")
+        geometry = (diag.verdict_text().removeprefix("null -- ") + "; "
+                    if diag.null_reason in ("rotor_order", "rotor_layout") else "")
+        out.update(status="failed", reason=f"fit did not converge: {geometry}{base.status}")
     return out
 
 

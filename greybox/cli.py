@@ -518,7 +518,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
         from .diagnosis.analysis import rotor_geometry, rotor_geometry_warnings
         geometry = rotor_geometry_warnings(model, *rotor_geometry(model, [est for est, _ in parts]))
     if not res.converged:
-        raise GreyboxError(f"fit did not converge: {res.status}" + "".join(f"; {w}" for w in geometry))
+        # the columns' order or the layout first: the thrust's words follow from it
+        raise GreyboxError(f"fit did not converge: {'; '.join(geometry + [res.status])}")
     res.warnings[:0] = geometry
     # each flight validated with its own values of the per-flight parameters (wind, battery sag)
     preds = [predict(model, res.flight_p(i), val, horizon=args.horizon, **prediction_options(res))

@@ -136,7 +136,9 @@ def test_rotor_columns_logged_in_another_order_are_told(base):
         in d.verdict_text()
 
 
-def test_a_fit_whose_rotor_columns_are_in_another_order_says_so(base, tmp_path, capsys):
+@pytest.mark.parametrize("batch_too", [False, pytest.param(True, marks=pytest.mark.slow)],
+                         ids=["fit", "fit_and_batch"])
+def test_a_fit_whose_rotor_columns_are_in_another_order_says_so(base, tmp_path, capsys, batch_too):
     """A nineteenth blind audit's NanoBench flight with M2 and M4 swapped was fitted "certified"
     with p and q 1.7 times their noise and nothing said of why (its IMU-only fit named it): the
     fit's inadequate certificate now asks the rotor geometry, and the warning names the order."""
@@ -158,5 +160,14 @@ def test_a_fit_whose_rotor_columns_are_in_another_order_says_so(base, tmp_path, 
         import json
         warnings = json.loads((tmp_path / "r.json").read_text())["warnings"]
         assert warnings[0].startswith(words), warnings
-    else:            # not certified (this one, today): the error says why
-        assert rc == 1 and "fit did not converge" in said.err and words in said.err, said.err
+    else:            # not certified (this one, today): the error says why, the order first
+        assert rc == 1 and f"fit did not converge: {words}" in said.err, said.err
+        if batch_too:
+            # a batch records the same reason, the order first (its reason held the thrust's
+            # words alone: "is the airframe this vehicle's, are the rotor speeds in rad/s?")
+            from greybox.batch import batch
+            rec = batch([tmp_path / "swapped.csv"], tmp_path / "b", airframe=AIRFRAMES / "x_quad.toml", workers=1,
+                        progress=False).records[0]
+            assert rec["status"] == "failed" and rec["reason"].startswith(
+                "fit did not converge: the logged rotor speeds act as the airframe's rotors in another order") \
+                and "w2 as rotor 4, w3 as rotor 3, w4 as rotor 2" in rec["reason"], rec
