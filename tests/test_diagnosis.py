@@ -264,8 +264,12 @@ def test_explained_fraction_is_the_share_of_the_residual_above_the_noise_removed
     from types import SimpleNamespace
     from greybox.diagnosis.screening import explained_fraction
 
+    from greybox.fitting import Certificate
+
     def res(ratios):
-        return SimpleNamespace(certificate=SimpleNamespace(residual_over_noise=ratios))
+        return SimpleNamespace(certificate=Certificate(
+            optimal=True, step_over_std=0.0, state_step_over_noise=0.0, gap_over_noise=0.0, held=[],
+            residual_over_noise=ratios, whiteness={}, sensor_noise={k: 1.0 for k in ratios}))
 
     base = res({"x": 3.0, "y": 1.0})
     assert explained_fraction(base, res({"x": 2.0, "y": 1.0})) == pytest.approx(0.625)
