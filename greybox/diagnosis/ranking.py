@@ -140,11 +140,7 @@ class _Refits:
         cand.nrmse_after, cand.channels_after = pr.total, dict(pr.nrmse)
         cand.nrmse_common_start = self.common_start_nrmse(fr, pr)
         falls, best_ch, gain = validation_falls(self.pred, pr)
-        # the soft baseline's systematic gaps count in the first round, what is missing from
-        # the model as given (a hidden ground effect's vertical force, at 100 Hz, where the
-        # log's timing kept the channels coloured); in later rounds they made an indoor wind
-        # and an attitude bias verdicts on a real flight whose gaps no effect closes
-        cand.explained = explained_fraction(self.res, fr, gaps=self.min_explained_inadequate > self.min_explained)
+        cand.explained = explained_fraction(self.res, fr)
         negligible = negligible_effect(fr, cand.effect, self.est)
         shifted = parameter_shifts(self.res, fr) if negligible and self.size_in_parameters else {}
         if shifted:

@@ -493,29 +493,16 @@ def lr_test(base: FitResult, alt: FitResult, alt_resid: np.ndarray, df: int, on_
     return lr, min(1.0, p * n_tests)
 
 
-def explained_fraction(base: FitResult, alt: FitResult, gaps: bool = True) -> float | None:
+def explained_fraction(base: FitResult, alt: FitResult) -> float | None:
     """Fraction of the baseline's excess residual that ``alt`` removes: per channel the
     residual variance above the sensor noise, ``(rms/noise)^2 - 1``, summed over channels.
     1 means the residuals fall to the noise; near 0, the candidate explains a sliver of what
-    the model misses, however significant that sliver is.
-
-    With process noise what the model misses also shows in the shooting gaps: where the
-    baseline's gaps are mostly systematic in some states (:meth:`Certificate.off_states`),
-    their excess over the random part, ``(rms/random)^2 - 1``, counts beside the channels'
-    (a blind audit's hidden ground effect in two low passes: vz's gaps 70 times their random
-    part, taken out by the refit, while the log's timing kept q's residuals coloured; by the
-    channels alone it removed 11.4 % and was refused as a sliver). ``gaps=False``: the
-    channels alone."""
+    the model misses, however significant that sliver is."""
     if base.certificate is None or alt.certificate is None:
         return None
     r0, r1 = base.certificate.residual_over_noise, alt.certificate.residual_over_noise
     ex0 = sum(max(r0[ch] ** 2 - 1.0, 0.0) for ch in r0)
     ex1 = sum(max(r1.get(ch, r0[ch]) ** 2 - 1.0, 0.0) for ch in r0)
-    off = base.certificate.off_states() if gaps and alt.certificate.soft else []
-    g0, g1 = base.certificate.systematic_gaps, alt.certificate.systematic_gaps
-    ex0 += sum(g0[n] ** 2 - 1.0 for n in off)
-    # a state whose gaps the refit leaves invisible has no systematic part left
-    ex1 += sum(max(g1.get(n, 1.0) ** 2 - 1.0, 0.0) for n in off)
     return None if ex0 <= 0 else float(1.0 - ex1 / ex0)
 
 
