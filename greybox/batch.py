@@ -395,27 +395,32 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
     final_model = diag.final_model if diag.final_model is not None else model
     out: dict[str, Any] = {"verdict": diag.verdict, "nrmse_before": _num(diag.baseline_prediction.total),
                            "nrmse_after": _num(final.total)}
-    for name, v in base.parameters.items():
-        std = v["std"]
-        out[name] = _num(v["value"])
-        out[f"{name}_std"] = 0.0 if std is None else _num(std)
+    out.update(_parameter_columns(base.parameters))
     out["added"] = ",".join(e for e in final_model.effect_names if e not in model.effect_names)
     if out["added"]:
         # the final model's values beside the baseline's: a baseline without what the verdicts
         # added bends its parameters (a blind audit's hidden motor lag: the baseline's Kd[2]
         # 4.6 std off, the final model's right, and no tau_m in the summary)
-        for name, v in diag.fitted_model.parameters.items():
-            out[f"final_{name}"] = _num(v["value"])
-            out[f"final_{name}_std"] = 0.0 if v["std"] is None else _num(v["std"])
+        out.update(_parameter_columns(diag.fitted_model.parameters, "final_"))
     if base.converged:
         out.update(status="ok", reason="")
     else:
-        # rotor columns in another order, or a layout read wrong, named first (a blind audit's
-        # swapped M2/M4: the reason held only "is the airframe this vehicle's, are the speeds
-        # in rad/s?")
-        geometry = (diag.verdict_text().removeprefix("null -- ") + "; "
-                    if diag.null_reason in ("rotor_order", "rotor_layout") else "")
-        out.update(status="failed", reason=f"fit did not converge: {geometry}{base.status}")
+        # rotor columns in another order, or a layout read wrong, named first, in the fit
+        # CLI's words (a blind audit's swapped M2/M4: the reason held only "is the airframe
+        # this vehicle's, are the speeds in rad/s?")
+        from .diagnosis.analysis import rotor_geometry_warnings
+        geometry = rotor_geometry_warnings(model, diag.rotor_order, diag.layout_rotation)
+        out.update(status="failed", reason=f"fit did not converge: {'; '.join(geometry + [base.status])}")
+    return out
+
+
+def _parameter_columns(parameters: Mapping[str, Mapping[str, Any]], prefix: str = "") -> dict[str, float | None]:
+    """A fit's parameters as summary columns: ``PREFIXNAME`` and ``PREFIXNAME_std`` (0 where
+    the parameter was held)."""
+    out: dict[str, float | None] = {}
+    for name, v in parameters.items():
+        out[f"{prefix}{name}"] = _num(v["value"])
+        out[f"{prefix}{name}_std"] = 0.0 if v["std"] is None else _num(v["std"])
     return out
 
 
