@@ -685,20 +685,11 @@ def _batch_parser(sub) -> None:
     b.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
     b.add_argument("--no-discover", action="store_true",
                    help="skip the discovery of residual forces beyond the catalogue")
-    b.add_argument("--process-noise", choices=["if_needed", "auto", "none"], default="if_needed",
-                   help="how the shooting gaps are treated: 'if_needed' (default) output error, then "
-                        "process noise when output error cannot follow the data; 'auto' process noise "
-                        "(real logs); 'none' output error only (see README)")
     b.add_argument("--joint", action="store_true",
                    help="also fit the shared parameters on all good flights at once and name the flights more "
                         "than 3 std from the fleet")
-    b.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
-                   help=INPUT_NOISE_HELP)
-    b.add_argument("--outliers", choices=["drop", "keep"], default="drop", help=OUTLIERS_HELP)
-    b.add_argument("--noise", action="append", metavar="CH=SD", help=NOISE_HELP)
-    b.add_argument("--per-flight", metavar="auto|none|NAMES",
-                   help="with --joint, what each flight gets its own value of: 'auto' (default: wind and "
-                        "thrust_drift when the model or a flight's diagnosis has them), 'none' or a comma list")
+    _data_args(b, "with --joint, what each flight gets its own value of: 'auto' (default: wind and "
+                  "thrust_drift when the model or a flight's diagnosis has them), 'none' or a comma list")
     b.add_argument("--quiet", action="store_true", help="no progress lines")
     b.add_argument("--json", help="write the records (and the fleet comparison) here")
     b.set_defaults(func=cmd_batch, import_format="csv")
@@ -751,6 +742,19 @@ def _model_args(ap: argparse.ArgumentParser, set_help: str) -> None:
     ap.add_argument("--effects", help="comma list of effects to add to the base model")
     ap.add_argument("--without", help="comma list of effects to remove from the base model")
     ap.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
+
+
+def _data_args(ap: argparse.ArgumentParser, per_flight_help: str, process_noise_default: str = "if_needed") -> None:
+    """The options on how a fit treats the data (shared by fit, diagnose and batch): the
+    shooting gaps, the rotor speeds' noise, outliers, channel noise, per-flight values."""
+    ap.add_argument("--process-noise", choices=["if_needed", "auto", "none"], default=process_noise_default,
+                    help="how the shooting gaps are treated: 'if_needed' (default) output error, then "
+                         "process noise when output error cannot follow the data; 'auto' process noise "
+                         "(real logs); 'none' output error only (see README)")
+    ap.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth", help=INPUT_NOISE_HELP)
+    ap.add_argument("--outliers", choices=["drop", "keep"], default="drop", help=OUTLIERS_HELP)
+    ap.add_argument("--noise", action="append", metavar="CH=SD", help=NOISE_HELP)
+    ap.add_argument("--per-flight", metavar="auto|none|NAMES", help=per_flight_help)
 
 
 def _import_args(ap: argparse.ArgumentParser, file_help: str) -> None:
@@ -825,18 +829,9 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--interval", type=_positive_int, help="samples per shooting interval (default: nearest 50 ms)")
     f.add_argument("--max-iter", type=_positive_int, default=FIT_DEFAULTS["max_iter"],
                    help=f"Gauss-Newton iteration limit (default {FIT_DEFAULTS['max_iter']})")
-    f.add_argument("--process-noise", choices=["if_needed", "auto", "none"], default=FIT_DEFAULTS["process_noise"],
-                   help="how the shooting gaps are treated: 'if_needed' (default) output error, then "
-                        "process noise when output error cannot follow the data; 'auto' process noise "
-                        "(real logs); 'none' output error only (see README)")
-    f.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
-                   help=INPUT_NOISE_HELP)
-    f.add_argument("--outliers", choices=["drop", "keep"], default="drop", help=OUTLIERS_HELP)
-    f.add_argument("--noise", action="append", metavar="CH=SD", help=NOISE_HELP)
-    f.add_argument("--per-flight", metavar="auto|none|NAMES",
-                   help="with several logs, what each flight gets its own value of: 'auto' (default: the "
-                        "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
-                        "comma list of effects / parameters")
+    _data_args(f, "with several logs, what each flight gets its own value of: 'auto' (default: the "
+                  "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
+                  "comma list of effects / parameters", process_noise_default=FIT_DEFAULTS["process_noise"])
     f.add_argument("--horizon", type=_positive, default=FIT_DEFAULTS["horizon"],
                    help=f"validation prediction horizon, s (default {FIT_DEFAULTS['horizon']:g})")
     f.add_argument("--plots", help="folder for compare/residual plots")
@@ -854,17 +849,8 @@ def _parser() -> argparse.ArgumentParser:
     _model_args(g, "starting value (repeatable)")
     g.add_argument("--candidates", help="comma list of candidate effects (default: every effect not in the model)")
     g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
-    g.add_argument("--process-noise", choices=["if_needed", "auto", "none"], default="if_needed",
-                   help="how the shooting gaps are treated: 'if_needed' (default) output error, then "
-                        "process noise when output error cannot follow the data; 'auto' process noise "
-                        "(real logs); 'none' output error only (see README)")
-    g.add_argument("--input-noise", choices=["smooth", "keep"], default="smooth",
-                   help=INPUT_NOISE_HELP)
-    g.add_argument("--outliers", choices=["drop", "keep"], default="drop", help=OUTLIERS_HELP)
-    g.add_argument("--noise", action="append", metavar="CH=SD", help=NOISE_HELP)
-    g.add_argument("--per-flight", metavar="auto|none|NAMES",
-                   help="with several logs, what each flight gets its own value of (as for fit; default auto: "
-                        "wind, thrust_drift)")
+    _data_args(g, "with several logs, what each flight gets its own value of (as for fit; default auto: "
+                  "wind, thrust_drift)")
     g.add_argument("--validation", metavar="LOGV", nargs="+",
                    help="separate flight(s) to validate on (then all of each LOG is estimation data; "
                         "default: the last 20 %% of each LOG)")
