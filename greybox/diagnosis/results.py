@@ -57,6 +57,9 @@ class CandidateResult:
     # the validation nrmse with the windows started as the baseline's are (its start window):
     # a refit chooses its own, and two candidates compare alike only from the same start
     nrmse_common_start: float | None = None
+    # the share of what the model with the log's timing misses that its refit onto the timing
+    # removes, when the sliver rules judged that share (the timing significant in the fit)
+    explained_beside_timing: float | None = None
 
     def as_dict(self) -> dict:
         out = {"effect": self.effect, "significant": bool(self.significant),
@@ -464,6 +467,9 @@ class Diagnosis:
             share = (f"; it removes {100 * top.explained:.0f} % of the residual above the sensor noise"
                      + (f" that round {k}'s model (with the earlier verdicts) left" if k > 1 else "")
                      if top is not None and top.explained is not None else "")
+            if top is not None and top.explained_beside_timing is not None:
+                share += (f" ({100 * top.explained_beside_timing:.0f} % of what the model with the log's timing "
+                          "leaves)")
             return f"{self.verdict}{share}"
         order = ", ".join(f"{c} as rotor {j + 1}" for c, j in zip(self.model.command_names, self.rotor_order or ()))
         return {"rotor_order": f"null -- the logged rotor speeds act as the airframe's rotors in another order "
