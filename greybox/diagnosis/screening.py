@@ -413,6 +413,11 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
                  compile=compile, max_iter=max_iter or cap, initial_states=init, interval=res.interval,
                  process_noise=_process_noise(ext, res), per_flight=res.per_flight_rule,
                  solver=GaussNewton(stop=HeldBeyondPlausible(name)))
+    if not cold and start is None and (held := _reaction_torque_start(ext, res, name, p)) is not None:
+        # the baseline's b near zero: the spin directions' difference in the gains is
+        # escaped through it; from a propeller's b, the gains carry it (a peer simulator's
+        # Crazyflie with one spin direction's rotors 8 % weaker in thrust and torque)
+        fr = _lower_cost(fr, _held_then_free(ext, est, free, held, "b", sigma, res, compile, init, max_iter or cap))
     if restart and not cold and start is None:
         again = refit(model, res, est, None, name, sigma, compile, cold=True, max_iter=COLD_REFIT_ITER)[1]
         # output error: each re-estimated its weights, so they compare on the likelihood;
@@ -421,6 +426,41 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
         if better:
             fr = again
     return ext, fr, predict_after_fit(fr, est, val, compile=compile, horizon=horizon) if val is not None else None
+
+
+def _reaction_torque_start(ext: QuadrotorModel, res: FitResult, name: str, p: np.ndarray) -> np.ndarray | None:
+    """``p`` with ``b`` at the airframe's value, when ``name`` scales the rotors' reaction
+    torques (:attr:`~greybox.effects.Effect.scales_reaction_torques`), the baseline's
+    ``b/K_T`` is below what propellers give and the airframe's is within it; else None."""
+    if not getattr(fx.by_name(name), "scales_reaction_torques", False) or "b" not in res.free_names \
+            or "K_T" not in ext.param_names:
+        return None
+    lo, hi = fx.YawTorque.RATIO_RANGE
+    kt = res.value("K_T")
+    guess = ext.default_parameters()
+    b0, kt0 = guess[ext.param_names.index("b")], guess[ext.param_names.index("K_T")]
+    if not (kt > 0 and kt0 > 0) or res.value("b") / kt >= lo or not lo <= b0 / kt0 <= hi:
+        return None
+    held = np.array(p, dtype=float).copy()
+    held[ext.param_names.index("b")] = b0 / kt0 * kt      # the airframe's ratio at the fitted K_T
+    return held
+
+
+def _held_then_free(ext: QuadrotorModel, est: Sequence[FlightLog], free: list[str], p: np.ndarray, held: str,
+                    sigma: dict, res: FitResult, compile: str, init, max_iter: int) -> FitResult:
+    """A refit with ``held`` first held at its value in ``p``, then freed: the baseline's
+    weights and process noise, as the warm refit."""
+    kw = dict(noise=sigma, reweight=False, sensor_noise=res.sensor_given, compile=compile, max_iter=max_iter,
+              interval=res.interval, process_noise=_process_noise(ext, res), per_flight=res.per_flight_rule)
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", ConvergenceWarning)
+        first = fit(ext, est, free=[n for n in free if n != held], p0=p, initial_states=init, **kw)
+        return fit(ext, est, free=free, p0=first.p, initial_states=first.node_states, **kw)
+
+
+def _lower_cost(a: FitResult, b: FitResult) -> FitResult:
+    """The one of two fits with the same weights that reached the lower cost."""
+    return b if b.cost < a.cost else a
 
 
 def _guesses(ext: QuadrotorModel, name: str | fx.Effect) -> np.ndarray:

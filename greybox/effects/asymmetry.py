@@ -64,6 +64,7 @@ class MotorAsymmetry(Effect):
     channels = ('phi', 'theta', 'p', 'q', 'psi', 'r', 'x', 'y')
     shifts_trim = True
     trim_evidence = ("steady",)
+    scales_reaction_torques = True
 
     def parameters(self, airframe):
         return [Parameter("K_T_dev", airframe.n_rotors - 1, 0.0, "1", -0.9, 0.9, 0.05, 0.0, True,

@@ -94,6 +94,12 @@ class Effect:
     torque), so such an effect can take up part of any unmodelled torque by scaling the
     commands' moment down. When it leaves the body rates far off, the diagnosis judges it again
     with a random-walk disturbance torque in the model (:func:`~greybox.diagnosis.ranking.rank_round`)."""
+    scales_reaction_torques: ClassVar[bool] = False
+    """Whether its parameters scale the rotors' reaction torques one by one (per-rotor gains
+    on thrust and torque). They can then hold a difference between the spin directions,
+    which with a propeller's ``b`` is a steady yaw torque the commands cancel; a fit from a
+    baseline whose ``b`` went to near zero stays there. The diagnosis refits such an effect
+    also with ``b`` first held at the airframe's value (:func:`~greybox.diagnosis.screening.refit`)."""
     input_timed: ClassVar[tuple[str, ...]] = ()
     """Its parameters that are times measured against the logged inputs (a lag, a delay):
     whether a row's logged value holds for the whole row or is a sample of a signal varying
