@@ -151,6 +151,15 @@ def test_import_errors_name_file_row_and_column(tmp_path):
     # a log that never leaves the ground
     with pytest.raises(GreyboxInputError, match="never leaves the ground"):
         import_nanobench(_write(tmp_path, "\n".join(lines[:150])))
+    # PWM logged as 8-bit values (a blind audit's mistake: imported, fitted with K_T 23 times
+    # the truth and certified): no Crazyflie flies on 0.2 % of its PWM range
+    motors = [header.index(f"motor_motor_m{i}") for i in range(1, 5)]
+    rows = [r.split(",") for r in lines]
+    for r in rows[1:]:
+        for j in motors:
+            r[j] = f"{round(float(r[j]) / 257)}"
+    with pytest.raises(GreyboxInputError, match=r"motor commands stay below PWM \d+ .*8-bit values, 0\.\.255"):
+        import_nanobench(_write(tmp_path, "\n".join(",".join(r) for r in rows)))
 
 
 def test_cli_import_writes_log_and_airframe_or_nothing(tmp_path, capsys):

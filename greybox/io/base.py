@@ -51,7 +51,8 @@ __all__ = ["trimmed_log", "G0", "CRAZYFLIE_PWM_MAP", "PX4_PWM_MAP", "PwmMap", "I
            "flu_to_frd", "zup_to_ned", "euler_zup_to_ned", "euler_from_quaternion", "wrap_angle",
            "deg_to_rad", "g_to_ms2", "rpm_to_rad_s", "pwm_to_rotor_speed", "parse_pwm_map",
            "time_base", "fresh_rows", "interpolate_fresh", "interpolate_samples", "setpoint_extras", "commands_on_grid", "held_run_knots", "HELD_RUN_LIMIT", "flight_from_height",
-           "flight_from_imu", "longest_run", "grid_with", "snap", "assemble_log", "span_words"]
+           "flight_from_imu", "longest_run", "grid_with", "snap", "assemble_log", "span_words",
+           "CRAZYFLIE_FLYING_PWM_SHARE", "check_crazyflie_pwm_scale"]
 
 G0 = 9.80665
 """Standard gravity, m/s^2: one g of an accelerometer that logs in g."""
@@ -59,6 +60,31 @@ G0 = 9.80665
 CRAZYFLIE_PWM_MAP = (0.04076521, 380.8359)
 """Published Crazyflie 2.0 PWM-to-rotor-speed map ``w [rad/s] = a*PWM + c`` (PWM 0..65535;
 J. Förster, "System Identification of the Crazyflie 2.0 Nano Quadrocopter", ETH Zurich, 2015)."""
+
+CRAZYFLIE_FLYING_PWM_SHARE = 0.05
+"""Share of the 0..65535 PWM range below which a Crazyflie's motor commands cannot keep it in
+the air: it hovers at about 60 % (the NanoBench flights' hover speeds, 2000-3200 rad/s by
+:data:`CRAZYFLIE_PWM_MAP`), and 5 % (PWM 3277, about 515 rad/s) gives under a tenth of its
+weight. Commands that stay below it while flying are in another unit (a blind audit's log
+with 8-bit values, 0..255, was imported, fitted with K_T 23 times the truth and certified)."""
+
+
+def check_crazyflie_pwm_scale(pwm: np.ndarray, where: str, full_scale: float = 65535.0) -> None:
+    """Raise :class:`GreyboxInputError` when a Crazyflie's motor commands ``pwm`` (rows while
+    it flies or its motors run, one column a motor) stay below
+    :data:`CRAZYFLIE_FLYING_PWM_SHARE` of ``full_scale``: the 90th percentile of each row's
+    largest command, so that spin-up and idle rows do not decide."""
+    pwm = np.asarray(pwm, dtype=float)
+    if pwm.size == 0:
+        return
+    top = float(np.percentile(np.max(pwm, axis=1), 90))
+    if top < CRAZYFLIE_FLYING_PWM_SHARE * full_scale:
+        hint = "8-bit values, 0..255? multiply them by 257" if top <= 255 else "a percentage or another unit?"
+        raise GreyboxInputError(
+            f"{where}: the motor commands stay below PWM {top:.0f} while the vehicle flies (90th percentile of the "
+            f"largest of the four), {100 * top / full_scale:.2g} % of 0..{full_scale:g}, where a Crazyflie hovers at "
+            f"about 60 %: not PWM 0..{full_scale:g} ({hint})")
+
 
 PX4_PWM_MAP = (1.0, -1000.0)
 """Default map of PX4 PWM outputs (µs) to rotor speed: ``w [rad/s] = PWM - 1000``, i.e.

@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import GreyboxInputError
-from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, trimmed_log, commands_on_grid,
+from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, check_crazyflie_pwm_scale, trimmed_log, commands_on_grid,
                    euler_from_quaternion, euler_zup_to_ned, flight_from_height, flight_from_imu, flu_to_frd,
                    fresh_rows, interpolate_samples, snap, time_base, zup_to_ned)
 
@@ -277,6 +277,7 @@ def import_crazyflie_usd(path: str | Path, pwm_map: tuple[float, float] = CRAZYF
         r, j = out[0]
         raise GreyboxInputError(f"{path}: record {r + 1} of event {mev!r}, {_MOTORS[j]}: PWM {pwm[r, j]:g} outside "
                                 f"0..{PWM_MAX:g}")
+    check_crazyflie_pwm_scale(pwm[np.any(pwm > 0, axis=1)], f"{path}: event {mev!r}, {', '.join(_MOTORS)}", PWM_MAX)
     fresh = fresh_rows(pwm)
     pwm_grid = commands_on_grid(t_all, t_pwm[fresh], pwm[fresh], "hold", off=0.0)
     pwm_used = commands_on_grid(t_all, t_pwm[fresh], pwm[fresh], held, off=0.0, repeated_between=True)

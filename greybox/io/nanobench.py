@@ -44,7 +44,7 @@ import numpy as np
 
 from ..data import read_csv_table
 from ..errors import GreyboxInputError
-from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, trimmed_log, commands_on_grid,
+from .base import (CRAZYFLIE_PWM_MAP, G0, ImportResult, PwmMap, check_crazyflie_pwm_scale, trimmed_log, commands_on_grid,
                    euler_from_quaternion, euler_zup_to_ned, flight_from_height, flu_to_frd, fresh_rows,
                    interpolate_fresh, setpoint_extras, time_base, wrap_angle, zup_to_ned)
 
@@ -306,6 +306,7 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
     # ground contact
     span = flight_from_height(t_all, pos[:, 2], np.any(pwm > 0, axis=1), str(path), takeoff_height)
     k0, k1 = span.k0, span.k1
+    check_crazyflie_pwm_scale(pwm[k0:k1 + 1], f"{path}: columns {', '.join(_MOTORS)}", PWM_MAX)
     extras["on_ground"] = span.on_ground.astype(float)
     notes.append(span.note)
     hover_w = float(np.sqrt(np.mean(w[k0:k1 + 1] ** 2)))
