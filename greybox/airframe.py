@@ -21,7 +21,7 @@ import numpy as np
 from .data import read_text_file
 from .errors import AirframeWarning, GreyboxInputError
 
-__all__ = ["Rotor", "Airframe", "load_airframe", "airframe_from_dict", "rotors_for_layout", "INERTIA_TOLERANCE", "INERTIA_SCALE",
+__all__ = ["Rotor", "Airframe", "load_airframe", "airframe_from_dict", "rotors_for_layout", "INERTIA_TOLERANCE", "INERTIA_SCALE", "INERTIA_PLAUSIBLE",
            "hub_reach"]
 
 INERTIA_TOLERANCE = 0.05
@@ -225,6 +225,14 @@ a quarter of the mass at L, give about 0.25): outside by a factor 20 is a unit, 
 vehicle (a blind audit's mass of 1200 for 1.2 kg was reported as rotor speeds in rev/s)."""
 
 
+INERTIA_PLAUSIBLE = (0.05, 1.5)
+"""Bounds of the same ratio (:data:`INERTIA_SCALE`) outside which the airframe is accepted
+with a warning: the motors and propellers, a tenth of a multirotor's mass or more, sit at L
+(0.1 at least), and all of the mass at L gives 1. A blind audit's Crazyflie file with ten
+times its mass (0.033) was fitted with K_T and Kd ten times the truth, the rates' residuals
+50-60 times their noise, and no word on the airframe."""
+
+
 def hub_reach(rotors: Sequence[Rotor]) -> float:
     """The hubs' mean horizontal distance from the centre of gravity, m (the arm when none is given)."""
     return float(np.mean([math.hypot(r.position[0], r.position[1]) for r in rotors]))
@@ -240,6 +248,16 @@ def _check_scale(mass: float, J: np.ndarray, rotors: Sequence[Rotor], source: st
     ratio = j3 / (mass * reach ** 2)
     lo, hi = INERTIA_SCALE
     if lo <= ratio <= hi:
+        plo, phi = INERTIA_PLAUSIBLE
+        if not plo <= ratio <= phi:
+            _warnings.warn(
+                f"{source}: airframe: the largest moment of inertia {j3:.4g} kg m^2 is {ratio:.2g} x mass x L^2 "
+                f"(mass {mass:.4g} kg, rotors at L = {reach:.4g} m from the centre of gravity), where a multirotor's "
+                f"lies near 0.15-0.55 ({plo:g}-{phi:g} at the extremes): is the "
+                + ("mass right (weighed, in kg), or the inertia too small?" if ratio < plo else
+                   "mass right (weighed, in kg), or the inertia too large?")
+                + " K_T, b and the drag scale with the mass, the rates' response with the inertia",
+                AirframeWarning, stacklevel=4)
         return
     guess = ("is the mass in grams, or the arm_length / rotor positions in cm or mm?" if ratio < lo else
              "is the inertia in g m^2 or kg cm^2, or the mass in tonnes?")

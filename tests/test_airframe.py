@@ -192,3 +192,24 @@ def test_mass_inertia_and_arm_of_no_vehicle_name_the_likely_unit(tmp_path, capsy
         load_airframe(Path(__file__).resolve().parents[1] / "greybox" / "data" / "airframes" / name)
     load_airframe(write(tmp_path, GOOD.replace("mass = 1.0", "mass = 0.027").replace("arm_length = 0.17",
                   "arm_length = 0.046").replace("[0.0082, 0.0082, 0.0149]", "[1.4e-5, 1.4e-5, 2.2e-5]")))
+
+
+def test_a_mass_that_does_not_fit_the_inertia_and_arm_is_accepted_with_a_warning(tmp_path):
+    """Jzz / (m L^2) is 0.52 here (0.0149 / (1 * 0.17^2)); motors and propellers at L hold it
+    above 0.1 on any multirotor. Twenty times the mass gives 0.026 (a blind audit's Crazyflie
+    file with ten times its mass, 0.033, was fitted with K_T and Kd ten times the truth
+    without a word), a fifth of it 2.6: a warning that names the mass, not an error (it may
+    be a dense vehicle)."""
+    import warnings
+    from greybox.errors import AirframeWarning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_airframe(write(tmp_path, GOOD.replace("mass = 1.0", "mass = 3.0")))      # 0.17: no word
+    with pytest.warns(AirframeWarning, match=r"is 0\.026 x mass x L\^2 .* is the mass right"):
+        af = load_airframe(write(tmp_path, GOOD.replace("mass = 1.0", "mass = 20.0")))
+    assert af.mass == 20.0
+    with pytest.warns(AirframeWarning, match=r"is 2\.6 x mass x L\^2 .* inertia too large"):
+        load_airframe(write(tmp_path, GOOD.replace("mass = 1.0", "mass = 0.2")))
+    # a unit (mass in grams) stays an error
+    with pytest.raises(GreyboxInputError, match="mass in grams"):
+        load_airframe(write(tmp_path, GOOD.replace("mass = 1.0", "mass = 1000.0")))
