@@ -27,10 +27,22 @@ __all__ = ["FlightLog", "check_distinct_flights", "load_log", "is_log_column", "
            "ATOMIC_NAME_EXTRA", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "median_row_interval",
-           "check_measurement_units", "UNIT_RATIO_LIMIT", "check_channel_noise"]
+           "check_measurement_units", "UNIT_RATIO_LIMIT", "check_channel_noise", "RECORD_EXTRAS", "is_command_column"]
 
 REQUIRED_OUTPUTS = ["x", "y", "z", "phi", "theta", "psi"]
 OPTIONAL_OUTPUTS = ["p", "q", "r", "ax", "ay", "az"]
+RECORD_EXTRAS = frozenset({"t_unix", "motor_fresh", "on_ground"})
+"""Extra columns the importers keep for the record (the logger's clock, which rows hold a
+fresh motor sample, ground contact): bookkeeping, never a physical signal."""
+
+
+def is_command_column(name: str) -> bool:
+    """Whether an extra column holds the rotors' commands beside the inputs (``u1..``,
+    ``w1..``, the importers' raw ``pwm1..``): what the controller sent, not a signal acting
+    on the vehicle beside them."""
+    return re.fullmatch(r"(?:[uw]|pwm)\d+", name) is not None
+
+
 MAX_ROTOR_SPEED = 8000.0
 """rad/s (about 76,000 RPM). Faster "rotor speeds" are taken for RPM or another unit."""
 MIN_FIT_SAMPLES = 50

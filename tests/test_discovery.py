@@ -333,3 +333,19 @@ def test_a_term_that_rides_on_anothers_gain_is_not_confirmed_together(monkeypatc
     assert out is None and not fx.significant and "adds nothing" in fx.reason
     out, group = case([("mx", 0.30, False), ("my", 0.31, False), ("mz", 0.25, False)], 0.053)
     assert out is not None and all(d.significant for d in group)
+
+
+def test_only_physical_signals_are_offered_as_features():
+    """A NanoBench import keeps the battery voltage beside the raw PWM, the logger's clock and
+    its bookkeeping flags: only the voltage is a signal acting on the vehicle (a blind audit's
+    discovery offered ``t*pwm3`` and ``t_unix``)."""
+    from greybox.data import log_from_arrays
+    from greybox.diagnosis.discovery import signal_features
+    n = 50
+    t = np.arange(n) * 0.01
+    log = log_from_arrays(t, np.full((n, 4), 2000.0), np.zeros((n, 6)))
+    ramp = np.linspace(0.0, 1.0, n)
+    log.extras.update(vbat=4.0 - 0.1 * ramp, pwm1=40000 + ramp, pwm4=40000 - ramp, u2=ramp,
+                      t_unix=1.7e9 + t, motor_fresh=(np.arange(n) % 2).astype(float),
+                      on_ground=(ramp > 0.9).astype(float), x_ref=ramp, ax=ramp)
+    assert signal_features([log]) == ["vbat"]

@@ -47,7 +47,6 @@ discovery says "cannot tell" instead of guessing.
 """
 from __future__ import annotations
 
-import re
 import time
 import warnings
 from dataclasses import dataclass
@@ -58,7 +57,7 @@ import numpy as np
 from scipy import sparse, stats
 
 from ..controller_law import SETPOINTS
-from ..data import FlightLog
+from ..data import RECORD_EXTRAS, FlightLog, is_command_column
 from ..effects.base import EffectLibrary
 from ..effects.discovered import (BASE_FEATURES, FORCE_CHANNELS, MOMENT_CHANNELS, discovered_effect_class,
                                   parameter_name, split_feature)
@@ -103,9 +102,12 @@ been refused for. The rule applies to a joint refit of several combinations as w
 NOT_SIGNALS = frozenset({"ax", "ay", "az", "t", *SETPOINTS})
 """Extra log columns never offered as features: the accelerometer measures the very forces
 discovery estimates (a feature made of the answer), ``t`` is a feature already; nor are
-commands kept beside the inputs (``u1..u4``, ``w1..wN``): a commanded torque "explains" any
-torque the controller had to produce; nor the controller's setpoints (``x_ref .. psi_ref``),
-which act on the vehicle only through those commands."""
+commands kept beside the inputs (``u1..u4``, ``w1..wN``, the importers' raw ``pwm1..``:
+:func:`~greybox.data.is_command_column`): a commanded torque "explains" any torque the
+controller had to produce; nor the controller's setpoints (``x_ref .. psi_ref``), which act on
+the vehicle only through those commands; nor the importers' bookkeeping
+(:data:`~greybox.data.RECORD_EXTRAS`: a blind audit's discovery offered ``t*pwm3`` and
+``t_unix``)."""
 
 
 # ------------------------------------------------------------------------ residual forces
@@ -134,8 +136,8 @@ def signal_features(logs: Sequence[FlightLog]) -> list[str]:
     flight, not constant, and not the accelerometer (:data:`NOT_SIGNALS`) nor an output."""
     names = []
     for name in logs[0].extras:
-        if (name in NOT_SIGNALS or name in OUTPUTS or name in BASE_FEATURES or not name.isidentifier()
-                or re.fullmatch(r"[uw]\d+", name)):
+        if (name in NOT_SIGNALS or name in RECORD_EXTRAS or name in OUTPUTS or name in BASE_FEATURES
+                or not name.isidentifier() or is_command_column(name)):
             continue
         values = [lg.extras.get(name) for lg in logs]
         if all(v is not None and np.shape(v) == lg.t.shape and np.all(np.isfinite(np.asarray(v, dtype=float)))
