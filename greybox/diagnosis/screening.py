@@ -415,7 +415,7 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
                  solver=GaussNewton(stop=HeldBeyondPlausible(name)))
     if not cold and start is None and (held := _reaction_torque_start(ext, res, name, p)) is not None:
         # the baseline's b near zero: the spin directions' difference in the gains is
-        # escaped through it; from a propeller's b, the gains carry it (a peer simulator's
+        # escaped through it; from a propeller's b, the gains carry it (a blind audit's simulated
         # Crazyflie with one spin direction's rotors 8 % weaker in thrust and torque)
         fr = _lower_cost(fr, _held_then_free(ext, est, free, held, "b", sigma, res, compile, init, max_iter or cap))
     if restart and not cold and start is None:
