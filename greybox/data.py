@@ -589,6 +589,17 @@ def _case_hint(header: list[str], name: str) -> str:
     return f" (the header has {other!r}: column names are lower-case, without spaces)" if other else ""
 
 
+_FOREIGN_FORMATS = {"motor_motor_m1": "nanobench"}
+"""A column that marks a file as another format's (its importer, ``greybox import``)."""
+
+
+def _format_hint(header: list[str]) -> str:
+    """" (a NanoBench log: convert it with ...)" when the header is another format's."""
+    fmt = next((f for c, f in _FOREIGN_FORMATS.items() if c in header), None)
+    return (f" (the header is a {fmt} log's: convert it first, greybox import {fmt} FILE --out LOG.csv "
+            "--airframe-out A.toml)") if fmt else ""
+
+
 def load_log(path: str | Path, inputs: str = "auto", optional: Iterable[str] = ()) -> FlightLog:
     """Read and validate a flight log CSV (README, "Flight log (CSV)").
 
@@ -644,7 +655,7 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
     if inputs == "rotor_speeds":
         if not w_cols:
             raise GreyboxInputError(f"{where}: missing required rotor speed columns 'w1'..'w4'" +
-                                    _case_hint(header, "w1"))
+                                    (_case_hint(header, "w1") or _format_hint(header)))
         idx = [i for i, _ in w_cols]
         if idx != list(range(1, len(idx) + 1)):
             missing = sorted(set(range(1, max(idx) + 1)) - set(idx))

@@ -83,6 +83,10 @@ def test_resample_holds_inputs_and_interpolates_outputs():
     (["t,w1,w2,w3,w4,x,y,phi,theta,psi", "0,1,1,1,1,0,0,0,0,0"], "missing required column 'z'"),
     (["w1,w2,w3,w4,x,y,z,phi,theta,psi", "1,1,1,1,0,0,0,0,0,0"], "missing required column 't'"),
     (["t,x,y,z,phi,theta,psi", "0,0,0,0,0,0,0"], "missing required rotor speed columns"),
+    # a NanoBench file given as it is (a blind audit): the importer is named
+    (["t,px,py,pz,qx,qy,qz,qw,motor_motor_m1,motor_motor_m2,motor_motor_m3,motor_motor_m4", "0,0,0,0,0,0,0,1,0,0,0,0"],
+     r"missing required rotor speed columns 'w1'..'w4' \(the header is a nanobench log's: convert it first, "
+     r"greybox import nanobench"),
     (["t,w1,w2,w4,x,y,z,phi,theta,psi", "0,1,1,1,0,0,0,0,0,0"], "missing required column 'w3'"),
     ([HEADER, "0,1,1,1,1,0,0,0,0,0,0", "0.002,1,1,1,1,0,0,0,0,0,0", "0.001,1,1,1,1,0,0,0,0,0,0"],
      r"row 4, column 't'.*strictly increasing"),
