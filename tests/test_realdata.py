@@ -490,6 +490,10 @@ def test_without_the_quaternion_the_angles_unit_is_read_from_the_motion(tmp_path
     with pytest.raises(GreyboxInputError, match="angle_unit='rad' or 'deg'"):
         import_nanobench(path)
     assert any("in radians (as given)" in n for n in import_nanobench(path, angle_unit="rad").notes)
+    # a unit given against what the motion says clearly is taken, and the note says so (a blind
+    # audit's --angle-unit rad on degrees was refused only later, by one roll sample of 12.7 deg)
+    notes = import_nanobench(tmp_path / "degrees.csv", angle_unit="rad").notes
+    assert any("in radians (as given, though the motion says degrees" in n for n in notes), notes
 
 
 @needs_real

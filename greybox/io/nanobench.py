@@ -230,7 +230,9 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
         pose_block = np.column_stack([pos, q])
     else:
         logged = np.column_stack([column(n, required=False) for n in _EULER])
-        unit, fits = (angle_unit, {}) if angle_unit != "auto" else angle_unit_from_motion(t_all, pos, logged)
+        # the motion is read even when the unit is given: a unit it contradicts is said
+        told, fits = angle_unit_from_motion(t_all, pos, logged)
+        unit = told if angle_unit == "auto" else angle_unit
         said = "; ".join(f"read as {'radians' if u == 'rad' else 'degrees'}: slope {sl:.3g}, correlation {r:.2f}"
                          for u, (sl, r) in fits.items())
         if unit is None:
@@ -240,9 +242,11 @@ def import_nanobench(path: str | Path, pwm_map: tuple[float, float] = CRAZYFLIE_
                 "the unit's slope is about 1 with a strong correlation); give the unit: angle_unit='rad' or 'deg' "
                 "(greybox import nanobench --angle-unit)")
         eul_flu = np.radians(logged) if unit == "deg" else logged
-        notes.append("no quaternion columns: attitude from roll/pitch/yaw, in "
-                     + ("degrees" if unit == "deg" else "radians")
-                     + (" (as given)" if angle_unit != "auto" else f" (the motion says so: {said})"))
+        words = {"deg": "degrees", "rad": "radians"}
+        notes.append("no quaternion columns: attitude from roll/pitch/yaw, in " + words[unit]
+                     + (f" (the motion says so: {said})" if angle_unit == "auto" else
+                        f" (as given, though the motion says {words[told]}: {said}; check the unit)"
+                        if told is not None and told != unit else " (as given)"))
         pose_block = np.column_stack([pos, eul_flu])
     pose_fresh = fresh_rows(np.nan_to_num(pose_block, nan=1e300))
     n_held_pose = int((~pose_fresh).sum())
