@@ -67,7 +67,14 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert rc == 0
     r = json.loads((tmp_path / "d.json").read_text())
     assert set(r) >= {"baseline", "ranking", "verdict"}
-    assert set(r["baseline"]) == {"nrmse", "channels", "horizon", "horizons"} and "psi" in r["baseline"]["channels"]
+    assert set(r["baseline"]) == {"nrmse", "channels", "horizon", "horizons", "parameters", "thrust_over_weight"}
+    assert "psi" in r["baseline"]["channels"]
+    # the baseline's own values (a blind audit needed a separate fit for them) and the hover
+    # check: the rotors carry the weight, the baseline without the yaw torque and the final model
+    kt = r["baseline"]["parameters"]["K_T"]
+    assert kt["value"] == pytest.approx(2.395e-5, rel=0.05) and kt["std"] > 0 and "b" not in r["baseline"]["parameters"]
+    assert r["baseline"]["thrust_over_weight"] == pytest.approx(1.0, abs=0.03)
+    assert r["final"]["thrust_over_weight"] == pytest.approx(1.0, abs=0.03)
     assert r["baseline"]["horizon"] == 0.5              # the validation that confirms: 0.5 s ahead
     assert set(r["baseline"]["horizons"]) == {"horizons", "model", "naive"}
     assert set(r["horizons_predictor"]["baseline"]) == {"init_window", "measured_start", "held_moment"}

@@ -89,6 +89,12 @@ def _num(v):
     return v if math.isfinite(v) else None
 
 
+def _parameters_of(res: FitResult) -> dict:
+    """``{name: {"value", "std"}}`` of a fit's free parameters (the fit JSON's form)."""
+    std = res.std if res.std is not None else [None] * len(res.free_names)
+    return {n: {"value": _num(res.value(n)), "std": _num(std[i])} for i, n in enumerate(res.free_names)}
+
+
 def _clean(obj):
     """A JSON-ready copy: floats finite or None, containers recursively."""
     if isinstance(obj, dict):
@@ -285,6 +291,9 @@ class Diagnosis:
     # the final fit's lags and delays (s) whose std counts the measurement noise only, with how
     # far the log's unsettled timing can move them (half a row; the warning's words)
     timing_bound: dict[str, float] = field(default_factory=dict)
+    # the mean vertical rotor thrust over the weight on the estimation flights
+    # (fitting.thrust_ratio), of the baseline and of the final model; None without rotor speeds
+    thrust_over_weight: dict[str, float | None] = field(default_factory=dict)
 
     def motion_verdicts(self) -> dict[str, str]:
         """Per unexplained attitude or rate channel whose residual the gyro-attitude comparison
@@ -326,7 +335,9 @@ class Diagnosis:
         out = {"baseline": {"nrmse": self.baseline_prediction.total,
                             "channels": dict(self.baseline_prediction.nrmse),
                             "horizon": self.baseline_prediction.horizon,
-                            "horizons": reported_horizons(base_open, self.baseline_closed_loop).as_dict()},
+                            "horizons": reported_horizons(base_open, self.baseline_closed_loop).as_dict(),
+                            "parameters": _parameters_of(self.baseline),
+                            "thrust_over_weight": _num(self.thrust_over_weight.get("baseline"))},
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
                "null_reason": self.null_reason,
@@ -364,7 +375,8 @@ class Diagnosis:
             final_open = self.final_horizons or self.final_prediction.horizon_errors()
             out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
                             "channels": dict(self.final_prediction.nrmse),
-                            "horizons": reported_horizons(final_open, self.closed_loop).as_dict()}
+                            "horizons": reported_horizons(final_open, self.closed_loop).as_dict(),
+                            "thrust_over_weight": _num(self.thrust_over_weight.get("final"))}
         # contract §5: at the top level the final model's (the baseline's when nothing was added);
         # flown by its controller's law where that predicts the estimation flights better
         # (controller_law.reported_horizons), the open loop's beside it
@@ -554,6 +566,12 @@ class Diagnosis:
         lines.append("   final model: " + ", ".join(
             f"{n} = {fm.value(n):.4g}" + (f" ± {s:.2g}" if np.isfinite(s) else "")
             for n, s in zip(fm.free_names, fm.std)))
+        tw = self.thrust_over_weight
+        if tw.get("final") is not None:
+            # the hover check a user does first (the importer's K_T guess makes it near circular)
+            lines.append(f"   mean rotor thrust / weight on the estimation flights: {tw['final']:.3f}"
+                         + (f" (baseline {tw['baseline']:.3f})" if tw.get("baseline") is not None
+                            and self.fitted_model is not self.baseline else ""))
         moved = {n: v for n, v in self.input_noise_corrected.items()
                  if n in ("K_T", "b") or (v[4] > 0 and abs(v[3] - v[0]) > 2 * v[4])}
         if moved:

@@ -316,7 +316,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      input_timing=timing, closed_loop_fit=yaw.fit, attitude_motion=motion,
                      command_predictability=predictability, rates_from_input_noise=by_inputs,
                      input_noise_corrected=corrected, final_spread=spread, final_validation_spread=val_spread,
-                     timing_bound=timing_bound, rotor_order=order, layout_rotation=turned)
+                     timing_bound=timing_bound, rotor_order=order, layout_rotation=turned,
+                     thrust_over_weight={"baseline": thrust_ratio(res.model, est, res.p),
+                                         "final": thrust_ratio(cur_res.model, est, cur_res.p)})
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile, est=est)
