@@ -278,6 +278,12 @@ def _names(text: str | None) -> list[str] | None:
 def _finish_import(args: argparse.Namespace, imp, toml: str | None) -> int:
     """What every importer does with its result: notes on stderr, the log and (if asked)
     the airframe written, one summary line."""
+    if toml is not None:
+        # the airframe it writes is checked as every command will read it, before anything is
+        # written (a blind audit's --mass 31 wrote a 31-kg Crazyflie that every later command refused)
+        import tomllib
+        from .airframe import airframe_from_dict
+        airframe_from_dict(tomllib.loads(toml), f"{args.airframe_out} (from --mass {args.mass:g})")
     for note in imp.notes:
         print(f"note: {note}", file=sys.stderr)
     save_log(imp.log, args.out, digits=15)

@@ -182,6 +182,13 @@ def test_cli_import_writes_log_and_airframe_or_nothing(tmp_path, capsys):
     assert main(["import", "nanobench", str(out), "--out", str(bad)]) == 2
     assert not bad.exists()
     assert "missing required column 'px'" in capsys.readouterr().err
+    # a mass in grams (a blind audit's --mass 31): refused at import, nothing written
+    out2, af2 = tmp_path / "log2.csv", tmp_path / "cf2.toml"
+    assert main(["import", "nanobench", str(BUNDLED), "--out", str(out2), "--airframe-out", str(af2),
+                 "--mass", "31"]) == 2
+    assert not out2.exists() and not af2.exists()
+    err = capsys.readouterr().err
+    assert "from --mass 31" in err and "mass in grams" in err and "Traceback" not in err
 
 
 def test_real_fit_hover_thrust_carries_the_weight():
