@@ -89,10 +89,11 @@ def _num(v):
     return v if math.isfinite(v) else None
 
 
-def _parameters_of(res: FitResult) -> dict:
-    """``{name: {"value", "std"}}`` of a fit's free parameters (the fit JSON's form)."""
-    std = res.std if res.std is not None else [None] * len(res.free_names)
-    return {n: {"value": _num(res.value(n)), "std": _num(std[i])} for i, n in enumerate(res.free_names)}
+def _parameter_table(fm, free_only: bool = False) -> dict[str, dict[str, float | None]]:
+    """A fitted model's parameters, JSON-ready: ``{name: {"value": v, "std": s}}`` (std None
+    when held fixed or not determined); ``free_only``: the fitted ones alone."""
+    return {n: {"value": _num(v["value"]), "std": None if v["std"] is None else _num(v["std"])}
+            for n, v in fm.parameters.items() if not free_only or n in fm.free_names}
 
 
 def _clean(obj):
@@ -326,8 +327,7 @@ class Diagnosis:
     def parameter_table(self) -> dict[str, dict[str, float | None]]:
         """The final model's parameters: ``{name: {"value": v, "std": s}}`` (std None when
         held fixed or not determined)."""
-        return {n: {"value": _num(v["value"]), "std": None if v["std"] is None else _num(v["std"])}
-                for n, v in self.fitted_model.parameters.items()}
+        return _parameter_table(self.fitted_model)
 
     def as_json(self) -> dict:
         """The diagnose JSON (README, "Command line"), plus findings, warnings and the added effects."""
@@ -336,7 +336,7 @@ class Diagnosis:
                             "channels": dict(self.baseline_prediction.nrmse),
                             "horizon": self.baseline_prediction.horizon,
                             "horizons": reported_horizons(base_open, self.baseline_closed_loop).as_dict(),
-                            "parameters": _parameters_of(self.baseline),
+                            "parameters": _parameter_table(self.baseline, free_only=True),
                             "thrust_over_weight": _num(self.thrust_over_weight.get("baseline"))},
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,

@@ -406,18 +406,20 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
     # for motor_lag on a 20 s, 1 kHz flight), a right candidate gets there in a handful, and
     # a likelihood ratio at any point reached is a valid lower bound
     cap = 50 if cold else (SOFT_REFIT_ITER if soft else 200)
+    # what every fit of this refit shares: the baseline's sensor noise, shooting intervals,
+    # process noise and per-flight rule, the weights unless re-estimated, the budget
+    shared = dict(noise=None if reweight else sigma, reweight=reweight, sensor_noise=res.sensor_given,
+                  compile=compile, max_iter=max_iter or cap, interval=res.interval,
+                  process_noise=_process_noise(ext, res), per_flight=res.per_flight_rule)
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # a capped refit is judged by its LR
-        fr = fit(ext, est, free=free, p0=p, noise=None if reweight else sigma, reweight=reweight,
-                 sensor_noise=res.sensor_given,
-                 compile=compile, max_iter=max_iter or cap, initial_states=init, interval=res.interval,
-                 process_noise=_process_noise(ext, res), per_flight=res.per_flight_rule,
-                 solver=GaussNewton(stop=HeldBeyondPlausible(name)))
+        fr = fit(ext, est, free=free, p0=p, initial_states=init, solver=GaussNewton(stop=HeldBeyondPlausible(name)),
+                 **shared)
     if not cold and start is None and (held := _reaction_torque_start(ext, res, name, p)) is not None:
         # the baseline's b near zero: the spin directions' difference in the gains is
         # escaped through it; from a propeller's b, the gains carry it (a blind audit's simulated
         # Crazyflie with one spin direction's rotors 8 % weaker in thrust and torque)
-        fr = _lower_cost(fr, _held_then_free(ext, est, free, held, "b", sigma, res, compile, init, max_iter or cap))
+        fr = _lower_cost(fr, _held_then_free(ext, est, free, held, "b", init, shared))
     if restart and not cold and start is None:
         again = refit(model, res, est, None, name, sigma, compile, cold=True, max_iter=COLD_REFIT_ITER)[1]
         # output error: each re-estimated its weights, so they compare on the likelihood;
@@ -447,15 +449,13 @@ def _reaction_torque_start(ext: QuadrotorModel, res: FitResult, name: str, p: np
 
 
 def _held_then_free(ext: QuadrotorModel, est: Sequence[FlightLog], free: list[str], p: np.ndarray, held: str,
-                    sigma: dict, res: FitResult, compile: str, init, max_iter: int) -> FitResult:
-    """A refit with ``held`` first held at its value in ``p``, then freed: the baseline's
-    weights and process noise, as the warm refit."""
-    kw = dict(noise=sigma, reweight=False, sensor_noise=res.sensor_given, compile=compile, max_iter=max_iter,
-              interval=res.interval, process_noise=_process_noise(ext, res), per_flight=res.per_flight_rule)
+                    init, shared: dict) -> FitResult:
+    """A refit with ``held`` first held at its value in ``p``, then freed, with the warm
+    refit's settings ``shared`` (the baseline's weights and process noise)."""
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)
-        first = fit(ext, est, free=[n for n in free if n != held], p0=p, initial_states=init, **kw)
-        return fit(ext, est, free=free, p0=first.p, initial_states=first.node_states, **kw)
+        first = fit(ext, est, free=[n for n in free if n != held], p0=p, initial_states=init, **shared)
+        return fit(ext, est, free=free, p0=first.p, initial_states=first.node_states, **shared)
 
 
 def _lower_cost(a: FitResult, b: FitResult) -> FitResult:
