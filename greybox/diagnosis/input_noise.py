@@ -9,7 +9,7 @@ the same simulator without the noise ``null``).
 The check is SIMEX (simulation-extrapolation; Cook and Stefanski, JASA 1994): refit the
 candidate with noise added to the logged speeds so that their noise variance is twice and three
 times the log's (the level estimated from their high-frequency content,
-:func:`~greybox.shooting.estimate_noise`), :data:`DRAWS` refits averaged per level, and
+:func:`~greybox.fitting.input_errors.input_noise_sd`), :data:`DRAWS` refits averaged per level, and
 extrapolate each parameter in the noise variance back to noise-free speeds through the three
 points: with the rational extrapolant ``a + b / (c + lambda)`` (Carroll et al., *Measurement
 Error in Nonlinear Models*: it is exact for the attenuation ``lambda / (1 + k lambda)`` a
@@ -39,9 +39,8 @@ from scipy import stats
 from ..data import FlightLog
 from ..errors import ConvergenceWarning, GreyboxError
 from ..fitting import FitResult, fit
-from ..fitting.input_errors import INPUT_NOISE_SHARE, state_steps
+from ..fitting.input_errors import INPUT_NOISE_SHARE, input_noise_sd, state_steps
 from ..model import QuadrotorModel
-from ..shooting import estimate_noise
 
 __all__ = ["InputNoise", "input_noise", "SimexCheck", "simex", "simex_check", "extrapolate", "away_from_null",
            "rates_moved_by_input_noise", "RATE_STEP_NOTABLE", "NOISE_SHARE_NOTABLE",
@@ -70,8 +69,8 @@ class InputNoise:
 
 
 def input_noise(model: QuadrotorModel, logs: Sequence[FlightLog]) -> InputNoise | None:
-    """The logged rotor speeds' white-noise level (robust second differences, pooled over the
-    flights by variance), or None when the inputs are not rotor speeds."""
+    """The logged rotor speeds' white-noise level (robust second differences of their fresh
+    samples, pooled over the flights by variance), or None when the inputs are not rotor speeds."""
     if model.inputs != "rotor_speeds":
         return None
     n = model.airframe.n_rotors
@@ -79,7 +78,7 @@ def input_noise(model: QuadrotorModel, logs: Sequence[FlightLog]) -> InputNoise 
     var_total = np.zeros(n)
     for log in logs:
         w = log.inputs[:, :n]
-        var_noise += np.array([estimate_noise(w[:, i]) ** 2 for i in range(n)]) * len(log)
+        var_noise += np.array([input_noise_sd(log, w[:, i]) ** 2 for i in range(n)]) * len(log)
         var_total += np.nanvar(w, axis=0) * len(log)
     if not np.all(np.isfinite(var_noise)) or np.any(var_total <= 0):
         return None

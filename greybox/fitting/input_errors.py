@@ -23,7 +23,7 @@ from ..data import FlightLog
 from ..model import QuadrotorModel
 from ..shooting import estimate_noise
 
-__all__ = ["INPUT_NOISE_SHARE", "mixer_directions", "wiener_smooth_along", "input_column_noise", "input_jacobian", "followed_share", "state_steps",
+__all__ = ["INPUT_NOISE_SHARE", "input_noise_sd", "mixer_directions", "wiener_smooth_along", "input_column_noise", "input_jacobian", "followed_share", "state_steps",
            "unfollowed_input_noise", "input_noise_process_scale", "InputDenoising", "denoise_inputs",
            "wiener_smooth"]
 
@@ -34,11 +34,18 @@ which no parameter's error of interest is (the real NanoBench flights' PWM-deriv
 0.01-0.6 %; a hexacopter's 1 % ESC telemetry noise: 7-12 %)."""
 
 
+def input_noise_sd(log: FlightLog, column: np.ndarray) -> float:
+    """The white-noise standard deviation of one of ``log``'s input columns, from robust second
+    differences of its fresh samples (:meth:`~greybox.data.FlightLog.fresh_input_rows`: a held
+    or interpolated row has no noise of its own)."""
+    return estimate_noise(np.asarray(column, dtype=float)[log.fresh_input_rows()])
+
+
 def input_column_noise(model: QuadrotorModel, log: FlightLog) -> tuple[np.ndarray, float]:
     """Per steady input (:attr:`QuadrotorModel.steady_input_names`) of the prepared ``log``, its
-    white-noise standard deviation (robust second differences,
-    :func:`~greybox.shooting.estimate_noise`; 0 where it cannot be told), and the largest share
-    of an input's variance that this noise makes up."""
+    white-noise standard deviation (robust second differences of its fresh samples,
+    :func:`input_noise_sd`; 0 where it cannot be told), and the largest share of an input's
+    variance that this noise makes up."""
     names = model.steady_input_names
     sigma = np.zeros(len(names))
     share = 0.0
@@ -47,7 +54,7 @@ def input_column_noise(model: QuadrotorModel, log: FlightLog) -> tuple[np.ndarra
             continue
         col = log.inputs[:, log.input_names.index(name)]
         var = float(np.nanvar(col)) if np.any(np.isfinite(col)) else 0.0
-        s = estimate_noise(col) if var > 0 else float("nan")
+        s = input_noise_sd(log, col) if var > 0 else float("nan")
         if np.isfinite(s) and var > 0:
             sigma[j] = s
             share = max(share, s * s / var)
@@ -296,6 +303,6 @@ def denoise_inputs(model: QuadrotorModel, log: FlightLog, p: np.ndarray | None =
         for j, s in zip(cols, noise.values()):
             inputs[:, j] = wiener_smooth(inputs[:, j], s)
     for name, j in zip(noise, cols):
-        left[name] = float(estimate_noise(inputs[:, j]))
+        left[name] = float(input_noise_sd(log, inputs[:, j]))
     done = InputDenoising(log.source, noise, share, followed, left)
     return replace(log, inputs=inputs, notes=list(log.notes) + [done.note()]), done
