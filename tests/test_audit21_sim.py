@@ -85,3 +85,5 @@ def test_commands_sampled_slower_than_the_controller_are_not_a_moment_gain(tmp_p
                  "--horizon", "0.5", "--quiet", "--json", str(out)]) == 0
     d = json.loads(out.read_text())
     assert d["verdict"] != "moment_gain" and "moment_gain" not in d["model"]["effects"], (d["verdict"], d["model"])
+    # what it adds (a disturbance torque too, once) must not predict worse than the model as given
+    assert d["final"]["nrmse"] <= d["baseline"]["nrmse"] * 1.01, (d["final"], d["baseline"]["nrmse"])
