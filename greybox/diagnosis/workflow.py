@@ -527,25 +527,22 @@ def _judged_with_a_disturbance(model: QuadrotorModel, res: FitResult, pred, noth
             # a verdict whose refit could not be certified was not adopted: the final fit lacks it
             adopted = all(v in dist_final.model.effects for v in found)
             still_off = (_far_off(dist_final) if adopted else ["its refit not certified"]) if found else []
-            if found and still_off:
-                # with the torque taken out, what is missing should leave nothing else: a verdict
-                # that leaves the model far off may stand in for part of it (on a real Crazyflie
-                # slice the disturbance-only fit was 104x the noise in x: the thrust's noise too)
+            them = "it" if len(found) == 1 else "them"
+            # with the torque taken out, what is missing should leave nothing else: a verdict
+            # that leaves the model far off may stand in for part of it (on a real Crazyflie
+            # slice the disturbance-only fit was 104x the noise in x: the thrust's noise too);
+            # and judged against a disturbance model that predicts worse than the model as given,
+            # a candidate's confirmation on validation is against that poorer prediction (a
+            # blind audit's Crazyflie, commands sampled at 83 Hz: hub drag "confirmed" at
+            # 0.332 -> 0.320, the final model 0.268 against the model as given's 0.212)
+            why_not = (f"the model is still far off with {them} ({', '.join(still_off)})" if still_off else
+                       f"the model with {them} and the disturbance predicts the validation data worse than the "
+                       f"model as given (nrmse {pred.total:.3f} -> {dist_final_pred.total:.3f})"
+                       if found and dist_final_pred.total > pred.total else "")
+            if found and why_not:
                 words.append(
                     f"{', '.join(rates)} stay far off with every candidate; with that torque as a disturbance "
-                    f"{', '.join(found)} stand{'s' if len(found) == 1 else ''}, but the model is still far off with "
-                    f"{'it' if len(found) == 1 else 'them'} ({', '.join(still_off)}), so greybox cannot tell")
-            elif found and dist_final_pred.total > pred.total:
-                # judged against a disturbance model that predicts worse than the model as given,
-                # a candidate's confirmation on validation is against that poorer prediction (a
-                # blind audit's Crazyflie, commands sampled at 83 Hz: hub drag "confirmed" at
-                # 0.332 -> 0.320, the final model 0.268 against the model as given's 0.212)
-                words.append(
-                    f"{', '.join(rates)} stay far off with every candidate; with that torque as a disturbance "
-                    f"{', '.join(found)} stand{'s' if len(found) == 1 else ''}, but the model with "
-                    f"{'it' if len(found) == 1 else 'them'} and the disturbance predicts the validation data worse "
-                    f"than the model as given (nrmse {pred.total:.3f} -> {dist_final_pred.total:.3f}), so greybox "
-                    "cannot tell")
+                    f"{', '.join(found)} stand{'s' if len(found) == 1 else ''}, but {why_not}, so greybox cannot tell")
             elif found:
                 words.append(
                     f"{', '.join(rates)} stay far off with every candidate alone: a torque no catalogue effect holds "
