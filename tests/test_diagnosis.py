@@ -284,6 +284,33 @@ def test_explained_fraction_is_the_share_of_the_residual_above_the_noise_removed
     assert explained_fraction(res({"x": 1.0}), res({"x": 1.0})) is None     # nothing to explain
 
 
+def test_a_gain_on_one_channel_bought_with_a_larger_loss_on_another_is_a_trade():
+    """Audit 21's weak pair, round 4: hub_rotor_drag cut theta's nrmse 0.220 -> 0.187 (-15 %)
+    while z rose 0.0195 -> 0.0439 (x 2.25), x 0.0122 -> 0.0199, y 0.016 -> 0.0215; the total,
+    a mean over channels where the positions weigh little, fell 0.5 %. A 20 % loss beside a
+    20 % gain is no trade (1.2 < 1 / 0.8), a 30 % one is."""
+    from greybox.diagnosis.ranking import traded_channels, validation_falls
+    from types import SimpleNamespace
+
+    def pred(**nrmse):
+        return SimpleNamespace(nrmse=nrmse, total=float(np.mean(list(nrmse.values()))))
+
+    before = pred(x=0.0122, y=0.016, z=0.0195, phi=0.3142, theta=0.220, psi=0.0263, p=0.6523, q=0.4485,
+                  r=0.2155, ax=0.1548, ay=0.2357, az=0.1024)
+    after = pred(x=0.0199, y=0.0215, z=0.0439, phi=0.3252, theta=0.1874, psi=0.0238, p=0.664, q=0.4067,
+                 r=0.2217, ax=0.1541, ay=0.2381, az=0.1052)
+    falls, best, gain = validation_falls(before, after)
+    assert best == "theta" and 0 < gain < 0.05
+    traded = traded_channels(falls, best)
+    assert set(traded) == {"x", "y", "z"} and traded["z"] == pytest.approx(0.0439 / 0.0195 - 1)
+    falls, best, _ = validation_falls(pred(a=1.0, b=1.0), pred(a=0.8, b=1.2))
+    assert traded_channels(falls, best) == {}
+    falls, best, _ = validation_falls(pred(a=1.0, b=1.0), pred(a=0.8, b=1.3))
+    assert traded_channels(falls, best) == {"b": pytest.approx(0.3)}
+    falls, best, _ = validation_falls(pred(a=1.0, b=1.0), pred(a=1.1, b=1.3))
+    assert traded_channels(falls, best) == {}           # nothing better: no trade to speak of
+
+
 def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_data():
     """Two certified, significant candidates that explain the same (wind and an accelerometer
     bias: each names the other in ``distinguish``) and validate within 5 % of each other: the
