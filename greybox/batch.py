@@ -116,6 +116,7 @@ class Options:
     # in a flight's (a flight's own results do not depend on it)
     per_flight: str | tuple[str, ...] | None = "auto"
     noise: tuple[tuple[str, float], ...] = ()      # channel noise given (fit's ``noise``)
+    fixed: tuple[str, ...] = ()                   # parameters held at their starting values
 
     def fingerprint(self) -> dict:
         """The options as they decide a flight's results: file contents, not paths."""
@@ -130,7 +131,8 @@ class Options:
                 # only when given: results of batches before the option stay valid on a rerun
                 **({"angle_unit": self.angle_unit} if self.angle_unit != "auto" else {}),
                 **({"outliers": self.outliers} if self.outliers != "drop" else {}),
-                **({"noise": [[c, v] for c, v in self.noise]} if self.noise else {})}
+                **({"noise": [[c, v] for c, v in self.noise]} if self.noise else {}),
+                **({"fixed": list(self.fixed)} if self.fixed else {})}
 
 
 @dataclass(frozen=True)
@@ -376,7 +378,7 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
         return _process_imu_only(model, log, files)
     diag = diagnose(model, log, candidates=list(opts.candidates) if opts.candidates is not None else None,
                     iterate=opts.iterate, p0=p0, process_noise=opts.process_noise, progress=False,
-                    discover=opts.discover, noise=dict(opts.noise) or None)
+                    discover=opts.discover, noise=dict(opts.noise) or None, fixed=list(opts.fixed) or None)
     base = diag.baseline
     files["fit.json"] = _json_bytes(fit_json(model, base, [diag.baseline_prediction], [flight.path],
                                                   horizons=diag.baseline_horizons, est=[log.split(0.8)[0]],
@@ -475,7 +477,7 @@ def run_fleet(flights: Sequence[Flight], opts: Options, nuisance: Sequence[str] 
         _warnings.simplefilter("ignore", ConvergenceWarning)
         res = fit(model, [est for est, _ in parts], p0=p0, max_iter=200, process_noise=opts.process_noise,
                   per_flight=list(opts.per_flight) if isinstance(opts.per_flight, tuple) else opts.per_flight,
-                  noise=dict(opts.noise) or None)
+                  noise=dict(opts.noise) or None, fixed=list(opts.fixed) or None)
     preds = [predict(model, res.flight_p(i), val, **prediction_options(res)) for i, (_, val) in enumerate(parts)]
     fitj = fit_json(model, res, preds, [f.path for f in flights], est=[est for est, _ in parts])
     return {"fit": fitj, "model": res.to_dict(),
@@ -884,7 +886,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
           model: str | Path | None = None, import_format: str = "csv", pwm_map: str | None = None,
           held: str = "interpolate", angle_unit: str = "auto", effects: str | Sequence[str] | None = None,
           without: str | Sequence[str] | None = None, sets: Mapping[str, Any] | Sequence[str] | None = None,
-          effects_files: Sequence[str | Path] = (), candidates: Sequence[str] | None = None, iterate: bool = True,
+          fixed: str | Sequence[str] | None = None, effects_files: Sequence[str | Path] = (), candidates: Sequence[str] | None = None, iterate: bool = True,
           discover: bool = True, process_noise: str | None = IF_NEEDED, input_noise: str = "smooth",
           outliers: str = "drop", noise: Mapping[str, float] | None = None, workers: int = 2, scheduler: str | None = None, joint: bool = False,
           per_flight: str | Sequence[str] | None = "auto", retries: int = 1, progress: bool = True) -> BatchResult:
@@ -899,7 +901,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
             ``"crazyflie-usd"`` (read through the importer, with ``pwm_map`` and ``held``).
         angle_unit: for ``"nanobench"`` flights without the quaternion, the roll/pitch/yaw
             columns' unit: ``"auto"`` (read from each flight's motion), ``"rad"`` or ``"deg"``.
-        effects, without, sets, effects_files, candidates, iterate, discover, process_noise,
+        effects, without, sets, fixed, effects_files, candidates, iterate, discover, process_noise,
             input_noise, outliers, noise: as for ``greybox fit``/``diagnose``.
         workers: processes of the local cluster (one thread each); ignored with ``scheduler``
             (the address of a running Dask scheduler, e.g. ``tcp://127.0.0.1:8786``).
@@ -954,6 +956,8 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
     opts = Options(airframe=os.path.abspath(airframe) if airframe is not None else None,
                    model=os.path.abspath(model) if model is not None else None,
                    effects=join(effects) or None, without=join(without) or None, sets=_normalise_sets(sets),
+                   fixed=tuple(n.strip() for n in (fixed.split(",") if isinstance(fixed, str) else fixed or ())
+                               if n.strip()),
                    effects_files=tuple(os.path.abspath(p) for p in effects_files),
                    candidates=tuple(candidates) if candidates is not None else None, iterate=bool(iterate),
                    discover=bool(discover),
@@ -976,6 +980,10 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
             if n not in fx.known_effects() and n not in the_model.param_names and \
                     n not in {par.name for par in the_model.parameters}:
                 raise GreyboxInputError(f"--per-flight: {n!r} is neither an effect nor a parameter of the model")
+    for n in opts.fixed:
+        if n not in the_model.param_names and n not in {par.name for par in the_model.parameters}:
+            raise GreyboxInputError(f"--fixed: {n!r} is not a parameter of the model "
+                                    f"({', '.join(par.name for par in the_model.parameters)})")
     for c in opts.candidates or ():
         fx.by_name(c)
         if c in the_model.effects:

@@ -618,7 +618,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                     p0=p0, progress=not args.quiet,
                     process_noise=_process_noise(args), validation=validation,
                     discover=not args.no_discover or bool(args.write_effect), per_flight=per_flight,
-                    horizon=args.horizon, noise=_channel_noise(args.noise))
+                    horizon=args.horizon, noise=_channel_noise(args.noise), fixed=_names(args.fixed))
     print(diag.summary())
     outputs: list[tuple[Path, str | bytes]] = []
     if args.json:
@@ -651,7 +651,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     res = batch(args.inputs, args.batch_out, airframe=args.airframe, model=args.model,
                 import_format=args.import_format, pwm_map=args.pwm_map, held=args.held,
                 angle_unit=args.angle_unit, effects=args.effects,
-                without=args.without, sets=args.set, effects_files=args.effects_file or (),
+                without=args.without, sets=args.set, fixed=args.fixed, effects_files=args.effects_file or (),
                 candidates=_names(args.candidates), iterate=not args.no_iterate, discover=not args.no_discover,
                 process_noise=_process_noise(args), input_noise=args.input_noise, outliers=args.outliers,
                 noise=_channel_noise(args.noise),
@@ -676,6 +676,7 @@ def _batch_parser(sub) -> None:
                    help="flight log files, folders (their *.csv; *.ulg for px4) or glob patterns")
     _model_args(b, "starting value (repeatable)")
     b.add_argument("--out", dest="batch_out", required=True, metavar="DIR", help="folder for the results")
+    b.add_argument("--fixed", help="comma list of parameters to hold at their starting values (as for diagnose)")
     b.add_argument("--workers", type=_positive_int, help="local worker processes, one thread each (default 2)")
     b.add_argument("--scheduler", metavar="ADDRESS",
                    help="a running Dask scheduler (e.g. tcp://127.0.0.1:8786) instead of a local cluster")
@@ -853,6 +854,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("log", nargs="+", help="flight log CSV; several flights share the parameters, each has "
                                           "its own states")
     _model_args(g, "starting value (repeatable)")
+    g.add_argument("--fixed", help="comma list of parameters to hold at their starting values in every fit "
+                                   "(e.g. b measured on a bench: --set b=... --fixed b)")
     g.add_argument("--candidates", help="comma list of candidate effects (default: every effect not in the model)")
     g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
     _data_args(g, "with several logs, what each flight gets its own value of (as for fit; default auto: "

@@ -135,6 +135,18 @@ def test_folder_with_a_corrupt_file_then_a_rerun_skips_and_retries(flights, tmp_
     fleet = json.loads((out / "fleet.json").read_text())
     assert "good1" in fleet["flights"] and "good1_copy" not in fleet["flights"]
 
+    # b held at a bench value (5 % above the truth) in every flight's fits and in the joint fit
+    b_held = 1.05 * greybox.load_airframe(PAPER).parameters["b"]
+    rc = main(["batch", str(flights / "good1.csv"), str(flights / "good2.csv"), "--airframe", PAPER, "--out",
+               str(tmp_path / "held"), "--workers", "2", "--quiet", "--joint", "--set", f"b={b_held!r}",
+               "--fixed", "b"] + QUICK)
+    assert rc == 0
+    for name in ("good1", "good2"):
+        b = json.loads((tmp_path / "held" / name / "fit.json").read_text())["parameters"]["b"]
+        assert b["value"] == pytest.approx(b_held, rel=1e-12) and b.get("fixed") is True, b
+        assert greybox.load(tmp_path / "held" / name / "model.json").value("b") == pytest.approx(b_held, rel=1e-12)
+    assert greybox.load(tmp_path / "held" / "fleet_model.json").value("b") == pytest.approx(b_held, rel=1e-12)
+
 
 def test_a_worker_that_dies_costs_only_its_own_flight(flights, tmp_path, monkeypatch):
     """The hook ends the worker process (os._exit) on good1 every time (failed after one
@@ -199,6 +211,7 @@ def test_a_scheduler_that_cannot_be_reached_leaves_no_folder(flights, tmp_path, 
     (["--process-noise", "yes"], "invalid choice"),
     (["--noise", "roll=0.01"], "expected CHANNEL=SD"),
     (["--noise", "phi=0"], "positive number"),
+    (["--fixed", "b,k_typo"], "--fixed: 'k_typo' is not a parameter of the model"),
 ])
 def test_bad_options_exit_2_with_one_line(flights, tmp_path, capsys, args, message):
     rc = main(["batch", str(flights), "--airframe", PAPER, "--out", str(tmp_path / "out")] + args)
@@ -244,10 +257,11 @@ def test_the_hash_changes_with_input_content_and_options():
     for other in (Options(airframe=PAPER, effects="ground_effect"), Options(airframe=PAPER, iterate=False),
                   Options(airframe=PAPER, discover=False),
                   Options(airframe=PAPER, candidates=("wind",)), Options(airframe=PAPER, process_noise="auto"),
-                  Options(airframe=PAPER, sets=(("K_T", (3e-5,)),)), Options(airframe=PAPER, noise=(("phi", 0.01),))):
+                  Options(airframe=PAPER, sets=(("K_T", (3e-5,)),)), Options(airframe=PAPER, noise=(("phi", 0.01),)),
+                  Options(airframe=PAPER, fixed=("b",))):
         assert _flight_key("abc", other.fingerprint()) != _flight_key("abc", fp)
     # options added later enter the hash only when given: earlier batches' results stay valid
-    assert "noise" not in fp and "angle_unit" not in fp
+    assert "noise" not in fp and "angle_unit" not in fp and "fixed" not in fp
     with pytest.raises(greybox.GreyboxInputError, match="not a log channel"):
         batch([], "unused", airframe=PAPER, noise={"roll": 0.01})
 

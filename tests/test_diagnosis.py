@@ -133,6 +133,35 @@ def test_diagnose_cli_separate_validation_flight(paper, normal_flight, tmp_path,
     assert d.baseline.n_residuals > 0 and len(d.log) == len(normal_flight.log)
 
 
+def test_a_parameter_held_by_the_user_stays_held_in_the_baseline_and_every_refit(paper, normal_flight, tmp_path,
+                                                                                  paper_airframe_path):
+    """diagnose --set b=... --fixed b (b measured on a bench): the baseline, each candidate's
+    warm refit, a cold one from the airframe's guesses and the final model keep it exactly
+    (fitted, b moves by its std, 1e-4 of it here)."""
+    from greybox.diagnosis.screening import refit
+    b_true = paper.parameter_dict(paper.default_parameters())["b"]
+    save_log(normal_flight.log, tmp_path / "f.csv")
+    rc = main(["diagnose", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--without",
+               "linear_drag", "--set", f"b={b_true!r}", "--fixed", "b", "--candidates", "linear_drag,wind",
+               "--no-iterate", "--no-discover", "--quiet", "--json", str(tmp_path / "d.json")])
+    assert rc == 0
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["verdict"] == "linear_drag"
+    b = d["model"]["parameters"]["b"]
+    assert b["value"] == pytest.approx(b_true, rel=1e-12) and b["std"] is None, b
+    model = paper.without("linear_drag")
+    d = diagnose(model, normal_flight.log, candidates=["linear_drag"], fixed=["b"], iterate=False, discover=False)
+    assert "b" not in d.baseline.free_names and "K_T" in d.baseline.free_names
+    assert d.verdict == "linear_drag" and d.ranking[0].fit.value("b") == pytest.approx(b_true, rel=1e-12)
+    free = diagnose(model, normal_flight.log, candidates=["linear_drag"], iterate=False, discover=False)
+    assert abs(free.ranking[0].fit.value("b") / b_true - 1) > 1e-9       # it would move, fitted
+    _, cold, _ = refit(model, d.baseline, [normal_flight.log], None, "linear_drag", d.baseline.sigma, "auto",
+                       cold=True, max_iter=3)
+    assert cold.value("b") == pytest.approx(b_true, rel=1e-12) and "b" not in cold.free_names
+    assert main(["diagnose", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--fixed", "b_typo",
+                 "--quiet"]) == 2
+
+
 def test_diagnose_cli_bad_validation_file(tmp_path, normal_flight, paper_airframe_path, capsys):
     save_log(normal_flight.log, tmp_path / "f.csv")
     (tmp_path / "v.csv").write_text("t,w1,w2\n0,1,2\n")

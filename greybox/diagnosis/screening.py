@@ -396,7 +396,10 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
         p, init = start.p, start.node_states
         sigma = start.sigma          # the weights it reached
     elif cold:
-        p, init = _guesses(ext, name), None
+        # from the airframe's guesses, except what the baseline held (a b measured on a bench)
+        guess, held = _guesses(ext, name), [i for i, n in enumerate(ext.param_names) if n not in free]
+        guess[held] = p[held]
+        p, init = guess, None
         reweight = not soft
     else:
         init = _extend_nodes(ext, res, est, p)

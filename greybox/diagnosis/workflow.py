@@ -50,7 +50,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
              process_noise: str | dict[str, float] | None = IF_NEEDED,
              validation: FlightLog | Sequence[FlightLog] | None = None, discover: bool = True,
              per_flight: str | Sequence[str] | None = "auto", horizon: float = DEFAULT_HORIZON,
-             noise: Mapping[str, float] | None = None) -> Diagnosis:
+             noise: Mapping[str, float] | None = None, fixed: Sequence[str] | None = None) -> Diagnosis:
     """Compare ``model`` with ``log``, find where it fails and which catalogue effect is
     missing; with ``iterate`` add significant effects until none is left (see module doc).
 
@@ -78,6 +78,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         noise: channel noise standard deviations the baseline fit takes instead of estimating
             them (``{"phi": 0.01, ...}``; every refit keeps the baseline's): an attitude from an
             onboard filter errs by more than its high-frequency content shows.
+        fixed: parameter (or component) names held at their values in ``p0`` (default: the
+            airframe's) in the baseline and in every refit, e.g. ``["b"]`` measured on a bench.
 
     ``log`` may be several flights of one vehicle: they share the parameters, each has its
     own states (the baseline, the screening, every refit); each is split into estimation and
@@ -99,7 +101,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         model, log, candidates, validation, split, say)
     say(f"diagnose: fitting the model ({', '.join(model.effect_names)}) to {sum(len(e) for e in est)} samples"
         + (f" of {len(est)} flights" if len(est) > 1 else ""))
-    res = _baseline_fit(model, est, given_val, p0, compile, process_noise, per_flight, noise, say)
+    res = _baseline_fit(model, est, given_val, p0, compile, process_noise, per_flight, noise, fixed, say)
     pred = predict_after_fit(res, est, val, compile=compile, horizon=horizon)
     say(f"diagnose: validation nrmse {pred.total:.3f} ({_validation_source(validation, split, 1, horizon)})")
     timing = timing_refit = timing_unconfirmed = None
@@ -416,9 +418,10 @@ def _tests_hold(res: FitResult) -> bool:
 
 
 def _baseline_fit(model: QuadrotorModel, est: Sequence[FlightLog], given_val: Sequence[FlightLog], p0,
-                  compile: str, process_noise, per_flight, noise, say: Callable[[str], None]) -> FitResult:
+                  compile: str, process_noise, per_flight, noise, fixed: Sequence[str] | None,
+                  say: Callable[[str], None]) -> FitResult:
     """The baseline: the model as given fitted to the estimation flights (solved on once when
-    not certified); a validation flight its thrust cannot carry is refused."""
+    not certified), ``fixed`` held; a validation flight its thrust cannot carry is refused."""
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # judged below, in words
         # by default output error, and soft continuity when it cannot follow the data (fit's
@@ -426,11 +429,11 @@ def _baseline_fit(model: QuadrotorModel, est: Sequence[FlightLog], given_val: Se
         # little noise, leave an open-loop unstable body's output-error fit far from the data,
         # and test statistics there would credit any extra parameter with the distance
         res = fit(model, est, p0=p0, compile=compile, max_iter=200, process_noise=process_noise,
-                  per_flight=per_flight, noise=noise)
+                  per_flight=per_flight, noise=noise, fixed=fixed)
         if not _tests_hold(res):
             # one more go from where it stopped, in its formulation, with the weights it reached
             say(f"diagnose: the baseline fit is not certified ({res.status}); solving on")
-            res = fit(model, est, p0=res.p, compile=compile, max_iter=200, **res.settings())
+            res = fit(model, est, p0=res.p, compile=compile, max_iter=200, free=res.free_names, **res.settings())
     if res.converged and "K_T" in res.free_names:
         for v in given_val:
             # a flight of another vehicle (a blind audit's Crazyflie log beside a 2.5 kg

@@ -52,7 +52,7 @@ class YawTorque(Effect):
                "manoeuvres it pulls b to zero, whatever its std), or b stands in for it")
         return [f"b/K_T = {ratio:.2g} m is outside what propellers give ({lo:g}-{hi:g} m): b is not identified "
                 f"from this flight as a rotor's reaction torque; {why}; fly yaw steps, or hold b at a measured "
-                "value (greybox fit --set b=... --fixed b; diagnose takes --set as a start only)"]
+                "value (--set b=... --fixed b, for fit and diagnose)"]
 
     def add_forces(self, ctx):
         b = ctx.params["b"]
