@@ -275,6 +275,18 @@ def _names(text: str | None) -> list[str] | None:
     return [s.strip() for s in text.split(",") if s.strip()] if text else None
 
 
+def _parameter_names(model: QuadrotorModel, text: str | None, option: str) -> list[str] | None:
+    """``--free``/``--fixed``: the names, each a parameter (or component) of ``model``,
+    checked before any work."""
+    names = _names(text)
+    known = set(model.param_names) | {par.name for par in model.parameters}
+    for n in names or ():
+        if n not in known:
+            raise GreyboxInputError(f"{option}: unknown parameter {n!r}; the model's parameters are "
+                                    f"{', '.join(par.name for par in model.parameters)}")
+    return names
+
+
 def _finish_import(args: argparse.Namespace, imp, toml: str | None) -> int:
     """What every importer does with its result: notes on stderr, the log and (if asked)
     the airframe written, one summary line."""
@@ -503,6 +515,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from .controller_law import closed_loop_or_why
     from .validation import check_validation_length, horizon_errors_after, predict, prediction_options
     model, p0, logs = _load_fit_inputs(args)
+    free, fixed = _parameter_names(model, args.free, "--free"), _parameter_names(model, args.fixed, "--fixed")
     if any(is_imu_only(log) for log in logs):
         return _fit_imu_only(args, model, logs)
     parts = [log.split(0.8) for log in logs]
@@ -512,7 +525,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # said below, once, as the error
         # several flights: shared parameters, each flight its own states
-        res = fit(model, [est for est, _ in parts], free=_names(args.free), fixed=_names(args.fixed), p0=p0,
+        res = fit(model, [est for est, _ in parts], free=free, fixed=fixed, p0=p0,
                   interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
                   process_noise=_process_noise(args), per_flight=_per_flight(args.per_flight, model),
                   noise=_channel_noise(args.noise))
@@ -611,6 +624,7 @@ def write_outputs(outputs: Sequence[tuple[Path, str | bytes]]) -> None:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, p0, logs = _load_fit_inputs(args)
+    fixed = _parameter_names(model, args.fixed, "--fixed")
     per_flight = _per_flight(args.per_flight, model)
     validation = [_load_model_log(model, v, p0, args.input_noise, args.outliers) for v in args.validation] \
         if args.validation else None
@@ -618,7 +632,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                     p0=p0, progress=not args.quiet,
                     process_noise=_process_noise(args), validation=validation,
                     discover=not args.no_discover or bool(args.write_effect), per_flight=per_flight,
-                    horizon=args.horizon, noise=_channel_noise(args.noise), fixed=_names(args.fixed))
+                    horizon=args.horizon, noise=_channel_noise(args.noise), fixed=fixed)
     print(diag.summary())
     outputs: list[tuple[Path, str | bytes]] = []
     if args.json:

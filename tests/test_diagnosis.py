@@ -134,7 +134,7 @@ def test_diagnose_cli_separate_validation_flight(paper, normal_flight, tmp_path,
 
 
 def test_a_parameter_held_by_the_user_stays_held_in_the_baseline_and_every_refit(paper, normal_flight, tmp_path,
-                                                                                  paper_airframe_path):
+                                                                                  paper_airframe_path, capsys):
     """diagnose --set b=... --fixed b (b measured on a bench): the baseline, each candidate's
     warm refit, a cold one from the airframe's guesses and the final model keep it exactly
     (fitted, b moves by its std, 1e-4 of it here)."""
@@ -158,8 +158,11 @@ def test_a_parameter_held_by_the_user_stays_held_in_the_baseline_and_every_refit
     _, cold, _ = refit(model, d.baseline, [normal_flight.log], None, "linear_drag", d.baseline.sigma, "auto",
                        cold=True, max_iter=3)
     assert cold.value("b") == pytest.approx(b_true, rel=1e-12) and "b" not in cold.free_names
-    assert main(["diagnose", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--fixed", "b_typo",
+    capsys.readouterr()
+    assert main(["diagnose", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--fixed", "b,b_typo",
                  "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--fixed: unknown parameter 'b_typo'" in err, err
 
 
 def test_diagnose_cli_bad_validation_file(tmp_path, normal_flight, paper_airframe_path, capsys):
