@@ -59,6 +59,19 @@ def test_nothing_missing_gives_a_null_verdict(paper, normal_flight):
     assert "null" in d.summary()
 
 
+def test_a_log_without_a_gyro_is_diagnosed(paper, normal_flight):
+    """p, q, r are optional (contract): a blind audit's diagnosis of a log without them ended,
+    after the whole search, in "has no output column 'p'" (the attitude's predictability from
+    the commands, which needs the gyro)."""
+    from dataclasses import replace
+    log = normal_flight.log
+    keep = [i for i, n in enumerate(log.output_names) if n not in ("p", "q", "r")]
+    pose = replace(log, outputs=log.outputs[:, keep], output_names=[log.output_names[i] for i in keep])
+    d = diagnose(paper, pose, candidates=["ground_effect"], iterate=False, discover=False)
+    assert d.verdict is None and d.command_predictability is None
+    assert "p" not in d.baseline_prediction.nrmse and "phi" in d.baseline_prediction.nrmse
+
+
 def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airframe_path, capsys):
     save_log(normal_flight.log, tmp_path / "f.csv")
     rc = main(["diagnose", str(tmp_path / "f.csv"), "--airframe", str(paper_airframe_path), "--without", "yaw_torque",

@@ -139,6 +139,8 @@ class CommandPredictability:
 
 
 def _rates(log: FlightLog) -> np.ndarray | None:
+    if not all(log.measures(c) for c in ("p", "q", "r")):
+        return None          # no gyro (the contract's p, q, r are optional)
     om = np.column_stack([log.output(c) for c in ("p", "q", "r")])
     ok = np.isfinite(om).all(axis=1)
     if ok.sum() < max(10, 0.5 * len(log)):
