@@ -22,6 +22,7 @@ import numpy as np
 from ..data import FlightLog, check_distinct_flights
 from ..errors import ConvergenceWarning, GreyboxInputError, SolverError
 from ..fitted import FittedModel, provenance
+from ..kinematics import gyro_scale
 from ..model import OUTPUTS, QuadrotorModel
 from ..outliers import find_outliers
 from ..residuals import (AttitudeMotion, attitude_motion, fitted_trajectory, flight_residuals, output_residuals,
@@ -849,6 +850,18 @@ def _filtered_attitude_notes(logs: Sequence[FlightLog], given: Mapping[str, floa
             + " ".join(f"--noise {ch}=SD" for ch in chans) + " takes its place)"]
 
 
+def _gyro_scale_warnings(logs: Sequence[FlightLog]) -> list[str]:
+    """Words on each flight whose gyro reads off the rate at which its attitude turns
+    (:func:`greybox.kinematics.gyro_scale`)."""
+    out = []
+    for lg in logs:
+        scale = gyro_scale(lg)
+        words = scale.words() if scale is not None else ""
+        if words:
+            out.append((f"{lg.source}: " if lg.source and len(logs) > 1 else "") + words)
+    return out
+
+
 def _process_noise_given(model: QuadrotorModel, process_noise, n_flights: int) -> dict:
     """The states' process noise the caller gave (``{state: std}``, empty for ``"auto"``),
     checked before anything is built."""
@@ -1267,6 +1280,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
     warnings += _filtered_attitude_warnings(sensor, resid_rms, {**(noise or {}), **sensor_noise})
     warnings += _filtered_attitude_notes(logs, {**(noise or {}), **sensor_noise})
+    warnings += _gyro_scale_warnings(logs)
     warnings += _outlier_warnings(logs)
     node_states, k = [], 0
     for _, M in data.flights:
