@@ -65,6 +65,31 @@ def test_inputs_without_notable_noise_set_no_floor(noisy_cf):
     assert input_noise_process_scale(model, [clean], [idx], initial_node_states(model, clean, idx, p), p, 25) is None
 
 
+def test_without_a_gyro_even_a_small_noise_on_the_speeds_sets_the_floor(noisy_cf):
+    """The same flight's true speeds with 0.2 % noise (under 1 % of their variance): with the
+    gyro, no floor (the rates' gaps are read against it); without it, the floor that noise
+    gives, by hand as above (a blind audit's true model then fitted at the noise, where the
+    rates' process noise had fallen 20-fold and left y and theta at 1.6 and 1.4 times it)."""
+    model, log, fl = noisy_cf
+    true = np.asarray(fl.states[:, 13:17], dtype=float)
+    noisy = replace(log, inputs=true * (1 + 0.002 * np.random.default_rng(3).standard_normal(true.shape)))
+    sigma, share = input_column_noise(model, noisy)
+    assert share < INPUT_NOISE_SHARE
+    keep = [i for i, n in enumerate(log.output_names) if n not in ("p", "q", "r")]
+    no_gyro = replace(noisy, outputs=noisy.outputs[:, keep], output_names=[noisy.output_names[i] for i in keep])
+    p = model.default_parameters()
+    interval = 25
+    idx = np.arange(0, len(log), interval)
+    X = initial_node_states(model, noisy, idx, p)
+    assert input_noise_process_scale(model, [noisy], [idx], X, p, interval) is None
+    floor = input_noise_process_scale(model, [no_gyro], [idx], X, p, interval)[0]
+    K_T = model.parameter_dict(p)["K_T"]
+    w = noisy.inputs[idx[:-1], :4]
+    dt = float(np.median(np.diff(log.t)))
+    vz_row = np.sqrt(np.mean(np.sum((2 * K_T * w * sigma / model.airframe.mass) ** 2, axis=1))) * dt
+    assert floor[model.state_names.index("vz")] == pytest.approx(vz_row * np.sqrt(interval), rel=0.03)
+
+
 @pytest.mark.slow
 def test_a_soft_fit_on_noisy_speeds_ends_where_the_data_put_it_from_either_start(tmp_path):
     """The audit's hexacopter with a 15, -10 mm CoG offset and 1 % speed noise, fitted with
