@@ -15,6 +15,13 @@ from greybox.airframe import airframe_from_dict, load_airframe  # noqa: E402
 AIRFRAMES = Path(str(resources.files("greybox") / "data" / "airframes"))
 
 
+def without_gyro(log):
+    """``log`` with its p, q, r columns left out (the contract makes them optional)."""
+    from dataclasses import replace
+    keep = [i for i, n in enumerate(log.output_names) if n not in ("p", "q", "r")]
+    return replace(log, outputs=log.outputs[:, keep], output_names=[log.output_names[i] for i in keep])
+
+
 def make_airframe(layout="plus", rotor_inertia=0.0, params=None, **kw):
     a = {"mass": 1.0, "inertia": [0.0082, 0.0082, 0.0149], "arm_length": 0.17, "layout": layout,
          "rotor_inertia": rotor_inertia}

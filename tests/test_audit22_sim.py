@@ -8,6 +8,7 @@ from greybox import QuadrotorModel, fit, load_airframe, load_log
 from greybox.kinematics import gyro_scale
 
 import audit22_sim as sim
+from conftest import without_gyro
 
 pytestmark = pytest.mark.slow
 
@@ -27,13 +28,18 @@ Kd = [0.1, 0.1, 0.1]
 """
 
 
+def _model(tmp_path) -> QuadrotorModel:
+    """The audit's airframe file, as its user wrote it."""
+    (tmp_path / "af.toml").write_text(AIRFRAME)
+    return QuadrotorModel(load_airframe(tmp_path / "af.toml"))
+
+
 def test_a_gyro_reading_3_percent_high_is_said_and_a_true_one_is_not(tmp_path, monkeypatch):
     """The audit's diagnosis said "nothing missing" with b +1.7 % (12 std) on the scaled gyro.
     Read against the attitude: 1.03 within 3 std on every axis (the audit's seeds), its
     control flight within 3 std of 1; the fit says so on the first, not on the second."""
     monkeypatch.setattr(sim, "GYRO_SCALE", 1.03)
-    (tmp_path / "af.toml").write_text(AIRFRAME)
-    model = QuadrotorModel(load_airframe(tmp_path / "af.toml"))
+    model = _model(tmp_path)
     for case, seed, high in (("gyroscale", 301, True), ("control", 101, False)):
         path = str(tmp_path / f"{case}.csv")
         sim.fly(case, "est", seed, 40.0, path)
@@ -53,14 +59,10 @@ def test_the_true_model_fits_a_log_without_its_gyro_at_the_noise(tmp_path):
     their noise ("the model does not explain these channels"), the rates' process noise 20
     times below what the speeds' 0.5 % noise gives. With that noise as the floor: every channel
     within 10 % of its noise, K_T and b within 1 % (9.3e-6, 1.4e-7)."""
-    from dataclasses import replace
-    (tmp_path / "af.toml").write_text(AIRFRAME)
-    model = QuadrotorModel(load_airframe(tmp_path / "af.toml"))
+    model = _model(tmp_path)
     path = str(tmp_path / "control.csv")
     sim.fly("control", "est", 101, 40.0, path)
-    log = load_log(path)
-    keep = [i for i, n in enumerate(log.output_names) if n not in ("p", "q", "r")]
-    pose = replace(log, outputs=log.outputs[:, keep], output_names=[log.output_names[i] for i in keep])
+    pose = without_gyro(load_log(path))
     res = fit(model, pose.split(0.8)[0], process_noise="auto")
     assert res.converged, res.certificate.text()
     assert max(res.certificate.residual_over_noise.values()) < 1.1, res.certificate.residual_over_noise

@@ -11,7 +11,7 @@ from greybox.diagnosis import diagnose
 from greybox.residuals import long_run_factor
 from greybox.synth import SensorSpec, synthesize
 
-from conftest import AIRFRAMES
+from conftest import AIRFRAMES, without_gyro
 
 FAST = SensorSpec(rate=200.0, vision_rate=50.0)
 
@@ -63,10 +63,7 @@ def test_a_log_without_a_gyro_is_diagnosed(paper, normal_flight):
     """p, q, r are optional (contract): a blind audit's diagnosis of a log without them ended,
     after the whole search, in "has no output column 'p'" (the attitude's predictability from
     the commands, which needs the gyro)."""
-    from dataclasses import replace
-    log = normal_flight.log
-    keep = [i for i, n in enumerate(log.output_names) if n not in ("p", "q", "r")]
-    pose = replace(log, outputs=log.outputs[:, keep], output_names=[log.output_names[i] for i in keep])
+    pose = without_gyro(normal_flight.log)
     d = diagnose(paper, pose, candidates=["ground_effect"], iterate=False, discover=False)
     assert d.verdict is None and d.command_predictability is None
     assert "p" not in d.baseline_prediction.nrmse and "phi" in d.baseline_prediction.nrmse

@@ -12,6 +12,7 @@ from greybox.fitting import fit, initial_node_states
 from greybox.fitting.input_errors import INPUT_NOISE_SHARE, input_column_noise, input_noise_process_scale
 
 import hexa_sim
+from conftest import without_gyro
 from peer_sim import PeerSensors, PeerVehicle, fly, write_case
 
 
@@ -75,8 +76,7 @@ def test_without_a_gyro_even_a_small_noise_on_the_speeds_sets_the_floor(noisy_cf
     noisy = replace(log, inputs=true * (1 + 0.002 * np.random.default_rng(3).standard_normal(true.shape)))
     sigma, share = input_column_noise(model, noisy)
     assert share < INPUT_NOISE_SHARE
-    keep = [i for i, n in enumerate(log.output_names) if n not in ("p", "q", "r")]
-    no_gyro = replace(noisy, outputs=noisy.outputs[:, keep], output_names=[noisy.output_names[i] for i in keep])
+    no_gyro = without_gyro(noisy)
     p = model.default_parameters()
     interval = 25
     idx = np.arange(0, len(log), interval)
