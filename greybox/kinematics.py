@@ -51,18 +51,25 @@ class GyroScale:
         return {a: k for a, k in self.scale.items()
                 if abs(k - 1) >= SCALE_NOTABLE and abs(k - 1) >= SCALE_SIGMAS * self.std[a]}
 
-    def words(self) -> str:
-        """A sentence on the axes that are off, or ""."""
+    def reading(self) -> str:
+        """The axes that are off in a few words ("the gyro reads q 1.036 ± 0.008 times the rate
+        at which the measured attitude turns"), or ""."""
         off = self.off()
         if not off:
             return ""
         return ("the gyro reads " + ", ".join(f"{a} {k:.3f} ± {self.std[a]:.1g}" for a, k in off.items())
-                + f" times the rate at which the measured attitude turns (its change over {self.spans} spans of "
-                f"{SPAN:g} s against the gyro's integral, with a gyro bias and a delay of the attitude behind the "
-                f"gyro, {1e3 * self.delay:.0f} ms, fitted beside): a gyro scale error (an uncalibrated gyro), or an "
-                "attitude that under-reads the turns; the model is fitted to both at once and its moments, b and "
-                "K_T absorb the difference, nothing in the catalogue names it: calibrate the gyro, or divide its "
-                "columns by these factors")
+                + " times the rate at which the measured attitude turns")
+
+    def words(self) -> str:
+        """:meth:`reading` with how it was read and what to do, or ""."""
+        if not self.off():
+            return ""
+        delay_ms = round(1e3 * self.delay) or 0          # no "-0 ms"
+        return (f"{self.reading()} (its change over {self.spans} spans of {SPAN:g} s against the gyro's "
+                f"integral, with a gyro bias and a delay of the attitude behind the gyro, {delay_ms} ms, fitted "
+                "beside): a gyro scale error (an uncalibrated gyro), or an attitude that under-reads the turns; "
+                "the model is fitted to both at once and its moments, b and K_T absorb the difference, nothing in "
+                "the catalogue names it: calibrate the gyro, or divide its columns by these factors")
 
 
 def gyro_scale(log: FlightLog) -> GyroScale | None:

@@ -56,3 +56,16 @@ def test_the_fit_says_when_the_gyro_reads_off_the_attitude(flight):
     said = [w for w in fit(model, _gyro_times(log, 1.05), max_iter=20).warnings if "the gyro reads" in w]
     assert len(said) == 1 and "calibrate the gyro" in said[0], said
     assert not [w for w in fit(model, log, max_iter=20).warnings if "the gyro reads" in w]
+
+
+def test_a_diagnosis_that_finds_nothing_missing_names_the_gyros_scale(flight):
+    """Nothing in the catalogue is missing, the gyro reads 5 % high: the null says so, and why
+    the parameters cannot be believed, rather than "nothing significant is missing"."""
+    from greybox import diagnose
+    model, log = flight
+    d = diagnose(model, _gyro_times(log, 1.05), candidates=["ground_effect"], iterate=False, discover=False)
+    assert d.verdict is None and d.null_reason == "gyro_scale", d.null_reason
+    assert "the gyro reads" in d.verdict_text() and "calibrate the gyro" in d.verdict_text()
+    j = d.as_json()
+    assert j["null_reason"] == "gyro_scale" and abs(j["gyro_scale"]["r"]["value"] - 1.05) < 0.02
+    assert diagnose(model, log, candidates=["ground_effect"], iterate=False, discover=False).gyro_scale is None

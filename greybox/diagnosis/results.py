@@ -14,6 +14,7 @@ from ..data import FlightLog
 from ..effects.discovered import CHANNEL_UNITS, DiscoveredEffect, discovered_effect_class, effect_file_text
 from ..fitting import FitResult
 from ..fitting.certificate import FILTERED_SENSOR_RATIO
+from ..kinematics import GyroScale
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import ANGLE_OF_RATE, AttitudeMotion
 from ..controller_law import ClosedLoopReport, reported_horizons
@@ -295,6 +296,9 @@ class Diagnosis:
     # the mean vertical rotor thrust over the weight on the estimation flights
     # (fitting.thrust_ratio), of the baseline and of the final model; None without rotor speeds
     thrust_over_weight: dict[str, float | None] = field(default_factory=dict)
+    # the gyro read against the attitude's turning on the estimation flights, when some axis is
+    # off (kinematics.gyro_scale): a sensor error the catalogue does not hold
+    gyro_scale: GyroScale | None = None
 
     def motion_verdicts(self) -> dict[str, str]:
         """Per unexplained attitude or rate channel whose residual the gyro-attitude comparison
@@ -341,6 +345,9 @@ class Diagnosis:
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
                "null_reason": self.null_reason,
+               # the gyro read against the attitude's turning, per axis read, when some axis is off
+               "gyro_scale": None if self.gyro_scale is None else
+               {a: {"value": _num(k), "std": _num(self.gyro_scale.std[a])} for a, k in self.gyro_scale.scale.items()},
                "judged_with_disturbance": self.judged_with_disturbance,
                "rates_from_input_noise": dict(self.rates_from_input_noise),
                "input_noise_corrected": {n: {"value": _num(z), "std": _num(sd), "fitted": _num(one)}
@@ -416,8 +423,11 @@ class Diagnosis:
         from it), ``"unexplained"`` (residuals far above the noise
         that no candidate explains), ``"sensor_error"`` (the residuals far above the noise are
         the attitude sensor's or the gyro's own error, not motion: :meth:`motion_verdicts`),
-        ``"small_misfit"`` (the final fit is not at the noise, but within a few times it: too
-        little to say what it is) or ``"nothing_missing"``; None when there is a verdict."""
+        ``"gyro_scale"`` (nothing else explains more, and the gyro reads off the rate at
+        which the attitude turns: a sensor error the catalogue does not hold, which the
+        parameters absorb), ``"small_misfit"`` (the final fit is not at the noise, but within a
+        few times it: too little to say what it is) or ``"nothing_missing"``; None when there
+        is a verdict."""
         if self.verdict:
             return None
         if self.rotor_order is not None:
@@ -437,6 +447,8 @@ class Diagnosis:
             return "sensor_error"
         if self.unexplained or self.unexplained_gaps:
             return "unexplained"
+        if self.gyro_scale is not None and self.gyro_scale.off():
+            return "gyro_scale"
         if self.misfit():
             return "small_misfit"
         return "nothing_missing"
@@ -509,6 +521,10 @@ class Diagnosis:
                 "small_misfit": "null -- no catalogue effect is significant, and the model is not at the noise "
                                 f"in {', '.join(self.misfit())}: too small a misfit to tell what it is (below "
                                 f"{UNEXPLAINED_RATIO:g}x the noise)",
+                "gyro_scale": f"null -- no catalogue effect is missing, but "
+                              f"{self.gyro_scale.reading() if self.gyro_scale else 'the gyro reads off'}: a sensor "
+                              "error the catalogue does not hold, which the fitted parameters absorb (calibrate the "
+                              "gyro, or divide its columns by these factors, and diagnose again)",
                 "nothing_missing": "null (nothing significant is missing)"}[why]
 
     def summary(self) -> str:

@@ -19,6 +19,7 @@ from ..errors import ConvergenceWarning, GreyboxInputError
 from ..controller_law import closed_loop_or_why
 from ..fitting import IF_NEEDED, THRUST_IMPOSSIBLE, FitResult, fit, progress_callback, thrust_ratio
 from ..fitting.input_errors import followed_share
+from ..kinematics import gyro_scale
 from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
@@ -320,7 +321,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      input_noise_corrected=corrected, final_spread=spread, final_validation_spread=val_spread,
                      timing_bound=timing_bound, rotor_order=order, layout_rotation=turned,
                      thrust_over_weight={"baseline": thrust_ratio(res.model, est, res.p),
-                                         "final": thrust_ratio(cur_res.model, est, cur_res.p)})
+                                         "final": thrust_ratio(cur_res.model, est, cur_res.p)},
+                     gyro_scale=next((g for g in map(gyro_scale, est) if g is not None and g.off()), None))
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile, est=est)
