@@ -927,7 +927,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
         batch(["flights/"], "results", airframe="cf.toml", import_format="nanobench",
               process_noise="auto", joint=True).fleet["comparison"]["outliers"]   # rerun: only the fleet
     """
-    from .commands import check_output_path
+    from .commands import check_output_path, check_parameter_names
     _require_dask()
     if (airframe is None) == (model is None):
         raise GreyboxInputError("batch: give either an airframe or a saved model (--airframe or --model)")
@@ -980,10 +980,7 @@ def batch(inputs: Sequence[str | Path], out: str | Path, *, airframe: str | Path
             if n not in fx.known_effects() and n not in the_model.param_names and \
                     n not in {par.name for par in the_model.parameters}:
                 raise GreyboxInputError(f"--per-flight: {n!r} is neither an effect nor a parameter of the model")
-    for n in opts.fixed:
-        if n not in the_model.param_names and n not in {par.name for par in the_model.parameters}:
-            raise GreyboxInputError(f"--fixed: {n!r} is not a parameter of the model "
-                                    f"({', '.join(par.name for par in the_model.parameters)})")
+    check_parameter_names(the_model, opts.fixed, "--fixed")
     for c in opts.candidates or ():
         fx.by_name(c)
         if c in the_model.effects:

@@ -24,7 +24,7 @@ from .data import FlightLog, atomic_write, check_rotor_speed_units, check_sample
 from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, forget_signals, interrupt_status, raise_interrupted, raise_terminated, signal_received
 from .integrate import simulate
 from .model import QuadrotorModel
-from .commands import (build_model, check_output_path, fit_json, model_from_args, model_log, parse_sets,
+from .commands import (build_model, check_output_path, check_parameter_names, fit_json, model_from_args, model_log, parse_sets,
                        write_json)
 
 __all__ = ["main"]
@@ -279,11 +279,7 @@ def _parameter_names(model: QuadrotorModel, text: str | None, option: str) -> li
     """``--free``/``--fixed``: the names, each a parameter (or component) of ``model``,
     checked before any work."""
     names = _names(text)
-    known = set(model.param_names) | {par.name for par in model.parameters}
-    for n in names or ():
-        if n not in known:
-            raise GreyboxInputError(f"{option}: unknown parameter {n!r}; the model's parameters are "
-                                    f"{', '.join(par.name for par in model.parameters)}")
+    check_parameter_names(model, names or (), option)
     return names
 
 

@@ -18,7 +18,7 @@ from .errors import GreyboxInputError
 from .model import QuadrotorModel
 from .outliers import drop_outliers
 
-__all__ = ["check_output_path", "write_json", "parse_sets", "build_model", "edit_model", "model_from_args",
+__all__ = ["check_output_path", "check_parameter_names", "write_json", "parse_sets", "build_model", "edit_model", "model_from_args",
            "fit_result_json", "model_log", "fit_json"]
 
 
@@ -60,6 +60,16 @@ def _check_writable(p: Path, path: str, option: str, kind: str) -> None:
         os.unlink(probe)
     except OSError as e:
         raise GreyboxInputError(f"{option} {path}: cannot write in {here} ({e.strerror or e})") from None
+
+
+def check_parameter_names(model: QuadrotorModel, names: Sequence[str], option: str) -> None:
+    """Each of ``names`` a parameter (or component) of ``model``, else one error naming
+    ``option`` (``--free``, ``--fixed``), before any work."""
+    known = set(model.param_names) | {par.name for par in model.parameters}
+    for n in names:
+        if n not in known:
+            raise GreyboxInputError(f"{option}: unknown parameter {n!r}; the model's parameters are "
+                                    f"{', '.join(par.name for par in model.parameters)}")
 
 
 def write_json(path: str | Path, obj: object) -> None:

@@ -211,7 +211,7 @@ def test_a_scheduler_that_cannot_be_reached_leaves_no_folder(flights, tmp_path, 
     (["--process-noise", "yes"], "invalid choice"),
     (["--noise", "roll=0.01"], "expected CHANNEL=SD"),
     (["--noise", "phi=0"], "positive number"),
-    (["--fixed", "b,k_typo"], "--fixed: 'k_typo' is not a parameter of the model"),
+    (["--fixed", "b,k_typo"], "--fixed: unknown parameter 'k_typo'"),
 ])
 def test_bad_options_exit_2_with_one_line(flights, tmp_path, capsys, args, message):
     rc = main(["batch", str(flights), "--airframe", PAPER, "--out", str(tmp_path / "out")] + args)
