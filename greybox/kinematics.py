@@ -3,13 +3,12 @@ turn the vehicle as far as the measured attitude says it turned.
 
 A gyro whose scale is off (an uncalibrated MEMS part: 1-3 % is common) feeds the fit rates
 that do not match the angles: the model's moments, ``b`` and ``K_T`` are fitted to both at
-once and absorb the difference, certified and many std off, with nothing in the catalogue to
-name it (a blind audit's 0.9 kg vehicle with its gyro 3 % high: "nothing missing", ``b``
-+1.7 %, 12 std). Over spans of :data:`SPAN` seconds, the attitude's change is regressed on the
-gyro's integral through the Euler-rate map, per body axis, beside a constant gyro bias and a
-delay between the two sensors (a motion-capture attitude arrives
-late: over a span, a delay ``tau`` looks like a scale ``cos(omega tau)`` at a motion of
-frequency ``omega``).
+once and absorb the difference, certified and many std off (a blind audit's 0.9 kg vehicle
+with its gyro 3 % high: "nothing missing", ``b`` +1.7 %, 12 std), unless the model holds the
+effect ``gyro_scale``. Over spans of :data:`SPAN` seconds, the attitude's change is regressed
+on the gyro's integral through the Euler-rate map, per body axis, beside a constant gyro bias
+and a delay between the two sensors (a motion-capture attitude arrives late: over a span, a
+delay ``tau`` looks like a scale ``cos(omega tau)`` at a motion of frequency ``omega``).
 """
 from __future__ import annotations
 
@@ -68,8 +67,8 @@ class GyroScale:
         return (f"{self.reading()} (its change over {self.spans} spans of {SPAN:g} s against the gyro's "
                 f"integral, with a gyro bias and a delay of the attitude behind the gyro, {delay_ms} ms, fitted "
                 "beside): a gyro scale error (an uncalibrated gyro), or an attitude that under-reads the turns; "
-                "the model is fitted to both at once and its moments, b and K_T absorb the difference, nothing in "
-                "the catalogue names it: calibrate the gyro, or divide its columns by these factors")
+                "the model is fitted to both at once and its moments, b and K_T absorb the difference: add the "
+                "effect gyro_scale, calibrate the gyro, or divide its columns by these factors")
 
 
 def gyro_scale(log: FlightLog) -> GyroScale | None:

@@ -528,3 +528,23 @@ def test_settled_states_put_a_motor_lag_where_the_battery_scaled_speeds_ask():
     np.testing.assert_allclose(settled[12:16], w * (1 + 0.2 * (vbat - 4.0)), rtol=1e-10)
     np.testing.assert_allclose(settled[16:], [0.01, -0.02, 0.003])
     np.testing.assert_allclose(settled[:12], 0.0)
+
+
+def test_gyro_scale_scales_the_measured_rates_only(base):
+    """By hand: at a state turning at (0.2, -0.1, 0.5) rad/s the gyro reads (1 + k) times each
+    rate; every other output, and the motion, stay as they were."""
+    m = base + effects.by_name("gyro_scale")
+    k = [0.02, -0.03, 0.05]
+    p1 = m.parameter_vector({"k_gyro": k})
+    p0 = m.parameter_vector({"k_gyro": [0.0, 0.0, 0.0]})
+    u = np.full(4, m.hover_speed())
+    x = hover_state()
+    x[3], x[6], x[9], x[10], x[11] = 0.3, 1.0, 0.2, -0.1, 0.5
+    y0 = np.asarray(m.output(x, u, p0, 0.0)).ravel()
+    y1 = np.asarray(m.output(x, u, p1, 0.0)).ravel()
+    ip = m.output_names.index("p")
+    np.testing.assert_allclose(y0[ip:ip + 3], [0.2, -0.1, 0.5], atol=1e-12)
+    np.testing.assert_allclose(y1[ip:ip + 3], [0.204, -0.097, 0.525], atol=1e-12)
+    np.testing.assert_allclose(np.delete(y1 - y0, [ip, ip + 1, ip + 2]), 0.0, atol=1e-12)
+    np.testing.assert_allclose(rhs(m, x, u, p1), rhs(m, x, u, p0), atol=1e-12)
+    assert effects.measurement_only("gyro_scale") and effects.confusable("gyro_scale", "moment_gain")

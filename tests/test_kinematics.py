@@ -54,8 +54,35 @@ def test_a_gyro_reading_3_percent_high_is_read_and_a_true_one_is_not(flight):
 def test_the_fit_says_when_the_gyro_reads_off_the_attitude(flight):
     model, log = flight
     said = [w for w in fit(model, _gyro_times(log, 1.05), max_iter=20).warnings if "the gyro reads" in w]
-    assert len(said) == 1 and "calibrate the gyro" in said[0], said
+    assert len(said) == 1 and "calibrate the gyro" in said[0] and "add the effect gyro_scale" in said[0], said
     assert not [w for w in fit(model, log, max_iter=20).warnings if "the gyro reads" in w]
+
+
+def test_the_effect_gyro_scale_fits_the_scale_and_the_parameters_come_back(flight):
+    """The gyro times (1.02, 0.97, 1.05): the base model's b is many std off; with
+    ``gyro_scale`` every k_gyro is within 3 std of the truth, b and K_T within 3 std of the
+    true model's, and nothing is said about the gyro (the model fits its scale)."""
+    from greybox.effects import by_name
+    model, log = flight
+    k = (0.02, -0.03, 0.05)
+    off = log
+    out = off.outputs.copy()
+    for c, kc in zip("pqr", k):
+        out[:, off.output_names.index(c)] *= 1 + kc
+    off = replace(off, outputs=out)
+    truth = model.parameter_dict(model.default_parameters())
+    base = fit(model, off, max_iter=30)
+    i_b = base.free_names.index("b")
+    assert abs(model.parameter_dict(base.p)["b"] - truth["b"]) > 5 * base.std[i_b]
+    res = fit(model + by_name("gyro_scale"), off, max_iter=30)
+    assert res.converged
+    got = res.model.parameter_dict(res.p)
+    for j, kc in enumerate(k):
+        name = f"k_gyro[{j}]"
+        assert abs(got[name] - kc) < 3 * res.std[res.free_names.index(name)], (name, got[name])
+    for name in ("K_T", "b"):
+        assert abs(got[name] - truth[name]) < 3 * res.std[res.free_names.index(name)], (name, got[name], truth[name])
+    assert not [w for w in res.warnings if "the gyro reads" in w]
 
 
 def test_a_diagnosis_that_finds_nothing_missing_names_the_gyros_scale(flight):
@@ -66,6 +93,34 @@ def test_a_diagnosis_that_finds_nothing_missing_names_the_gyros_scale(flight):
     d = diagnose(model, _gyro_times(log, 1.05), candidates=["ground_effect"], iterate=False, discover=False)
     assert d.verdict is None and d.null_reason == "gyro_scale", d.null_reason
     assert "the gyro reads" in d.verdict_text() and "calibrate the gyro" in d.verdict_text()
+    assert "gyro_scale, not among the candidates" in d.verdict_text()
     j = d.as_json()
     assert j["null_reason"] == "gyro_scale" and abs(j["gyro_scale"]["r"]["value"] - 1.05) < 0.02
     assert diagnose(model, log, candidates=["ground_effect"], iterate=False, discover=False).gyro_scale is None
+
+
+def test_a_diagnosis_names_gyro_scale_when_it_may_try_it(flight):
+    """The same flight with the effect among the candidates: the verdict is gyro_scale, each
+    axis's scale within 3 std of 0.05 in the final model."""
+    from greybox import diagnose
+    model, log = flight
+    d = diagnose(model, _gyro_times(log, 1.05), candidates=["ground_effect", "gyro_scale"], iterate=False,
+                 discover=False)
+    assert d.verdict == "gyro_scale", d.verdict_text()
+    res = d.final_fit
+    got = res.model.parameter_dict(res.p)
+    for j in range(3):
+        name = f"k_gyro[{j}]"
+        assert abs(got[name] - 0.05) < 3 * res.std[res.free_names.index(name)], (name, got[name])
+
+
+def test_a_gyro_scale_of_a_calibrated_gyro_is_physically_negligible(flight):
+    """k_gyro fitted at 0.2 % (a calibrated gyro's residual) is negligible, whatever its LR;
+    at 3 % it is not (Effect.negligible_size: 0.5 %)."""
+    from greybox.diagnosis.screening import physically_negligible
+    from greybox.effects import by_name
+    model, log = flight
+    small = fit(model + by_name("gyro_scale"), _gyro_times(log, 1.002), max_iter=30)
+    assert "negligible for gyro_scale" in physically_negligible(small, "gyro_scale")
+    large = fit(model + by_name("gyro_scale"), _gyro_times(log, 1.03), max_iter=30)
+    assert physically_negligible(large, "gyro_scale") == ""

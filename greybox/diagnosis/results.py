@@ -297,7 +297,7 @@ class Diagnosis:
     # (fitting.thrust_ratio), of the baseline and of the final model; None without rotor speeds
     thrust_over_weight: dict[str, float | None] = field(default_factory=dict)
     # the gyro read against the attitude's turning on the estimation flights, when some axis is
-    # off (kinematics.gyro_scale): a sensor error the catalogue does not hold
+    # off (kinematics.gyro_scale)
     gyro_scale: GyroScale | None = None
 
     def motion_verdicts(self) -> dict[str, str]:
@@ -424,8 +424,8 @@ class Diagnosis:
         that no candidate explains), ``"sensor_error"`` (the residuals far above the noise are
         the attitude sensor's or the gyro's own error, not motion: :meth:`motion_verdicts`),
         ``"gyro_scale"`` (nothing else explains more, and the gyro reads off the rate at
-        which the attitude turns: a sensor error the catalogue does not hold, which the
-        parameters absorb), ``"small_misfit"`` (the final fit is not at the noise, but within a
+        which the attitude turns, which the effect ``gyro_scale`` did not confirm: the
+        parameters absorb it), ``"small_misfit"`` (the final fit is not at the noise, but within a
         few times it: too little to say what it is) or ``"nothing_missing"``; None when there
         is a verdict."""
         if self.verdict:
@@ -521,10 +521,14 @@ class Diagnosis:
                 "small_misfit": "null -- no catalogue effect is significant, and the model is not at the noise "
                                 f"in {', '.join(self.misfit())}: too small a misfit to tell what it is (below "
                                 f"{UNEXPLAINED_RATIO:g}x the noise)",
-                "gyro_scale": f"null -- no catalogue effect is missing, but "
-                              f"{self.gyro_scale.reading() if self.gyro_scale else 'the gyro reads off'}: a sensor "
-                              "error the catalogue does not hold, which the fitted parameters absorb (calibrate the "
-                              "gyro, or divide its columns by these factors, and diagnose again)",
+                "gyro_scale": f"null -- no effect is confirmed missing, but "
+                              f"{self.gyro_scale.reading() if self.gyro_scale else 'the gyro reads off'}: a gyro "
+                              "scale error (or a measured attitude that under-reads the turns), which the fitted "
+                              "parameters absorb; "
+                              + ("the effect gyro_scale, tried, was not confirmed on the validation data"
+                                 if any(c.effect == "gyro_scale" for r in self.rounds or [self] for c in r.ranking)
+                                 else "the effect gyro_scale, not among the candidates, would fit it")
+                              + " (or calibrate the gyro, or divide its columns by these factors, and diagnose again)",
                 "nothing_missing": "null (nothing significant is missing)"}[why]
 
     def summary(self) -> str:

@@ -551,7 +551,8 @@ def explained_fraction(base: FitResult, alt: FitResult) -> float | None:
 
 def physically_negligible(fr: FitResult, effect: str) -> str:
     """Words saying that the fitted parameters of ``effect`` are physically negligible (all
-    below :data:`NEGLIGIBLE_FRACTION` of their plausible magnitude for the airframe), or ""."""
+    below :data:`NEGLIGIBLE_FRACTION` of their plausible magnitude for the airframe, or the
+    effect's own :meth:`~greybox.effects.Effect.negligible_size`), or ""."""
     model = fr.model
     # the vehicle's size sets the plausible magnitudes: the airframe's K_T when the fit's is
     # not positive (a compensating refit can push it onto its bound)
@@ -564,17 +565,21 @@ def physically_negligible(fr: FitResult, effect: str) -> str:
     plausible = fx.example_values(effect, model.airframe, kt)
     e = model.effects.get(effect)
     shape = set(e.shape_parameters) if e is not None else set()
+    own = e.negligible_size(model.airframe) if e is not None else {}
     parts = []
     for par, comp, null in model.effect_components(effect):
         if par.name in shape:
             continue    # a hub height does not make a drag of zero
         # the largest plausible component's size; none known: a tenth of the parameter's scale
         ref = float(np.max(np.abs(np.atleast_1d(np.asarray(plausible.get(par.name, 0.1 * par.scale), dtype=float)))))
-        if abs(fr.value(comp) - null) >= NEGLIGIBLE_FRACTION * ref:
+        if abs(fr.value(comp) - null) >= own.get(par.name, NEGLIGIBLE_FRACTION * ref):
             return ""
         parts.append(f"{comp} = {fr.value(comp):.3g} {par.unit}".rstrip())
     if not parts:
         return ""
+    if own:
+        return f"{', '.join(parts)} (each below " + ", ".join(f"{v:.3g}" for v in own.values()) + \
+            f" in size: negligible for {effect})"
     return f"{', '.join(parts)} (below {100 * NEGLIGIBLE_FRACTION:.0f} % of a plausible size for this airframe)"
 
 

@@ -174,6 +174,13 @@ class Effect:
         something else. Default ``{}``: no limit known."""
         return {}
 
+    def negligible_size(self, airframe: "Airframe") -> dict[str, float]:
+        """The magnitude ``|value - null|`` below which each parameter is physically negligible
+        on this airframe (``{name: size}``), where a share of :meth:`plausible_values` is not
+        the right yardstick (a gyro's scale: what a calibration leaves). Default ``{}``: the
+        diagnosis takes 1 % of the plausible value."""
+        return {}
+
     def plausibility_warnings(self, values: dict[str, float], std: dict[str, float],
                               airframe: "Airframe") -> list[str]:
         """Warnings, in words, when the fitted values of this effect's free parameters are

@@ -1,11 +1,12 @@
 """What the sensors report: latency of the position measurement, where the position sensor
-sits on the vehicle, offsets of the measured roll and pitch, the accelerometer's bias."""
+sits on the vehicle, offsets of the measured roll and pitch, the accelerometer's bias, the
+gyro's scale."""
 from __future__ import annotations
 
 from ..parameters import Parameter
 from .base import Effect
 
-__all__ = ["PositionDelay", "PositionOffset", "AttitudeBias", "AccelBias"]
+__all__ = ["PositionDelay", "PositionOffset", "AttitudeBias", "AccelBias", "GyroScaleError"]
 
 
 class PositionDelay(Effect):
@@ -134,3 +135,48 @@ class AccelBias(Effect):
         b = ctx.params["acc_bias"]
         for i, ch in enumerate(("ax", "ay", "az")):     # the model's outputs always hold all three
             y[ch] = y[ch] + b[i]
+
+
+class GyroScaleError(Effect):
+    """Scale errors of the gyro per body axis (an uncalibrated MEMS gyro: 1-3 % is common):
+    ``p_meas = (1 + k_gyro[0]) p`` and likewise ``q``, ``r``. It changes what the gyro
+    reports, not how the vehicle moves; the measured attitude tells it apart, since the
+    attitude turns at the true rate. Without it, the model is fitted to the gyro's rates and
+    the attitude at once and its moments absorb the difference (a blind audit's 0.9 kg
+    vehicle with its gyro 3 % high: "nothing missing", ``b`` +1.7 %, 12 std); the log alone
+    reads it too (:func:`greybox.kinematics.gyro_scale`, a fit's warning). Considered by the
+    diagnosis when the log measures the rates (``p``); shared by the flights of a joint fit
+    (one sensor). An attitude that an autopilot integrates from the same gyro turns with its
+    error, and leaves nothing to fit.
+    """
+
+    name = "gyro_scale"
+    summary = "gyro scale errors (body p, q, r)"
+    excited_by = "turns about each body axis with the attitude measured independently of the gyro"
+    fit_advice = "roll, pitch and yaw turns, with vision or motion capture measuring the attitude"
+    channels = ("p", "q", "r")
+    considered_when_logged = ("p",)
+    distinguish = {"moment_gain": "measure the attitude independently of the gyro: a gyro scale error makes "
+                                  "the gyro disagree with the attitude's turning, a moment gain turns both alike"}
+
+    def parameters(self, airframe):
+        return [Parameter("k_gyro", 3, 0.0, "", -0.3, 0.3, 0.01, 0.0, True,
+                          "gyro scale errors, body p, q, r (measured = (1 + k_gyro) * true rate)", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"k_gyro": [0.03, -0.03, 0.03]}
+
+    def negligible_size(self, airframe):
+        # a calibrated MEMS gyro's residual scale error: the moments it moves are within
+        # their spread (the log's own reading, kinematics.SCALE_NOTABLE, says 1 %)
+        return {"k_gyro": 0.005}
+
+    def plausible_limits(self, airframe):
+        # a MEMS gyro's scale error before calibration: a few per cent (datasheets: 1-3 %);
+        # beyond 10 % the rates stand in for something else (a moment the model lacks)
+        return {"k_gyro": 0.1}
+
+    def modify_measurement(self, ctx, y):
+        k = ctx.params["k_gyro"]
+        for i, ch in enumerate(("p", "q", "r")):
+            y[ch] = (1 + k[i]) * y[ch]

@@ -1280,7 +1280,8 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
     warnings += _filtered_attitude_warnings(sensor, resid_rms, {**(noise or {}), **sensor_noise})
     warnings += _filtered_attitude_notes(logs, {**(noise or {}), **sensor_noise})
-    warnings += _gyro_scale_warnings(logs)
+    if "gyro_scale" not in model.effect_names:     # the model fits the scale: nothing to say
+        warnings += _gyro_scale_warnings(logs)
     warnings += _outlier_warnings(logs)
     node_states, k = [], 0
     for _, M in data.flights:
