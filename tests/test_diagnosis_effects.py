@@ -30,7 +30,7 @@ def base():
 @pytest.mark.slow
 @pytest.mark.parametrize("hidden", ["yaw_torque", "linear_drag", "gyroscopic", "quadratic_drag", "rotor_drag",
                                     "ground_effect", "motor_lag", "moment_gain", "thrust_curve", "cog_offset", "motor_asymmetry", "wind",
-                                    "thrust_drift", "position_delay", "position_offset", "attitude_bias"])
+                                    "thrust_drift", "position_delay", "position_offset", "attitude_bias", "gyro_scale"])
 def test_hidden_effect_ranked_first_and_error_falls(base, hidden):
     r = sweep.case(base, hidden, duration=30.0, seed=3, rate=200.0)
     assert r["first"] == hidden and r["verdict"] == hidden
