@@ -20,7 +20,7 @@ import numpy as np
 from .data import FlightLog
 from .rotations import euler_rate_matrices
 
-__all__ = ["GyroScale", "gyro_scale", "SPAN", "SCALE_NOTABLE", "SCALE_SIGMAS"]
+__all__ = ["GyroScale", "gyro_scale", "SPAN", "SCALE_NOTABLE", "SCALE_SIGMAS", "HINT_SIGMAS"]
 
 SPAN = 1.0
 """s: the spans (not overlapping, so that their errors are independent) over which the
@@ -30,6 +30,9 @@ SCALE_NOTABLE = 0.01
 residual scale error; below it the fitted moments move by less than their usual spread)."""
 SCALE_SIGMAS = 4.0
 """... and so is one within this many of its std of 1."""
+HINT_SIGMAS = 2.0
+"""An axis off by :data:`SCALE_NOTABLE` and this many of its std hints at a scale error: enough
+for the diagnosis to try the effect ``gyro_scale`` (a fit's word needs :data:`SCALE_SIGMAS`)."""
 AXES = ("p", "q", "r")
 
 
@@ -49,6 +52,11 @@ class GyroScale:
         :data:`SCALE_SIGMAS` of its std."""
         return {a: k for a, k in self.scale.items()
                 if abs(k - 1) >= SCALE_NOTABLE and abs(k - 1) >= SCALE_SIGMAS * self.std[a]}
+
+    def hints(self) -> dict[str, float]:
+        """The axes off by :data:`SCALE_NOTABLE` and :data:`HINT_SIGMAS` of their std."""
+        return {a: k for a, k in self.scale.items()
+                if abs(k - 1) >= SCALE_NOTABLE and abs(k - 1) >= HINT_SIGMAS * self.std[a]}
 
     def reading(self) -> str:
         """The axes that are off in a few words ("the gyro reads q 1.036 ± 0.008 times the rate

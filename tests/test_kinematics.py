@@ -124,3 +124,16 @@ def test_a_gyro_scale_of_a_calibrated_gyro_is_physically_negligible(flight):
     assert "negligible for gyro_scale" in physically_negligible(small, "gyro_scale")
     large = fit(model + by_name("gyro_scale"), _gyro_times(log, 1.03), max_iter=30)
     assert physically_negligible(large, "gyro_scale") == ""
+
+
+def test_the_diagnosis_tries_gyro_scale_where_the_log_hints_at_it(flight):
+    """A default candidate where the gyro's reading against the attitude hints at a scale error
+    (1 % and 2 std on some axis), not where it reads true or cannot be read (no turns: a real
+    Crazyflie flight's refit took k_gyro to its bounds in every round, standing in for a moment)."""
+    from greybox.diagnosis.ranking import default_candidates
+    model, log = flight
+    assert "gyro_scale" in default_candidates(model, [_gyro_times(log, 1.03)])
+    assert "gyro_scale" not in default_candidates(model, [log])
+    hover = log.slice(0, int(np.searchsorted(log.t, 4.0)))      # the first manoeuvre: a hover
+    assert gyro_scale(_gyro_times(hover, 1.03)) is None
+    assert "gyro_scale" not in default_candidates(model, [_gyro_times(hover, 1.03)])

@@ -854,7 +854,7 @@ def default_candidates(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list
     """The effects :func:`diagnose` tries by default: the catalogue and the effects
     registered by the user (files, plugins) that are not in the model, and the effects that
     read a logged signal, or are tied to a logged column (``Effect.considered_when_logged``),
-    when every flight has it."""
+    when every flight has it and the flights hint at it (``Effect.considered_for``)."""
     return [n for n, cls in fx.known_effects().items() if n not in model.effects
             and (n in fx.CATALOGUE or n in fx.registered_effects() or cls.signals or cls.considered_when_logged)
-            and not any(missing_columns(cls, lg) for lg in logs)]
+            and not any(missing_columns(cls, lg) for lg in logs) and cls.considered_for(logs)]

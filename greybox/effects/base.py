@@ -15,6 +15,7 @@ from ..parameters import Parameter
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..airframe import Airframe
+    from ..data import FlightLog
 
 __all__ = ["ModelContext", "Effect", "EffectLibrary", "is_derived_signal"]
 
@@ -124,6 +125,13 @@ class Effect:
     makes :func:`~greybox.diagnose` try this effect although it reads no logged signal
     (``command_delay``: ``pwm1``, the rotor speeds are mapped from logged motor commands;
     ``accel_bias``: ``ax``, the accelerometer is measured)."""
+
+    @classmethod
+    def considered_for(cls, logs: Sequence["FlightLog"]) -> bool:
+        """Whether :func:`~greybox.diagnose` tries this effect by default on these estimation
+        flights, beyond the columns it needs (:attr:`considered_when_logged`): a sign of it in
+        the log alone (``gyro_scale``: the gyro's reading against the attitude). Default: yes."""
+        return True
 
     def parameters(self, airframe: "Airframe") -> list[Parameter]:
         return []

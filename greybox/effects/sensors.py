@@ -3,6 +3,10 @@ sits on the vehicle, offsets of the measured roll and pitch, the accelerometer's
 gyro's scale."""
 from __future__ import annotations
 
+from typing import Sequence
+
+from ..data import FlightLog
+from ..kinematics import gyro_scale
 from ..parameters import Parameter
 from .base import Effect
 
@@ -145,8 +149,9 @@ class GyroScaleError(Effect):
     the attitude at once and its moments absorb the difference (a blind audit's 0.9 kg
     vehicle with its gyro 3 % high: "nothing missing", ``b`` +1.7 %, 12 std); the log alone
     reads it too (:func:`greybox.kinematics.gyro_scale`, a fit's warning). Considered by the
-    diagnosis when the log measures the rates (``p``); shared by the flights of a joint fit
-    (one sensor). An attitude that an autopilot integrates from the same gyro turns with its
+    diagnosis when the log measures the rates (``p``) and its reading against the attitude
+    hints at a scale error (:meth:`~greybox.kinematics.GyroScale.hints`); shared by the
+    flights of a joint fit (one sensor). An attitude that an autopilot integrates from the same gyro turns with its
     error, and leaves nothing to fit.
     """
 
@@ -158,6 +163,14 @@ class GyroScaleError(Effect):
     considered_when_logged = ("p",)
     distinguish = {"moment_gain": "measure the attitude independently of the gyro: a gyro scale error makes "
                                   "the gyro disagree with the attitude's turning, a moment gain turns both alike"}
+
+    @classmethod
+    def considered_for(cls, logs: Sequence[FlightLog]) -> bool:
+        # tried where the log alone hints at a scale error (the attitude's turning against the
+        # gyro's integral): elsewhere the scale's refit stands in for a moment the model lacks
+        # (a real Crazyflie flight whose attitude the log cannot read against the gyro:
+        # k_gyro on its bounds in every round, taking a refit from the candidates that stand)
+        return any(g is not None and g.hints() for g in map(gyro_scale, logs))
 
     def parameters(self, airframe):
         return [Parameter("k_gyro", 3, 0.0, "", -0.3, 0.3, 0.01, 0.0, True,
