@@ -222,4 +222,5 @@ def _combined_validation(preds, sources) -> dict:
     channels = {c: float(np.mean([p.nrmse[c] for p in preds if c in p.nrmse])) for c in preds[0].nrmse}
     return {"nrmse": float(np.mean([p.total for p in preds])), "channels": channels,
             "horizon": preds[0].horizon, "windows": int(sum(len(p.windows) for p in preds)),
+            "longest_window": max(p.longest_window for p in preds),
             "flights": [{"log": s, **p.as_dict()} for s, p in zip(sources, preds)]}

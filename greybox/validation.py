@@ -78,7 +78,10 @@ class Prediction:
     @property
     def longest_window(self) -> float:
         """s: the longest window predicted; shorter than :attr:`horizon` when the log after its
-        start window is (then every number here is over that shorter stretch)."""
+        start window is (then every number here is over that shorter stretch); pooled, the
+        longest of the flights'."""
+        if self.parts:      # the pooled windows index the stacked flights, not self.log
+            return max(part.longest_window for part in self.parts)
         t = self.log.t
         return max((float(t[ke - 1] - t[k]) for k, ke in self.windows), default=0.0)
 

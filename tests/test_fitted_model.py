@@ -218,6 +218,8 @@ def test_cli_fit_takes_several_flights(paper_model, tmp_path):
     flights = r["validation"]["flights"]
     assert [f["log"] for f in flights] == [str(p) for p in paths]
     assert r["validation"]["nrmse"] == pytest.approx(np.mean([f["nrmse"] for f in flights]))
+    # the contract's keys as one flight's have them (an audit's three-flight fit lacked this one)
+    assert r["validation"]["longest_window"] == max(f["longest_window"] for f in flights) > 0
 
 
 @pytest.mark.slow    # about a minute; the default run stays near ten minutes
