@@ -525,3 +525,25 @@ def test_a_verdict_whose_refit_cannot_be_certified_is_said_not_to_be_in_the_fina
     two = replace(d, final_model=d.model + [fx.by_name("wind"), fx.by_name("cog_offset")],
                   rounds=[replace(d.rounds[0], verdict="wind"), replace(d.rounds[0], verdict="cog_offset")])
     assert "4. added wind, cog_offset:" in two.summary()
+
+
+def test_a_torque_held_as_a_disturbance_is_not_called_turbulence_alone():
+    """The null "random_torque" says the data cannot tell a turbulence from a torque that
+    follows something the log does not show (a blind audit's yaw torque from the rotors'
+    accelerations was called turbulence), and names the baseline's systematic gaps of the
+    rates where they are (r 3.59x their random part), not where they are not."""
+    from types import SimpleNamespace
+    from greybox.diagnosis import Diagnosis
+    from greybox.fitting.certificate import Certificate
+
+    def words(gaps):
+        cert = Certificate(True, 0.0, 0.0, 0.0, [], {"p": 1.0, "q": 1.1, "r": 1.5}, {}, {}, systematic_gaps=gaps,
+                           soft=True)
+        return Diagnosis._random_torque_words(SimpleNamespace(baseline=SimpleNamespace(certificate=cert)))
+    systematic = words({"p": 1.1, "r": 3.59, "vz": 5.0})
+    assert "a turbulence, or a torque that follows something the log does not show" in systematic
+    assert "gaps of r (3.59x their random part) are mostly systematic" in systematic
+    assert "gaps of p" not in systematic and "vz" not in systematic
+    assert "rates are p 1.0, q 1.1, r 1.5 times their noise" in systematic
+    white = words({"p": 1.1, "r": 1.2})
+    assert "random torque" in white and "mostly systematic" not in white

@@ -453,6 +453,22 @@ class Diagnosis:
             return "small_misfit"
         return "nothing_missing"
 
+    def _random_torque_words(self) -> str:
+        """The null of a model that holds what it misses as a disturbance torque. Turbulence, or
+        a torque the catalogue lacks that follows something the log does not show: a blind
+        audit's yaw torque from the rotors' accelerations was called turbulence, and its
+        baseline's gaps of r were mostly systematic, as a turbulence correlated over a second
+        also makes them (the peer simulator's): the data cannot tell the two apart."""
+        cert = self.baseline.certificate
+        gaps = {n: cert.systematic_gaps[n] for n in cert.off_states() if n in ("p", "q", "r")} if cert else {}
+        seen = ("; the baseline's shooting gaps of " + ", ".join(f"{n} ({v:.3g}x their random part)"
+                                                            for n, v in gaps.items())
+                + " are mostly systematic, a torque correlated over many intervals") if gaps else ""
+        return ("null -- what the model misses acts as a random torque that no catalogue effect holds: a "
+                "turbulence, or a torque that follows something the log does not show (the data cannot tell them "
+                f"apart{seen}); the final model holds it as a disturbance (without it the rates are "
+                f"{rate_levels(self.baseline)} times their noise)")
+
     def misfit(self) -> list[str]:
         """Words for what the final fit (or the baseline) misses above the noise, below what
         counts as unexplained: channels and states its certificate finds not adequate."""
@@ -503,9 +519,7 @@ class Diagnosis:
                                 "nothing was tested; check the airframe's layout and rotor positions",
                 "uncertified": "null (cannot tell: the baseline fit is not certified)",
                 "outside_catalogue": f"null -- {self.outside_catalogue}",
-                "random_torque": "null -- what the model misses acts as a random torque (turbulence), which no "
-                                 "catalogue effect holds: the final model holds it as a disturbance (without it the "
-                                 f"rates are {rate_levels(self.baseline)} times their noise)",
+                "random_torque": self._random_torque_words(),
                 "input_noise": "null -- the model misses the body rates by a random torque that the noise on the "
                                "logged rotor speeds gives (it moves " +
                                ", ".join(f"{s} by {v:.2g}" for s, v in self.rates_from_input_noise.items()) +
