@@ -536,6 +536,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
         # the columns' order or the layout first: the thrust's words follow from it
         raise GreyboxError(f"fit did not converge: {'; '.join(geometry + [res.status])}")
     res.warnings[:0] = geometry
+    # a lag fitted to rows that are samples of a varying signal: said (the diagnosis judges it first)
+    from .diagnosis.screening import row_timing_words
+    res.warnings += row_timing_words(res, [est for est, _ in parts])
     # each flight validated with its own values of the per-flight parameters (wind, battery sag)
     preds = [predict(model, res.flight_p(i), val, horizon=args.horizon, **prediction_options(res))
              for i, (_, val) in enumerate(parts)]
