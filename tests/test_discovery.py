@@ -242,9 +242,12 @@ def test_rate_damping_is_discovered_refitted_and_written(paper, damped, tmp_path
     # "nrmse 0.04194 against 0.04194")
     import re
     close = replace(beside, final_prediction=SimpleNamespace(total=together * (1 - 3e-7)))
-    line = next(ln for ln in close._discovery_lines() if "predicts better" in ln)
-    a, b = re.search(r"nrmse (\S+) against (\S+):", line).groups()
+    line = next(ln for ln in close._discovery_lines() if "predicts about as well" in ln)
+    a, b = re.search(r"nrmse (\S+) against (\S+),", line).groups()
     assert a != b and float(a) < float(b), line
+    # within 5 %, no claim that the verdict holds it (an audit's thrust loss outside the
+    # catalogue beside a final drag moment: 0.168 against 0.169)
+    assert "what the verdict holds" not in line and "cannot tell the verdicts from" in line
     # a null verdict not taken as outside the catalogue says why beside the "significant" ones
     # (the model predicting 1.02 times what the best found does: 2 % better with it)
     null = replace(d, verdict=None, outside_catalogue="", final_prediction=SimpleNamespace(total=1.02 * together))
