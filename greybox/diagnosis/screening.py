@@ -764,14 +764,15 @@ def row_timing_words(res: FitResult, logs: Sequence[FlightLog], compile: str = "
     commands sampled at 100 Hz rows: ``tau_m`` 36.3 ± 0.05 ms, 71 std off, certified and
     silent; 39.5 with the timing), or whose certificate finds the model misses something (the
     audit's control flights: "the shooting gaps of vz are mostly systematic: a force or torque
-    the model lacks", nothing missing but the rows' timing). ``[]`` otherwise, and for a fit
+    the model lacks", nothing missing but the rows' timing), or with neither (the parameters may
+    carry it: an audit's control flight, b +0.87 %, 6.4 std). ``[]`` otherwise, and for a fit
     that is not certified."""
     model = res.model
     timed = [n for e in model.effects for n in e.input_timed if any(c.startswith(n) for c in res.free_names)]
     off = res.certificate is not None and not res.certificate.adequate
     name = "sampled_inputs"
     cls = fx.effect_class(name)
-    if not (timed or off) or not res.converged or any(e.describes_sampling for e in model.effects) or cls is None \
+    if not res.converged or any(e.describes_sampling for e in model.effects) or cls is None \
             or any(cls.considered_when_logged[0] not in lg.input_names for lg in logs):
         return []
     sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
@@ -784,7 +785,8 @@ def row_timing_words(res: FitResult, logs: Sequence[FlightLog], compile: str = "
         return []
     half_row = 0.5 * median_row_interval(logs)
     takes = (f"the fitted {', '.join(timed)} takes the difference beyond its std" if timed else
-             "what the certificate finds the model misses may be this timing, not a force or torque")
+             "what the certificate finds the model misses may be this timing, not a force or torque" if off else
+             "the fitted parameters may carry it beyond their std")
     return [f"the logged rotor speeds look like samples of a signal that varies between the log's rows, not "
             f"values held until the next row (score test of {name}: {stat:.3g}, p = {p:.2g}): held, they lag it "
             f"by up to half a row ({1e3 * half_row:.3g} ms), and {takes}; add the effect {name} "
