@@ -756,17 +756,16 @@ of a signal varying between rows (the diagnosis's own level, ``ranking.ALPHA``).
 
 
 def row_timing_words(res: FitResult, logs: Sequence[FlightLog], compile: str = "cached") -> list[str]:
-    """Words for a fit of a model with a lag or a delay of the inputs (an effect's
-    :attr:`~greybox.effects.Effect.input_timed` parameters, free) but no timing of the log's
-    rows (``sampled_inputs``), when the score test of that timing at the fit's optimum says the
-    logged rotor speeds are samples of a signal varying between rows: held, they lag it by up
-    to half a row, and the fitted lag takes the difference (a blind audit's 40-ms motors with
-    commands sampled at 100 Hz rows: ``tau_m`` 36.3 ± 0.05 ms, 71 std off, certified and
-    silent; 39.5 with the timing), or whose certificate finds the model misses something (the
-    audit's control flights: "the shooting gaps of vz are mostly systematic: a force or torque
-    the model lacks", nothing missing but the rows' timing), or with neither (the parameters may
-    carry it: an audit's control flight, b +0.87 %, 6.4 std). ``[]`` otherwise, and for a fit
-    that is not certified."""
+    """Words for a certified fit of a model without the log's timing (``sampled_inputs``) on
+    rotor-speed logs, when the timing's score test at the fit's optimum says the logged speeds
+    are samples of a signal varying between rows: held, they lag it by up to half a row, which
+    a fitted lag or delay of the inputs (an effect's
+    :attr:`~greybox.effects.Effect.input_timed` parameters) takes (a blind audit's 40-ms motors
+    behind commands sampled at 100 Hz rows: ``tau_m`` 36.3 ± 0.05 ms, 71 std off, certified and
+    silent; 39.5 with the timing), or the certificate's misfit may be (the audit's control
+    flights: "the shooting gaps of vz are mostly systematic: a force or torque the model
+    lacks"), or else the parameters may carry (its one-flight control fit: ``b`` +0.87 %,
+    6.4 std). ``[]`` otherwise."""
     model = res.model
     timed = [n for e in model.effects for n in e.input_timed if any(c.startswith(n) for c in res.free_names)]
     off = res.certificate is not None and not res.certificate.adequate

@@ -151,8 +151,8 @@ class GyroScaleError(Effect):
     reads it too (:func:`greybox.kinematics.gyro_scale`, a fit's warning). Considered by the
     diagnosis when the log measures the rates (``p``) and its reading against the attitude
     hints at a scale error (:meth:`~greybox.kinematics.GyroScale.hints`); shared by the
-    flights of a joint fit (one sensor). An attitude that an autopilot integrates from the same gyro turns with its
-    error, and leaves nothing to fit.
+    flights of a joint fit (one sensor). An attitude that an autopilot integrates from the
+    same gyro turns with its error, and leaves nothing to fit.
     """
 
     name = "gyro_scale"
