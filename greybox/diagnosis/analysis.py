@@ -163,8 +163,10 @@ class CommandImbalance:
                          "(motor_asymmetry, thrust and torque), a centre of gravity off the middle (cog_offset), or, "
                          "between spin directions, a yaw-torque difference that pulls b towards zero")
         if self.follows_speed:
+            # the size to two digits: "0 % of the arm" beside "a moment that follows the speed"
+            # read as a contradiction (an audit's control flights: 0.47 %)
             moves = "; ".join(f"the {ax} trim moves {1000 * slope:+.2f} mm per m/s of body-{'y' if ax == 'roll' else 'x'} "
-                              f"speed (r = {r:+.2f}, {100 * change:.0f} % of the arm over the speeds flown)"
+                              f"speed (r = {r:+.2f}, {100 * change:.2g} % of the arm over the speeds flown)"
                               for ax, (slope, r, change) in self.speed_trim.items() if abs(r) >= SPEED_TRIM_R)
             lead = "" if parts else f"in {self.seconds:.1f} s of steady flight "
             parts.append(f"{lead}{moves}: a moment that follows the speed, as drag acting above the centre of "
