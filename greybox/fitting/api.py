@@ -862,6 +862,20 @@ def _gyro_scale_warnings(logs: Sequence[FlightLog]) -> list[str]:
     return out
 
 
+def _gyro_scale_unidentifiable(logs: Sequence[FlightLog]) -> list[str]:
+    """Words for a fit with ``gyro_scale`` whose attitude is an estimate propagated from the gyro
+    (:func:`greybox.shooting.filtered_attitude_channels`): that attitude turns with the gyro's
+    scale error, so nothing tells the scale (a blind audit's PX4-like filter, gyro 2.5 % high:
+    k_gyro 0.007, 0.006, -0.001 ± 0.001-0.003, 9-20 std off, b +3 %)."""
+    chans = filtered_attitude_channels(logs)
+    if not chans:
+        return []
+    return [f"gyro_scale: {', '.join(chans)} is an attitude estimate propagated from the gyro, which turns with "
+            "the gyro's scale error: k_gyro cannot be told from it and stands for something else; fit the "
+            "gyro's scale only with an attitude measured apart from the gyro (vision, motion capture), or "
+            "calibrate the gyro"]
+
+
 def _process_noise_given(model: QuadrotorModel, process_noise, n_flights: int) -> dict:
     """The states' process noise the caller gave (``{state: std}``, empty for ``"auto"``),
     checked before anything is built."""
@@ -1282,6 +1296,8 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     warnings += _filtered_attitude_notes(logs, {**(noise or {}), **sensor_noise})
     if "gyro_scale" not in model.effect_names:     # the model fits the scale: nothing to say
         warnings += _gyro_scale_warnings(logs)
+    else:
+        warnings += _gyro_scale_unidentifiable(logs)
     warnings += _outlier_warnings(logs)
     node_states, k = [], 0
     for _, M in data.flights:
