@@ -50,13 +50,15 @@ class GyroScale:
     def off(self) -> dict[str, float]:
         """The axes whose scale is off by at least :data:`SCALE_NOTABLE` and
         :data:`SCALE_SIGMAS` of its std."""
-        return {a: k for a, k in self.scale.items()
-                if abs(k - 1) >= SCALE_NOTABLE and abs(k - 1) >= SCALE_SIGMAS * self.std[a]}
+        return self._beyond(SCALE_SIGMAS)
 
     def hints(self) -> dict[str, float]:
         """The axes off by :data:`SCALE_NOTABLE` and :data:`HINT_SIGMAS` of their std."""
+        return self._beyond(HINT_SIGMAS)
+
+    def _beyond(self, sigmas: float) -> dict[str, float]:
         return {a: k for a, k in self.scale.items()
-                if abs(k - 1) >= SCALE_NOTABLE and abs(k - 1) >= HINT_SIGMAS * self.std[a]}
+                if abs(k - 1) >= SCALE_NOTABLE and abs(k - 1) >= sigmas * self.std[a]}
 
     def reading(self) -> str:
         """The axes that are off in a few words ("the gyro reads q 1.036 ± 0.008 times the rate

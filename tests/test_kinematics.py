@@ -19,9 +19,10 @@ def flight():
 
 
 def _gyro_times(log, k):
+    """The log with its gyro times ``k`` (one factor, or one per axis p, q, r)."""
     out = log.outputs.copy()
-    for c in "pqr":
-        out[:, log.output_names.index(c)] *= k
+    for c, kc in zip("pqr", np.broadcast_to(k, 3)):
+        out[:, log.output_names.index(c)] *= kc
     return replace(log, outputs=out)
 
 
@@ -65,11 +66,7 @@ def test_the_effect_gyro_scale_fits_the_scale_and_the_parameters_come_back(fligh
     from greybox.effects import by_name
     model, log = flight
     k = (0.02, -0.03, 0.05)
-    off = log
-    out = off.outputs.copy()
-    for c, kc in zip("pqr", k):
-        out[:, off.output_names.index(c)] *= 1 + kc
-    off = replace(off, outputs=out)
+    off = _gyro_times(log, 1 + np.array(k))
     truth = model.parameter_dict(model.default_parameters())
     base = fit(model, off, max_iter=30)
     i_b = base.free_names.index("b")

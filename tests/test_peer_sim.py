@@ -798,15 +798,14 @@ def test_motor_lags_screening_statistic_is_its_refits_likelihood_ratio_not_its_f
     node to node with the node's input held, the candidate's speeds missed the logged ones
     and the statistic was 1e9-1e10 on every flight; taken at the floor alone, it understated
     a real flight's 70-ms lag 15-fold.)"""
-    from greybox.diagnosis.screening import refit, screen
-    from greybox.model import OUTPUTS
+    from greybox.diagnosis.screening import fit_weights, refit, screen
     flight = fly(PeerVehicle.crazyflie(log_rate=100.0), duration=8.0, seed=1,
                  sensors=PeerSensors(log_commands=commands))
     paths = write_case(flight, tmp_path, name="s1")
     model, log = QuadrotorModel(load_airframe(paths["airframe"])), load_log(paths["log"])
     res = fit(model, log, process_noise="auto", max_iter=200)
     assert res.converged and res.process_noise is not None
-    score, df = screen(model, res, [log], "motor_lag", np.array([res.sigma.get(c, 1.0) for c in OUTPUTS]), "auto")
+    score, df = screen(model, res, [log], "motor_lag", fit_weights(res), "auto")
     _, lagged, _ = refit(model, res, [log], None, "motor_lag", res.sigma, "auto")
     decrease = 2 * (res.cost - lagged.cost)
     assert df == 1

@@ -15,7 +15,7 @@ from .. import effects as fx
 from ..data import FlightLog
 from ..fitting import STOPPED, FitResult
 from ..integrate import log_substeps
-from ..model import OUTPUTS, QuadrotorModel
+from ..model import QuadrotorModel
 from ..errors import GreyboxInputError
 from ..validation import Prediction, predict_after_fit, prediction_options
 from .analysis import estimation_residuals
@@ -24,7 +24,7 @@ from .input_noise import input_noise, simex_check
 from .results import UNEXPLAINED_RATIO, CandidateResult
 from .screening import (explained_fraction, held_on_bound, replaced_base_terms, lr_test, negligible_effect, null_on_bound,
                         physically_implausible, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
-                        screen, screen_jointly, within_row_timing)
+                        fit_weights, screen, screen_jointly, within_row_timing)
 
 __all__ = ["PARAMETER_SHIFT", "parameter_shifts", "ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "validation_falls", "traded_channels", "geometric_rise", "confirmed_on_validation", "timing_stand_in", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
            "rank_round", "order_refitted", "default_candidates", "far_channels", "lacking_signals", "missing_columns"]
@@ -397,7 +397,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     ``timing``: the log's timing judged against ``res`` (:class:`~greybox.effects.SampledInputs`),
     when significant in the fit but not confirmed on validation: the round's first is then
     refitted onto it and refused when it does not stand there (:func:`stands_beside_timing`)."""
-    sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
+    sigma = fit_weights(res)
     out: list[CandidateResult] = []
     t0 = time.perf_counter()
     together = screen_jointly(model, res, est, candidates, sigma, compile)

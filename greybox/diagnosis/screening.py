@@ -24,7 +24,7 @@ from ..validation import DEFAULT_HORIZON, Prediction, predict_after_fit
 
 __all__ = ["NEGLIGIBLE_FRACTION", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "negligible_effect", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
            "explained_fraction", "screen_jointly", "JOINT_COST_TOLERANCE", "physically_negligible", "physically_implausible", "held_on_bound", "replaced_base_terms", "REPLACED_CLEAR_STD", "null_on_bound", "precompile_refits", "queue_refit_builds",
-           "HeldBeyondPlausible", "HELD_ITERATIONS", "within_row_timing", "row_timing_words", "TIMING_ALPHA"]
+           "HeldBeyondPlausible", "HELD_ITERATIONS", "within_row_timing", "row_timing_words", "TIMING_ALPHA", "fit_weights"]
 
 
 NEGLIGIBLE_FRACTION = 0.01
@@ -187,6 +187,12 @@ def _one_off(compile: str) -> str:
     the model of a round's candidates together, new each round, took the compiler 25 s on a
     real flight and was never evaluated again)."""
     return "cached" if compile == "auto" else compile
+
+
+def fit_weights(res: FitResult) -> np.ndarray:
+    """The noise levels the fit ``res`` weighed its channels with, in :data:`OUTPUTS` order (1
+    for a channel it did not have): the ``sigma`` its screens take."""
+    return np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
 
 
 def screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], name: str, sigma: np.ndarray,
@@ -769,14 +775,12 @@ def row_timing_words(res: FitResult, logs: Sequence[FlightLog], compile: str = "
     model = res.model
     timed = [n for e in model.effects for n in e.input_timed if any(c.startswith(n) for c in res.free_names)]
     off = res.certificate is not None and not res.certificate.adequate
-    name = "sampled_inputs"
-    cls = fx.effect_class(name)
-    if not res.converged or any(e.describes_sampling for e in model.effects) or cls is None \
-            or any(cls.considered_when_logged[0] not in lg.input_names for lg in logs):
+    name = fx.SampledInputs.name
+    if not res.converged or any(e.describes_sampling for e in model.effects) \
+            or any(c not in lg.input_names for c in fx.SampledInputs.considered_when_logged for lg in logs):
         return []
-    sigma = np.array([res.sigma.get(ch, 1.0) for ch in OUTPUTS])
     try:
-        stat, df = screen(model, res, logs, name, sigma, compile)
+        stat, df = screen(model, res, logs, name, fit_weights(res), compile)
     except (GreyboxInputError, ValueError, np.linalg.LinAlgError, RuntimeError):
         return []      # words on the fit only: where the statistic cannot be had, nothing is said
     p = float(stats.chi2.sf(stat, max(df, 1)))
