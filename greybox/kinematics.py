@@ -9,18 +9,23 @@ effect ``gyro_scale``. Over spans of :data:`SPAN` seconds, the attitude's change
 on the gyro's integral through the Euler-rate map, per body axis, beside a constant gyro bias
 and a delay between the two sensors (a motion-capture attitude arrives late: over a span, a
 delay ``tau`` looks like a scale ``cos(omega tau)`` at a motion of frequency ``omega``).
+
+And the heading's spread over flights (:func:`heading_spread`): how much of a force fixed in
+the world (a wind) no offset fixed in the body (an accelerometer's bias) can stand for.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
 from .data import FlightLog
 from .rotations import euler_rate_matrices
 
-__all__ = ["GyroScale", "gyro_scale", "SPAN", "SCALE_NOTABLE", "SCALE_SIGMAS", "HINT_SIGMAS"]
+__all__ = ["GyroScale", "gyro_scale", "SPAN", "SCALE_NOTABLE", "SCALE_SIGMAS", "HINT_SIGMAS", "heading_spread",
+           "HEADING_SPREAD"]
 
 SPAN = 1.0
 """s: the spans (not overlapping, so that their errors are independent) over which the
@@ -34,6 +39,10 @@ HINT_SIGMAS = 2.0
 """An axis off by :data:`SCALE_NOTABLE` and this many of its std hints at a scale error: enough
 for the diagnosis to try the effect ``gyro_scale`` (a fit's word needs :data:`SCALE_SIGMAS`)."""
 AXES = ("p", "q", "r")
+HEADING_SPREAD = 0.1
+"""A :func:`heading_spread` from which the flights tell a force fixed in the world from an
+offset fixed in the body: a tenth of the force that no offset can hold (a heading's spread of
+about 26 degrees std)."""
 
 
 @dataclass(frozen=True)
@@ -167,3 +176,18 @@ def _regression(X: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray] |
         return coef, np.linalg.inv(A.T @ A) * sigma2
     except np.linalg.LinAlgError:
         return None
+
+
+def heading_spread(logs: Sequence[FlightLog]) -> float:
+    """The share of a constant horizontal force fixed in the world that no constant vector
+    fixed in the body can stand for over these flights' logged headings: ``1 - |mean
+    exp(i psi)|^2`` over every sample with a measured ``psi`` (0: one heading held throughout;
+    1: every heading alike). The best body-fixed stand-in for a world force ``f`` is its mean
+    projection, ``mean(exp(-i psi)) f``, and what it leaves is this share of ``|f|^2``. 0 where
+    no flight measures the heading (nothing tells the two apart)."""
+    psi = [log.output("psi") for log in logs if log.measures("psi")]
+    psi = np.concatenate(psi) if psi else np.zeros(0)
+    psi = psi[np.isfinite(psi)]
+    if psi.size == 0:
+        return 0.0
+    return float(1.0 - abs(np.mean(np.exp(1j * psi))) ** 2)

@@ -395,6 +395,29 @@ def test_confusable_candidates_tied_on_validation_are_ordered_by_the_estimation_
     assert chain[0].effect == "accel_bias", [c.effect for c in chain]
     assert order_refitted(chain)[0].effect == "accel_bias"
     assert order_refitted(sensor)[0].reason == sensor[0].reason
+    # ... on flights that held their heading (the real flights: within 20 degrees); where the
+    # flights turned, a wind (fixed in the world) is no offset fixed in the body and the
+    # estimation data decide (a blind audit's outdoor flights: LR 10353 against 1478)
+    from greybox import FlightLog
+    from greybox.kinematics import HEADING_SPREAD, heading_spread
+
+    def flight(psi):
+        return FlightLog(np.arange(psi.size) * 0.01, np.full((psi.size, 4), 500.0), ["w1", "w2", "w3", "w4"],
+                         psi[:, None], ["psi"])
+
+    held, turned = flight(np.linspace(-0.15, 0.15, 500)), flight(np.linspace(0.0, 2.0, 500))
+    # by hand: psi uniform over [-a, a] gives |mean exp(i psi)| = sin(a) / a
+    assert heading_spread([held]) == pytest.approx(1 - (np.sin(0.15) / 0.15) ** 2, rel=1e-2)
+    assert heading_spread([turned]) == pytest.approx(1 - (np.sin(1.0) / 1.0) ** 2, rel=1e-2)
+    assert heading_spread([held]) < HEADING_SPREAD < heading_spread([turned])
+    assert heading_spread([held, flight(np.linspace(2.9, 3.2, 500))]) > HEADING_SPREAD     # two headings
+    assert heading_spread([]) == 0.0
+    on_held = order_refitted([cand("wind", 2, 0.839, 12317.0), cand("accel_bias", 3, 0.846, 4254.0)], [held])
+    assert [c.effect for c in on_held] == ["accel_bias", "wind"]
+    on_turned = order_refitted([cand("wind", 2, 0.839, 10353.0), cand("accel_bias", 3, 0.846, 1478.0)], [turned])
+    assert [c.effect for c in on_turned] == ["wind", "accel_bias"]
+    from greybox.diagnosis.ranking import tie_explanation
+    assert "it fits the estimation data better" in tie_explanation(on_turned[0], on_turned[1], on_turned, [turned])
     # a sensor and a property of the vehicle, both on every flight (an attitude bias and a CoG
     # offset), or two properties (a CoG offset and a weak rotor): AIC, one more parameter costs 2
     sensor_vehicle = order_refitted([cand("cog_offset", 2, 0.839, 4000.0), cand("attitude_bias", 2, 0.846, 3000.0)])

@@ -550,7 +550,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
     # model at the baseline while certified CoG-offset and asymmetry refits were there);
     # among them the largest validation improvement (the out-of-sample evidence), then the
     # likelihood ratio
-    ordered = order_refitted(refitted)
+    ordered = order_refitted(refitted, est)
     if controller_check:
         def controllers_answer(top: CandidateResult) -> str:
             """Whether it is the controller's answer (one disturbance fit, for an effect that
@@ -558,7 +558,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             answer = controller_answer(top.fit, top.effect, est, UNEXPLAINED_RATIO, compile, say)
             return f"{answer}; cannot tell" if answer else ""
 
-        ordered = _ask_verdict_to_be(ordered, refitted, controllers_answer)
+        ordered = _ask_verdict_to_be(ordered, refitted, controllers_answer, est)
     noise = input_noise(model, est)
     if noise is not None and noise.notable:
         def noise_gives(top: CandidateResult) -> str:
@@ -591,7 +591,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
                 return ""
             return check.text()
 
-        ordered = _ask_verdict_to_be(ordered, refitted, noise_gives, certified_only=False)
+        ordered = _ask_verdict_to_be(ordered, refitted, noise_gives, est, certified_only=False)
     if timing is not None and timing.fit is not None and timing.prediction is not None:
         def beside_timing(top: CandidateResult) -> str:
             """Whether it stands with the log's timing in the model (one refit)."""
@@ -601,7 +601,7 @@ def rank_round(model: QuadrotorModel, res: FitResult, pred: Prediction, est: Seq
             say(f"  {top.effect} beside the log's timing: {why or 'stands'} ({time.perf_counter() - t0:.1f} s)")
             return why
 
-        ordered = _ask_verdict_to_be(ordered, refitted, beside_timing)
+        ordered = _ask_verdict_to_be(ordered, refitted, beside_timing, est)
     return ordered + rest
 
 
@@ -652,12 +652,13 @@ def timing_stand_in(timing: CandidateResult, lr: float, p: float, before: Predic
 
 
 def _ask_verdict_to_be(ordered: list[CandidateResult], refitted: Sequence[CandidateResult],
-                       refused_because: Callable[[CandidateResult], str],
+                       refused_because: Callable[[CandidateResult], str], est: Sequence[FlightLog] = (),
                        certified_only: bool = True) -> list[CandidateResult]:
     """Ask the round's verdict-to-be (the first, significant, with a certified refit unless not
     ``certified_only``) ``refused_because``; while it answers with words, refuse it with them
     and ask the next (``refused_because`` may refit and judge it again: the order is then
-    taken anew). Returns the candidates in their new order."""
+    taken anew; ``est``: the estimation flights, for the tie rule). Returns the candidates in
+    their new order."""
     asked: set[int] = set()
     while ordered and ordered[0].significant and ordered[0].fit is not None and \
             (ordered[0].fit.converged or not certified_only) and id(ordered[0]) not in asked:
@@ -667,22 +668,25 @@ def _ask_verdict_to_be(ordered: list[CandidateResult], refitted: Sequence[Candid
         if why:
             top.significant = False
             top.reason = f"significant in the fit (p = {top.p_value:.2g}) but {why}"
-        ordered = order_refitted(refitted)
+        ordered = order_refitted(refitted, est)
     return ordered
 
 
-def order_refitted(refitted: Sequence[CandidateResult]) -> list[CandidateResult]:
+def order_refitted(refitted: Sequence[CandidateResult], est: Sequence[FlightLog] = ()) -> list[CandidateResult]:
     """Refitted candidates best first: significant, certified, the lowest validation
     nrmse, the largest likelihood ratio; then, among the first and its
     :func:`validation_ties`, the validation cannot tell them apart: an effect that changes
     only what a sensor reports (:meth:`Effect.measurement_only
     <greybox.effects.Effect.measurement_only>`) goes before one that is a condition of the
-    flight (:attr:`Effect.per_flight <greybox.effects.Effect.per_flight>`: a wind), and
-    otherwise the one the estimation data support better (likelihood ratio less twice its
-    parameters, as Akaike's criterion) goes first, its reason saying so. Calling it again on
-    its own output changes nothing."""
+    flight (:attr:`Effect.per_flight <greybox.effects.Effect.per_flight>`: a wind) that the
+    offset can act as on the estimation flights ``est``
+    (:meth:`Effect.mimicked_by_sensor_offsets
+    <greybox.effects.Effect.mimicked_by_sensor_offsets>`; without ``est``, any), and otherwise
+    the one the estimation data support better (likelihood ratio less twice its parameters, as
+    Akaike's criterion) goes first, its reason saying so. Calling it again on its own output
+    changes nothing."""
     out = sorted(refitted, key=_order)
-    _break_tie(out)
+    _break_tie(out, est)
     return out
 
 
@@ -734,50 +738,56 @@ def aic_gain(c: CandidateResult) -> float:
     return (c.lr or 0.0) - 2 * c.df
 
 
-def _break_tie(ranking: list[CandidateResult]) -> None:
+def _break_tie(ranking: list[CandidateResult], est: Sequence[FlightLog]) -> None:
     """:func:`order_refitted`'s tie rule on ``ranking`` sorted by :func:`_order`, in place."""
     ties = validation_ties(ranking)
     if not ties:
         return
     first = ranking[0]
     group = [first] + ties
-    pick = _tie_pick(group)
+    pick = _tie_pick(group, est)
     if fx.per_flight(pick.effect):
         # a sensor's offset that ties with the pick itself, though not with the first
         rest = [c for c in ranking if c is not pick]
         more = [c for c in validation_ties([pick] + rest) if c not in group and fx.measurement_only(c.effect)]
         if more:
             group += more
-            pick = _tie_pick(group)
+            pick = _tie_pick(group, est)
     if pick is first:
         return
     note = (f"; predicts the validation data as well as {first.effect} ({tie_numbers(pick, first)}: within "
             f"{100 * MIN_VALIDATION_GAIN:.0f} %, which cannot tell them apart), and "
-            f"{tie_explanation(pick, first, group)}, so it goes first")
+            f"{tie_explanation(pick, first, group, est)}, so it goes first")
     if note not in pick.reason:
         pick.reason += note
     ranking.remove(pick)
     ranking.insert(0, pick)
 
 
-def _sensor_before_condition(group: Sequence[CandidateResult]) -> bool:
-    """Whether the tie rule sets the group's conditions of the flight aside: a sensor's offset
-    ties with them. The offset is the vehicle's and on every flight (a MEMS accelerometer's
+def _mimicked_conditions(group: Sequence[CandidateResult], est: Sequence[FlightLog]) -> list[CandidateResult]:
+    """The group's conditions of the flight that the tie rule sets aside: a sensor's offset ties
+    with them and can act as they do on the estimation flights ``est``
+    (:meth:`Effect.mimicked_by_sensor_offsets <greybox.effects.Effect.mimicked_by_sensor_offsets>`). The offset is the vehicle's and on every flight (a MEMS accelerometer's
     zero-g offset is 20-80 mg), a wind is a claim about that flight's air, which indoors is
     still. On a real Crazyflie flight indoors a wind and an accelerometer bias tied on
     validation; the wind won on the estimation data by what it moved through other effects
     (drag on the air-relative speed), and refitted on the round's model fitted afresh (its own
     noise levels) the bias fitted better: the estimation data do not settle it. Between a
     sensor and a vehicle property (a CoG offset, a motor lag), both on every flight, they
-    still decide."""
-    return any(fx.measurement_only(c.effect) for c in group) and any(fx.per_flight(c.effect) for c in group)
+    still decide; and so they do where the flights turned, for a wind (a blind audit's outdoor
+    flights: the wind's likelihood ratio 7 times the bias's)."""
+    if not any(fx.measurement_only(c.effect) for c in group):
+        return []
+    return [c for c in group if fx.per_flight(c.effect) and fx.effect_class(c.effect).mimicked_by_sensor_offsets(est)]
 
 
-def _tie_pick(group: Sequence[CandidateResult]) -> CandidateResult:
+def _tie_pick(group: Sequence[CandidateResult], est: Sequence[FlightLog]) -> CandidateResult:
     """The tie rule's choice in ``group``: the largest :func:`aic_gain`, conditions of the
-    flight set aside when a sensor's offset ties with them, and an effect set aside whose
+    flight set aside when a sensor's offset ties with them and can act as they do on the
+    estimation flights ``est`` (:func:`_mimicked_conditions`), and an effect set aside whose
     fitted values are what a simpler one of the group gives (:func:`reduced_to_simpler`)."""
-    pool = [c for c in group if not fx.per_flight(c.effect)] if _sensor_before_condition(group) else list(group)
+    aside = {id(c) for c in _mimicked_conditions(group, est)}
+    pool = [c for c in group if id(c) not in aside]
     pool = [c for c in pool if reduced_to_simpler(c, group) is None] or pool
     return max(pool, key=aic_gain)
 
@@ -814,9 +824,11 @@ def tie_numbers(a: CandidateResult, b: CandidateResult) -> str:
     return out
 
 
-def tie_explanation(taken: CandidateResult, other: CandidateResult, group: Sequence[CandidateResult]) -> str:
-    """Why the tie rule took ``taken`` over ``other``, both of the tied ``group``, in words."""
-    if _sensor_before_condition(group) and fx.per_flight(other.effect) and not fx.per_flight(taken.effect):
+def tie_explanation(taken: CandidateResult, other: CandidateResult, group: Sequence[CandidateResult],
+                    est: Sequence[FlightLog] = ()) -> str:
+    """Why the tie rule took ``taken`` over ``other``, both of the tied ``group``, in words
+    (``est``: the estimation flights it was taken on)."""
+    if any(c is other for c in _mimicked_conditions(group, est)) and not fx.per_flight(taken.effect):
         sensor = taken if fx.measurement_only(taken.effect) else next(c for c in group if fx.measurement_only(c.effect))
         why = (f"{other.effect} is a condition of this flight where {sensor.effect}, which changes only what a sensor "
                f"reports and is there on every flight, explains as much")

@@ -232,7 +232,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             del rounds[1:]
             cur_model, cur_res, cur_pred = ((top.fit.model, top.fit, top.prediction) if standing else
                                           (rounds[0].model, rounds[0].fit, rounds[0].prediction))
-    warnings += _confusion_warnings(rounds)
+    warnings += _confusion_warnings(rounds, est)
     verdict = rounds[0].verdict if rounds else None
     if in_round["timing"] is not None and timing_candidate in cur_model.effect_names:
         # the final model is the rounds' (not the model as given, nor a disturbance's)
@@ -582,7 +582,7 @@ def _judged_with_a_disturbance(model: QuadrotorModel, res: FitResult, pred, noth
     return by_inputs, words, new_rounds, final
 
 
-def _confusion_warnings(rounds: Sequence[Round]) -> list[str]:
+def _confusion_warnings(rounds: Sequence[Round], est: Sequence[FlightLog]) -> list[str]:
     """The words on candidates the verdicts may be confused with: significant alone and
     explained away by the first verdict, two that both explain the data well, a runner-up
     that validates alike (a tie), and, with no verdict, candidates significant in the fit
@@ -608,7 +608,7 @@ def _confusion_warnings(rounds: Sequence[Round]) -> list[str]:
         for c in tied:
             words.append(f"round {k}: {top.effect} and {c.effect} predict the validation data alike "
                          f"({tie_numbers(top, c)}); {top.effect} is taken as "
-                         f"{tie_explanation(top, c, [top] + tied)}; "
+                         f"{tie_explanation(top, c, [top] + tied, est)}; "
                          f"to tell them apart: {distinguishing_manoeuvre(top.effect, c.effect)}")
     verdict = rounds[0].verdict if rounds else None
     for c in (rounds[0].ranking if rounds and verdict is None else []):

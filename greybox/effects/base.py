@@ -133,6 +133,17 @@ class Effect:
         the log alone (``gyro_scale``: the gyro's reading against the attitude). Default: yes."""
         return True
 
+    @classmethod
+    def mimicked_by_sensor_offsets(cls, logs: Sequence["FlightLog"]) -> bool:
+        """Whether, on these estimation flights, a sensor's constant offset (an effect that is
+        :meth:`measurement_only`: ``accel_bias``) can act on the data as this condition of the
+        flight (:attr:`per_flight`) does. Where the validation cannot tell the two apart and
+        this holds, the diagnosis's tie rule takes the offset, which is there on every flight,
+        before a claim about this one; where it does not, the estimation data decide. Default:
+        yes (``wind`` says no where the flights turned: a force fixed in the world against an
+        offset fixed in the body)."""
+        return True
+
     def parameters(self, airframe: "Airframe") -> list[Parameter]:
         return []
 
