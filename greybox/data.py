@@ -791,6 +791,10 @@ _FRAME_UNEXPLAINED_RATIO = 4.0
 log's own when it leaves this many times less of the acceleration unexplained (``1 - rho^2``);
 flights along one line give a mirror image a high correlation too (a real one 0.94 against
 0.99)."""
+_FRAME_NULL_SIGMAS = 3.0
+"""... or when the log's own reading correlates less than this many of a correlation's std
+under no relation (``1/sqrt(n)`` over ``n`` independent stretches) while another exceeds
+:data:`_FRAME_MIN_CORRELATION`."""
 _FRAME_MAX_TURN = 30.0
 """Degrees the positions' axes may be turned from the heading's zero (the real flights: 4)."""
 
@@ -901,12 +905,14 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
         return float(coef[0]), math.sqrt(max(var, 0.0)), float(A[:, 0] @ explained) / den if den > 0 else 0.0
 
     def tilt_on_acceleration(tilt: np.ndarray, a: np.ndarray, v: np.ndarray,
-                             window: float) -> tuple[complex, float] | None:
+                             window: float) -> tuple[complex, float, float] | None:
         """The horizontal acceleration ``a`` as a complex multiple ``c`` of ``tilt`` beside the
         velocity ``v`` (all ``x + i y``): ``c``'s angle is how far the positions' axes are turned
-        from the heading's; and the correlation of ``tilt`` with what ``v`` leaves of ``a``."""
+        from the heading's; the correlation of ``tilt`` with what ``v`` leaves of ``a``; and the
+        number of independent stretches (smoothing windows) it was found over."""
         ok = np.isfinite(a) & np.isfinite(v) & np.isfinite(tilt)
-        if ok.sum() < 10 * max(1.0, window / grid_step(window)):
+        per_window = max(1.0, window / grid_step(window))
+        if ok.sum() < 10 * per_window:
             return None
         A = np.column_stack([tilt[ok] - tilt[ok].mean(), v[ok] - v[ok].mean()])
         if np.linalg.matrix_rank(A) < 2:
@@ -915,7 +921,8 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
         coef, *_ = np.linalg.lstsq(A, b, rcond=None)
         explained = b - A[:, 1] * coef[1]
         den = math.sqrt(np.vdot(A[:, 0], A[:, 0]).real * np.vdot(explained, explained).real)
-        return complex(coef[0]), float(abs(np.vdot(A[:, 0], explained)) / den) if den > 0 else 0.0
+        return (complex(coef[0]), float(abs(np.vdot(A[:, 0], explained)) / den) if den > 0 else 0.0,
+                ok.sum() / per_window)
 
     def off(fit: tuple[float, float, float]) -> bool:
         # too large: noise cannot make it so. Too small: two noises that share nothing give a
@@ -959,7 +966,7 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
     # per reading of the positions' frame and the heading, the best smoothing window's
     # (complex slope, correlation, real fit): a hover's slight drifts need a second, a
     # manoeuvre's turns a fifth of it
-    readings: dict[str, tuple[complex, float, tuple[float, float, float] | None]] = {}
+    readings: dict[str, tuple[complex, float, float, tuple[float, float, float] | None]] = {}
     for window in _TILT_WINDOWS if {"x", "y", "phi", "theta"} <= set(col) and np.isfinite(psi).any() else ():
         acc = [on_grid(n, window, 2) for n in ("x", "y")]
         vel = [on_grid(n, window, 1) for n in ("x", "y")]
@@ -980,13 +987,18 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
                              np.concatenate(vel)) if reading == "as given" else None
                 readings[reading] = (*fit, real)
     if "as given" in readings:
-        c, rho, real = readings["as given"]
+        c, rho, n_windows, real = readings["as given"]
         judged["tilt turned"] = (abs(c), math.degrees(float(np.angle(c))), rho)
         # another reading of the frame or the heading that leaves a quarter of what this one
-        # leaves unexplained: the motion says the log is not in the frame it claims
+        # leaves unexplained, or that shows the motion where this one shows none (within the
+        # noise of a correlation over that many stretches: a GNSS's 0.3-m positions at 10 Hz
+        # swapped to ENU correlate 0.57 mirrored, 0.04 as given): the motion says the log is
+        # not in the frame it claims
         other = min((r for r in readings if r != "as given"), key=lambda r: 1 - readings[r][1] ** 2)
         c_o, rho_o = readings[other][:2]
-        if rho_o > _FRAME_MIN_CORRELATION and 1 - rho_o ** 2 < (1 - rho ** 2) / _FRAME_UNEXPLAINED_RATIO:
+        shows_none = rho < _FRAME_NULL_SIGMAS / math.sqrt(max(n_windows, 1.0))
+        if rho_o > _FRAME_MIN_CORRELATION and (1 - rho_o ** 2 < (1 - rho ** 2) / _FRAME_UNEXPLAINED_RATIO
+                                               or shows_none):
             shown = f"(correlation {rho_o:.2f}, as given {rho:.2f})"
             if other == "heading in degrees":
                 raise GreyboxInputError(

@@ -402,6 +402,42 @@ def test_positions_in_another_frame_than_the_attitudes_are_refused(manoeuvring_f
     assert rc == 2 and words in line and str(path) in line and not (tmp_path / "r.json").exists()
 
 
+def test_gnss_positions_swapped_to_enu_are_refused():
+    """An outdoor flight's positions from a GNSS (0.3 m at 10 Hz) under a turning heading: the
+    tilt explains their acceleration only in part even in the right frame (correlation 0.69),
+    so a swap to ENU left the log's own reading at 0.37 and the mirror image at 0.69, short of
+    explaining four times more, and the log was fitted (a blind audit's outdoor flights: 0.04
+    against 0.57). A reading that shows no motion beyond a correlation's noise (3/sqrt(n) over
+    n independent windows) while another shows it is refused too."""
+    from greybox.data import check_measurement_units
+    rng = np.random.default_rng(2)
+    t = np.arange(0.0, 60.0, 0.01)
+    a = np.zeros(t.size, complex)
+    for _ in range(6):            # a world acceleration, a few slow components per axis
+        f = rng.uniform(0.05, 0.4)
+        a += rng.uniform(0.6, 1.5) * np.exp(1j * (2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))) \
+            * np.exp(1j * rng.uniform(0, 2 * np.pi))
+    a = a.real + 1j * np.roll(a.imag, 37)
+    psi = 0.8 * np.sin(2 * np.pi * t / 25.0) + 0.3
+    tilt = -a * np.exp(-1j * psi) / 9.81          # theta - i phi: NED, a thrust near the weight
+    theta, phi = tilt.real, -tilt.imag
+    v = np.cumsum(a) * 0.01
+    pos = np.cumsum(v - v.mean()) * 0.01
+    names = ["x", "y", "z", "phi", "theta", "psi", "p", "q", "r"]
+
+    def log(x, y):
+        x, y = x + rng.normal(0, 0.3, t.size), y + rng.normal(0, 0.3, t.size)
+        x[np.arange(t.size) % 10 > 0] = np.nan
+        y[np.arange(t.size) % 10 > 0] = np.nan
+        return np.column_stack([x, y, -10 + rng.normal(0, 0.1, t.size), phi, theta, psi,
+                                np.gradient(phi, t), np.gradient(theta, t), np.gradient(psi, t)])
+
+    judged = check_measurement_units(t, log(pos.real, pos.imag), names, "gnss.csv")
+    assert 0.8 < judged["tilt turned"][0] < 1.2 and abs(judged["tilt turned"][1]) < 15
+    with pytest.raises(GreyboxInputError, match=r"x and y swapped \(ENU"):
+        check_measurement_units(t, log(pos.imag, pos.real), names, "gnss.csv")
+
+
 def test_consistent_units_pass_the_unit_checks_also_when_nothing_moves():
     """The bundled flights give slopes near 1; a log of noise alone (a vehicle on a table)
     cannot be judged and is let through."""
