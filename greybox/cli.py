@@ -246,6 +246,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 INPUT_NOISE_HELP = ("the logged rotor speeds' white noise that the vehicle does not follow (the gyro tells): "
                     "'smooth' (default) takes it out before fitting, 'keep' fits the speeds as logged (see README)")
+HELD_HELP = ("rotor speeds that repeat the previous row exactly on most rows (a slower signal held on the "
+             "rows, e.g. ESC telemetry at 50 Hz on 100 Hz rows): 'hold' (default) fits them as logged, with a "
+             "note; 'interpolate' interpolates them between their fresh rows, as the importers do (see README)")
 OUTLIERS_HELP = ("isolated glitches in the position or attitude (a marker swap: samples that leave their "
                  "neighbours' track by over 10 times the noise and come back): 'drop' (default) leaves them "
                  "out with a note, 'keep' fits them (see README)")
@@ -255,17 +258,19 @@ def _load_fit_inputs(args: argparse.Namespace):
     """Model, starting parameters (``--set``) and the logs, each checked before any work."""
     model, brought = model_from_args(args)
     p0 = _parameters(model, brought, args.set)
-    return model, p0, [_load_model_log(model, path, p0, args.input_noise, args.outliers) for path in args.log]
+    return model, p0, [_load_model_log(model, path, p0, args.input_noise, args.outliers, args.held)
+                       for path in args.log]
 
 
 def _load_model_log(model: QuadrotorModel, path: str, p0: np.ndarray, input_noise: str = "smooth",
-                    outliers: str = "drop"):
+                    outliers: str = "drop", held: str = "hold"):
     """A rotor-speed log checked against ``model``'s rotors (and their plausible speeds with
     parameters ``p0``) and ready to fit; the speeds' noise that the vehicle does not follow
-    taken out unless ``input_noise`` is ``"keep"``, the pose's glitches unless ``outliers`` is."""
+    taken out unless ``input_noise`` is ``"keep"``, the pose's glitches unless ``outliers`` is,
+    held speeds interpolated between their fresh rows where ``held`` is ``"interpolate"``."""
     from .data import load_log
     log = load_log(path, inputs="rotor_speeds")
-    log = model_log(model, log, p0, path, input_noise, outliers)
+    log = model_log(model, log, p0, path, input_noise, outliers, held)
     for note in log.notes:
         print(f"note: {note}", file=sys.stderr)
     return log
@@ -625,7 +630,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     model, p0, logs = _load_fit_inputs(args)
     fixed = _parameter_names(model, args.fixed, "--fixed")
     per_flight = _per_flight(args.per_flight, model)
-    validation = [_load_model_log(model, v, p0, args.input_noise, args.outliers) for v in args.validation] \
+    validation = [_load_model_log(model, v, p0, args.input_noise, args.outliers, args.held) for v in args.validation] \
         if args.validation else None
     diag = diagnose(model, logs, candidates=_names(args.candidates), iterate=not args.no_iterate,
                     p0=p0, progress=not args.quiet,
@@ -852,6 +857,7 @@ def _parser() -> argparse.ArgumentParser:
     _data_args(f, "with several logs, what each flight gets its own value of: 'auto' (default: the "
                   "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
                   "comma list of effects / parameters", process_noise_default=FIT_DEFAULTS["process_noise"])
+    f.add_argument("--held", choices=["hold", "interpolate"], default="hold", help=HELD_HELP)
     f.add_argument("--horizon", type=_positive, default=FIT_DEFAULTS["horizon"],
                    help=f"validation prediction horizon, s (default {FIT_DEFAULTS['horizon']:g})")
     f.add_argument("--plots", help="folder for compare/residual plots")
@@ -873,6 +879,7 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--no-iterate", action="store_true", help="rank once; do not add effects and re-rank")
     _data_args(g, "with several logs, what each flight gets its own value of (as for fit; default auto: "
                   "wind, thrust_drift)")
+    g.add_argument("--held", choices=["hold", "interpolate"], default="hold", help=HELD_HELP)
     g.add_argument("--validation", metavar="LOGV", nargs="+",
                    help="separate flight(s) to validate on (then all of each LOG is estimation data; "
                         "default: the last 20 %% of each LOG)")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
@@ -156,9 +157,13 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
 
 
 def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
-              input_noise: str = "smooth", outliers: str = "drop") -> FlightLog:
+              input_noise: str = "smooth", outliers: str = "drop", held: str = "hold") -> FlightLog:
     """``log`` checked against ``model``'s rotors (and their plausible speeds with parameters
-    ``p0``) and ready to fit; errors name ``where`` (also used by ``greybox batch``). With
+    ``p0``) and ready to fit; errors name ``where`` (also used by ``greybox batch``). Rotor
+    speeds that are a slower signal held on the rows (:func:`~greybox.io.held_inputs`) are
+    interpolated between their fresh rows with ``held="interpolate"``
+    (:func:`~greybox.io.interpolate_held_inputs`) and fitted as logged with ``"hold"``, a note
+    saying so either way. With
     ``input_noise="smooth"`` the white noise on the logged speeds that the vehicle does not
     follow is taken out (:func:`~greybox.fitting.input_errors.denoise_inputs`; a note on the
     log says so); ``"keep"`` leaves them as logged. With ``outliers="drop"`` the pose
@@ -168,6 +173,7 @@ def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
         raise GreyboxInputError(f"{where}: has rotor speeds {','.join(log.input_names)} but the airframe "
                                 f"has {model.airframe.n_rotors} rotors")
     model.check_rotor_speeds(log.inputs[:, :model.airframe.n_rotors], p0, where)
+    log = _held_speeds(log, held)
     if input_noise == "smooth":
         from .fitting.input_errors import denoise_inputs
         log, _ = denoise_inputs(model, log, p0)
@@ -182,6 +188,24 @@ def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
     if not is_imu_only(log):      # an IMU-only log is fitted by its own equations, which check it
         log.check_fittable()
     return log
+
+
+def _held_speeds(log: FlightLog, held: str) -> FlightLog:
+    """``log`` with its held rotor speeds interpolated (``held="interpolate"``) or as logged
+    with a note that they are held (``"hold"``)."""
+    from .io.base import held_inputs, interpolate_held_inputs
+    if held == "interpolate":
+        return interpolate_held_inputs(log)
+    if held != "hold":
+        raise GreyboxInputError(f"held: {held!r} is neither 'hold' nor 'interpolate'")
+    found = held_inputs(log)
+    if found is None:
+        return log
+    note = (f"{found.text(', '.join(log.input_names))}: fitted as logged, each row holding its value; if they are "
+            f"a sensor's samples held between readings (ESC telemetry), a held row is up to "
+            f"{1000 / found.rate:.0f} ms late and a fitted effect may stand in for that: --held interpolate "
+            "(held=\"interpolate\") interpolates them between the fresh rows")
+    return replace(log, notes=list(log.notes) + [note])
 
 
 def fit_json(model: QuadrotorModel, res, preds, sources, horizons=None, est=None, closed_loop=None) -> dict:

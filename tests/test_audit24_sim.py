@@ -3,6 +3,7 @@ RK45 between the ticks of its own 400 Hz PX4-like cascade, a Mahony attitude est
 steady wind with 0.3-m/s gusts, an accelerometer biased by (0.06, -0.04, 0.10) m/s², ESC
 telemetry at 50 Hz held on 100 Hz rows, GNSS positions at 10 Hz (0.3 m), baro at 25 Hz):
 what it found wrong, checked on its own flights (byte for byte the audit's files)."""
+import json
 from pathlib import Path
 
 import numpy as np
@@ -70,3 +71,33 @@ def test_its_gnss_positions_swapped_to_enu_are_refused(case_a, tmp_path, capsys)
     rc = main(["fit", str(enu), "--airframe", str(case_a / "user.toml"), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and "x and y swapped (ENU" in err and str(enu) in err, err
+
+
+@pytest.fixture(scope="module")
+def case_d(tmp_path_factory) -> Path:
+    """Case D (a quadratic drag of 0.05 beside the wind and the bias), as the audit made it."""
+    out = tmp_path_factory.mktemp("audit24d")
+    sim.DATA = str(out)
+    sim.main(["sim.py", "Dest", "Dval"])
+    return out
+
+
+def test_held_telemetry_interpolated_leaves_no_moment_gain(case_d, tmp_path, capsys):
+    """The ESC telemetry at 50 Hz held on the 100 Hz rows lags the rotor speeds by up to 20 ms,
+    more than the rows' timing holds (``sampled_inputs`` went to its bound, s_lead = 1, and was
+    refused); the diagnosis named a moment gain of 0.87 beside the true wind, quadratic drag and
+    accelerometer bias, and said nothing of the held rows. Now the log's note and a warning say
+    them, and with ``--held interpolate`` the final model holds the three true effects alone."""
+    out = tmp_path / "d.json"
+    rc = main(["diagnose", str(case_d / "D_est.csv"), "--airframe", str(case_d / "user.toml"),
+               "--validation", str(case_d / "D_val.csv"), "--held", "interpolate", "--quiet", "--json", str(out)])
+    assert rc == 0
+    doc = json.loads(out.read_text())
+    assert set(doc["added"]) == {"wind", "quadratic_drag", "accel_bias"}, doc["added"]
+    assert "moment_gain" not in doc["final"]["effects"], doc["final"]["effects"]
+    assert any("interpolated between the fresh rows" in n for n in doc["log_notes"]), doc["log_notes"]
+    # as logged: the note says the rows are held and what to do
+    assert main(["fit", str(case_d / "D_est.csv"), "--airframe", str(case_d / "user.toml"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "repeat the previous row exactly on 50 % of the rows (a fresh value every 2 rows: 50 Hz on 100 Hz rows)" \
+        in err and "--held interpolate" in err, err

@@ -111,6 +111,50 @@ def test_time_held_samples_and_one_time_base():
 
 
 
+def test_rotor_speeds_held_on_the_rows_are_found_and_interpolated_on_request(tmp_path, capsys):
+    """A user's CSV whose rotor speeds are 50-Hz ESC telemetry held on 100-Hz rows (a blind
+    audit's outdoor flights): every other row repeats the previous one. ``held_inputs`` says so
+    (half the rows, a fresh value every 2 rows, 50 Hz); ``interpolate_held_inputs`` puts the
+    held rows half-way between their fresh neighbours, marks the fresh rows and says so; a log
+    fresh on every row (greybox's own), or one an importer marked, is not held. ``greybox fit``
+    fits them as logged with a note (the contract's zero-order hold), and ``--held
+    interpolate`` interpolates them."""
+    from greybox import FlightLog, save_log
+    from greybox.io import held_inputs, interpolate_held_inputs
+    demo = load_log(Path(__file__).resolve().parents[1] / "greybox" / "data" / "logs" / "demo_ground_effect.csv")
+    assert held_inputs(demo) is None
+    log = demo.slice(0, 2000)
+    t = log.t
+    dt = float(np.median(np.diff(t)))
+    fresh = np.arange(len(t)) % 2 == 0
+    inputs = log.inputs.copy()
+    inputs[~fresh] = inputs[np.flatnonzero(~fresh) - 1]          # held: the previous row's value
+    held_log = FlightLog(t, inputs, list(log.input_names), log.outputs, list(log.output_names), source="held.csv")
+    found = held_inputs(held_log)
+    assert found is not None and found.share == pytest.approx(0.5, abs=1e-3) and found.every == pytest.approx(2.0)
+    assert found.rate == pytest.approx(0.5 / dt) and found.row_rate == pytest.approx(1 / dt)
+    assert "every 2 rows" in found.text()
+    smooth = interpolate_held_inputs(held_log)
+    k = np.flatnonzero(~fresh)[:-1]
+    np.testing.assert_allclose(smooth.inputs[k], 0.5 * (inputs[k - 1] + inputs[k + 1]))
+    np.testing.assert_array_equal(smooth.inputs[fresh], inputs[fresh])
+    np.testing.assert_array_equal(smooth.extras["motor_fresh"], fresh.astype(float))
+    assert "interpolated between the fresh rows" in smooth.notes[-1]
+    assert held_inputs(smooth) is None and interpolate_held_inputs(smooth) is smooth
+    # a 200-Hz controller's speeds on 200 Hz rows are fresh on every row
+    assert held_inputs(log) is None
+    path = tmp_path / "held.csv"
+    save_log(held_log, path, digits=10)
+    airframe = str(Path(__file__).resolve().parents[1] / "greybox" / "data" / "airframes" / "paper.toml")
+    assert main(["fit", str(path), "--airframe", airframe, "--quiet", "--max-iter", "3"]) in (0, 1)
+    err = capsys.readouterr().err
+    assert "repeat the previous row exactly on 50 % of the rows" in err and "--held interpolate" in err, err
+    assert main(["fit", str(path), "--airframe", airframe, "--quiet", "--max-iter", "3", "--held",
+                 "interpolate"]) in (0, 1)
+    err = capsys.readouterr().err
+    assert "interpolated between the fresh rows (held inputs: interpolate)" in err, err
+
+
 def test_a_command_that_stays_put_is_held_not_ramped():
     """A blind audit's 418-Hz uSD command stream, constant for the 567 ms on the ground before
     take-off, was ramped across them towards the next change (97 rad/s RMS off, K_T 2.3 % low

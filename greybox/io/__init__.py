@@ -15,7 +15,8 @@ from __future__ import annotations
 
 from .base import (CRAZYFLIE_PWM_MAP, G0, PX4_PWM_MAP, FlightSpan, ImportResult, PwmMap, assemble_log,
                    commands_on_grid, deg_to_rad, euler_from_quaternion, euler_zup_to_ned, flight_from_height, held_run_knots,
-                   flight_from_imu, flu_to_frd, fresh_rows, g_to_ms2, grid_with, interpolate_fresh,
+                   flight_from_imu, flu_to_frd, fresh_rows, g_to_ms2, grid_with, held_inputs, interpolate_fresh,
+                   interpolate_held_inputs,
                    parse_pwm_map, pwm_to_rotor_speed, rpm_to_rad_s, snap, time_base, wrap_angle, zup_to_ned)
 from .crazyflie_usd import import_crazyflie_usd, read_usd_log
 from .nanobench import NanoBenchImport, crazyflie_airframe_toml, import_nanobench
@@ -26,4 +27,5 @@ __all__ = ["import_nanobench", "import_px4", "import_crazyflie_usd", "read_usd_l
            "CRAZYFLIE_PWM_MAP", "PX4_PWM_MAP", "G0", "pwm_to_rotor_speed", "parse_pwm_map", "flu_to_frd",
            "zup_to_ned", "euler_zup_to_ned", "euler_from_quaternion", "wrap_angle", "deg_to_rad", "g_to_ms2",
            "rpm_to_rad_s", "time_base", "fresh_rows", "interpolate_fresh", "commands_on_grid", "held_run_knots",
+           "held_inputs", "interpolate_held_inputs",
            "flight_from_height", "flight_from_imu", "grid_with", "snap", "assemble_log"]
