@@ -337,6 +337,67 @@ def test_headings_that_wrap_and_angles_in_degrees_on_a_hover_flight(hover_flight
             check()
 
 
+def test_unwrap_heading_by_hand_and_told_by_the_gyro():
+    """A heading wrapped to (-pi, pi] is continued: each 2 pi step taken out; between sparse
+    samples a yaw of more than pi is told by the yaw gyro's integral, where np.unwrap takes the
+    shorter way round."""
+    from greybox.data import unwrap_heading
+    t = np.arange(0.0, 2.0, 0.01)
+    true = 3.0 + 1.5 * t                                   # through +pi at t = 0.094 s, again at 4.28 rad
+    wrapped = np.angle(np.exp(1j * true))
+    out, n = unwrap_heading(t, wrapped)
+    assert n == 1 and np.allclose(out, true)
+    same, n = unwrap_heading(t, true)
+    assert n == 0 and same is not None and np.array_equal(same, true)
+    # a spin of 40 rad/s seen every 0.1 s (4 rad between samples); the gyro at every row
+    true = 40.0 * t
+    sparse = np.full(t.size, np.nan)
+    sparse[::10] = np.angle(np.exp(1j * true[::10]))
+    out, n = unwrap_heading(t, sparse, np.full(t.size, 40.0))
+    np.testing.assert_allclose(out[::10], true[::10], atol=1e-9)
+    assert n == 12                             # 76 rad turned: 12 times through +pi
+    assert not np.allclose(np.unwrap(sparse[::10]), true[::10])      # the shorter way round
+
+
+def test_a_wrapped_heading_sampled_between_rows_is_fitted_and_certified(hover_flight, tmp_path):
+    """The heading wrapped to (-pi, pi] (an IMU's or a motion capture's), measured on every other
+    row: the shooting nodes' headings were filled across each wrap before being unwrapped, a
+    swing through 0 between +pi and -pi that stayed, so their gaps were 2 pi (a blind audit's
+    racer: "not certified", b 16 orders off). Now the fit is certified with the parameters of
+    the unwrapped flight, and load_log continues the heading with a note."""
+    from dataclasses import replace
+    from greybox import fit
+    log = hover_flight
+    cols = {n: j for j, n in enumerate(log.output_names)}
+    Y = log.outputs.copy()
+    a = 3.6                                   # the world turned: the heading wraps twice
+    x, y = Y[:, cols["x"]].copy(), Y[:, cols["y"]].copy()
+    Y[:, cols["x"]], Y[:, cols["y"]] = np.cos(a) * x - np.sin(a) * y, np.sin(a) * x + np.cos(a) * y
+    continuous = Y[:, cols["psi"]] + a
+    Y[:, cols["psi"]] = np.angle(np.exp(1j * continuous))
+    for n in ("phi", "theta", "psi"):
+        Y[1::2, cols[n]] = np.nan
+    wrapped = replace(log, outputs=Y)
+    model = QuadrotorModel(load_airframe(resources.files("greybox") / "data" / "airframes" / "x_quad.toml"))
+    est = wrapped.split(0.8)[0]
+    res = fit(model, est, progress=False)
+    Yc = Y.copy()
+    Yc[:, cols["psi"]] = np.where(np.isfinite(Y[:, cols["psi"]]), continuous, np.nan)
+    ref = fit(model, replace(log, outputs=Yc).split(0.8)[0], progress=False)
+    assert res.converged and ref.converged, (res.status, ref.status)
+    for name in ("K_T", "b"):
+        k = res.free_names.index(name)
+        assert abs(res.value(name) - ref.value(name)) < 0.1 * res.std[k], name
+    path = tmp_path / "wrapped.csv"
+    save_log(wrapped, path, digits=10)
+    loaded = load_log(path)
+    psi = loaded.output("psi")
+    ok = np.isfinite(psi)
+    offset = psi[ok] - continuous[ok]          # whole turns: the first sample is kept as logged
+    assert np.allclose(offset, offset[0], atol=1e-6) and abs(offset[0] / (2 * np.pi) - round(offset[0] / (2 * np.pi))) < 1e-6
+    assert any("the heading wraps 2 time(s)" in n for n in loaded.notes), loaded.notes
+
+
 @pytest.fixture(scope="module")
 def manoeuvring_flight():
     """greybox's manoeuvres (steps, yaw turns, fast translations), 30 s at 200 Hz."""
