@@ -134,3 +134,34 @@ def test_the_diagnosis_tries_gyro_scale_where_the_log_hints_at_it(flight):
     hover = log.slice(0, int(np.searchsorted(log.t, 4.0)))      # the first manoeuvre: a hover
     assert gyro_scale(_gyro_times(hover, 1.03)) is None
     assert "gyro_scale" not in default_candidates(model, [_gyro_times(hover, 1.03)])
+
+
+def _speeds_shifted(log, rows):
+    """The log with its rotor speeds stamped ``rows`` rows late (> 0) or early (< 0): the speed
+    logged at a row is the one ``rows`` rows before it (the ends held)."""
+    idx = np.clip(np.arange(len(log)) - rows, 0, len(log) - 1)
+    return replace(log, inputs=log.inputs[idx])
+
+
+def test_rotor_speeds_stamped_late_against_the_gyro_are_read_from_the_log(flight):
+    """The body's roll and pitch acceleration against the moment of the logged speeds: greybox's
+    own flight (200 Hz rows) as logged, within a row of no shift and nothing said; its speeds
+    stamped 2 rows (10 ms) late, the body leads them by 10 ms and the fit says so; stamped 4
+    rows early (a delay, as a command's), the body follows them 20 ms later, which physics
+    allows (command_delay holds it) and nothing is said of lateness."""
+    from greybox.kinematics import input_lead
+    model, log = flight
+    P = model.airframe.rotor_positions
+    as_logged = input_lead(log, P)
+    # a row's speed acts over the row after it (held): half a row's lag, 2.5 ms, is no shift
+    assert as_logged.lag == pytest.approx(0.0025, abs=0.001) and abs(as_logged.shift) < 0.001
+    assert as_logged.correlation > 0.9 and not as_logged.late() and as_logged.words() == ""
+    late = input_lead(_speeds_shifted(log, 2), P)
+    assert late.shift == pytest.approx(-0.010, abs=0.001) and late.late(), late
+    assert "leads the logged rotor speeds' moment by 10 ms" in late.words()
+    early = input_lead(_speeds_shifted(log, -4), P)
+    assert early.shift == pytest.approx(0.020, abs=0.001) and not early.late(), early
+    res = fit(model, _speeds_shifted(log, 2).split(0.8)[0], progress=False, max_iter=5)
+    assert any("stamped late against the gyro" in w for w in res.warnings), res.warnings
+    res = fit(model, log.split(0.8)[0], progress=False, max_iter=5)
+    assert not any("stamped late" in w for w in res.warnings), res.warnings

@@ -14,7 +14,7 @@ from ..data import FlightLog
 from ..effects.discovered import CHANNEL_UNITS, DiscoveredEffect, discovered_effect_class, effect_file_text
 from ..fitting import FitResult
 from ..fitting.certificate import FILTERED_SENSOR_RATIO
-from ..kinematics import GyroScale
+from ..kinematics import GyroScale, InputLead
 from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import ANGLE_OF_RATE, AttitudeMotion
 from ..controller_law import ClosedLoopReport, reported_horizons
@@ -305,6 +305,9 @@ class Diagnosis:
     # the gyro read against the attitude's turning on the estimation flights, when some axis is
     # off (kinematics.gyro_scale)
     gyro_scale: GyroScale | None = None
+    # the logged rotor speeds against the gyro on the estimation flights, when they are stamped
+    # late (kinematics.input_lead)
+    input_lead: InputLead | None = None
 
     def motion_verdicts(self) -> dict[str, str]:
         """Per unexplained attitude or rate channel whose residual the gyro-attitude comparison
@@ -354,6 +357,10 @@ class Diagnosis:
                # the gyro read against the attitude's turning, per axis read, when some axis is off
                "gyro_scale": None if self.gyro_scale is None else
                {a: {"value": _num(k), "std": _num(self.gyro_scale.std[a])} for a, k in self.gyro_scale.scale.items()},
+               # the speeds' shift against the gyro, when they are stamped late
+               "input_lead": None if self.input_lead is None else
+               {"shift_s": _num(self.input_lead.shift), "correlation": _num(self.input_lead.correlation),
+                "correlation_as_logged": _num(self.input_lead.at_zero)},
                "judged_with_disturbance": self.judged_with_disturbance,
                "rates_from_input_noise": dict(self.rates_from_input_noise),
                "input_noise_corrected": {n: {"value": _num(z), "std": _num(sd), "fitted": _num(one)}
@@ -422,7 +429,9 @@ class Diagnosis:
         airframe's rotors in another order: nothing was tested), ``"rotor_layout"`` (they act as
         the airframe's rotors turned about the body's z, an "x" layout read as "plus" or back:
         nothing was tested), ``"uncertified"`` (the baseline
-        fit is not certified, nothing was tested), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
+        fit is not certified, nothing was tested), ``"input_timing"`` (the logged rotor speeds
+        are stamped late against the gyro: what the model misses may be that timing,
+        :func:`~greybox.kinematics.input_lead`), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
         physics), ``"random_torque"`` (what is missing acts as a random torque, turbulence, which
         the final model holds as a disturbance), ``"input_noise"`` (the rates are missed by a
         random torque that the noise on the logged rotor speeds gives: cannot tell a turbulence
@@ -442,6 +451,8 @@ class Diagnosis:
             return "rotor_layout"
         if not self.baseline_certified:
             return "uncertified"
+        if self.input_lead is not None and self.input_lead.late():
+            return "input_timing"
         if self.outside_catalogue:
             return "outside_catalogue"
         if self.added_disturbance:
@@ -524,6 +535,8 @@ class Diagnosis:
                                 f"{math.degrees(self.layout_rotation or 0.0):+.0f} degrees about the body's z axis: "
                                 "nothing was tested; check the airframe's layout and rotor positions",
                 "uncertified": "null (cannot tell: the baseline fit is not certified)",
+                "input_timing": f"null -- {self.input_lead.words() if self.input_lead else ''}, and diagnose "
+                                "again: what the model misses may be that timing, not physics",
                 "outside_catalogue": f"null -- {self.outside_catalogue}",
                 "random_torque": self._random_torque_words(),
                 "input_noise": "null -- the model misses the body rates by a random torque that the noise on the "

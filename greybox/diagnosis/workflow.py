@@ -20,7 +20,7 @@ from ..errors import ConvergenceWarning, GreyboxInputError
 from ..controller_law import closed_loop_or_why
 from ..fitting import IF_NEEDED, THRUST_IMPOSSIBLE, FitResult, fit, progress_callback, thrust_ratio
 from ..fitting.input_errors import followed_share
-from ..kinematics import gyro_scale
+from ..kinematics import gyro_scale, input_lead
 from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
@@ -333,7 +333,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      timing_bound=timing_bound, rotor_order=order, layout_rotation=turned,
                      thrust_over_weight={"baseline": thrust_ratio(res.model, est, res.p),
                                          "final": thrust_ratio(cur_res.model, est, cur_res.p)},
-                     gyro_scale=next((g for g in map(gyro_scale, est) if g is not None and g.off()), None))
+                     gyro_scale=next((g for g in map(gyro_scale, est) if g is not None and g.off()), None),
+                     input_lead=None if model.inputs == "controls" else
+                     next((g for g in (input_lead(lg, model.airframe.rotor_positions) for lg in est)
+                           if g is not None and g.late()), None))
     # the error-against-horizon report, over overlapping windows (validation.horizon_errors)
     diag.baseline_horizons = horizon_errors_after(res, pred.parts or [pred], validation_vectors(res, est, val),
                                                   compile=compile, est=est)
