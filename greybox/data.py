@@ -775,7 +775,8 @@ def check_rotor_speed_units(U: np.ndarray, names: list[str], where: str,
         r, c = over[0]
         raise GreyboxInputError(
             f"{where}: row {rows[r]}, column {names[c]!r}: rotor speed {U[r, c]:g} is not "
-            f"plausible in rad/s (above {MAX_ROTOR_SPEED:g}); is it RPM? rad/s = RPM * pi/30")
+            f"plausible in rad/s (above {MAX_ROTOR_SPEED:g}); is it RPM? rad/s = RPM * pi/30 (eRPM, an ESC's "
+            "electrical RPM: rad/s = eRPM * pi / (30 * the motor's pole pairs))")
     neg = np.argwhere(U < 0)
     if neg.size:
         r, c = neg[0]

@@ -6,7 +6,6 @@ files)."""
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from greybox.cli import main

@@ -337,6 +337,26 @@ def test_headings_that_wrap_and_angles_in_degrees_on_a_hover_flight(hover_flight
             check()
 
 
+def test_k_t_far_from_the_airframes_value_asks_about_the_speeds_unit(tmp_path):
+    """Rotor speeds logged in another unit by a factor the unit checks cannot see (a racer's raw
+    DShot telemetry, eRPM/100 with 7 pole pairs: 0.67 of rad/s) are fitted with a K_T 1/0.67^2
+    times the truth, the thrust balancing the weight, certified: a blind audit's K_T came out 3
+    times its airframe's value with nothing said. Now a K_T 2 times its airframe's value or more
+    (or less) is said, with the scale that gives it; the speeds in rad/s, nothing."""
+    from dataclasses import replace
+    from greybox import fit
+    log = load_log(DEMO).slice(0, 2400)
+    model = QuadrotorModel(load_airframe(PAPER))
+    ref = fit(model, log, progress=False)
+    assert not any("K_T came out" in w for w in ref.warnings)
+    res = fit(model, replace(log, inputs=0.6 * log.inputs), progress=False)
+    assert res.value("K_T") / ref.value("K_T") == pytest.approx(1 / 0.36, rel=0.02)
+    k = res.value("K_T") / model.airframe.parameters["K_T"]
+    said = [w for w in res.warnings if "K_T came out" in w]
+    assert len(said) == 1 and f"{k:.3g} times the airframe's value" in said[0], res.warnings
+    assert f"speeds {1 / np.sqrt(k):.3g} times their value in rad/s" in said[0]
+
+
 def test_unwrap_heading_by_hand_and_told_by_the_gyro():
     """A heading wrapped to (-pi, pi] is continued: each 2 pi step taken out; between sparse
     samples a yaw of more than pi is told by the yaw gyro's integral, where np.unwrap takes the

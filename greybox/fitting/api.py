@@ -862,6 +862,33 @@ def _gyro_scale_warnings(logs: Sequence[FlightLog]) -> list[str]:
     return out
 
 
+SPEED_SCALE_FACTOR = 2.0
+"""``K_T`` fitted this many times its airframe value or more (or less) is said: the logged
+speeds' scale does that."""
+
+
+def _speed_scale_warnings(model: QuadrotorModel, values: Mapping[str, float], free_names: Sequence[str]) -> list[str]:
+    """Words when ``K_T``, given by the airframe and fitted, moved from it by a factor of
+    :data:`SPEED_SCALE_FACTOR` or more: a scale ``s`` on the logged speeds multiplies it by
+    ``1/s^2`` (and ``b`` alike), and the thrust still balances the weight (a blind audit's racer
+    logged in raw DShot units, eRPM/100 with 7 pole pairs, 0.67 of rad/s: K_T 2.24 times the
+    truth, 3 times its guess, certified and silent). A guess that far off reads the same: the
+    words ask."""
+    given = model.airframe.parameters
+    if model.inputs == "controls" or "K_T" not in given or "K_T" not in free_names:
+        return []
+    try:
+        k = float(values["K_T"]) / float(np.ravel(given["K_T"])[0])
+    except (TypeError, ValueError, ZeroDivisionError):
+        return []
+    if not (math.isfinite(k) and k > 0) or max(k, 1 / k) < SPEED_SCALE_FACTOR:
+        return []
+    return [f"K_T came out {k:.3g} times the airframe's value: a guess that far off, or logged rotor speeds in "
+            f"another unit (speeds {1 / math.sqrt(k):.3g} times their value in rad/s give it, and the thrust still "
+            "balances the weight); if the airframe's K_T is measured (a thrust stand, the propeller's data), check "
+            "the speeds' unit (raw DShot telemetry is eRPM/100: rad/s = value * 100 * pi / (30 * pole pairs))"]
+
+
 def _input_lead_warnings(model: QuadrotorModel, logs: Sequence[FlightLog]) -> list[str]:
     """Words on each flight whose logged rotor speeds are stamped late against the gyro
     (:func:`greybox.kinematics.input_lead`): a blind audit's racer with its speeds 10 ms late
@@ -1170,6 +1197,7 @@ def _parameter_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], free_n
         warnings += effect.plausibility_warnings(values, fitted_std, model.airframe)
         warnings += effect.interpretation_notes(values, fitted_std, model.airframe)
     warnings += _thrust_balance_warnings(model, logs, values, p_out)
+    warnings += _speed_scale_warnings(model, values, free_names)
     warnings += _thrust_spread_warnings(model, logs, vectors, [free_names[j] for j in spread])
     if inputs_floor is not None:
         warnings.append("the logged inputs carry white noise the vehicle does not follow (the gyro tells): fed to "
