@@ -224,20 +224,21 @@ def test_rate_damping_is_discovered_refitted_and_written(paper, damped, tmp_path
     assert set(entry) >= {"channel", "terms", "significant", "nrmse_before", "nrmse_after"}
     assert set(entry["terms"][0]) == {"feature", "coefficient", "std"} and entry["significant"] is True
     assert entry["refit_certified"] is True     # its nrmse_after is a certified refit's
-    assert "5. beyond the catalogue" in d.summary() and "what the verdict holds" not in d.summary()
+    assert "5. beyond the catalogue" in d.summary() and "the verdicts explain more" not in d.summary()
     # beside a verdict whose final model predicts better, the section says whose terms they are
     from dataclasses import replace
     from types import SimpleNamespace
     beside = replace(d, verdict="drag_moment", outside_catalogue="", final_prediction=SimpleNamespace(total=0.001))
     assert "predicts better, nrmse 0.001" in "\n".join(beside._discovery_lines())
+    assert "the verdicts explain more than this combination" in "\n".join(beside._discovery_lines())
     worse = replace(beside, final_prediction=SimpleNamespace(total=d.baseline_prediction.total))
-    assert "what the verdict holds" not in "\n".join(worse._discovery_lines())
+    assert "the verdicts explain more" not in "\n".join(worse._discovery_lines())
     # between the best single term and the combination of all: the combination predicts better
     single = min(x.nrmse_after for x in d.discovered if x.significant)
     together = d.discovery["together"]["nrmse_after"]
     assert together < single
     between = replace(beside, final_prediction=SimpleNamespace(total=0.5 * (together + single)))
-    assert "what the verdict holds" not in "\n".join(between._discovery_lines())
+    assert "the verdicts explain more" not in "\n".join(between._discovery_lines())
     # numbers that agree to five digits are printed with as many as tell them apart (an audit's
     # "nrmse 0.04194 against 0.04194")
     import re
@@ -247,7 +248,7 @@ def test_rate_damping_is_discovered_refitted_and_written(paper, damped, tmp_path
     assert a != b and float(a) < float(b), line
     # within 5 %, no claim that the verdict holds it (an audit's thrust loss outside the
     # catalogue beside a final drag moment: 0.168 against 0.169)
-    assert "what the verdict holds" not in line and "cannot tell the verdicts from" in line
+    assert "the verdicts explain more" not in line and "cannot tell the verdicts from" in line
     # a null verdict not taken as outside the catalogue says why beside the "significant" ones
     # (the model predicting 1.02 times what the best found does: 2 % better with it)
     null = replace(d, verdict=None, outside_catalogue="", final_prediction=SimpleNamespace(total=1.02 * together))

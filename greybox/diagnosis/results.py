@@ -736,9 +736,13 @@ class Diagnosis:
                              f"{a:.{digits}f} against {b:.{digits}f}, within {100 * DISCOVERED_APART:.0f} %: the "
                              "validation data cannot tell the verdicts from this combination outside the catalogue)")
             else:
+                # a claim on predictions, not on forms: a blind audit's rotor drag (no body-z force)
+                # beside a discovered fz ~ vz_b, what the baseline's vertical drag had left, was
+                # called "what the verdict holds"
                 lines.append(f"   (found on the model as given; the final model predicts better, nrmse "
-                             f"{a:.{digits}f} against {b:.{digits}f}: it is what the verdict "
-                             "holds, seen from outside the catalogue)")
+                             f"{a:.{digits}f} against {b:.{digits}f}: the verdicts explain more than this "
+                             "combination, which is no finding of its own beside them; its form need not be "
+                             "theirs)")
         elif found and not self.verdict and not self.outside_catalogue:
             # a null verdict beside a "significant" combination read as a contradiction (a blind
             # audit's racer in its own propwash: mx ~ w2roll^2, roll -13 %, total -2 %)
