@@ -21,6 +21,7 @@ follows the README's "Conventions" (the paper's pitch term has the wrong sign).
 """
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Iterable, Mapping
 
 import casadi as ca
@@ -227,6 +228,12 @@ class QuadrotorModel:
             if bad.size:
                 raise GreyboxInputError(f"{where}: row {bad[0] + 2}, column {name!r}: missing value "
                                         "(a signal read by the model is an input and may never be missing)")
+            for e in self.effects:
+                limit, unit, mistake = e.signal_limits.get(name, (math.inf, "", ""))
+                if v.size and float(np.median(np.abs(v))) > limit:
+                    raise GreyboxInputError(f"{where}: column {name!r} (read by {e.name}): typically "
+                                            f"{float(np.median(np.abs(v))):.4g}, beyond the {limit:g} {unit} "
+                                            f"no vehicle's {name} reaches: {mistake}")
             cols.append(v[:, None])
         return FlightLog(log.t, np.hstack(cols), self.input_names, log.outputs, list(log.output_names),
                          extras, list(log.notes), log.source)

@@ -337,6 +337,25 @@ def test_headings_that_wrap_and_angles_in_degrees_on_a_hover_flight(hover_flight
             check()
 
 
+def test_a_battery_voltage_in_millivolts_is_refused(tmp_path, capsys):
+    """vbat logged in mV was fitted by battery_voltage with K_vbat -5e-6 for 0.2, certified,
+    exit 0 (a blind audit's hexacopter); in volts it is read."""
+    log = load_log(DEMO).slice(0, 1000)
+    for unit, scale in (("V", 1.0), ("mV", 1000.0)):
+        path = tmp_path / f"vbat_{unit}.csv"
+        save_log(log, path, digits=8)
+        lines = path.read_text().splitlines()
+        path.write_text("\n".join([lines[0] + ",vbat"] + [ln + f",{scale * (4.1 - 0.001 * k):.6g}"
+                                                          for k, ln in enumerate(lines[1:])]) + "\n")
+        rc, err = _cli(capsys, "fit", str(path), "--airframe", PAPER, "--effects", "battery_voltage", "--quiet",
+                       "--max-iter", "2")
+        if unit == "V":
+            assert rc in (0, 1) and "millivolts" not in err, err
+        else:
+            line = _one_error(err)
+            assert rc == 2 and "column 'vbat'" in line and "is it in millivolts? V = mV / 1000" in line, err
+
+
 def test_k_t_far_from_the_airframes_value_asks_about_the_speeds_unit(tmp_path):
     """Rotor speeds logged in another unit by a factor the unit checks cannot see (a racer's raw
     DShot telemetry, eRPM/100 with 7 pole pairs: 0.67 of rad/s) are fitted with a K_T 1/0.67^2

@@ -84,6 +84,10 @@ class Effect:
     signals: ClassVar[tuple[str, ...]] = ()
     """Logged signals the effect reads as extra model inputs (e.g. ``vbat``), after the
     rotor speeds in the input vector; a log supplies them as extra columns."""
+    signal_limits: ClassVar[dict[str, tuple[float, str, str]]] = {}
+    """``{signal: (largest plausible typical magnitude, unit, the likely mistake)}``: a log whose
+    signal is typically (its median) beyond it is refused, naming the mistake (``vbat`` in
+    millivolts)."""
     rate_of_unmodelled: ClassVar[dict[str, str]] = {}
     """``{its state: another state}`` for a disturbance state that is the rate of change of
     what the model leaves out of that other state (``d_p`` of ``p``). A fit with process noise

@@ -103,6 +103,9 @@ class BatteryVoltage(Effect):
     excited_by = 'long flights at varied thrust'
     channels = ('z', 'psi', 'r')
     signals = ("vbat",)
+    # a 24-cell pack is 100 V; a cell in millivolts is thousands (a blind audit's vbat in mV:
+    # K_vbat -5e-6 for 0.2, certified, exit 0)
+    signal_limits = {"vbat": (150.0, "V", "is it in millivolts? V = mV / 1000")}
 
     def __init__(self, v_ref: float = 4.0):
         self.v_ref = float(v_ref)
