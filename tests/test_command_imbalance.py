@@ -171,3 +171,24 @@ def test_a_fit_whose_rotor_columns_are_in_another_order_says_so(base, tmp_path, 
             assert rec["status"] == "failed" and rec["reason"].startswith(
                 "fit did not converge: the logged rotor speeds act as the airframe's rotors in another order") \
                 and "w2 as rotor 4, w3 as rotor 3, w4 as rotor 2" in rec["reason"], rec
+
+
+def test_two_neighbouring_rotors_of_a_hexacopter_swapped_are_told(tmp_path):
+    """A hexacopter's neighbouring rotor columns swapped still move roll and pitch much as the
+    airframe's do (a blind audit's: cosines 0.89 and 0.72 as given), above the 0.5 that had to
+    be crossed, and its diagnosis ended "uncertified" with the thrust at 21 % of the weight and
+    words about the speeds' unit. The swapped order explains them to 0.99, leaving a
+    sixteenth as much unexplained: the order is said. In their own order: nothing."""
+    from dataclasses import replace
+    from greybox.diagnosis.analysis import rotor_order
+    rotors = "".join(f"[[rotor]]\nposition = [{0.3 * np.cos(a):.6f}, {0.3 * np.sin(a):.6f}, 0.0]\nspin = {s}\n\n"
+                     for a, s in zip(np.radians(30 + 60 * np.arange(6)), (1, -1, 1, -1, 1, -1)))
+    (tmp_path / "hexa.toml").write_text(
+        '[airframe]\nname = "hexa"\nmass = 1.8\ninertia = [0.03, 0.03, 0.055]\narm_length = 0.3\n'
+        f"rotor_inertia = 4e-05\n\n{rotors}[parameters]\nK_T = 1.45e-5\nb = 2.3e-7\nKd = [0.3, 0.3, 0.45]\n")
+    hexa = QuadrotorModel(load_airframe(tmp_path / "hexa.toml"))
+    log = synthesize(hexa, duration=20.0, sensors=SensorSpec(rate=200.0, vision_rate=100.0), seed=5).log
+    assert rotor_order(hexa, log) is None
+    inputs = log.inputs.copy()
+    inputs[:, [1, 2]] = log.inputs[:, [2, 1]]
+    assert rotor_order(hexa, replace(log, inputs=inputs)) == (0, 2, 1, 3, 4, 5)
