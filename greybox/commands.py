@@ -203,7 +203,7 @@ def _held_speeds(log: FlightLog, held: str) -> FlightLog:
         return log
     note = (f"{found.text(', '.join(log.input_names))}: fitted as logged, each row holding its value; if they are "
             f"a sensor's samples held between readings (ESC telemetry), a held row is up to "
-            f"{1000 / found.rate:.0f} ms late and a fitted effect may stand in for that: --held interpolate "
+            f"{found.late_ms:.0f} ms late and a fitted effect may stand in for that: --held interpolate "
             "(held=\"interpolate\") interpolates them between the fresh rows")
     return replace(log, notes=list(log.notes) + [note])
 

@@ -126,7 +126,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # rows' timing (sampled_inputs) holds: a blind audit's 50-Hz ESC telemetry on 100-Hz rows
         # had a moment gain of 0.87 named beside the true wind, drag and accelerometer bias
         warnings.append(f"{held.text()}, fitted as logged: if they are a sensor's samples held between readings "
-                        f"(ESC telemetry), a held row is up to {1000 / held.rate:.0f} ms late, and a verdict that "
+                        f"(ESC telemetry), a held row is up to {held.late_ms:.0f} ms late, and a verdict that "
                         "changes how fast the vehicle answers its rotors (a moment gain, a lag, a delay) may stand "
                         "in for that: diagnose again with the speeds interpolated between their fresh rows "
                         "(--held interpolate; greybox.io.interpolate_held_inputs)")

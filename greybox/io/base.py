@@ -264,9 +264,14 @@ class HeldInputs:
     """A log's inputs that repeat the previous row exactly on most rows (:func:`held_inputs`)."""
 
     share: float        # share of the rows that repeat the previous one
-    every: float        # median rows between fresh samples
-    rate: float         # fresh samples per second (median)
-    row_rate: float     # rows per second (median)
+    every: float        # mean rows between fresh samples (runs of a command that stayed put left out)
+    rate: float         # fresh samples per second
+    row_rate: float     # rows per second (from the median row interval)
+
+    @property
+    def late_ms(self) -> float:
+        """How late a held row can be, ms: a fresh sample's spacing."""
+        return 1000.0 / self.rate
 
     def text(self, names: str = "the rotor speeds") -> str:
         """What was found, in words."""
