@@ -201,8 +201,8 @@ LEAD_BAND = (1.0, 8.0)
 LEAD_MAX = 0.1
 """s: the largest shift tried either way."""
 LEAD_UNEXPLAINED_RATIO = 2.0
-"""A shift of the speeds is said when it leaves at most this share less of the acceleration
-unexplained (``1 - r^2``) than none: it explains clearly better."""
+"""A shift of the speeds is said when the speeds as logged leave this many times as much of the
+acceleration unexplained (``1 - r^2``) as shifted, or more: the shift explains clearly better."""
 
 
 @dataclass(frozen=True)
@@ -253,7 +253,7 @@ def input_lead(log: FlightLog, rotor_positions: np.ndarray) -> InputLead | None:
     with its speeds stamped 10 ms late: a shift of -10.5 ms (correlation 0.993, 0.957 as
     logged); as logged, -0.5 ms; the real NanoBench flights' PWM commands: +38 to +43 ms (the
     commands' delay, which ``command_delay`` holds)."""
-    from scipy.signal import butter, filtfilt, savgol_filter
+    from scipy.signal import butter, correlate, filtfilt, savgol_filter
     P = np.asarray(rotor_positions, dtype=float)
     t = log.t
     if t.size < 50 or not all(log.measures(c) for c in ("p", "q")) or log.inputs.shape[1] < len(P):
@@ -274,17 +274,19 @@ def input_lead(log: FlightLog, rotor_positions: np.ndarray) -> InputLead | None:
     n = int(round(LEAD_MAX / row))
     if t.size < 4 * n + 50:
         return None
-    k = np.arange(n, t.size - n)
     lags = np.arange(-n, n + 1)
-    A = acc[k] - acc[k].mean(axis=0)
-
-    def corr(lag: int) -> float:
-        M = moment[k - lag]
-        M = M - M.mean(axis=0)
-        den = np.sqrt((A ** 2).sum(axis=0) * (M ** 2).sum(axis=0))
-        return float(np.mean(np.where(den > 0, (A * M).sum(axis=0) / np.where(den > 0, den, 1.0), 0.0)))
-
-    r = np.array([corr(int(lag)) for lag in lags])
+    m = t.size - 2 * n
+    A = acc[n:n + m] - acc[n:n + m].mean(axis=0)
+    # at lag L the moment's rows n - L .. n - L + m face the acceleration's n .. n + m: every lag's
+    # dot product at once (A is centred, so the moment's own mean drops out of it), and each
+    # window's spread from running sums; one pass, not one per lag (it runs in every fit)
+    dots = np.column_stack([correlate(moment[:, c], A[:, c], mode="valid")[::-1] for c in range(2)])
+    s1 = np.concatenate([np.zeros((1, 2)), np.cumsum(moment, axis=0)])
+    s2 = np.concatenate([np.zeros((1, 2)), np.cumsum(moment ** 2, axis=0)])
+    start = n - lags
+    spread = (s2[start + m] - s2[start]) - (s1[start + m] - s1[start]) ** 2 / m
+    den = np.sqrt((A ** 2).sum(axis=0) * np.maximum(spread, 0.0))
+    r = np.mean(np.where(den > 0, dots / np.where(den > 0, den, 1.0), 0.0), axis=1)
     j = int(np.argmax(r))
     frac = 0.0
     if 0 < j < r.size - 1:

@@ -228,12 +228,12 @@ class QuadrotorModel:
             if bad.size:
                 raise GreyboxInputError(f"{where}: row {bad[0] + 2}, column {name!r}: missing value "
                                         "(a signal read by the model is an input and may never be missing)")
+            typical = float(np.median(np.abs(v))) if v.size else 0.0
             for e in self.effects:
                 limit, unit, mistake = e.signal_limits.get(name, (math.inf, "", ""))
-                if v.size and float(np.median(np.abs(v))) > limit:
-                    raise GreyboxInputError(f"{where}: column {name!r} (read by {e.name}): typically "
-                                            f"{float(np.median(np.abs(v))):.4g}, beyond the {limit:g} {unit} "
-                                            f"no vehicle's {name} reaches: {mistake}")
+                if typical > limit:
+                    raise GreyboxInputError(f"{where}: column {name!r} (read by {e.name}): typically {typical:.4g}, "
+                                            f"beyond the {limit:g} {unit} no vehicle's {name} reaches: {mistake}")
             cols.append(v[:, None])
         return FlightLog(log.t, np.hstack(cols), self.input_names, log.outputs, list(log.output_names),
                          extras, list(log.notes), log.source)

@@ -850,16 +850,16 @@ def _filtered_attitude_notes(logs: Sequence[FlightLog], given: Mapping[str, floa
             + " ".join(f"--noise {ch}=SD" for ch in chans) + " takes its place)"]
 
 
+def _flight_words(logs: Sequence[FlightLog], words_of: Callable[[FlightLog], str]) -> list[str]:
+    """``words_of`` each flight that has something to say, named by its file among several."""
+    return [(f"{lg.source}: " if lg.source and len(logs) > 1 else "") + words
+            for lg in logs if (words := words_of(lg))]
+
+
 def _gyro_scale_warnings(logs: Sequence[FlightLog]) -> list[str]:
     """Words on each flight whose gyro reads off the rate at which its attitude turns
     (:func:`greybox.kinematics.gyro_scale`)."""
-    out = []
-    for lg in logs:
-        scale = gyro_scale(lg)
-        words = scale.words() if scale is not None else ""
-        if words:
-            out.append((f"{lg.source}: " if lg.source and len(logs) > 1 else "") + words)
-    return out
+    return _flight_words(logs, lambda lg: scale.words() if (scale := gyro_scale(lg)) is not None else "")
 
 
 SPEED_SCALE_FACTOR = 2.0
@@ -895,13 +895,8 @@ def _input_lead_warnings(model: QuadrotorModel, logs: Sequence[FlightLog]) -> li
     was fitted with b -24 % and its diagnosis read the difference as turbulence."""
     if model.inputs == "controls":
         return []
-    out = []
-    for lg in logs:
-        lead = input_lead(lg, model.airframe.rotor_positions)
-        words = lead.words() if lead is not None else ""
-        if words:
-            out.append((f"{lg.source}: " if lg.source and len(logs) > 1 else "") + words)
-    return out
+    P = model.airframe.rotor_positions
+    return _flight_words(logs, lambda lg: lead.words() if (lead := input_lead(lg, P)) is not None else "")
 
 
 def _gyro_scale_unidentifiable(logs: Sequence[FlightLog]) -> list[str]:
