@@ -251,3 +251,52 @@ def test_a_base_fit_whose_misfit_may_be_the_rows_timing_says_so():
             assert said == [], said
         else:
             assert not res.certificate.adequate and len(said) == 1 and "may be this timing" in said[0], said
+
+
+def test_noise_on_held_speeds_is_not_taken_for_the_rows_timing():
+    """White noise on logged speeds is averaged by any blend of neighbouring rows, so the score
+    test of ``sampled_inputs`` (a blend with the next row) grows with it on commands held
+    exactly (a blind audit's hexacopter, 3 rad/s of telemetry noise: 975, said as "samples of
+    a varying signal"). The same blend toward the previous row (a half-row delay) is its
+    mirror: noise favours both, a timing only one. Held speeds, 5 rad/s of noise: the next row
+    scores 3 times the previous one here and the words say the noise may be part of it; held,
+    2 rad/s: the next row significant alone (p < 0.01), not beyond the previous: nothing said;
+    speeds that vary between rows: the previous row scores nothing and the words say so plainly."""
+    import dataclasses
+    from greybox.diagnosis.screening import TIMING_ALPHA, fit_weights, row_timing_words, screen
+    from scipy import stats
+    model, log = _fine_flight(True)
+    said = {}
+    for sd in (2.0, 5.0):
+        noisy = dataclasses.replace(log, inputs=log.inputs + sd * np.random.default_rng(7).standard_normal(log.inputs.shape))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = fit(model, noisy, free=["K_T"], interval=5, noise={"phi": 2e-3, "theta": 2e-3, "p": 5e-3, "q": 5e-3})
+        ahead, _ = screen(model, res, [noisy], "sampled_inputs", fit_weights(res), "cached")
+        behind, _ = screen(model, res, [effects.SampledInputs.toward_previous_row(noisy)], "sampled_inputs",
+                           fit_weights(res), "cached")
+        assert stats.chi2.sf(ahead, 1) < TIMING_ALPHA and behind > 0, (sd, ahead, behind)
+        said[sd] = row_timing_words(res, [noisy])
+    assert said[2.0] == [], said
+    assert len(said[5.0]) == 1 and "noise on the speeds, which either blend averages, may be part of it" in said[5.0][0]
+    model, log = _fine_flight(False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = fit(model, log, free=["K_T"], process_noise=None, interval=5,
+                  noise={"phi": 2e-3, "theta": 2e-3, "p": 5e-3, "q": 5e-3})
+    plain = row_timing_words(res, [log])
+    assert len(plain) == 1 and "may be part of it" not in plain[0], plain
+
+
+def test_toward_previous_row_blends_with_the_row_before():
+    """The mirror blend's next-row speeds are the previous row's (the first row its own), and
+    the model keeps them: at s_lead = 0.5 the held value is the mean of the row and the one
+    before (checked by hand on a ramp)."""
+    t = np.arange(0.0, 0.1, 0.01)
+    W = np.column_stack([400.0 + 10.0 * np.arange(t.size)] * 4)
+    log = FlightLog(t, W, ["w1", "w2", "w3", "w4"], np.full((t.size, 6), np.nan), OUT[:6])
+    back = effects.SampledInputs.toward_previous_row(log)
+    assert back.extras["w1@next"][:3].tolist() == [400.0, 400.0, 410.0]
+    model = QuadrotorModel(_airframe()) + effects.SampledInputs()
+    prep = model.prepare_log(back)
+    assert prep.inputs[3, model.input_names.index("w2@next")] == 420.0

@@ -284,6 +284,22 @@ class SampledInputs(Effect):
             out["h@row"] = np.append(h, h[-1:]) if len(h) else np.ones_like(t)
         return out
 
+    @classmethod
+    def toward_previous_row(cls, log):
+        """``log`` with this effect's next-row speeds replaced by the previous row's: the same
+        blend taken the other way, a half-row delay. White noise on the logged speeds is
+        averaged by a blend either way, and favours both alike; a timing favours one (speeds
+        that sample a varying signal: the next row, by thousands; a held command: neither). The
+        score test of the timing is read beside it (``diagnosis.screening.row_timing_words``).
+        The derived columns it sets are kept by :meth:`QuadrotorModel.prepare_log`."""
+        import dataclasses
+        extras = dict(log.extras)
+        for i, c in enumerate(log.input_names):
+            if c.startswith("w"):
+                v = np.asarray(log.inputs[:, i], dtype=float)
+                extras[cls._next(c)] = np.concatenate([v[:1], v[:-1]])
+        return dataclasses.replace(log, extras=extras)
+
     def modify(self, ctx):
         n = ctx.airframe.n_rotors
         nxt = ca.vertcat(*[ctx.signals[self._next(f"w{i + 1}")] for i in range(n)])
