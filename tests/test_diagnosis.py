@@ -584,3 +584,29 @@ def test_outside_the_catalogue_is_measured_from_the_model_discovery_started_from
     assert words.endswith("(nrmse 0.109 -> 0.101)"), words
     close = SimpleNamespace(significant=True, nrmse_before=0.109, nrmse_after=0.105, text=lambda: "mz = -0.37*r")
     assert _encompassing([], None, 0.141, [close], {}, [], [], "cached", print, []) == ""
+
+
+def test_a_refit_never_ends_worse_than_the_baseline_it_extends(paper, normal_flight, monkeypatch):
+    """A candidate's model holds the baseline (the candidate at its null), so its refit can
+    always reach the baseline's fit. A cold refit — from the airframe's guesses, tried when the
+    baseline has a parameter on a bound — can end in another basin above it: a blind audit's
+    sprayer in a wind (its baseline's vertical drag on the upper bound standing for the mass it
+    lost) had its wind refitted right but at 1.21 times the baseline's cost, reported "LR 0,
+    p = 1", and the diagnosis ended null. Such a refit is compared with the one from the
+    baseline, and the better kept: here a cold refit cut to one iteration from a wind of 8 m/s
+    and a thrust coefficient half the vehicle's (guesses far off, as a compensating basin is)."""
+    import greybox.diagnosis.screening as screening
+    from greybox import fit
+    from greybox.diagnosis.screening import profile_log_likelihood, refit
+    base = fit(paper, normal_flight.log)
+    guesses = screening._guesses
+
+    def far_off(ext, name):
+        p = guesses(ext, name)
+        p[ext.param_names.index("K_T")] *= 0.5
+        p[ext.param_names.index("wind[0]")] = 8.0
+        return p
+    monkeypatch.setattr(screening, "_guesses", far_off)
+    _, cold, _ = refit(paper, base, [normal_flight.log], None, "wind", base.sigma, "auto", cold=True, max_iter=1)
+    assert profile_log_likelihood(cold) >= profile_log_likelihood(base) - 1e-6
+    assert abs(cold.value("wind[0]")) < 0.05 and cold.value("K_T") == pytest.approx(base.value("K_T"), rel=1e-3)
