@@ -79,3 +79,27 @@ def test_a_candidate_held_on_a_bound_away_from_its_null_is_named_and_one_at_its_
     lag = fit(base + effects.MotorLag(), plain, progress=False)
     assert lag.value("tau_m") == pytest.approx(2e-3, rel=0.05)
     assert held_on_bound(lag, "motor_lag") == ""
+
+
+def test_a_mass_given_too_light_is_named_beside_the_moment_gain_it_shows_as():
+    """Another simulator's 32.5 g vehicle given 26 g (0.8 of it: a sprayer's dry mass for a
+    full tank, a blind audit's case): K_T carries the weight given, so every moment is 0.8 of
+    the vehicle's and the moment gain comes out 1.25, which the translation cannot tell from a
+    mass. The fit says the mass that makes the gain 1, within 3 % of the vehicle's."""
+    import re
+    from foreign_sim import airframe_dict, crazyflie, simulate_flight
+    from greybox.airframe import airframe_from_dict
+
+    est = simulate_flight(crazyflie(), duration=12.0, seed=3).log.split(0.8)[0]
+    doc = airframe_dict(crazyflie())
+    doc["airframe"]["mass"] = 0.8 * 0.0325
+    model = QuadrotorModel(airframe_from_dict(doc)) + effects.MomentGain()
+    res = fit(model, est, process_noise="auto", progress=False)
+    assert res.converged and res.value("k_M") == pytest.approx(1.25, rel=0.03), res.value("k_M")
+    said = [w for w in res.warnings if "the airframe's mass is off" in w]
+    assert len(said) == 1, res.warnings
+    mass = float(re.search(r"and with ([0-9.e-]+) kg", said[0]).group(1))
+    assert mass == pytest.approx(0.0325, rel=0.03), said
+    right = QuadrotorModel(airframe_from_dict(airframe_dict(crazyflie()))) + effects.MomentGain()
+    res = fit(right, est, process_noise="auto", progress=False)
+    assert not any("mass is off" in w for w in res.warnings), (res.value("k_M"), res.std)

@@ -133,6 +133,12 @@ class MomentGain(Effect):
     with the published PWM map the cross-correlation of gyro-derived angular acceleration with
     the modelled one gives about 0.2-0.35). Roll and pitch only: the yaw moment has its own
     coefficient ``b``.
+
+    It also reads a wrong **mass**: the fitted ``K_T`` carries the weight the airframe's mass
+    gives, so a mass given ``1/k`` of the vehicle's makes every thrust, and every moment, ``1/k``
+    of the true one, and the moment gain restores ``k`` (a blind audit's sprayer, 4.0 kg,
+    given its dry 3.2 kg: ``k_M`` 1.2454 ± 0.0028, ``K_T`` 20 % low). The translation cannot
+    tell (an acceleration is a thrust over the mass); the inertia against the moment can.
     """
 
     name = "moment_gain"
@@ -167,6 +173,17 @@ class MomentGain(Effect):
         return [f"k_M = {k:.3g}: beyond what moment_gain physically does ({1 - lim:.1f} <= k_M <= {1 + lim:.1f}: "
                 f"an inertia or command map off by more than that is a wrong airframe file); the fit has it "
                 f"standing in for something the model lacks"]
+
+    def interpretation_notes(self, values, std, airframe):
+        # the thrust per w^2 is calibrated on the airframe's weight: a mass off by a factor scales
+        # every moment by it, and k_M undoes it (the translation cannot tell a wrong mass)
+        k, s = values.get("k_M"), std.get("k_M")
+        if k is None or s is None or not np.isfinite(s) or abs(k - 1.0) <= 3 * s or k <= 0:
+            return []
+        return [f"k_M = {k:.4g}: the body turns {k:.3g} times as much per rotor-speed difference as the airframe's "
+                f"inertia and arm give; or the airframe's mass is off: K_T carries the weight of the mass given "
+                f"({airframe.mass:.4g} kg), and with {k * airframe.mass:.4g} kg (the inertia as given) every moment "
+                f"would match with k_M = 1 and K_T {k:.3g} times the fitted value; weigh the vehicle"]
 
     def add_forces(self, ctx):
         tau = ctx.thrust_torque
