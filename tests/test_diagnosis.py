@@ -157,6 +157,7 @@ def test_a_parameter_held_by_the_user_stays_held_in_the_baseline_and_every_refit
     assert rc == 0
     d = json.loads((tmp_path / "d.json").read_text())
     assert d["verdict"] == "linear_drag"
+    assert d["model"]["certified"] is True and d["model"]["adequate"] is True   # the truth's model, fitted
     b = d["model"]["parameters"]["b"]
     assert b["value"] == pytest.approx(b_true, rel=1e-12) and b["std"] is None, b
     model = paper.without("linear_drag")

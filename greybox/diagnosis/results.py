@@ -411,8 +411,12 @@ class Diagnosis:
                                      if he is not None and he.predictor}
         # the final model flown by its controller's law (logs with setpoints only)
         out["closed_loop"] = self.closed_loop.as_dict() if self.closed_loop is not None else None
+        # certified: its optimum (first-order); adequate: its residuals and gaps at the noise (a
+        # certified model can still miss something: a blind audit read "certified" as "right")
+        cert = getattr(self.fitted_model, "certificate", None)
         out["model"] = {"effects": self.fitted_model.model.effect_names, "parameters": self.parameter_table(),
-                        "certified": bool(self.fitted_model.converged)}
+                        "certified": bool(self.fitted_model.converged),
+                        "adequate": bool(cert.adequate) if cert is not None else None}
         if getattr(self.fitted_model, "per_flight_", None):
             # parameters fitted per flight (a day's wind): "parameters" holds their mean
             out["model"]["per_flight"] = {n: {"value": [_num(x) for x in v["value"]],
