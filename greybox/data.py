@@ -739,8 +739,11 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
         absent = [n for n in OPTIONAL_OUTPUTS if n not in col]
         meant = {h: m[0] for h in extra_names if (m := difflib.get_close_matches(h, absent, n=1, cutoff=0.6))}
         # "ignored" read wrong beside a verdict of battery_voltage, which reads vbat (an audit)
+        # and discovery offers a varying one as a feature: a blind audit's column of its simulator's
+        # true mass was tried as one, unsaid
         notes.append(f"{where}: extra column(s) {', '.join(extra_names)}: not measured channels; kept as extras, "
-                     "read by an effect that uses them (battery_voltage reads vbat), unused otherwise"
+                     "read by an effect that uses them (battery_voltage reads vbat) and offered to discovery as "
+                     "features where they vary (leave out a column no vehicle would log), unused otherwise"
                      + "".join(f"; did you mean {m!r} for {h!r}?" for h, m in meant.items()))
     return FlightLog(t.copy(), U, in_names, Y, out_names, extras, notes, source).fill_gaps()
 

@@ -39,8 +39,10 @@ def test_dataframe_round_trip_keeps_everything():
     assert df["x"].isna().any()            # multi-rate: vision samples missing between frames
     back = FlightLog.from_dataframe(df)
     _same_log(back, log)
-    assert back.source == "DataFrame" and back.notes == ["DataFrame: extra column(s) vbat: not measured channels; kept as extras, read by an effect "
-                                                  "that uses them (battery_voltage reads vbat), unused otherwise"]
+    assert back.source == "DataFrame" and back.notes == [
+        "DataFrame: extra column(s) vbat: not measured channels; kept as extras, read by an effect that uses them "
+        "(battery_voltage reads vbat) and offered to discovery as features where they vary (leave out a column no "
+        "vehicle would log), unused otherwise"]
     # any column order, t in the index, source named
     shuffled = df[df.columns[::-1]].set_index("t")
     _same_log(FlightLog.from_dataframe(shuffled, source="flight 3"), log)
