@@ -123,6 +123,11 @@ class MotorLag(Effect):
         return (ctx.w_command - ctx.extra_states[self.name]) / ctx.params["tau_m"]
 
 
+MASS_ERROR_RANGE = (2 / 3, 1.5)
+"""The moment gains :class:`MomentGain` also reads as the airframe's mass off by that factor (a
+mass given up to 1.5 times, or down to 2/3 of, the vehicle's)."""
+
+
 class MomentGain(Effect):
     """The rotor thrusts' roll and pitch moment scaled by ``k_M`` (1: the airframe's).
 
@@ -176,9 +181,12 @@ class MomentGain(Effect):
 
     def interpretation_notes(self, values, std, airframe):
         # the thrust per w^2 is calibrated on the airframe's weight: a mass off by a factor scales
-        # every moment by it, and k_M undoes it (the translation cannot tell a wrong mass)
+        # every moment by it, and k_M undoes it (the translation cannot tell a wrong mass). Said
+        # for a mass off by up to half (a payload, a full tank, another battery); the real
+        # Crazyflie flights' k_M 0.15-0.6 (their PWM map, 5-18 g for 30 g) are not a mass
         k, s = values.get("k_M"), std.get("k_M")
-        if k is None or s is None or not np.isfinite(s) or abs(k - 1.0) <= 3 * s or k <= 0:
+        if k is None or s is None or not np.isfinite(s) or abs(k - 1.0) <= 3 * s \
+                or not MASS_ERROR_RANGE[0] <= k <= MASS_ERROR_RANGE[1]:
             return []
         return [f"k_M = {k:.4g}: the body turns {k:.3g} times as much per rotor-speed difference as the airframe's "
                 f"inertia and arm give; or the airframe's mass is off: K_T carries the weight of the mass given "
