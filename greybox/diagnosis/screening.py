@@ -429,7 +429,7 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
         # escaped through it; from a propeller's b, the gains carry it (a blind audit's simulated
         # Crazyflie with one spin direction's rotors 8 % weaker in thrust and torque)
         fr = _lower_cost(fr, _held_then_free(ext, est, free, held, "b", init, shared))
-    if (cold or start is not None) and _worse_than_baseline(fr, res):
+    if (cold or start is not None) and _worse(fr, res, soft):
         # the model holds the baseline (the candidate at its null), so its optimum is no worse:
         # a cold refit that ends above the baseline's cost found another basin, not the
         # candidate's answer (a blind audit's sprayer in a wind: the baseline's vertical drag on
@@ -437,13 +437,10 @@ def refit(model: QuadrotorModel, res: FitResult, est: Sequence[FlightLog], val: 
         # guesses took the drag to 0 and ended at 1.21 times the baseline's cost, "LR 0,
         # p = 1", though its wind was right): the refit from the baseline is tried, the better kept
         warm = refit(model, res, est, None, name, sigma, compile)[1]
-        fr = warm if _worse_than_baseline(fr, warm) else fr
+        fr = warm if _worse(fr, warm, soft) else fr
     if restart and not cold and start is None:
         again = refit(model, res, est, None, name, sigma, compile, cold=True, max_iter=COLD_REFIT_ITER)[1]
-        # output error: each re-estimated its weights, so they compare on the likelihood;
-        # soft continuity: the same weights and process noise, so on the cost
-        better = again.cost < fr.cost if soft else profile_log_likelihood(again) > profile_log_likelihood(fr)
-        if better:
+        if _worse(fr, again, soft):
             fr = again
     return ext, fr, predict_after_fit(fr, est, val, compile=compile, horizon=horizon) if val is not None else None
 
@@ -476,13 +473,13 @@ def _held_then_free(ext: QuadrotorModel, est: Sequence[FlightLog], free: list[st
         return fit(ext, est, free=free, p0=first.p, initial_states=first.node_states, **shared)
 
 
-def _worse_than_baseline(fr: FitResult, base: FitResult) -> bool:
-    """Whether the fit ``fr`` of an extended model ends worse than ``base``: on the cost with
-    soft continuity (the same weights and process noise), else on the likelihood (a cold
+def _worse(fr: FitResult, other: FitResult, soft: bool) -> bool:
+    """Whether the fit ``fr`` ends worse than ``other``: with soft continuity (``soft``: the
+    same weights and process noise) on the cost, with output error on the likelihood (a cold
     refit re-estimates its own weights)."""
-    if base.process_noise is not None:
-        return fr.cost > base.cost
-    return profile_log_likelihood(fr) < profile_log_likelihood(base)
+    if soft:
+        return fr.cost > other.cost
+    return profile_log_likelihood(fr) < profile_log_likelihood(other)
 
 
 def _lower_cost(a: FitResult, b: FitResult) -> FitResult:
@@ -799,8 +796,9 @@ def row_timing_words(res: FitResult, logs: Sequence[FlightLog], compile: str = "
     if not res.converged or any(e.describes_sampling for e in model.effects) \
             or any(c not in lg.input_names for c in fx.SampledInputs.considered_when_logged for lg in logs):
         return []
+    sigma = fit_weights(res)
     try:
-        stat, df = screen(model, res, logs, name, fit_weights(res), compile)
+        stat, df = screen(model, res, logs, name, sigma, compile)
     except (GreyboxInputError, ValueError, np.linalg.LinAlgError, RuntimeError):
         return []      # words on the fit only: where the statistic cannot be had, nothing is said
     p = float(stats.chi2.sf(stat, max(df, 1)))
@@ -812,8 +810,8 @@ def row_timing_words(res: FitResult, logs: Sequence[FlightLog], compile: str = "
     # noise: 975 toward the next row, 1682 toward the previous, said as "samples of a varying
     # signal"; speeds that do vary between rows: 5787 against 0)
     try:
-        behind, _ = screen(model, res, [fx.SampledInputs.toward_previous_row(lg) for lg in logs], name,
-                           fit_weights(res), compile)
+        behind, _ = screen(model, res, [fx.SampledInputs.toward_previous_row(lg) for lg in logs], name, sigma,
+                           compile)
     except (GreyboxInputError, ValueError, np.linalg.LinAlgError, RuntimeError):
         return []
     if not stats.chi2.sf(stat - behind, max(df, 1)) < TIMING_ALPHA:

@@ -5,6 +5,7 @@ sampled from a signal that varies between the log's rows."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import casadi as ca
 import numpy as np
@@ -292,13 +293,12 @@ class SampledInputs(Effect):
         that sample a varying signal: the next row, by thousands; a held command: neither). The
         score test of the timing is read beside it (``diagnosis.screening.row_timing_words``).
         The derived columns it sets are kept by :meth:`QuadrotorModel.prepare_log`."""
-        import dataclasses
         extras = dict(log.extras)
         for i, c in enumerate(log.input_names):
             if c.startswith("w"):
                 v = np.asarray(log.inputs[:, i], dtype=float)
                 extras[cls._next(c)] = np.concatenate([v[:1], v[:-1]])
-        return dataclasses.replace(log, extras=extras)
+        return replace(log, extras=extras)
 
     def modify(self, ctx):
         n = ctx.airframe.n_rotors
