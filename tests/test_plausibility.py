@@ -109,3 +109,23 @@ def test_a_log_prepared_for_a_model_with_an_unregistered_signal_effect_prepares_
     once = m.prepare_log(log)
     assert once.input_names[-1] == "pwm4"
     assert m.prepare_log(once).input_names == once.input_names
+
+
+def test_a_drag_faster_than_any_rotor_damps_is_said_with_its_time_constant():
+    """``Kd`` beyond ``m / 0.25 s``: a blind audit's 4 kg sprayer losing its tank's mass took
+    ``Kd[2]`` 29 N s/m, a time constant m/Kd of 0.14 s where a rotor's heave damping gives
+    about a second; the warning names the axis and its time constant. Drags of real vehicles
+    (time constants of seconds) and a component held fixed by the user: nothing."""
+    from dataclasses import replace
+
+    from greybox.effects import LinearDrag
+    af = replace(load_airframe(PAPER), mass=4.0)
+    d = LinearDrag()
+    std = {f"Kd[{i}]": 1.0 for i in range(3)}
+    assert d.plausibility_warnings({"Kd[0]": 0.35, "Kd[1]": 0.35, "Kd[2]": 0.5}, std, af) == []
+    assert d.plausibility_warnings({"Kd[0]": 15.9, "Kd[1]": 0.35, "Kd[2]": 0.5}, std, af) == []   # 0.25 s
+    w = d.plausibility_warnings({"Kd[0]": 0.35, "Kd[1]": 0.35, "Kd[2]": 29.0}, std, af)
+    assert len(w) == 1 and "Kd[2] = 29 N s/m" in w[0] and "Kd[2] 0.14 s" in w[0], w
+    assert "Kd[0]" not in w[0] and "|Kd| <= 16" in w[0]
+    assert d.plausibility_warnings({"Kd[0]": 0.35, "Kd[1]": 0.35, "Kd[2]": 29.0},
+                                   {"Kd[0]": 1.0, "Kd[1]": 1.0}, af) == []
