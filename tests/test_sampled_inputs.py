@@ -257,35 +257,47 @@ def test_noise_on_held_speeds_is_not_taken_for_the_rows_timing():
     """White noise on logged speeds is averaged by any blend of neighbouring rows, so the score
     test of ``sampled_inputs`` (a blend with the next row) grows with it on commands held
     exactly (a blind audit's hexacopter, 3 rad/s of telemetry noise: 975, said as "samples of
-    a varying signal"). The same blend toward the previous row (a half-row delay) is its
-    mirror: noise favours both, a timing only one. Held speeds, 5 rad/s of noise: the next row
-    scores 3 times the previous one here and the words say the noise may be part of it; held,
-    2 rad/s: the next row significant alone (p < 0.01), not beyond the previous: nothing said;
-    speeds that vary between rows: the previous row scores nothing and the words say so plainly."""
+    a varying signal"). Along the speeds' central difference the noise's share cancels on
+    average, and with the statistic's scale taken from the data (``robust_screen``: the noise
+    is a random forcing the weights do not hold) held speeds score like nothing: here 0.1-1.3
+    (at 5 rad/s the plain central statistic is 21, the next row's 357), nothing said; speeds
+    that vary between rows: 44 with 2 rad/s of noise, said."""
     import dataclasses
-    from greybox.diagnosis.screening import TIMING_ALPHA, fit_weights, row_timing_words, screen
+    from greybox.diagnosis.screening import TIMING_ALPHA, fit_weights, robust_screen, row_timing_words, screen
     from scipy import stats
     model, log = _fine_flight(True)
-    said = {}
     for sd in (2.0, 5.0):
         noisy = dataclasses.replace(log, inputs=log.inputs + sd * np.random.default_rng(7).standard_normal(log.inputs.shape))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             res = fit(model, noisy, free=["K_T"], interval=5, noise={"phi": 2e-3, "theta": 2e-3, "p": 5e-3, "q": 5e-3})
         ahead, _ = screen(model, res, [noisy], "sampled_inputs", fit_weights(res), "cached")
-        behind, _ = screen(model, res, [effects.SampledInputs.toward_previous_row(noisy)], "sampled_inputs",
-                           fit_weights(res), "cached")
-        assert stats.chi2.sf(ahead, 1) < TIMING_ALPHA and behind > 0, (sd, ahead, behind)
-        said[sd] = row_timing_words(res, [noisy])
-    assert said[2.0] == [], said
-    assert len(said[5.0]) == 1 and "noise on the speeds, which either blend averages, may be part of it" in said[5.0][0]
+        central = robust_screen(model, res, [effects.SampledInputs.toward_central_difference(noisy)],
+                                "sampled_inputs", fit_weights(res), "cached")
+        # the next row alone is significant: the noise; the central difference is not
+        assert stats.chi2.sf(ahead, 1) < TIMING_ALPHA and stats.chi2.sf(central, 1) > 0.1, (sd, ahead, central)
+        assert row_timing_words(res, [noisy]) == [], sd
     model, log = _fine_flight(False)
+    noisy = dataclasses.replace(log, inputs=log.inputs + 2.0 * np.random.default_rng(7).standard_normal(log.inputs.shape))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = fit(model, log, free=["K_T"], process_noise=None, interval=5,
-                  noise={"phi": 2e-3, "theta": 2e-3, "p": 5e-3, "q": 5e-3})
-    plain = row_timing_words(res, [log])
+        res = fit(model, noisy, free=["K_T"], interval=5, noise={"phi": 2e-3, "theta": 2e-3, "p": 5e-3, "q": 5e-3})
+    plain = row_timing_words(res, [noisy])
     assert len(plain) == 1 and "may be part of it" not in plain[0], plain
+    central = float(plain[0].split("scaled by the data: ")[1].split(")")[0])
+    assert stats.chi2.sf(central, 1) < 1e-3, plain
+
+
+def test_the_central_difference_leads_by_half_of_both_neighbours_by_hand():
+    """``toward_central_difference`` sets the next-row speeds to ``w_k + (w_(k+1) - w_(k-1))/2``
+    (each end its own neighbour): on a parabola the lead is the slope, exactly."""
+    t = np.arange(0.0, 0.06, 0.01)
+    w = 400.0 + 1e4 * t ** 2
+    log = FlightLog(t, np.column_stack([w] * 4), ["w1", "w2", "w3", "w4"], np.full((t.size, 9), np.nan), OUT)
+    nxt = effects.SampledInputs.toward_central_difference(log).extras["w2@next"]
+    assert np.allclose(nxt[1:-1], w[1:-1] + 0.5 * (w[2:] - w[:-2]))
+    assert np.allclose(nxt[1:-1] - w[1:-1], 2e4 * t[1:-1] * 0.01)     # dw/dt times one row
+    assert nxt[0] == pytest.approx(w[0] + 0.5 * (w[1] - w[0])) and nxt[-1] == pytest.approx(w[-1] + 0.5 * (w[-1] - w[-2]))
 
 
 def test_toward_previous_row_blends_with_the_row_before():

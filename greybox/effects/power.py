@@ -300,6 +300,22 @@ class SampledInputs(Effect):
                 extras[cls._next(c)] = np.concatenate([v[:1], v[:-1]])
         return replace(log, extras=extras)
 
+    @classmethod
+    def toward_central_difference(cls, log):
+        """``log`` with this effect's next-row speeds replaced by ``w_k + (w_(k+1) - w_(k-1))/2``:
+        the blend then moves along the central difference of the speeds, a lead with no lag
+        mirrored in it. White noise on the logged speeds favours a blend toward the next row and
+        one toward the previous row by the same amount on average, and this direction is their
+        difference: the noise's share cancels, a timing's stays (the score test of the rows'
+        timing on held speeds with noise, ``diagnosis.screening.row_timing_words``)."""
+        extras = dict(log.extras)
+        for i, c in enumerate(log.input_names):
+            if c.startswith("w"):
+                v = np.asarray(log.inputs[:, i], dtype=float)
+                nxt, prev = np.append(v[1:], v[-1:]), np.concatenate([v[:1], v[:-1]])
+                extras[cls._next(c)] = v + 0.5 * (nxt - prev)
+        return replace(log, extras=extras)
+
     def modify(self, ctx):
         n = ctx.airframe.n_rotors
         nxt = ca.vertcat(*[ctx.signals[self._next(f"w{i + 1}")] for i in range(n)])
