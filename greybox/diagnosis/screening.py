@@ -680,8 +680,25 @@ def within_row_timing(model: QuadrotorModel, effect: str, values: dict[str, floa
 
 def negligible_effect(fr: FitResult, effect: str, logs: Sequence[FlightLog]) -> str:
     """Words saying that ``effect`` is physically negligible in the fit ``fr``, in its parameters
-    (:func:`physically_negligible`) or in force terms (:func:`physically_small`), or ""."""
-    return physically_negligible(fr, effect) or physically_small(fr, effect, logs)
+    (:func:`physically_negligible`) or in force terms (:func:`physically_small`), or "". Small
+    in force terms with parameters that are neither small nor determined (every free one
+    within 3 std of its null value), the words say so: what the flights show is that it moves
+    little, not how large it is (a blind audit's X8 octocopter, its lower rotors at 0.8 of the
+    upper ones, which its mixer's equal commands to each pair leave unseen: rotor gains
+    ±0.08 ± 0.06 "physically negligible" whatever the truth)."""
+    small_parameters = physically_negligible(fr, effect)
+    if small_parameters:
+        return small_parameters
+    small = physically_small(fr, effect, logs)
+    if not small:
+        return ""
+    std = dict(zip(fr.free_names, map(float, fr.std)))
+    comps = [(c, fr.value(c), null) for _, c, null in fr.model.effect_components(effect) if c in std]
+    if comps and all(np.isfinite(std[c]) and abs(v - null) < 3.0 * std[c] for c, v, null in comps):
+        values = ", ".join(f"{c} = {v:.3g} ± {std[c]:.2g}" for c, v, _ in comps)
+        small += (f"; its parameters are not small but not determined either ({values}, each within 3 std of "
+                  "none): these flights show that it moves little here, not how large it is")
+    return small
 
 
 def physically_implausible(fr: FitResult, effect: str) -> str:
