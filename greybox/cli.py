@@ -542,8 +542,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise GreyboxError(f"fit did not converge: {'; '.join(geometry + [res.status])}")
     res.warnings[:0] = geometry
     # a lag fitted to rows that are samples of a varying signal: said (the diagnosis judges it first)
-    from .diagnosis.screening import row_timing_words
+    from .diagnosis.screening import moment_scale_words, row_timing_words
     res.warnings += row_timing_words(res, [est for est, _ in parts])
+    # a mass, an inertia or an arm off: the moments say it where K_T, b and Kd carry it silently
+    res.warnings += moment_scale_words(res, [est for est, _ in parts])
     # each flight validated with its own values of the per-flight parameters (wind, battery sag)
     preds = [predict(model, res.flight_p(i), val, horizon=args.horizon, **prediction_options(res))
              for i, (_, val) in enumerate(parts)]

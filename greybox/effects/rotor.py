@@ -179,19 +179,40 @@ class MomentGain(Effect):
                 f"an inertia or command map off by more than that is a wrong airframe file); the fit has it "
                 f"standing in for something the model lacks"]
 
+    @staticmethod
+    def readings(k: float, airframe) -> str:
+        """What a roll and pitch moment ``k`` times the airframe's can be, in words: only the
+        ratio of the mass to the inertia reaches the moments (``K_T`` carries the weight of the
+        mass given, a moment is a thrust difference over the inertia), so a mass given ``1/k``
+        of the vehicle's (said within :data:`MASS_ERROR_RANGE`), a roll and pitch inertia ``k``
+        times the vehicle's, or a command map or arm off give the same flight. A blind audit's
+        1.1 kg vehicle given an inertia 35 % too large: ``k_M`` 1.368, and only the mass was
+        named; the inertia about z, off alike, had made ``b`` 35 % high, 1150 std."""
+        J = np.diag(np.asarray(airframe.inertia, dtype=float))
+        parts = [f"the airframe's roll and pitch inertia is off: with Jx, Jy = {J[0] / k:.4g}, {J[1] / k:.4g} kg m^2 (the "
+                 f"given ÷ {k:.3g}) every moment would match with k_M = 1, and b, which the yaw data give "
+                 f"relative to the Jz given ({J[2]:.4g} kg m^2), is off as much as Jz is"]
+        if MASS_ERROR_RANGE[0] <= k <= MASS_ERROR_RANGE[1]:
+            parts.append(f"the airframe's mass is off: K_T carries the weight of the mass given ({airframe.mass:.4g} kg), and "
+                         f"with {k * airframe.mass:.4g} kg (the inertia as given) every moment would match with "
+                         f"k_M = 1 and K_T and Kd {k:.3g} times the fitted values")
+        parts.append("the command-to-speed map or the arm overstates the speeds' moment" if k < 1 else
+                     "the arm or the command-to-speed map understates the speeds' moment")
+        return ("either " + "; or ".join(parts) + ". The flight cannot tell these apart: weigh the vehicle and "
+                "check its inertia")
+
     def interpretation_notes(self, values, std, airframe):
         # the thrust per w^2 is calibrated on the airframe's weight: a mass off by a factor scales
-        # every moment by it, and k_M undoes it (the translation cannot tell a wrong mass). Said
-        # for a mass off by up to half (a payload, a full tank, another battery); the real
-        # Crazyflie flights' k_M 0.15-0.6 (their PWM map, 5-18 g for 30 g) are not a mass
+        # every moment by it, and k_M undoes it (the translation cannot tell a wrong mass), as an
+        # inertia off by it does. Said for a gain within the mass's range (a payload, a full tank,
+        # another battery, an inertia's estimate); the real Crazyflie flights' k_M 0.15-0.6 (their
+        # PWM map, 5-18 g for 30 g) are not
         k, s = values.get("k_M"), std.get("k_M")
         if k is None or s is None or not np.isfinite(s) or abs(k - 1.0) <= 3 * s \
                 or not MASS_ERROR_RANGE[0] <= k <= MASS_ERROR_RANGE[1]:
             return []
         return [f"k_M = {k:.4g}: the body turns {k:.3g} times as much per rotor-speed difference as the airframe's "
-                f"inertia and arm give; or the airframe's mass is off: K_T carries the weight of the mass given "
-                f"({airframe.mass:.4g} kg), and with {k * airframe.mass:.4g} kg (the inertia as given) every moment "
-                f"would match with k_M = 1 and K_T {k:.3g} times the fitted value; weigh the vehicle"]
+                f"inertia, arm and mass give; {self.readings(k, airframe)}"]
 
     def add_forces(self, ctx):
         tau = ctx.thrust_torque
