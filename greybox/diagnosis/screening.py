@@ -281,10 +281,11 @@ def robust_screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLo
     """The score statistic of a one-parameter candidate ``name`` whose null is its lower bound,
     with the step's variance taken from the intervals' shares of it where they scatter more
     than the weights say (:func:`one_step_estimate`, its variance under the null, at the
-    baseline): ``(step / std)^2`` for a step toward the effect, 0 for one away from it. The plain statistic (:func:`screen`) trusts the weights;
-    noise on the logged inputs is a random forcing they do not hold, and there it is large by
-    chance as often as not (greybox's own flights with 0.5-1 rad/s of noise on held speeds:
-    11-16 for the central blend of the rows' timing, where its robust statistic is at most 5)."""
+    baseline): ``(step / std)^2`` for a step toward the effect, 0 for one away from it. The
+    plain statistic (:func:`screen`) trusts the weights; noise on the logged inputs is a random
+    forcing they do not hold, and there it is large by chance as often as not (greybox's own
+    flights with 0.5-1 rad/s of noise on held speeds: 11-16 for the central blend of the rows'
+    timing, where its robust statistic is at most 5)."""
     _null, step, std = one_step_estimate(model, res, logs, name, sigma, compile, variance_at="baseline")
     return (step / std) ** 2 if step > 0 and std > 0 else 0.0
 
