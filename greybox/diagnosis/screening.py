@@ -303,7 +303,8 @@ def moment_scale_words(res: FitResult, logs: Sequence[FlightLog], compile: str =
     3 std: a mass, an inertia, an arm or a command map off, which the fit's ``K_T``, ``b`` and
     ``Kd`` carry silently (a blind audit's 1.1 kg vehicle given an inertia 35 % too large:
     ``b`` 35 % high at 0.03 %, "certified"; given a mass 25 % too large: ``K_T`` and ``Kd``
-    25 % high, "certified"). ``[]`` otherwise."""
+    25 % high, "certified"), within what a moment gain physically is
+    (:meth:`~greybox.effects.MomentGain.plausible_limits`). ``[]`` otherwise."""
     model = res.model
     name = fx.MomentGain.name
     if not res.converged or any(e.scales_commanded_moment for e in model.effects):
@@ -313,7 +314,11 @@ def moment_scale_words(res: FitResult, logs: Sequence[FlightLog], compile: str =
     except (GreyboxInputError, ValueError, np.linalg.LinAlgError, RuntimeError):
         return []      # words on the fit only: where the step cannot be had, nothing is said
     k = null + step
-    if not (np.isfinite(k) and k > 0 and abs(step) > 3 * std and abs(step) >= MOMENT_SCALE_NOTICE):
+    # beyond what a moment gain physically is (a step to its bound, 0.02, on the real Crazyflie
+    # flights, whose base model lacks the CoG offset's trim moment) it stands for something
+    # else, which the diagnosis looks for: nothing said of the airframe then
+    plausible = abs(step) <= fx.MomentGain().plausible_limits(model.airframe)["k_M"]
+    if not (np.isfinite(k) and plausible and abs(step) > 3 * std and abs(step) >= MOMENT_SCALE_NOTICE):
         return []
     return [f"the roll and pitch turn about {k:.3g} times as much per rotor-speed difference as the airframe's "
             f"inertia, arm and mass give (one Gauss–Newton step of {name} from this fit: k_M ≈ {k:.3g} ± "
