@@ -1059,26 +1059,31 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
                     f"{where}: column 'psi': the tilt points along the positions' acceleration only with psi read "
                     f"as degrees {shown}: " + ("phi, theta, psi in degrees? rad = deg * pi/180" if abs(c_o) < 1 / UNIT_RATIO_LIMIT
                                                  else "psi in degrees? rad = deg * pi/180"))
+            def alike(name: str) -> bool:
+                # with a steady heading, positions mirrored and roll and pitch swapped read alike
+                r = readings[name][1] if name in readings else -1.0
+                return (n_windows > 3 and r > _FRAME_MIN_CORRELATION
+                        and math.atanh(min(rho_o, 0.999999)) - math.atanh(min(max(r, 0.0), 0.999999))
+                        <= _FRAME_CLEARLY_BETTER_SE * math.sqrt(2.0 / (n_windows - 3)))
+
+            steady = "which the flight's heading, too steady, cannot tell from it"
             if other == "roll and pitch swapped":
                 # a body frame with roll and pitch swapped is left-handed: the tilt it gives turns
                 # the wrong way with the heading, so a flight that turns tells it from a mirrored
                 # world (a blind audit's log, phi and theta swapped with p and q: fitted,
                 # certified, "w1 as rotor 2, w2 as rotor 1")
+                also = (f"; or the positions mirrored (correlation {readings['mirrored'][1]:.2f}), {steady}"
+                        if alike("mirrored") else "")
                 raise GreyboxInputError(
                     f"{where}: columns 'phi', 'theta': the positions' acceleration follows the tilt only with roll "
-                    f"and pitch swapped {shown}: phi and theta swapped (and p and q with them?); greybox's body "
-                    "axes are FRD: phi about x (forward), theta about y (right)")
+                    f"and pitch swapped {shown}: phi and theta swapped (and p and q with them?){also}; greybox's "
+                    "body axes are FRD: phi about x (forward), theta about y (right)")
             turn = math.degrees(float(np.angle(c_o)))
             how = ("x and y swapped (ENU: x east, y north, z up?)" if abs(abs(turn) - 90) < 30 else
                    "y mirrored (y to the left: a z-up frame?)" if abs(turn) < 30 else
                    "x mirrored" if abs(turn) > 150 else f"mirrored and turned by {turn:.0f} degrees")
-            # with a steady heading, positions mirrored and roll and pitch swapped read alike
-            rho_s = readings["roll and pitch swapped"][1] if "roll and pitch swapped" in readings else -1.0
-            alike = (n_windows > 3 and rho_s > _FRAME_MIN_CORRELATION
-                     and math.atanh(min(rho_o, 0.999999)) - math.atanh(min(max(rho_s, 0.0), 0.999999))
-                     <= _FRAME_CLEARLY_BETTER_SE * math.sqrt(2.0 / (n_windows - 3)))
-            also = (f"; or phi and theta swapped (and p and q with them: correlation {rho_s:.2f}), which the "
-                    "flight's heading, too steady, cannot tell from it" if alike else "")
+            also = (f"; or phi and theta swapped (and p and q with them: correlation "
+                    f"{readings['roll and pitch swapped'][1]:.2f}), {steady}" if alike("roll and pitch swapped") else "")
             raise GreyboxInputError(
                 f"{where}: columns 'x', 'y': the positions' acceleration follows the tilt's mirror image "
                 f"{shown}: {how}{also}; greybox's world is NED (x north, y east, z down) and the attitude's body FRD")

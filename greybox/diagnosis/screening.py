@@ -249,8 +249,9 @@ def one_step_estimate(model: QuadrotorModel, res: FitResult, logs: Sequence[Flig
     ``res`` (its other parameters and the nodes moving with it; a parameter the step would
     take past a bound held): ``(null, step, std)`` in the parameter's units. ``std`` is taken
     where the step ends, near the extended model's optimum, as the fit's own parameter std:
-    the larger of the Gauss–Newton one and the long-run scatter of the intervals' shares of
-    the next step (a Wald test's). ``variance_at="baseline"``: of the shares of this step
+    the larger of the Gauss–Newton one (for the weights ``sigma`` as given, not rescaled by the
+    residuals) and the long-run scatter of the intervals' shares of the next step (which grows
+    with the residuals; a Wald test's). ``variance_at="baseline"``: of the shares of this step
     instead, about their mean (a score test's, under the null): they also scatter with how much
     each interval tells of the effect, so it is conservative where the effect is there (a
     moment gain of 1.35: ± 0.14 at the baseline, ± 0.0014 where the step ends)."""
@@ -285,7 +286,9 @@ def robust_screen(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLo
     plain statistic (:func:`screen`) trusts the weights; noise on the logged inputs is a random
     forcing they do not hold, and there it is large by chance as often as not (greybox's own
     flights with 0.5-1 rad/s of noise on held speeds: 11-16 for the central blend of the rows'
-    timing, where its robust statistic is at most 5)."""
+    timing, where its robust statistic is at most 5). Under the null it is 0 half the time, so
+    read as chi-square with one degree of freedom its level is half the nominal one: a
+    conservative test."""
     _null, step, std = one_step_estimate(model, res, logs, name, sigma, compile, variance_at="baseline")
     return (step / std) ** 2 if step > 0 and std > 0 else 0.0
 
@@ -320,10 +323,15 @@ def moment_scale_words(res: FitResult, logs: Sequence[FlightLog], compile: str =
     plausible = abs(step) <= fx.MomentGain().plausible_limits(model.airframe)["k_M"]
     if not (np.isfinite(k) and plausible and abs(step) > 3 * std and abs(step) >= MOMENT_SCALE_NOTICE):
         return []
+    # a lag between the logged speeds and the thrust (commands logged, no motor lag in the
+    # model) lowers the moment's gain at the manoeuvres' frequencies: 1/(1 + (w tau)^2)
+    lag = ("; or a lag between the logged speeds and the thrust that the model lacks (motor_lag, "
+           "command_delay) lowers the moment's gain at the manoeuvres' frequencies"
+           if k < 1 and not any(e.input_timed for e in model.effects) else "")
     return [f"the roll and pitch turn about {k:.3g} times as much per rotor-speed difference as the airframe's "
             f"inertia, arm and mass give (one Gauss–Newton step of {name} from this fit: k_M ≈ {k:.3g} ± "
-            f"{std:.2g}), and K_T, b and Kd carry it: {fx.MomentGain.readings(k, model.airframe)}; or diagnose, "
-            f"which fits {name}"]
+            f"{std:.2g}), which K_T and Kd (a mass) or b (an inertia about z) may carry: "
+            f"{fx.MomentGain.readings(k, model.airframe)}{lag}; or diagnose, which fits {name}"]
 
 
 def screen_jointly(model: QuadrotorModel, res: FitResult, logs: Sequence[FlightLog], names: Sequence[str],
@@ -748,11 +756,14 @@ def negligible_effect(fr: FitResult, effect: str, logs: Sequence[FlightLog]) -> 
     if not small:
         return ""
     std = dict(zip(fr.free_names, map(float, fr.std)))
-    comps = [(c, fr.value(c), null) for _, c, null in fr.model.effect_components(effect) if c in std]
+    e = fr.model.effects.get(effect)
+    shape = set(e.shape_parameters) if e is not None else set()     # a hub height is no size
+    comps = [(c, fr.value(c), null) for par, c, null in fr.model.effect_components(effect)
+             if c in std and par.name not in shape]
     if comps and all(np.isfinite(std[c]) and abs(v - null) < 3.0 * std[c] for c, v, null in comps):
         values = ", ".join(f"{c} = {v:.3g} ± {std[c]:.2g}" for c, v, _ in comps)
         small += (f"; its parameters are not small but not determined either ({values}, each within 3 std of "
-                  "none): these flights show that it moves little here, not how large it is")
+                  "its null value): these flights show that it moves little here, not how large it is")
     return small
 
 
