@@ -1049,8 +1049,12 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
         other = min((r for r in readings if r != "as given"), key=lambda r: 1 - readings[r][1] ** 2)
         c_o, rho_o = readings[other][:2]
         shows_none = rho < _FRAME_NULL_SIGMAS / math.sqrt(max(n_windows, 1.0))
-        clearly_better = (n_windows > 3 and math.atanh(min(rho_o, 0.999999)) - math.atanh(min(max(rho, 0.0), 0.999999))
-                          > _FRAME_CLEARLY_BETTER_SE * math.sqrt(2.0 / (n_windows - 3)))
+        def clearly_above(high: float, low: float) -> bool:
+            # Fisher's atanh of two correlations over n_windows stretches, 3 SE of their difference
+            return (n_windows > 3 and math.atanh(min(high, 0.999999)) - math.atanh(min(max(low, 0.0), 0.999999))
+                    > _FRAME_CLEARLY_BETTER_SE * math.sqrt(2.0 / (n_windows - 3)))
+
+        clearly_better = clearly_above(rho_o, rho)
         if rho_o > _FRAME_MIN_CORRELATION and (1 - rho_o ** 2 < (1 - rho ** 2) / _FRAME_UNEXPLAINED_RATIO
                                                or shows_none or clearly_better):
             shown = f"(correlation {rho_o:.2f}, as given {rho:.2f})"
@@ -1062,9 +1066,7 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
             def alike(name: str) -> bool:
                 # with a steady heading, positions mirrored and roll and pitch swapped read alike
                 r = readings[name][1] if name in readings else -1.0
-                return (n_windows > 3 and r > _FRAME_MIN_CORRELATION
-                        and math.atanh(min(rho_o, 0.999999)) - math.atanh(min(max(r, 0.0), 0.999999))
-                        <= _FRAME_CLEARLY_BETTER_SE * math.sqrt(2.0 / (n_windows - 3)))
+                return n_windows > 3 and r > _FRAME_MIN_CORRELATION and not clearly_above(rho_o, r)
 
             steady = "which the flight's heading, too steady, cannot tell from it"
             if other == "roll and pitch swapped":

@@ -273,11 +273,30 @@ class SampledInputs(Effect):
         _require_rotor_speeds(commands, "sampled_inputs blends")
         return [self._next(c) for c in commands] + (["t@row", "h@row"] if self.hold == "linear" else [])
 
+    @staticmethod
+    def _next_rows(v: np.ndarray) -> np.ndarray:
+        """Each row's next row (the last row its own)."""
+        return np.append(v[1:], v[-1:])
+
+    @staticmethod
+    def _previous_rows(v: np.ndarray) -> np.ndarray:
+        """Each row's previous row (the first row its own)."""
+        return np.concatenate([v[:1], v[:-1]])
+
+    @classmethod
+    def _with_next_rows(cls, log, next_of):
+        """``log`` with this effect's next-row speeds set to ``next_of(w)`` for each rotor-speed
+        column ``w`` (kept by :meth:`QuadrotorModel.prepare_log`)."""
+        extras = dict(log.extras)
+        for i, c in enumerate(log.input_names):
+            if c.startswith("w"):
+                extras[cls._next(c)] = next_of(np.asarray(log.inputs[:, i], dtype=float))
+        return replace(log, extras=extras)
+
     def derive_signals(self, t, commands):
         out = {}
         for c, v in commands.items():
-            v = np.asarray(v, dtype=float)
-            out[self._next(c)] = np.append(v[1:], v[-1:])
+            out[self._next(c)] = self._next_rows(np.asarray(v, dtype=float))
         if self.hold == "linear":
             t = np.asarray(t, dtype=float)
             h = np.diff(t)
@@ -293,12 +312,7 @@ class SampledInputs(Effect):
         that sample a varying signal: the next row, by thousands; a held command: neither). The
         score test of the timing is read beside it (``diagnosis.screening.row_timing_words``).
         The derived columns it sets are kept by :meth:`QuadrotorModel.prepare_log`."""
-        extras = dict(log.extras)
-        for i, c in enumerate(log.input_names):
-            if c.startswith("w"):
-                v = np.asarray(log.inputs[:, i], dtype=float)
-                extras[cls._next(c)] = np.concatenate([v[:1], v[:-1]])
-        return replace(log, extras=extras)
+        return cls._with_next_rows(log, cls._previous_rows)
 
     @classmethod
     def toward_central_difference(cls, log):
@@ -308,13 +322,7 @@ class SampledInputs(Effect):
         one toward the previous row by the same amount on average, and this direction is their
         difference: the noise's share cancels, a timing's stays (the score test of the rows'
         timing on held speeds with noise, ``diagnosis.screening.row_timing_words``)."""
-        extras = dict(log.extras)
-        for i, c in enumerate(log.input_names):
-            if c.startswith("w"):
-                v = np.asarray(log.inputs[:, i], dtype=float)
-                nxt, prev = np.append(v[1:], v[-1:]), np.concatenate([v[:1], v[:-1]])
-                extras[cls._next(c)] = v + 0.5 * (nxt - prev)
-        return replace(log, extras=extras)
+        return cls._with_next_rows(log, lambda v: v + 0.5 * (cls._next_rows(v) - cls._previous_rows(v)))
 
     def modify(self, ctx):
         n = ctx.airframe.n_rotors
