@@ -39,7 +39,9 @@ def test_the_floor_is_the_random_walk_the_speeds_noise_gives_by_hand(noisy_cf):
     interval = 25
     idx = np.arange(0, len(log), interval)
     X = initial_node_states(model, log, idx, p)
-    floor = input_noise_process_scale(model, [log], [idx], X, p, interval)[0]
+    found = input_noise_process_scale(model, [log], [idx], X, p, interval)
+    assert found.notable
+    floor = found.scale[0]
     af = model.airframe
     K_T, b = model.parameter_dict(p)["K_T"], model.parameter_dict(p)["b"]
     rows = idx[:-1]
@@ -54,40 +56,46 @@ def test_the_floor_is_the_random_walk_the_speeds_noise_gives_by_hand(noisy_cf):
         assert floor[names.index(s)] == 0.0
 
 
-def test_inputs_without_notable_noise_set_no_floor(noisy_cf):
-    """The same flight's true speeds (the simulator's states, no telemetry noise): no input's
-    high-frequency content reaches 1 % of its variance, and there is no floor."""
+def test_inputs_the_vehicle_follows_set_no_floor_to_speak_of(noisy_cf):
+    """The same flight's true speeds (the simulator's states, no telemetry noise): what little
+    row-to-row content they have the gyro follows, and the floor stays below a tenth of the
+    noisy speeds' in every state (none at all where the regression says all is followed)."""
     model, log, fl = noisy_cf
     clean = replace(log, inputs=np.asarray(fl.states[:, 13:17], dtype=float).copy())
     _, share = input_column_noise(model, clean)
     assert share < INPUT_NOISE_SHARE
     idx = np.arange(0, len(clean), 25)
     p = model.default_parameters()
-    assert input_noise_process_scale(model, [clean], [idx], initial_node_states(model, clean, idx, p), p, 25) is None
+    noisy = input_noise_process_scale(model, [log], [idx], initial_node_states(model, log, idx, p), p, 25)
+    floor = input_noise_process_scale(model, [clean], [idx], initial_node_states(model, clean, idx, p), p, 25)
+    assert floor is None or (not floor.notable and np.all(floor.scale <= 0.1 * noisy.scale))
 
 
-def test_without_a_gyro_even_a_small_noise_on_the_speeds_sets_the_floor(noisy_cf):
-    """The same flight's true speeds with 0.2 % noise (under 1 % of their variance): with the
-    gyro, no floor (the rates' gaps are read against it); without it, the floor that noise
-    gives, by hand as above (a blind audit's true model then fitted at the noise, where the
-    rates' process noise had fallen 20-fold and left y and theta at 1.6 and 1.4 times it)."""
+def test_a_small_noise_on_the_speeds_sets_the_floor_with_a_gyro_or_without(noisy_cf):
+    """The same flight's true speeds with 0.2 % noise (under 1 % of their variance): the gyro
+    follows none of it, and with it or without it the floor is the random walk that noise
+    gives, by hand as above (re-estimated from the gaps alone, greybox's own flights with such
+    noise kept the rates' process noise at half that and reported K_T's and the vertical
+    drag's std 2-3 times too small; a blind audit's true model, without a gyro, left y and
+    theta at 1.6 and 1.4 times their noise). Under 1 % it is not notable: no warning of
+    gains biased low."""
     model, log, fl = noisy_cf
     true = np.asarray(fl.states[:, 13:17], dtype=float)
     noisy = replace(log, inputs=true * (1 + 0.002 * np.random.default_rng(3).standard_normal(true.shape)))
     sigma, share = input_column_noise(model, noisy)
     assert share < INPUT_NOISE_SHARE
-    no_gyro = without_gyro(noisy)
     p = model.default_parameters()
     interval = 25
     idx = np.arange(0, len(log), interval)
     X = initial_node_states(model, noisy, idx, p)
-    assert input_noise_process_scale(model, [noisy], [idx], X, p, interval) is None
-    floor = input_noise_process_scale(model, [no_gyro], [idx], X, p, interval)[0]
     K_T = model.parameter_dict(p)["K_T"]
     w = noisy.inputs[idx[:-1], :4]
     dt = float(np.median(np.diff(log.t)))
     vz_row = np.sqrt(np.mean(np.sum((2 * K_T * w * sigma / model.airframe.mass) ** 2, axis=1))) * dt
-    assert floor[model.state_names.index("vz")] == pytest.approx(vz_row * np.sqrt(interval), rel=0.03)
+    for case in (noisy, without_gyro(noisy)):
+        floor = input_noise_process_scale(model, [case], [idx], X, p, interval)
+        assert not floor.notable
+        assert floor.scale[0][model.state_names.index("vz")] == pytest.approx(vz_row * np.sqrt(interval), rel=0.05)
 
 
 @pytest.mark.slow

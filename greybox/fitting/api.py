@@ -966,6 +966,7 @@ class _Solves:
         self.n_c = ses.data.mask.sum(axis=1)
         self.user_sigma = np.array([n in (noise or {}) for n in OUTPUTS])
         self.inputs_floor: np.ndarray | None = None
+        self.inputs_noise_notable = False
         sensor = estimated_sensor_noise(logs)
         # a noise the user gave is the sensor's: the residual check judges against it too
         self.sensor = np.array([float(sensor_noise[n]) if n in sensor_noise else v for n, v in zip(OUTPUTS, sensor)])
@@ -980,7 +981,9 @@ class _Solves:
         """Soft continuity's first process noise: the gaps at the start, at least the random
         walk the logged inputs' white noise gives the states."""
         model, ses = self.model, self.ses
-        self.inputs_floor = input_noise_process_scale(model, self.logs, ses.data.node_index, X, p, interval)
+        floor = input_noise_process_scale(model, self.logs, ses.data.node_index, X, p, interval)
+        self.inputs_floor = None if floor is None else floor.scale
+        self.inputs_noise_notable = floor is not None and floor.notable
         if self.inputs_floor is not None:
             self.say("fit: process noise at least what the logged inputs' noise gives: " +
                      ", ".join(f"{n}={v:.2g}" for n, v in zip(model.state_names, self.inputs_floor.max(axis=0)) if v > 0))
@@ -1171,7 +1174,7 @@ def _parameter_covariance(ses: FitSession, X: np.ndarray, blocks, P: np.ndarray,
 
 def _parameter_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], free_names: list[str], p_out: np.ndarray,
                         free_idx, std: np.ndarray, var: np.ndarray, corr: np.ndarray, P: np.ndarray,
-                        vectors: Sequence[np.ndarray], spread: Sequence[int], inputs_floor) -> list[str]:
+                        vectors: Sequence[np.ndarray], spread: Sequence[int], inputs_noise_notable: bool) -> list[str]:
     """What a fit says about its flights and parameters: rows flagged on the ground, a singular
     information matrix, identifiability, each effect's plausibility and interpretation, the
     thrust's balance against the weight and its spread over flights, noise on the inputs."""
@@ -1194,7 +1197,7 @@ def _parameter_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], free_n
     warnings += _thrust_balance_warnings(model, logs, values, p_out)
     warnings += _speed_scale_warnings(model, values, free_names)
     warnings += _thrust_spread_warnings(model, logs, vectors, [free_names[j] for j in spread])
-    if inputs_floor is not None:
+    if inputs_noise_notable:
         warnings.append("the logged inputs carry white noise the vehicle does not follow (the gyro tells): fed to "
                         "the model it is a random force and torque, and the gains that pass it on come out small "
                         "(errors in variables); the process noise was held at least at the random walk it gives "
@@ -1290,7 +1293,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     if soft:
         solves.start_process_noise(X, th, p, interval)
     X, th, mu, total_iters, converged, status, blocks, P, s2, opt = solves.run(X, th)
-    sensor, n_c, inputs_floor = solves.sensor, solves.n_c, solves.inputs_floor
+    sensor, n_c = solves.sensor, solves.n_c
     step_std, state_step, gap, held, reasons = opt
     if not reasons and not converged:
         status = f"converged (certified optimum; the solver stopped on: {status})"
@@ -1323,7 +1326,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         pf[free_idx] = ses.flight_theta(th, f)
         vectors.append(pf)
     warnings = _parameter_warnings(model, logs, free_names, p_out, free_idx, std, var, corr, P, vectors, spread,
-                                   inputs_floor)
+                                   solves.inputs_noise_notable)
     if not converged:
         warnings.insert(0, f"solver did not converge: {status}; test statistics at this fit are not valid")
         _warnings.warn(f"fit did not converge: {status}", ConvergenceWarning)

@@ -24,7 +24,7 @@ from ..model import QuadrotorModel
 from ..shooting import estimate_noise
 
 __all__ = ["INPUT_NOISE_SHARE", "input_noise_sd", "mixer_directions", "wiener_smooth_along", "input_column_noise", "input_jacobian", "followed_share", "state_steps",
-           "unfollowed_input_noise", "input_noise_process_scale", "InputDenoising", "denoise_inputs",
+           "unfollowed_input_noise", "input_noise_process_scale", "ProcessNoiseFloor", "InputDenoising", "denoise_inputs",
            "wiener_smooth"]
 
 INPUT_NOISE_SHARE = 0.01
@@ -130,42 +130,66 @@ def followed_share(model: QuadrotorModel, log: FlightLog, p: np.ndarray, max_row
 
 def unfollowed_input_noise(model: QuadrotorModel, log: FlightLog, p: np.ndarray
                            ) -> tuple[np.ndarray, float, float | None]:
-    """:func:`input_column_noise` of the prepared ``log`` less what the vehicle follows: where
-    some input's noise makes up :data:`INPUT_NOISE_SHARE` of its variance, the fast content
-    the gyro follows (:func:`followed_share` at ``p``) is signal, not noise, and only the rest
-    counts (none without a gyro to tell). Returns the per-input noise, its largest share of
-    an input's variance, and the followed share (None where not asked or not told)."""
+    """:func:`input_column_noise` of the prepared ``log`` less what the vehicle follows: the
+    fast content the gyro follows (:func:`followed_share` at ``p``) is signal, not noise, and
+    only the rest counts (all of it without a gyro to tell). Returns the per-input noise, its
+    largest share of an input's variance, and the followed share (None where not told)."""
     sigma, share = input_column_noise(model, log)
-    if share < INPUT_NOISE_SHARE:
+    if share <= 0 or not _has_rates(log):
         return sigma, share, None
     followed = followed_share(model, log, p)
     unfollowed = 0.0 if followed is None else float(np.clip(1.0 - followed, 0.0, 1.0))
     return sigma * math.sqrt(unfollowed), share * unfollowed, followed
 
 
+@dataclass(frozen=True)
+class ProcessNoiseFloor:
+    """What white noise on the logged inputs gives a soft fit's process noise
+    (:func:`input_noise_process_scale`).
+
+    Attributes:
+        scale: per flight (rows) and state (columns), the random walk over one shooting
+            interval: no state's process noise goes below it.
+        share: the largest share of a logged input's variance that the noise the vehicle does
+            not follow makes up (:func:`unfollowed_input_noise`); from
+            :data:`INPUT_NOISE_SHARE` on it also biases the gains that pass it on (a warning).
+    """
+
+    scale: np.ndarray
+    share: float
+
+    @property
+    def notable(self) -> bool:
+        """Whether the noise is large enough to bias the gains that pass it on."""
+        return self.share >= INPUT_NOISE_SHARE
+
+
 def input_noise_process_scale(model: QuadrotorModel, logs: Sequence[FlightLog], node_index: Sequence[np.ndarray],
-                              X: np.ndarray, p: np.ndarray, interval: int) -> np.ndarray | None:
+                              X: np.ndarray, p: np.ndarray, interval: int) -> ProcessNoiseFloor | None:
     """Per flight (rows) and state (columns), the random walk over one shooting interval of
     ``interval`` rows that white noise on the logged inputs gives the states (:func:`state_steps`
     at the node states ``X``, stacked over the flights as ``node_index`` places them, and the
-    parameters ``p``; independent draws per row). None when no logged input's noise makes up
-    :data:`INPUT_NOISE_SHARE` of its variance.
+    parameters ``p``; independent draws per row), the noise the vehicle follows taken out
+    (:func:`unfollowed_input_noise`). None when no logged input carries such noise.
 
-    The floor of a soft fit's process noise. Re-estimated from the gaps alone, a state's process
-    noise can fall far below what the inputs' noise gives it (the gaps shrink with it), and the
-    fit then shrinks the gains that pass the noise on (errors in variables): on the ninth
-    audit's hexacopter (speed noise 7-12 % of the speeds' variance) vz's fell to 3.5e-7 m/s
-    where the noise gives 9e-4, and the fit took drag 35 % low to follow the heights; a 30 g
-    vehicle with 1 % speed noise kept b 7 % low. A log without a gyro counts all its inputs'
-    noise, however small a share of their variance: nothing measures the body rates there, so
-    their gaps shrink with their process noise unchecked (a blind audit's 0.9 kg vehicle, speeds
-    with 0.5 % noise, 0.35 % of their variance: with the gyro the roll rate's process noise came
-    out 0.0075 rad/s per interval, what the noise gives, without it 0.00034, and the true model
-    left y and theta at 1.6 and 1.4 times their noise), and nothing tells what the vehicle
-    follows."""
-    per_flight = [unfollowed_input_noise(model, log, p)[:2] if _has_rates(log) else
-                  (input_column_noise(model, log)[0], INPUT_NOISE_SHARE) for log in logs]
-    if not any(share >= INPUT_NOISE_SHARE for _, share in per_flight):
+    The floor of a soft fit's process noise, however small a share of the inputs' variance the
+    noise is. Re-estimated from the gaps alone, a state's process noise falls below what the
+    inputs' noise gives it (a smoother's gaps are smaller than the noise that made them, and
+    shrink further with it), and the fit then trusts the dynamics more than the data allow:
+    the gains that pass the noise on come out small (errors in variables; on the ninth
+    audit's hexacopter, speed noise 7-12 % of the speeds' variance, vz's fell to 3.5e-7 m/s
+    where the noise gives 9e-4, and the fit took drag 35 % low), and even where no gain moves,
+    their standard deviations come out too small: on greybox's own 30-s flights with 1 rad/s
+    on the speeds (0.23 % of their variance, a gyro logged) the roll and pitch rates' process
+    noise fell to 0.0042 rad/s per interval where the noise gives 0.009, and over eight seeds
+    K_T, b and the vertical drag were 2.3, 1.3 and 3.0 of their std from the truth (RMS);
+    with the floor 0.9, 0.9 and 0.8. A log without a gyro counts all of its inputs' noise:
+    nothing tells what the vehicle follows (a blind audit's 0.9 kg vehicle, speeds with
+    0.5 % noise: with the gyro the roll rate's process noise came out 0.0075 rad/s per
+    interval, what the noise gives, without it 0.00034, and the true model left y and theta
+    at 1.6 and 1.4 times their noise)."""
+    per_flight = [unfollowed_input_noise(model, log, p)[:2] for log in logs]
+    if not any(np.any(sigma > 0) for sigma, _ in per_flight):
         return None
     out = np.zeros((len(logs), model.nx))
     k0 = 0
@@ -175,7 +199,9 @@ def input_noise_process_scale(model: QuadrotorModel, logs: Sequence[FlightLog], 
         pick = np.unique(np.linspace(0, len(idx) - 2, min(400, len(idx) - 1)).astype(int))
         steps = state_steps(model, log, p, per_flight[f][0], np.asarray(idx)[pick], nodes[pick])
         out[f] = steps * math.sqrt(max(interval, 1))
-    return out
+    if not np.any(out > 0):
+        return None
+    return ProcessNoiseFloor(out, max(share for _, share in per_flight))
 
 
 def _has_rates(log: FlightLog) -> bool:
