@@ -48,7 +48,8 @@ __all__ = ["InputNoise", "input_noise", "SimexCheck", "simex", "simex_check", "e
 
 NOISE_SHARE_NOTABLE = INPUT_NOISE_SHARE
 """Share of a logged rotor speed's variance that is white noise from which the inputs' errors
-are checked for (the fit's own floor of process noise counts from the same share)."""
+are checked for (the share from which the fit warns of gains biased low; its floor of process
+noise counts whatever the share)."""
 DRAWS = 2
 """Noise draws averaged per noise level."""
 LEVELS = (2.0, 3.0)

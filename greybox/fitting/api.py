@@ -251,8 +251,8 @@ def fit(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLog]", *, free:
             (the RMS of their interval-to-interval differences over sqrt(2):
             :func:`process_noise_scale`; what consecutive gaps share is a model error, not
             noise) after each solve that converged, each flight its own, never below the random walk that white noise on the
-            logged inputs gives the state (:mod:`greybox.fitting.input_errors`, where that
-            noise is at least 1 % of an input's variance); a std in ``{state: std}`` may be
+            logged inputs gives the state (:mod:`greybox.fitting.input_errors`, less what the
+            gyro says the vehicle follows); a std in ``{state: std}`` may be
             one per flight. Use it on real data whose inputs are not the whole truth (e.g. PWM logged at 85 Hz for a 500 Hz controller): an output-error
             fit of such data can only shrink the parameters until the model stops moving.
             Whatever the formulation, a fit that ends with its mean rotor thrust more than
