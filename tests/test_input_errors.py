@@ -95,7 +95,7 @@ def test_a_small_noise_on_the_speeds_sets_the_floor_with_a_gyro_or_without(noisy
     for case in (noisy, without_gyro(noisy)):
         floor = input_noise_process_scale(model, [case], [idx], X, p, interval)
         assert not floor.notable
-        assert floor.scale[0][model.state_names.index("vz")] == pytest.approx(vz_row * np.sqrt(interval), rel=0.05)
+        assert floor.scale[0][model.state_names.index("vz")] == pytest.approx(vz_row * np.sqrt(interval), rel=0.03)
 
 
 @pytest.mark.slow
