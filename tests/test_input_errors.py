@@ -378,3 +378,64 @@ def test_a_small_noise_on_the_speeds_leaves_the_std_honest(tmp_path, paper_airfr
     for name in ("K_T", "b", "Kd[0]", "Kd[1]", "Kd[2]"):
         i = res.free_names.index(name)
         assert abs(res.value(name) - truth[name]) < 3 * res.std[i], (name, res.value(name), res.std[i])
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_the_noise_the_smoother_leaves_is_what_it_says(order):
+    """Speeds of 1800 rad/s moved by a command low-passed at 3 Hz (first or second order, 50
+    rad/s RMS: a controller's speeds behind a motor), 500 Hz, white noise of 18 rad/s. The
+    smoother leaves the noise in the band where the command stands above it; the Wiener
+    error's power per frequency, the noise's times the gain, says how much: within a quarter of
+    what is left, seeds 3-6 (first order 2-6 % under, second order 15-24 % over; a signal cut
+    off sharply is over-estimated up to 1.45 times: the gain leaks past its edge). The model's
+    predictions keep that much, and the certificate allows for it."""
+    from scipy.signal import lfilter
+    from greybox.fitting.input_errors import wiener_left_noise, wiener_smooth
+    dt = 0.002
+    t = np.arange(0, 10, dt)
+    a = np.exp(-2 * np.pi * 3 * dt)
+    for seed in range(3, 7):
+        rng = np.random.default_rng(seed)
+        command = rng.normal(size=t.size)
+        for _ in range(order):
+            command = lfilter([1 - a], [1, -a], command)
+        true = 1800 + 50 * command / command.std()
+        logged = true + rng.normal(0, 18.0, t.size)
+        left = np.std(wiener_smooth(logged, 18.0) - true)
+        assert 3.0 < left < 15.0                   # much taken out, not all
+        assert wiener_left_noise(logged, 18.0) == pytest.approx(left, rel=0.25)
+
+
+def test_the_speeds_noise_on_the_accelerometer_by_hand(noisy_cf):
+    """The specific force along the body's z is -K_T sum(w_i^2) / m (the base model's drag acts
+    on the velocity): white noise sigma_i on each logged speed puts 2 K_T w_i sigma_i / m on its
+    prediction, the rotors independently; the roll and pitch rates and the pose none (the
+    states carry them). The fit's certificate allows that beside the accelerometer's noise."""
+    from greybox.fitting.input_errors import output_input_noise, unfollowed_input_noise
+    model, log, _ = noisy_cf
+    p = model.default_parameters()
+    rows = np.arange(0, len(log), 7)
+    states = np.repeat(np.asarray(model.initial_state(), dtype=float).reshape(1, -1), rows.size, axis=0)
+    found = dict(zip(model.output_names, output_input_noise(model, log, p, states, rows)))
+    sigma = unfollowed_input_noise(model, log, p)[0][:4]
+    K_T, m = model.parameter_dict(p)["K_T"], model.airframe.mass
+    w = log.inputs[rows, :4]
+    by_hand = np.sqrt(np.mean(np.sum((2 * K_T * w * sigma / m) ** 2, axis=1)))
+    assert found["az"] == pytest.approx(by_hand, rel=1e-6)
+    for ch in ("x", "y", "z", "phi", "theta", "psi", "p", "q", "r", "ax", "ay"):
+        assert found[ch] < 1e-9 * by_hand, ch
+
+
+def test_a_certificate_counts_the_speeds_noise_on_the_accelerometer():
+    """az residuals 1.5 times the accelerometer's noise and coloured (a third of the lags
+    outside the band) are a model that misses something, unless the logged speeds' noise
+    puts as much on the prediction: then they are what an exact model leaves, and said so."""
+    from greybox.fitting.certificate import Certificate
+    def cert(input_noise):
+        return Certificate(True, 0.0, 0.0, 0.0, [], {"z": 1.0, "az": 1.5}, {"z": 0.0, "az": 0.33},
+                           {"z": 0.001, "az": 0.05}, input_noise=input_noise)
+    assert cert({}).off_channels() == ["az"] and not cert({}).adequate
+    covered = cert({"az": 0.055})
+    assert covered.adequate and covered.noise_ratio("az") == pytest.approx(1.5 / np.hypot(1, 1.1))
+    assert "within what the logged inputs' noise adds" in covered.text()
+    assert not cert({"az": 0.01}).adequate          # a fifth of the sensor's noise explains nothing

@@ -87,6 +87,12 @@ class Certificate:
     soft: bool = False
     """The fit had process noise: its shooting gaps are part of the cost, not held closed
     (``gap_over_noise`` is 0 by construction; :attr:`systematic_gaps` judges them)."""
+    input_noise: dict[str, float] = field(default_factory=dict)
+    """Per channel whose prediction the logged inputs feed straight through the output map (the
+    accelerometer's, through the thrust): the RMS error the inputs' white noise puts on it
+    (:func:`~greybox.fitting.input_errors.output_input_noise`), in the channel's unit. Set
+    where some channel's residuals would otherwise be judged off the noise; an exact model's
+    residuals there are the sensor's noise and this together (:meth:`noise_ratio`)."""
     flightless: float | None = None
     """Set where the end point passed every check of optimality but its rotors' mean thrust
     cannot be a flying vehicle's (:data:`~greybox.fitting.THRUST_IMPOSSIBLE`): their share of
@@ -105,12 +111,29 @@ class Certificate:
         state's shooting gaps (with process noise) are mostly systematic."""
         return not self.off_channels() and not self.off_states()
 
+    def noise_ratio(self, ch: str) -> float:
+        """A channel's residual RMS over what an exact model leaves there: the sensor's noise
+        and, where the logged inputs feed the prediction straight (:attr:`input_noise`), their
+        noise too."""
+        r = self.residual_over_noise[ch]
+        extra = self.input_noise.get(ch, 0.0) / self.sensor_noise[ch] if self.sensor_noise.get(ch, 0.0) > 0 else 0.0
+        return r / math.sqrt(1.0 + extra * extra)
+
+    def input_noise_covers(self) -> list[str]:
+        """Channels more than :data:`NOISE_RATIO_COLOURED` times the sensor's noise that the
+        logged inputs' noise accounts for: with it, within that ratio (:meth:`noise_ratio`)."""
+        return [ch for ch, r in self.residual_over_noise.items() if self.input_noise.get(ch, 0.0) > 0
+                and r > NOISE_RATIO_COLOURED and self.noise_ratio(ch) <= NOISE_RATIO_COLOURED]
+
+    def _off(self, r: float, ch: str) -> bool:
+        return r > NOISE_RATIO_ADEQUATE or (r > NOISE_RATIO_COLOURED and self.whiteness.get(ch, 0.0) > WHITENESS_ADEQUATE)
+
     def far_off(self, ratio: float) -> tuple[dict[str, float], dict[str, float]]:
         """What the fit misses by more than ``ratio`` times the noise: ``({channel: residual
         RMS / sensor noise}, {state: gap RMS / its random part})`` among :meth:`off_channels`
         and :meth:`off_states`."""
         return ({ch: self.residual_over_noise[ch] for ch in self.off_channels()
-                 if self.residual_over_noise[ch] > ratio},
+                 if self.noise_ratio(ch) > ratio},
                 {n: self.systematic_gaps[n] for n in self.off_states() if self.systematic_gaps[n] > ratio})
 
     def off_states(self) -> list[str]:
@@ -121,10 +144,9 @@ class Certificate:
 
     def off_channels(self) -> list[str]:
         """Channels whose residuals are far above the noise level, or coloured with a
-        systematic part as large as the noise."""
-        return [ch for ch, r in self.residual_over_noise.items()
-                if r > NOISE_RATIO_ADEQUATE or (r > NOISE_RATIO_COLOURED and
-                                                self.whiteness.get(ch, 0.0) > WHITENESS_ADEQUATE)]
+        systematic part as large as the noise (:meth:`noise_ratio`: the logged inputs' noise
+        counted where it feeds the prediction straight)."""
+        return [ch for ch in self.residual_over_noise if self._off(self.noise_ratio(ch), ch)]
 
     def text(self) -> str:
         """The certificate in words."""
@@ -152,8 +174,9 @@ class Certificate:
                          " that are not motion (the integrated gyro residuals account for " +
                          ", ".join(f"{100 * self.sensor_error[ch]:.0f} %" for ch in sensor) +
                          " of them): the attitude sensor's own error")
+        covered = self.input_noise_covers()
         near = {ch: r for ch, r in self.residual_over_noise.items()
-                if ch not in off_channels and r > NOISE_RATIO_COLOURED}
+                if ch not in off_channels and ch not in covered and r > NOISE_RATIO_COLOURED}
         if parts:
             tail = "; ".join(parts)
         elif near:
@@ -165,6 +188,15 @@ class Certificate:
                     "; the others at it)")
         else:
             tail = "residuals at the sensor noise"
+        if covered:
+            # an exact model fed noisy speeds predicts the specific force with the thrust's
+            # noise in it (a blind audit's az at 1.5x, coloured where the speeds were smoothed)
+            tail += ("; " + ", ".join(
+                f"{ch} at {self.residual_over_noise[ch]:.3g}x the sensor noise "
+                f"({100 * self.whiteness.get(ch, 0.0):.0f} % of lags outside the band)" for ch in covered) +
+                ": within what the logged inputs' noise adds to the prediction there (" +
+                ", ".join(f"{ch} {self.input_noise[ch] / self.sensor_noise[ch]:.2g}x the sensor noise; "
+                          f"the residuals {self.noise_ratio(ch):.2g}x the two together" for ch in covered) + ")")
         below = [ch for ch, r in self.residual_over_noise.items() if r < NOISE_RATIO_BELOW]
         if below:
             tail += ("; residuals below the noise estimated from the measurements in " +
@@ -187,6 +219,7 @@ class Certificate:
                 "sensor_noise": {k: _finite(v) for k, v in self.sensor_noise.items()},
                 "systematic_gaps": {k: _finite(v) for k, v in self.systematic_gaps.items()},
                 "sensor_error": {k: _finite(v) for k, v in self.sensor_error.items()},
+                "input_noise": {k: _finite(v) for k, v in self.input_noise.items()},
                 "reasons": list(self.reasons), "flightless": self.flightless, "text": self.text()}
 
 
