@@ -474,6 +474,13 @@ class QuadrotorModel:
         """CasADi ``Function`` ``output(x, u, p, t) -> y`` (``OUTPUTS`` order)."""
         return self._ensure_built()[1]
 
+    @property
+    def input_fed_outputs(self) -> list[str]:
+        """The outputs the inputs reach straight through the output map (the structure of its
+        Jacobian): the accelerometer's, through the thrust; the pose and the rates are states."""
+        rows = set(self.output.jac_sparsity(0, 1).row())
+        return [name for i, name in enumerate(OUTPUTS) if i in rows]
+
     ROTOR_SPEED_PLAUSIBLE_FACTOR = 5.0
     """Logged rotor speeds typically above this many hover speeds (25 times the weight in
     thrust) are refused as a unit mistake: RPM read as rad/s is 9.5 times. So are speeds whose

@@ -424,6 +424,7 @@ def test_the_speeds_noise_on_the_accelerometer_by_hand(noisy_cf):
     assert found["az"] == pytest.approx(by_hand, rel=1e-6)
     for ch in ("x", "y", "z", "phi", "theta", "psi", "p", "q", "r", "ax", "ay"):
         assert found[ch] < 1e-9 * by_hand, ch
+    assert set(model.input_fed_outputs) <= {"ax", "ay", "az"} and "az" in model.input_fed_outputs
 
 
 def test_a_certificate_counts_the_speeds_noise_on_the_accelerometer():

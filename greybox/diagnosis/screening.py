@@ -662,14 +662,19 @@ def lr_test(base: FitResult, alt: FitResult, alt_resid: np.ndarray, df: int, on_
 
 def explained_fraction(base: FitResult, alt: FitResult) -> float | None:
     """Fraction of the baseline's excess residual that ``alt`` removes: per channel the
-    residual variance above the sensor noise, ``(rms/noise)^2 - 1``, summed over channels.
+    residual variance above the sensor noise, ``(rms/noise)^2 - 1``, summed over channels
+    (less what the logged inputs' noise puts on a prediction, the baseline certificate's
+    :attr:`~greybox.fitting.certificate.Certificate.input_noise`: no model removes it).
     1 means the residuals fall to the noise; near 0, the candidate explains a sliver of what
     the model misses, however significant that sliver is."""
     if base.certificate is None or alt.certificate is None:
         return None
-    r0, r1 = base.certificate.residual_over_noise, alt.certificate.residual_over_noise
-    ex0 = sum(max(r0[ch] ** 2 - 1.0, 0.0) for ch in r0)
-    ex1 = sum(max(r1.get(ch, r0[ch]) ** 2 - 1.0, 0.0) for ch in r0)
+    cert = base.certificate
+    r0, r1 = cert.residual_over_noise, alt.certificate.residual_over_noise
+    floor = {ch: 1.0 + (cert.input_noise.get(ch, 0.0) / cert.sensor_noise[ch]) ** 2
+             if cert.sensor_noise.get(ch, 0.0) > 0 else 1.0 for ch in r0}
+    ex0 = sum(max(r0[ch] ** 2 - floor[ch], 0.0) for ch in r0)
+    ex1 = sum(max(r1.get(ch, r0[ch]) ** 2 - floor[ch], 0.0) for ch in r0)
     return None if ex0 <= 0 else float(1.0 - ex1 / ex0)
 
 

@@ -1249,7 +1249,7 @@ def _input_noise_on_outputs(model: QuadrotorModel, logs: Sequence[FlightLog], da
         sq += len(log) * rms ** 2
         rows_n += len(log)
     rms = np.sqrt(sq / max(rows_n, 1))
-    # a channel the inputs reach only through rounding (ax, ay at hover: 1e-18) is none
+    # a channel the inputs reach only through rounding (the base model's ax, ay: 1e-18) is none
     return {n: float(rms[c]) for c, n in enumerate(OUTPUTS) if n_c[c] and rms[c] > 1e-6 * rms.max()}
 
 
@@ -1369,7 +1369,8 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
         {n: float(check_rms[n] / sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]},
         whiteness, {n: float(sensor[c]) for c, n in enumerate(OUTPUTS) if n_c[c]}, reasons,
         _systematic_gaps(model, ses, X, th, sensor) if soft else {}, soft=soft)
-    if any(r > NOISE_RATIO_COLOURED for r in certificate.residual_over_noise.values()):
+    fed = model.input_fed_outputs
+    if any(r > NOISE_RATIO_COLOURED for ch, r in certificate.residual_over_noise.items() if ch in fed):
         certificate.input_noise = _input_noise_on_outputs(model, logs, data, node_states, vectors, n_c)
     if init_window is None and soft:
         if measured_start is None:
