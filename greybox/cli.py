@@ -538,8 +538,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
         from .diagnosis.analysis import rotor_geometry, rotor_geometry_warnings
         geometry = rotor_geometry_warnings(model, *rotor_geometry(model, [est for est, _ in parts]))
     if not res.converged:
-        # the columns' order or the layout first: the thrust's words follow from it
-        raise GreyboxError(f"fit did not converge: {'; '.join(geometry + [res.status])}")
+        # the columns' order or the layout first, then a steady torque the model lacks: the
+        # thrust's words (the airframe, the speeds' unit) follow from them
+        from .diagnosis.analysis import steady_torque_words
+        torque = "" if geometry else steady_torque_words(model, [est for est, _ in parts], res)
+        raise GreyboxError(f"fit did not converge: {'; '.join(geometry + ([torque] if torque else []) + [res.status])}")
     res.warnings[:0] = geometry
     # a lag fitted to rows that are samples of a varying signal: said (the diagnosis judges it first)
     from .diagnosis.screening import moment_scale_words, row_timing_words

@@ -12,13 +12,13 @@ import numpy as np
 from scipy import stats
 
 from ..data import FlightLog
-from ..fitting import FitResult
+from ..fitting import THRUST_IMPOSSIBLE, FitResult, thrust_ratio
 from ..model import OUTPUTS, QuadrotorModel, rotation_matrices
 from ..residuals import flight_residuals, whiteness_fraction
 from ..shooting import initial_node_states
 from ..validation import Prediction
 
-__all__ = ["Finding", "CommandImbalance", "command_imbalance", "rotor_order", "layout_rotation", "rotor_geometry", "rotor_geometry_warnings", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
+__all__ = ["Finding", "CommandImbalance", "command_imbalance", "steady_torque_words", "rotor_order", "layout_rotation", "rotor_geometry", "rotor_geometry_warnings", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
            "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE"]
 
 
@@ -234,6 +234,30 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     clipped = {name: float(f) for name, f in zip(names, _at_limit(np.vstack([lg.inputs[:, :n_rot] for lg in logs])))
                if f >= AT_LIMIT_NOTABLE}
     return CommandImbalance(share, spin, seconds, _speed_trim(model, W2, np.vstack(vbs)), clipped, share_std)
+
+
+def steady_torque_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], res: FitResult) -> str:
+    """Words for a fit ``res`` of ``model`` to ``log`` whose thrust is no vehicle's
+    (:data:`~greybox.fitting.THRUST_IMPOSSIBLE`) where the logged speeds drive the rotors
+    unequally in steady flight (:func:`command_imbalance`, ``"steady"`` evidence) and the model
+    holds no steady torque: what it lacks is that torque, which its fit takes from the thrust,
+    rather than the airframe or the speeds' unit; or "". A blind audit's 30 g vehicle with its
+    centre of gravity 2.5 mm off: `greybox fit` ended with 5 % of the weight and asked only
+    about the airframe and the units, where the diagnosis names ``cog_offset`` to 0.01 mm."""
+    holds = [e for e in ("cog_offset", "motor_asymmetry") if e in model.effect_names]
+    share = thrust_ratio(model, [log] if isinstance(log, FlightLog) else list(log), res.p) \
+        if "K_T" in res.free_names else None
+    if holds or share is None or 1 / THRUST_IMPOSSIBLE <= share <= THRUST_IMPOSSIBLE:
+        return ""
+    imbalance = command_imbalance(model, log)
+    if holds or imbalance is None or "steady" not in imbalance.evidence:
+        return ""
+    rotors = ", ".join(f"{n} {100 * v:+.1f} %" for n, v in imbalance.share.items())
+    return (f"in {imbalance.seconds:.1f} s of steady flight the logged speeds drive the rotors unequally ({rotors} of "
+            "the mean squared speed): equal rotors turning about the centre of the frame would need a steady "
+            "torque there that the model does not hold, and a fit without it takes it from the thrust (its "
+            "differences then move the body less). A centre of gravity off the middle (cog_offset) or a weaker "
+            "rotor (motor_asymmetry) holds one: `greybox diagnose` tries both, or fit with --effects cog_offset")
 
 
 ROTOR_ORDER_MATCH = 0.95

@@ -67,6 +67,9 @@ class CandidateResult:
     # the share of what the model with the log's timing misses that its refit onto the timing
     # removes, when the sliver rules judged that share (the timing significant in the fit)
     explained_beside_timing: float | None = None
+    # refused as a lag under half a row (the log's timing cannot tell it): the baseline's
+    # parameters its refit moves by more than PARAMETER_SHIFT std, {name: (without, with)}
+    timing_shifts: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         out = {"effect": self.effect, "significant": bool(self.significant),
@@ -76,6 +79,8 @@ class CandidateResult:
                "nrmse_common_start": _num(self.nrmse_common_start)}
         if self.channels_after is not None:
             out["channels_after"] = {k: _num(v) for k, v in self.channels_after.items()}
+        if self.timing_shifts:
+            out["timing_shifts"] = {n: {"without": _num(a), "with": _num(b)} for n, (a, b) in self.timing_shifts.items()}
         if self.fit is not None:
             # how its validation windows started (a soft fit chooses on its estimation data)
             out["start"] = {k: (float(v) if isinstance(v, float) else v) for k, v in prediction_options(self.fit).items()}

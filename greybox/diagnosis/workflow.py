@@ -289,6 +289,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         timed, timing_bound = _timing_caveat(cur_model, cur_res, est, timing_refit if same else None)
         if timed:
             warnings.append(timed)
+    warnings += _timing_shift_words(rounds, cur_res)
     corrected = _without_input_errors(cur_res, est, compile, say)
     unexplained, unexplained_gaps = _unexplained(cur_res)
     force = _force_warning(cur_res, unexplained, unexplained_gaps)
@@ -493,9 +494,32 @@ def _baseline_warnings(model: QuadrotorModel, res: FitResult, timing: dict | Non
     for n in (res.certificate.held if res.certificate else []):
         par = next(par for par in model.parameters if n in par.component_names)
         if not np.isclose(res.value(n), par.null, rtol=1e-6, atol=1e-15):
-            warnings.append(f"{n} = {res.value(n):.4g} sits on its bound: it is compensating for something the "
-                            "model lacks, and its value is not a property of the vehicle")
+            # "baseline fit:" as the fit's own words: a blind audit read it as the final model's
+            # (Kd[2] 0.32 on its bound there, 0.0119 in the final model)
+            warnings.append(f"baseline fit: {n} = {res.value(n):.4g} sits on its bound: it is compensating for "
+                            "something the model lacks, and its value is not a property of the vehicle")
     return warnings
+
+
+def _timing_shift_words(rounds: Sequence[Round], final: FitResult) -> list[str]:
+    """Words on the final fit's parameters that a candidate refused as a lag under half a row
+    (the log's timing cannot tell it) moves beyond their std (``CandidateResult.timing_shifts``),
+    from the round judged against the final fit itself (none after a later refit changed it)."""
+    out = []
+    for rnd in rounds:
+        if rnd.fit is not final:
+            continue
+        for cand in rnd.ranking:
+            if not cand.timing_shifts:
+                continue
+            std = dict(zip(final.free_names, map(float, final.std)))
+            said = ", ".join(f"{n} {a:.4g} ± {std.get(n, float('nan')):.2g} without it, {b:.4g} with it"
+                             for n, (a, b) in cand.timing_shifts.items())
+            it, its = ("them", "their") if len(cand.timing_shifts) > 1 else ("it", "its")
+            out.append(f"{said}: {cand.effect} (a lag under half a row of the logged inputs, which the log's timing "
+                       f"cannot tell) moves {it} beyond {its} std; what the data say of {it} is that range, not the "
+                       "std (log the inputs faster to tell the lag)")
+    return out
 
 
 def _judged_with_a_disturbance(model: QuadrotorModel, res: FitResult, pred, nothing_stands: bool,
