@@ -119,14 +119,21 @@ def test_a_lag_the_rows_cannot_tell_is_said_to_move_the_vertical_drag(cases, tmp
 
 
 @pytest.mark.slow
-def test_a_fit_that_fails_on_a_wrong_arm_says_nothing_of_a_steady_torque(cases, tmp_path, capsys):
-    """The control flight with the arm given ten times its length: the rotors' differences
-    move the body ten times as much in the model, and its fit takes the thrust down (no
-    vehicle's); the rotors are driven equally in steady flight, so nothing is said of a steady
-    torque."""
-    af = tmp_path / "arm10.toml"
-    af.write_text((cases / "A.toml").read_text().replace("arm_length = 0.046", "arm_length = 0.46"))
-    code = main(["fit", str(cases / "A_est.csv"), "--airframe", str(af), "--quiet"])
-    err = capsys.readouterr().err
-    assert code == 1 and "weight" in err, err
-    assert "drive the rotors unequally" not in err, err
+def test_the_steady_torque_is_said_only_where_the_rotors_are_driven_unequally(cases):
+    """The words need both a thrust no vehicle's and a steady imbalance: at the same
+    flightless parameters (K_T a twentieth of the truth) the CoG-offset flight gets them and
+    the control flight, whose rotors share the work equally in steady flight, does not; nor
+    does the CoG-offset flight at a thrust that carries the weight."""
+    from types import SimpleNamespace
+    from greybox import QuadrotorModel, load_airframe, load_log
+    from greybox.diagnosis.analysis import steady_torque_words
+    model = QuadrotorModel(load_airframe(cases / "A.toml"))
+    p = model.default_parameters().copy()
+    p[model.param_names.index("K_T")] = 1e-9
+    flightless = SimpleNamespace(free_names=["K_T", "b"], p=p)
+    control = model.prepare_log(load_log(str(cases / "A_est.csv")))
+    offset = model.prepare_log(load_log(str(cases / "B_est.csv")))
+    assert "drive the rotors unequally" in steady_torque_words(model, [offset], flightless)
+    assert steady_torque_words(model, [control], flightless) == ""
+    p[model.param_names.index("K_T")] = 2e-8
+    assert steady_torque_words(model, [offset], SimpleNamespace(free_names=["K_T", "b"], p=p)) == ""

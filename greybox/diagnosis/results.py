@@ -502,8 +502,14 @@ class Diagnosis:
         cert = fr.certificate if fr is not None else None
         if cert is None:
             return []
+        # what a state's systematic gaps stand for: a blind audit's yaw torque from the rotors'
+        # accelerations read "r's gaps (2.3x their random part): too small a misfit to tell"
+        acting = {"vx": "a force along x", "vy": "a force along y", "vz": "a force along z",
+                  "p": "a roll torque", "q": "a pitch torque", "r": "a yaw torque"}
         return ([f"{ch} ({cert.residual_over_noise[ch]:.2g}x the noise)" for ch in cert.off_channels()] +
-                [f"{n}'s gaps ({cert.systematic_gaps[n]:.2g}x their random part)" for n in cert.off_states()])
+                [f"{n}'s gaps ({cert.systematic_gaps[n]:.2g}x their random part" +
+                 (f": {acting[n]} the model lacks, acting over many intervals" if n in acting else "") + ")"
+                 for n in cert.off_states()])
 
     @property
     def added_disturbance(self) -> bool:
@@ -561,8 +567,9 @@ class Diagnosis:
                                          "confirmed on the validation data" for c in self.ranking
                                          if c.not_confirmed and c.lr is not None),
                 "small_misfit": "null -- no catalogue effect is significant, and the model is not at the noise "
-                                f"in {', '.join(self.misfit())}: too small a misfit to tell what it is (below "
-                                f"{UNEXPLAINED_RATIO:g}x the noise)",
+                                f"in {', '.join(self.misfit())}: below {UNEXPLAINED_RATIO:g}x the noise (or the "
+                                "gaps' random part), too small for the candidates or discovery to tell what it is; "
+                                "it may be outside the catalogue",
                 "gyro_scale": f"null -- no effect is confirmed missing, but "
                               f"{self.gyro_scale.reading() if self.gyro_scale else 'the gyro reads off'}: a gyro "
                               "scale error (or a measured attitude that under-reads the turns), which the fitted "
