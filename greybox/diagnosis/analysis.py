@@ -250,7 +250,7 @@ def steady_torque_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightL
     if holds or share is None or 1 / THRUST_IMPOSSIBLE <= share <= THRUST_IMPOSSIBLE:
         return ""
     imbalance = command_imbalance(model, log)
-    if holds or imbalance is None or "steady" not in imbalance.evidence:
+    if imbalance is None or "steady" not in imbalance.evidence:
         return ""
     rotors = ", ".join(f"{n} {100 * v:+.1f} %" for n, v in imbalance.share.items())
     return (f"in {imbalance.seconds:.1f} s of steady flight the logged speeds drive the rotors unequally ({rotors} of "

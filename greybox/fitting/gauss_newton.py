@@ -720,9 +720,12 @@ class GaussNewton:
         def merit(Xm, xe, c):
             """The line search's merit at nodes ``Xm`` (end states ``xe``, residual costs ``c``):
             the cost with soft continuity, else the cost plus the l1 penalty on the gaps."""
-            if soft:
-                return ses.total_cost(Xm, xe, c)
-            return 0.5 * float(c.sum()) + float((rho * np.abs(ses.gaps(Xm, xe))).sum())
+            # a trial step that blows the states up gives an infinite merit, which the line
+            # search refuses: numpy's overflow warning there is no news for the user
+            with np.errstate(over="ignore", invalid="ignore"):
+                if soft:
+                    return ses.total_cost(Xm, xe, c)
+                return 0.5 * float(c.sum()) + float((rho * np.abs(ses.gaps(Xm, xe))).sum())
         it, status, converged = 0, "maximum iterations reached", False
         for it in range(1, max_iter + 1):
             dz, lam, H, gg, cz = ses.step(X, th, blocks, mu)
