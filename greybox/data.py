@@ -77,9 +77,9 @@ class FlightLog:
         extras: other columns (e.g. ``vbat``, or ``u1..u4`` beside rotor speeds).
         notes: remarks made while loading (ignored columns...).
         source: file name, if read from one.
-        logged_input_noise: per input column smoothed since it was logged
+        input_noise_left: per input column smoothed since it was logged
             (:func:`~greybox.fitting.input_errors.denoise_inputs`), the standard deviation of
-            the logged noise the smoother left in it (in the band of the signal, coloured):
+            the noise the smoother left in it (in the band of the signal, coloured):
             what the smoothed column's own differences no longer show, and what still stands
             between the inputs the model is fed and what the rotors did. Empty for inputs as
             logged.
@@ -101,7 +101,7 @@ class FlightLog:
     extras: dict[str, np.ndarray] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     source: str | None = None
-    logged_input_noise: dict[str, float] = field(default_factory=dict)
+    input_noise_left: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.t = np.asarray(self.t, dtype=float).ravel()
@@ -164,7 +164,7 @@ class FlightLog:
                          list(self.input_names), self.outputs[start:stop].copy(),
                          list(self.output_names),
                          {k: v[start:stop].copy() for k, v in self.extras.items()},
-                         list(self.notes), self.source, dict(self.logged_input_noise))
+                         list(self.notes), self.source, dict(self.input_noise_left))
 
     def same_flight(self, other: "FlightLog") -> bool:
         """Whether ``other`` holds the same samples (times, inputs and outputs, NaN for NaN):
@@ -212,7 +212,7 @@ class FlightLog:
             Y[ok, j] = yi[ok]
         extras = {k: v[idx] for k, v in self.extras.items()}
         return FlightLog(tn, U, list(self.input_names), Y, list(self.output_names), extras,
-                         list(self.notes), self.source, dict(self.logged_input_noise))
+                         list(self.notes), self.source, dict(self.input_noise_left))
 
     def fill_gaps(self, factor: float = GAP_FILL_FACTOR) -> "FlightLog":
         """The log with rows inserted in every step longer than ``factor`` median steps:
@@ -253,7 +253,7 @@ class FlightLog:
                 f"filled with {int(inserted.sum())} rows of held inputs and no measurements")
         return FlightLog(t, self.inputs[held], list(self.input_names), Y, list(self.output_names),
                          {n: v[held] for n, v in self.extras.items()}, self.notes + [note], self.source,
-                         dict(self.logged_input_noise))
+                         dict(self.input_noise_left))
 
     @classmethod
     def from_dataframe(cls, df, inputs: str = "auto", optional: Iterable[str] = (),

@@ -236,7 +236,7 @@ class QuadrotorModel:
                                             f"beyond the {limit:g} {unit} no vehicle's {name} reaches: {mistake}")
             cols.append(v[:, None])
         return FlightLog(log.t, np.hstack(cols), self.input_names, log.outputs, list(log.output_names),
-                         extras, list(log.notes), log.source, dict(log.logged_input_noise))
+                         extras, list(log.notes), log.source, dict(log.input_noise_left))
 
     output_names = OUTPUTS
 

@@ -244,4 +244,4 @@ def drop_outliers(log: FlightLog) -> FlightLog:
         Y[np.ix_(rows, cols)] = np.nan
     note = f"{log.source or 'log'}: {found.describe(log.t)}: left out as glitches (--outliers keep keeps them)"
     return FlightLog(log.t, log.inputs, list(log.input_names), Y, list(log.output_names), dict(log.extras),
-                     log.notes + [note], log.source, dict(log.logged_input_noise))
+                     log.notes + [note], log.source, dict(log.input_noise_left))

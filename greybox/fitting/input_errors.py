@@ -215,7 +215,7 @@ def output_input_noise(model: QuadrotorModel, log: FlightLog, p: np.ndarray, sta
     which the states carry), at the ``states`` (one per row) and parameters ``p``. The noise
     per input: what the vehicle does not follow (:func:`unfollowed_input_noise`), or, for an
     input smoothed since it was logged, what the smoother left of it
-    (:attr:`~greybox.data.FlightLog.logged_input_noise`: the noise in the band where the
+    (:attr:`~greybox.data.FlightLog.input_noise_left`: the noise in the band where the
     inputs' own signal stands above it, coloured), which the prediction keeps. Zeros where no
     input carries noise.
 
@@ -226,8 +226,8 @@ def output_input_noise(model: QuadrotorModel, log: FlightLog, p: np.ndarray, sta
     explain."""
     sigma = unfollowed_input_noise(model, log, p)[0].copy()
     for j, name in enumerate(model.steady_input_names):
-        if name in log.logged_input_noise:
-            sigma[j] = float(log.logged_input_noise[name])
+        if name in log.input_noise_left:
+            sigma[j] = float(log.input_noise_left[name])
     ny = len(model.output_names)
     rows = np.asarray(rows, dtype=int)
     if not np.any(sigma > 0) or rows.size == 0:
@@ -410,5 +410,5 @@ def denoise_inputs(model: QuadrotorModel, log: FlightLog, p: np.ndarray | None =
     done = InputDenoising(log.source, noise, share, followed, left)
     # what the smoothed speeds still carry (in their signal's band, coloured): the model's
     # predictions keep it, and the certificate's residual check allows for it
-    logged = {**log.logged_input_noise, **{name: float(v) for name, v in zip(noise, kept)}}
-    return replace(log, inputs=inputs, notes=list(log.notes) + [done.note()], logged_input_noise=logged), done
+    still = {**log.input_noise_left, **{name: float(v) for name, v in zip(noise, kept)}}
+    return replace(log, inputs=inputs, notes=list(log.notes) + [done.note()], input_noise_left=still), done
