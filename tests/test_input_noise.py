@@ -143,7 +143,9 @@ def test_noise_on_logged_speeds_is_not_named_a_thrust_curve(tmp_path):
     """The blind audit's control case: nothing missing, 1 % noise on the logged speeds. Without
     the check the verdict was thrust_curve (k_Tw = -0.072 ± 0.020, validation total -2 %); SIMEX
     extrapolates it to its null, so nothing stands for it; the same candidate stays judged (its
-    reason says why), and K_T and b are the vehicle's."""
+    reason says why), and K_T and b are the vehicle's. Since the speeds' noise on the
+    accelerometer's prediction counts as no model's to remove (2026-12-06), the candidate's
+    share of what is missing is a sliver (1.9 %) before SIMEX is asked: refused for that."""
     est, _ = hexa_flight(tmp_path, "none", 21, 36.0)
     val, _ = hexa_flight(tmp_path, "none", 22, 30.0)
     # the logged speeds are samples of the rotors' continuous speeds: the log's timing, which the
@@ -155,7 +157,7 @@ def test_noise_on_logged_speeds_is_not_named_a_thrust_curve(tmp_path):
     assert d.verdict is None, d.summary()
     tc = next(c for c in d.ranking if c.effect == "thrust_curve")
     if tc.p_value is not None and tc.p_value < 0.01:
-        assert "errors in the inputs" in tc.reason, tc.reason
+        assert "errors in the inputs" in tc.reason or "it is not what is missing" in tc.reason, tc.reason
     assert d.baseline.value("K_T") == pytest.approx(hexa_sim.KT, rel=0.01)
     assert d.baseline.value("b") == pytest.approx(hexa_sim.BQ, rel=0.03)
 
