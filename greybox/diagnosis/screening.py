@@ -671,8 +671,7 @@ def explained_fraction(base: FitResult, alt: FitResult) -> float | None:
         return None
     cert = base.certificate
     r0, r1 = cert.residual_over_noise, alt.certificate.residual_over_noise
-    floor = {ch: 1.0 + (cert.input_noise.get(ch, 0.0) / cert.sensor_noise[ch]) ** 2
-             if cert.sensor_noise.get(ch, 0.0) > 0 else 1.0 for ch in r0}
+    floor = {ch: cert.exact_model_variance(ch) for ch in r0}
     ex0 = sum(max(r0[ch] ** 2 - floor[ch], 0.0) for ch in r0)
     ex1 = sum(max(r1.get(ch, r0[ch]) ** 2 - floor[ch], 0.0) for ch in r0)
     return None if ex0 <= 0 else float(1.0 - ex1 / ex0)

@@ -506,13 +506,13 @@ def _timing_shift_words(rounds: Sequence[Round], final: FitResult) -> list[str]:
     (the log's timing cannot tell it) moves beyond their std (``CandidateResult.timing_shifts``),
     from the round judged against the final fit itself (none after a later refit changed it)."""
     out = []
+    std = dict(zip(final.free_names, map(float, final.std)))
     for rnd in rounds:
         if rnd.fit is not final:
             continue
         for cand in rnd.ranking:
             if not cand.timing_shifts:
                 continue
-            std = dict(zip(final.free_names, map(float, final.std)))
             said = ", ".join(f"{n} {a:.4g} ± {std.get(n, float('nan')):.2g} without it, {b:.4g} with it"
                              for n, (a, b) in cand.timing_shifts.items())
             it, its = ("them", "their") if len(cand.timing_shifts) > 1 else ("it", "its")

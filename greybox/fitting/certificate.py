@@ -115,9 +115,13 @@ class Certificate:
         """A channel's residual RMS over what an exact model leaves there: the sensor's noise
         and, where the logged inputs feed the prediction straight (:attr:`input_noise`), their
         noise too."""
-        r = self.residual_over_noise[ch]
+        return self.residual_over_noise[ch] / math.sqrt(self.exact_model_variance(ch))
+
+    def exact_model_variance(self, ch: str) -> float:
+        """What an exact model's residual variance is in a channel, over the sensor's noise
+        variance: 1, plus the logged inputs' noise where it feeds the prediction straight."""
         extra = self.input_noise.get(ch, 0.0) / self.sensor_noise[ch] if self.sensor_noise.get(ch, 0.0) > 0 else 0.0
-        return r / math.sqrt(1.0 + extra * extra)
+        return 1.0 + extra * extra
 
     def input_noise_covers(self) -> list[str]:
         """Channels more than :data:`NOISE_RATIO_COLOURED` times the sensor's noise that the

@@ -70,13 +70,21 @@ def input_jacobian(model: QuadrotorModel, log: FlightLog, p: np.ndarray, rows: n
     (its inputs and times there), the states ``at`` (one per row; default the model's rest
     state) and parameters ``p``: ``(len(states), nu, len(rows))``, ``states`` the rows of the
     derivative kept (default all). One CasADi ``Function``, mapped over the rows."""
-    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
-    pp, t = ca.SX.sym("p", model.n_params), ca.SX.sym("t")
     keep = list(range(model.nx)) if states is None else list(states)
-    jac = ca.Function("state_input_sensitivity", [x, u, pp, t], [ca.jacobian(model.rhs(x, u, pp, t)[keep], u)])
     rows = np.asarray(rows, dtype=int)
     if at is None:
         at = np.repeat(np.asarray(model.initial_state(), dtype=float).reshape(1, -1), rows.size, axis=0)
+    return _input_sensitivity(model, model.rhs, keep, log, p, rows, at)
+
+
+def _input_sensitivity(model: QuadrotorModel, f: ca.Function, keep: list[int], log: FlightLog, p: np.ndarray,
+                       rows: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The Jacobian w.r.t. the inputs of the outputs ``keep`` of ``f(x, u, p, t)`` (the model's
+    ``rhs`` or ``output``) at the ``log``'s ``rows``, the states ``at`` (one per row) and
+    parameters ``p``: ``(len(keep), nu, len(rows))``. One CasADi ``Function``, mapped."""
+    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
+    pp, t = ca.SX.sym("p", model.n_params), ca.SX.sym("t")
+    jac = ca.Function("input_sensitivity", [x, u, pp, t], [ca.jacobian(f(x, u, pp, t)[keep], u)])
     J = jac.map(rows.size)(np.asarray(at, dtype=float).T, log.inputs[rows].T,
                            np.repeat(np.asarray(p, dtype=float).reshape(-1, 1), rows.size, axis=1),
                            log.t[rows].reshape(1, -1))
@@ -232,12 +240,7 @@ def output_input_noise(model: QuadrotorModel, log: FlightLog, p: np.ndarray, sta
     rows = np.asarray(rows, dtype=int)
     if not np.any(sigma > 0) or rows.size == 0:
         return np.zeros(ny)
-    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
-    pp, t = ca.SX.sym("p", model.n_params), ca.SX.sym("t")
-    jac = ca.Function("output_input_sensitivity", [x, u, pp, t], [ca.jacobian(model.output(x, u, pp, t), u)])
-    J = np.asarray(jac.map(rows.size)(np.asarray(states, dtype=float).T, log.inputs[rows].T,
-                                      np.repeat(np.asarray(p, dtype=float).reshape(-1, 1), rows.size, axis=1),
-                                      log.t[rows].reshape(1, -1))).reshape(ny, model.nu, rows.size, order="F")
+    J = _input_sensitivity(model, model.output, list(range(ny)), log, p, rows, states)
     s2 = (model.steady_input_map() @ sigma) ** 2
     return np.sqrt(np.mean(np.einsum("ock,c->ok", J ** 2, s2), axis=1))
 
