@@ -51,6 +51,38 @@ def test_a_fit_without_the_cog_offset_says_the_steady_torque_it_lacks(tmp_path, 
         assert said == pytest.approx(share, abs=0.01), (rotor, said, share)
 
 
+def test_a_fit_given_a_fifth_of_the_inertia_says_the_inertia_the_log_gives(tmp_path, capsys):
+    """The control flight given an airframe with a fifth of the vehicle's inertia: on the
+    audit's 30-s flight the fit ended "line search failed" with the roll's gaps 3.6e4 times
+    their noise; on this 10-s one it is certified with process noise, its thrust 53 % of the
+    weight, and the words blamed a torque the model lacks (a CoG offset, rotors that differ).
+    The log alone gives the body's roll and pitch accelerations per rotor-speed difference: a
+    fifth of what the airframe says, said first, with the inertia that makes them agree (within
+    15 % of the vehicle's). Given its own inertia the log says 0.8-1.1 (0.89 and 0.90 measured:
+    the 2 rad/s of noise on the speeds attenuates a regression on them, and the mixer is off
+    the truth), and 0.6 of it is not said (within what a lag or a rotor drag moves)."""
+    from greybox import QuadrotorModel, load_airframe, load_log
+    from greybox.diagnosis.analysis import log_moment_scale, log_moment_words
+
+    J = np.asarray(sim.BASE["J"], dtype=float)
+    log, af = _flight(tmp_path, "A", 10.0, J=(J / 5).tolist())
+    out = tmp_path / "fit.json"
+    assert main(["fit", log, "--airframe", af, "--quiet", "--json", str(out)]) == 0
+    capsys.readouterr()
+    first = json.loads(out.read_text())["warnings"][0]
+    k = float(re.search(r"roll and pitch accelerations are ([0-9.]+) times", first).group(1))
+    said = re.search(r"with Jx, Jy = ([0-9.e-]+), ([0-9.e-]+) kg m\^2", first)
+    assert 0.8 * 0.2 <= k <= 1.1 * 0.2 and said, first
+    assert [float(said.group(1)), float(said.group(2))] == pytest.approx(J[:2].tolist(), rel=0.15), first
+    flight = load_log(log)
+    for share, told in ((1.0, False), (0.6, False), (5.0, True)):
+        _, given = _flight(tmp_path, "A", 1.0, J=(share * J).tolist())
+        model = QuadrotorModel(load_airframe(given))
+        scale = np.asarray(log_moment_scale(model, flight)) / share
+        assert np.all((0.8 <= scale) & (scale <= 1.1)), (share, scale)
+        assert bool(log_moment_words(model, flight)) is told
+
+
 @pytest.fixture(scope="module")
 def cases(tmp_path_factory) -> Path:
     """The audit's control, CoG-offset and battery cases (est 30 s, val 20 s each), byte for

@@ -11,6 +11,7 @@ from typing import Sequence
 import numpy as np
 from scipy import stats
 
+from .. import effects as fx
 from ..data import FlightLog
 from ..fitting import THRUST_IMPOSSIBLE, FitResult, thrust_ratio
 from ..model import OUTPUTS, QuadrotorModel, rotation_matrices
@@ -18,7 +19,7 @@ from ..residuals import flight_residuals, whiteness_fraction
 from ..shooting import initial_node_states
 from ..validation import Prediction
 
-__all__ = ["Finding", "CommandImbalance", "command_imbalance", "steady_torque_words", "rotor_order", "layout_rotation", "rotor_geometry", "rotor_geometry_warnings", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
+__all__ = ["Finding", "CommandImbalance", "command_imbalance", "steady_torque_words", "log_moment_scale", "log_moment_words", "LOG_MOMENT_FAR", "rotor_order", "layout_rotation", "rotor_geometry", "rotor_geometry_warnings", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
            "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE"]
 
 
@@ -258,6 +259,60 @@ def steady_torque_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightL
             "torque there that the model does not hold, and a fit without it takes it from the thrust (its "
             "differences then move the body less). A centre of gravity off the middle (cog_offset) or a weaker "
             "rotor (motor_asymmetry) holds one: `greybox diagnose` tries both, or fit with --effects cog_offset")
+
+
+LOG_MOMENT_FAR = 2.0
+"""A roll and pitch moment the log alone (:func:`log_moment_scale`) gives this many times the
+airframe's, or this share of it, or further, is said beside a fit that failed
+(:func:`log_moment_words`): a lag between the logged speeds and the thrust, a rotor drag or a
+mixer off the truth move it 10-25 % (blind audits' 30 g vehicles: 0.77-0.98 as given), a
+wrong inertia or arm by its factor."""
+LOG_MOMENT_DIRECTION = 0.9
+"""...where the moments per column follow the airframe's layout this well (a cosine; the
+rotor columns' order and the layout are said apart, :func:`rotor_geometry`)."""
+
+
+def log_moment_scale(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> tuple[float, float] | None:
+    """``(roll, pitch)``: the body's roll and pitch angular accelerations per logged rotor-speed
+    difference (:func:`_moments_per_column`, from the measured rates) over what the airframe's
+    inertia and arm give with the thrust per speed² that carries the weight on the log (the
+    airframe's ``K_T`` rescaled by :func:`~greybox.fitting.thrust_ratio`): 1 where the airframe
+    is the vehicle's, from the log alone, before any fit. None without the data to tell, or
+    where the moments do not follow the layout (:data:`LOG_MOMENT_DIRECTION`)."""
+    logs = [log] if isinstance(log, FlightLog) else list(log)
+    if "K_T" not in model.param_names or any(e.scales_commanded_moment for e in model.effects):
+        return None
+    C = _moments_per_column(model, logs)
+    p = model.default_parameters()
+    ratio = thrust_ratio(model, logs, p)
+    if C is None or ratio is None or not ratio > 0:
+        return None
+    K_T = float(p[model.param_names.index("K_T")]) / ratio
+    J = np.diag(np.asarray(model.airframe.inertia, dtype=float))
+    G = K_T * model.airframe.allocation_matrix()[1:3] / J[:2, None]
+    if _cosines(C, G).min() < LOG_MOMENT_DIRECTION:
+        return None
+    roll, pitch = (float(C[k] @ G[k] / (G[k] @ G[k])) for k in range(2))
+    return roll, pitch
+
+
+def log_moment_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> str:
+    """Words for a fit of ``model`` to ``log`` that failed, where the log's own roll and pitch
+    accelerations per rotor-speed difference (:func:`log_moment_scale`) are
+    :data:`LOG_MOMENT_FAR` times the airframe's or further: an inertia, an arm or a mass off
+    (:meth:`~greybox.effects.MomentGain.readings`); or "". The fit of a 32 g vehicle given a
+    fifth of its inertia ended "line search failed" with the roll's gaps 3.6e4 times their noise
+    and named neither."""
+    scale = log_moment_scale(model, log)
+    if scale is None or min(scale) <= 0:
+        return ""
+    k = math.sqrt(scale[0] * scale[1])
+    if not (max(scale) <= 1 / LOG_MOMENT_FAR or min(scale) >= LOG_MOMENT_FAR):
+        return ""
+    return (f"the log's roll and pitch accelerations are {k:.2g} times what the airframe's inertia and arm give "
+            f"per logged rotor-speed difference (roll {scale[0]:.2g}, pitch {scale[1]:.2g}; a regression on the log "
+            "alone, with the thrust per speed² that carries the weight), which no fit of this model can follow: "
+            f"{fx.MomentGain.readings(k, model.airframe)}")
 
 
 ROTOR_ORDER_MATCH = 0.95

@@ -25,8 +25,8 @@ from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
-from .analysis import (command_imbalance, estimation_residuals, residual_analysis, rotor_geometry,
-                       rotor_geometry_warnings)
+from .analysis import (command_imbalance, estimation_residuals, log_moment_words, residual_analysis,
+                       rotor_geometry, rotor_geometry_warnings)
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
@@ -139,6 +139,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # no effect holds
         remaining = []
         warnings[:0] = geometry
+    else:
+        # the log's own moments far off the airframe's (an inertia a fifth of the vehicle's: its
+        # baseline failed, or took the thrust down and blamed a torque it lacked): said first
+        moments = log_moment_words(model, est)
+        warnings[:0] = [moments] if moments else []
     # effects the logged commands point at (data only, no model) are refitted whatever their score
     evidence = imbalance.evidence if imbalance is not None else set()
     nominated = [n for n in remaining if evidence & set(getattr(fx.known_effects().get(n), "trim_evidence", ()))]
