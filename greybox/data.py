@@ -610,6 +610,25 @@ def _case_hint(header: list[str], name: str) -> str:
     return f" (the header has {other!r}: column names are lower-case, without spaces)" if other else ""
 
 
+_SYNONYMS = {"t": ("time", "timestamp", "time_s"), "phi": ("roll",), "theta": ("pitch",), "psi": ("yaw", "heading"),
+             "p": ("roll_rate", "gx", "gyro_x"), "q": ("pitch_rate", "gy", "gyro_y"), "r": ("yaw_rate", "gz", "gyro_z")}
+"""Names other tools give a log column (:func:`_unknown_hint`)."""
+
+
+def _unknown_hint(header: list[str], name: str) -> str:
+    """" (the header has 'yaw', which is no column of the format: is it 'psi'?)" for a missing
+    column ``name`` where the header has columns the format does not know (at most six named)."""
+    unknown = [h for h in header if not is_log_column(h)]
+    if not unknown:
+        return ""
+    same = next((h for h in unknown if h.strip().lower() in _SYNONYMS.get(name, ())), None)
+    if same is not None:
+        return f" (the header has {same!r}, which is no column of the format: is it {name!r}?)"
+    shown = ", ".join(repr(h) for h in unknown[:6]) + (", …" if len(unknown) > 6 else "")
+    which = "is no column of the format: is it" if len(unknown) == 1 else "are no columns of the format: is one of them"
+    return f" (the header's {shown} {which} {name!r}?)"
+
+
 _FOREIGN_FORMATS = {"motor_motor_m1": "nanobench"}
 """A column that marks a file as another format's (its importer, ``greybox import``)."""
 
@@ -668,7 +687,8 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
     source = where if source is None else source
     col = {h: j for j, h in enumerate(header)}
     if "t" not in col:
-        raise GreyboxInputError(f"{where}: missing required column 't'" + _case_hint(header, "t"))
+        raise GreyboxInputError(f"{where}: missing required column 't'" +
+                                (_case_hint(header, "t") or _unknown_hint(header, "t")))
     w_cols = sorted((int(m.group(1)), h) for h in header if (m := _W.match(h)))
     u_cols = sorted((int(m.group(1)), h) for h in header if (m := _U.match(h)))
     if inputs == "auto":
@@ -697,7 +717,7 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
             raise GreyboxInputError(f"{where}: missing required column {name!r}" +
                                     (_case_hint(header, name) or
                                      (" (a log without position keeps the columns x, y, z, left empty)"
-                                      if name in ("x", "y", "z") else "")))
+                                      if name in ("x", "y", "z") else _unknown_hint(header, name))))
     out_names = REQUIRED_OUTPUTS + [n for n in OPTIONAL_OUTPUTS if n in col]
 
     if data.shape[0] == 0:

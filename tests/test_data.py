@@ -83,6 +83,14 @@ def test_resample_holds_inputs_and_interpolates_outputs():
     (["t,w1,w2,w3,w4,x,y,phi,theta,psi", "0,1,1,1,1,0,0,0,0,0"], "missing required column 'z'"),
     (["w1,w2,w3,w4,x,y,z,phi,theta,psi", "1,1,1,1,0,0,0,0,0,0"], "missing required column 't'"),
     (["t,x,y,z,phi,theta,psi", "0,0,0,0,0,0,0"], "missing required rotor speed columns"),
+    # a required column renamed (a blind audit's 'psi' as 'yaw'): the column that is probably it is named
+    (["t,w1,w2,w3,w4,x,y,z,phi,theta,yaw", "0,1,1,1,1,0,0,0,0,0,0"],
+     r"missing required column 'psi' \(the header has 'yaw', which is no column of the format: is it 'psi'\?\)"),
+    (["time,w1,w2,w3,w4,x,y,z,phi,theta,psi,vbat", "0,1,1,1,1,0,0,0,0,0,0,4"],
+     r"missing required column 't' \(the header has 'time', which is no column of the format: is it 't'\?\)"),
+    (["t,w1,w2,w3,w4,x,y,z,phi,theta,hdg,note", "0,1,1,1,1,0,0,0,0,0,0,1"],
+     r"missing required column 'psi' \(the header's 'hdg', 'note' are no columns of the format: is one of them "
+     r"'psi'\?\)"),
     # a NanoBench file given as it is (a blind audit): the importer is named
     (["t,px,py,pz,qx,qy,qz,qw,motor_motor_m1,motor_motor_m2,motor_motor_m3,motor_motor_m4", "0,0,0,0,0,0,0,1,0,0,0,0"],
      r"missing required rotor speed columns 'w1'..'w4' \(the header is a nanobench log's: convert it first, "

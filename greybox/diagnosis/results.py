@@ -169,6 +169,9 @@ class Discovered:
     lr: float | None = None
     lr_p_value: float | None = None
     reason: str = ""
+    # significant in its certified refit but not confirmed on validation: the parameters of the
+    # fit it was added to that the refit moves beyond their std, {name: (without, with)}
+    shifts: dict[str, tuple[float, float]] = field(default_factory=dict)
     effect: type[DiscoveredEffect] | None = field(default=None, repr=False)
     fit: FitResult | None = field(default=None, repr=False)
     prediction: Prediction | None = field(default=None, repr=False)
@@ -195,6 +198,8 @@ class Discovered:
                "refit_certified": None if self.fit is None else bool(self.fit.converged)}
         if self.channels_after is not None:
             out["channels_after"] = {k: _num(v) for k, v in self.channels_after.items()}
+        if self.shifts:
+            out["shifts"] = {n: {"without": _num(a), "with": _num(b)} for n, (a, b) in self.shifts.items()}
         return out
 
     def effect_class(self) -> type[DiscoveredEffect]:

@@ -18,7 +18,8 @@ from ..data import FlightLog, check_distinct_flights, median_row_interval
 from ..io.base import held_inputs
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..controller_law import closed_loop_or_why
-from ..fitting import IF_NEEDED, THRUST_IMPOSSIBLE, FitResult, fit, progress_callback, thrust_ratio
+from ..fitting import (IF_NEEDED, THRUST_IMPOSSIBLE, FitResult, filtered_attitude_notes, fit, progress_callback,
+                       thrust_ratio)
 from ..fitting.input_errors import followed_share
 from ..kinematics import gyro_scale, input_lead
 from ..model import QuadrotorModel
@@ -120,6 +121,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         say(f"diagnose: baseline {res.certificate.text()}")
     inconsistent = (half_consistency(model, res, est, E, compile, say) if tested else None) or {}
     warnings = _baseline_warnings(model, res, timing, untried_warning, inconsistent)
+    # the attitude weighed by its disagreement with the gyro (an autopilot's filter): a refit in
+    # the baseline's weights (the log's timing) does not say it again, and a blind audit's
+    # diagnosis weighed roll and pitch by 66 mrad and said nothing of it
+    warnings += [note for note in filtered_attitude_notes(est, noise or {}) if f"baseline fit: {note}" not in warnings]
     held = next((h for h in map(held_inputs, est) if h is not None), None)
     if held is not None:
         # a sensor's samples held on the rows lag the signal by up to a spacing, more than the
@@ -295,6 +300,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         if timed:
             warnings.append(timed)
     warnings += _timing_shift_words(rounds, cur_res)
+    warnings += _discovery_shift_words(discovered, res, cur_res)
     corrected = _without_input_errors(cur_res, est, compile, say)
     unexplained, unexplained_gaps = _unexplained(cur_res)
     force = _force_warning(cur_res, unexplained, unexplained_gaps)
@@ -524,6 +530,28 @@ def _timing_shift_words(rounds: Sequence[Round], final: FitResult) -> list[str]:
             out.append(f"{said}: {cand.effect} (a lag under half a row of the logged inputs, which the log's timing "
                        f"cannot tell) moves {it} beyond {its} std; what the data say of {it} is that range, not the "
                        "std (log the inputs faster to tell the lag)")
+    return out
+
+
+def _discovery_shift_words(discovered: Sequence, baseline: FitResult, final: FitResult) -> list[str]:
+    """Words on the final fit's parameters that a combination discovery found (significant in
+    its certified refit, not confirmed on validation) moves beyond their std
+    (``Discovered.shifts``), when the final fit is the one discovery refitted it onto (the
+    baseline: no verdict)."""
+    if final is not baseline:
+        return []
+    out = []
+    std = dict(zip(final.free_names, map(float, final.std)))
+    for d in discovered:
+        if not d.shifts:
+            continue
+        said = ", ".join(f"{n} {a:.4g} ± {std.get(n, float('nan')):.2g} without it, {b:.4g} with it"
+                         for n, (a, b) in d.shifts.items())
+        it, its = ("them", "their") if len(d.shifts) > 1 else ("it", "its")
+        found = f"{d.channel} = " + " + ".join(f"{t.coefficient:.4g}*{t.feature}" for t in d.fitted or d.terms)
+        out.append(f"{said}: what discovery found, {found} {d.unit} ({d.reason}), moves {it} "
+                   f"beyond {its} std; the data do not tell which holds, so what they say of {it} is that range, "
+                   "not the std")
     return out
 
 

@@ -20,7 +20,7 @@ The problem itself (interval functions, data layout, initial states, noise) is
 from ..shooting import (DEFAULT_INTERVAL_S, NOISE_FLOOR, default_interval, estimate_noise, initial_node_states,
                         sensor_noise)
 from .api import (IF_NEEDED, MAX_RESTARTS, THRUST_ADVICE, THRUST_IMPOSSIBLE, TRUST_REGION, FitResult, fit,
-                  manoeuvre_advice, per_flight_positions, progress_callback, progress_printer, thrust_ratio)
+                  filtered_attitude_notes, manoeuvre_advice, per_flight_positions, progress_callback, progress_printer, thrust_ratio)
 from .certificate import Certificate
 from .estimator import GreyBoxEstimator
 from .gauss_newton import STOPPED, FitSession, GaussNewton, Solver, budget_spent
@@ -31,4 +31,5 @@ __all__ = ["fit", "FitResult", "Certificate", "GreyBoxEstimator", "Solver", "Gau
            "estimate_noise", "sensor_noise", "NOISE_FLOOR", "initial_node_states", "DEFAULT_INTERVAL_S",
            "default_interval", "THRUST_ADVICE", "manoeuvre_advice", "MAX_RESTARTS", "TRUST_REGION", "progress_printer",
            "progress_callback", "per_flight_positions", "fit_imu", "ImuFit", "is_imu_only", "IF_NEEDED", "STOPPED",
-           "budget_spent", "denoise_inputs", "InputDenoising", "thrust_ratio", "THRUST_IMPOSSIBLE"]
+           "budget_spent", "denoise_inputs", "InputDenoising", "thrust_ratio", "THRUST_IMPOSSIBLE",
+           "filtered_attitude_notes"]

@@ -836,18 +836,23 @@ def _outlier_warnings(logs: Sequence[FlightLog]) -> list[str]:
     return out
 
 
-def _filtered_attitude_notes(logs: Sequence[FlightLog], given: Mapping[str, float]) -> list[str]:
+def filtered_attitude_notes(logs: Sequence[FlightLog], given: Mapping[str, float]) -> list[str]:
     """Words for the attitude channels weighed by their disagreement with the gyro rather than
     their high-frequency noise (:func:`greybox.shooting.filtered_attitude_channels`), the user
     having given no noise for them."""
     chans = {ch: v for ch, v in filtered_attitude_channels(logs).items() if ch not in given}
     if not chans:
         return []
+    # the horizontal drag is read through the tilt, whose filter error follows the acceleration:
+    # blind audits' complementary filters left Kd[0], Kd[1] 3-22 % low, 4-7 std, nothing said
+    tilt = [ch for ch in chans if ch in ("phi", "theta")]
+    drag = (f"; the horizontal drag, which the tilt carries, leans on {' and '.join(tilt)}'s slow error, which "
+            "the std do not count (blind audits' complementary filters: Kd[0], Kd[1] 3-22 % low)" if tilt else "")
     return [f"{', '.join(chans)}: an attitude estimate propagated from the gyro (an autopilot's filter: "
             "high-frequency noise " + ", ".join(f"{1e3 * hf:.2g}" for _, hf in chans.values()) + " mrad) "
             "that disagrees with the gyro's integral by " + ", ".join(f"{1e3 * lv:.3g}" for lv, _ in chans.values())
             + " mrad over 0.5-2 s, its own slow error: the fit weighs it by that (an accuracy given with "
-            + " ".join(f"--noise {ch}=SD" for ch in chans) + " takes its place)"]
+            + " ".join(f"--noise {ch}=SD" for ch in chans) + f" takes its place){drag}"]
 
 
 def _flight_words(logs: Sequence[FlightLog], words_of: Callable[[FlightLog], str]) -> list[str]:
@@ -1351,7 +1356,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     cc = cch.sum(axis=1)
     resid_rms = {n: float(sigma[c] * math.sqrt(cc[c] / n_c[c])) for c, n in enumerate(OUTPUTS) if n_c[c]}
     warnings += _filtered_attitude_warnings(sensor, resid_rms, {**(noise or {}), **sensor_noise})
-    warnings += _filtered_attitude_notes(logs, {**(noise or {}), **sensor_noise})
+    warnings += filtered_attitude_notes(logs, {**(noise or {}), **sensor_noise})
     if "gyro_scale" not in model.effect_names:     # the model fits the scale: nothing to say
         warnings += _gyro_scale_warnings(logs)
     else:
