@@ -410,11 +410,9 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
         # rotor columns in another order, or a layout read wrong, named first, in the fit
         # CLI's words (a blind audit's swapped M2/M4: the reason held only "is the airframe
         # this vehicle's, are the speeds in rad/s?")
-        from .diagnosis.analysis import log_moment_words, rotor_geometry_warnings, steady_torque_words
-        geometry = rotor_geometry_warnings(model, diag.rotor_order, diag.layout_rotation)
-        est = [log.split(0.8)[0]]
-        said = [] if geometry else [w for w in (steady_torque_words(model, est, base), log_moment_words(model, est)) if w]
-        out.update(status="failed", reason=f"fit did not converge: {'; '.join(geometry + said + [base.status])}")
+        from .diagnosis.fit_checks import fit_warnings
+        said = fit_warnings(base, [log.split(0.8)[0]])
+        out.update(status="failed", reason=f"fit did not converge: {'; '.join(said + [base.status])}")
     return out
 
 

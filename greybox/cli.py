@@ -530,30 +530,13 @@ def cmd_fit(args: argparse.Namespace) -> int:
                   interval=args.interval, max_iter=args.max_iter, progress=not args.quiet,
                   process_noise=_process_noise(args), per_flight=_per_flight(args.per_flight, model),
                   noise=_channel_noise(args.noise))
-    ests = [est for est, _ in parts]
-    geometry: list[str] = []
-    moments = ""
-    if not res.converged or (res.certificate is not None and not res.certificate.adequate):
-        # a fit that fails or leaves residuals beyond the noise: rotor columns in another order,
-        # or a layout read wrong, are named (a blind audit's M2/M4 swapped: "certified", p and q
-        # 1.7x the noise, nothing said); else moments the log gives far off the airframe's (an
-        # inertia a fifth of the vehicle's: the thrust's words then blamed a torque it lacked)
-        from .diagnosis.analysis import log_moment_words, rotor_geometry, rotor_geometry_warnings
-        geometry = rotor_geometry_warnings(model, *rotor_geometry(model, ests))
-        moments = "" if geometry else log_moment_words(model, ests)
+    # what the fitter cannot check itself (the rotor columns, the log's own moments and timing,
+    # the moment scale): the reasons in its error when it failed, else before its own warnings
+    from .diagnosis.fit_checks import fit_warnings
+    checks = fit_warnings(res, [est for est, _ in parts])
     if not res.converged:
-        # the columns' order or the layout first, then a steady torque the model lacks and the
-        # moments: the thrust's words (the airframe, the speeds' unit) follow from them
-        from .diagnosis.analysis import steady_torque_words
-        torque = "" if geometry else steady_torque_words(model, ests, res)
-        said = geometry + [w for w in (torque, moments) if w]
-        raise GreyboxError(f"fit did not converge: {'; '.join(said + [res.status])}")
-    res.warnings[:0] = geometry + ([moments] if moments else [])
-    # a lag fitted to rows that are samples of a varying signal: said (the diagnosis judges it first)
-    from .diagnosis.screening import moment_scale_words, row_timing_words
-    res.warnings += row_timing_words(res, ests)
-    # a mass, an inertia or an arm off: the moments say it where K_T, b and Kd carry it silently
-    res.warnings += [] if moments else moment_scale_words(res, ests)
+        raise GreyboxError(f"fit did not converge: {'; '.join(checks + [res.status])}")
+    res.warnings[:0] = checks
     # each flight validated with its own values of the per-flight parameters (wind, battery sag)
     preds = [predict(model, res.flight_p(i), val, horizon=args.horizon, **prediction_options(res))
              for i, (_, val) in enumerate(parts)]

@@ -251,6 +251,10 @@ def test_a_base_fit_whose_misfit_may_be_the_rows_timing_says_so():
             assert said == [], said
         else:
             assert not res.certificate.adequate and len(said) == 1 and "may be this timing" in said[0], said
+        # a script gets what `greybox fit` adds with fit_warnings (a blind audit's plain
+        # fit(...).summary() said nothing of the rows' timing)
+        from greybox.diagnosis import fit_warnings
+        assert [w for w in fit_warnings(res, log) if "may be this timing" in w] == said
 
 
 def test_noise_on_held_speeds_is_not_taken_for_the_rows_timing():

@@ -66,6 +66,7 @@ from .analysis import IMBALANCE_NOTABLE, CommandImbalance, Finding, command_imba
 from .closed_loop import TIGHT_PROCESS_NOISE
 from .consistency import CONSISTENCY_MIN_CHANGE, CONSISTENCY_Z
 from .discovery import MAX_THRUST_SHIFT
+from .fit_checks import fit_warnings
 from .input_noise import InputNoise, SimexCheck, input_noise, simex_check
 from .predictability import CommandPredictability, command_predictability
 from .ranking import (ALPHA, COLD_CONTINUE, COLD_SCREEN_ITER, MAX_VALIDATION_LOSS, MIN_EXPLAINED, MIN_EXPLAINED_INADEQUATE,
@@ -75,7 +76,7 @@ from .results import CandidateResult, Diagnosis, Discovered, DiscoveredTerm, Rou
 from .screening import NEGLIGIBLE_FRACTION
 from .workflow import UNEXPLAINED_RATIO, diagnose, distinguishing_manoeuvre
 
-__all__ = ["diagnose", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
+__all__ = ["diagnose", "fit_warnings", "Diagnosis", "CandidateResult", "Finding", "residual_analysis", "ALPHA",
            "MIN_VALIDATION_GAIN", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "distinguishing_manoeuvre",
            "CommandImbalance", "command_imbalance", "default_candidates", "Discovered", "DiscoveredTerm",
            "order_refitted", "validation_ties", "PARTNER_SCORE_SHARE", "MAX_THRUST_SHIFT",

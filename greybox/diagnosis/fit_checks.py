@@ -1,0 +1,51 @@
+"""What ``greybox fit`` says of a fit beyond the fit's own warnings: checks that need the
+diagnosis's tools (a score test, one Gauss–Newton step of an effect, regressions on the log),
+so the fitter, which the diagnosis builds on, cannot make them itself. One function, for the
+command line and for a script alike: ``fit(model, log).summary()`` alone does not say them."""
+from __future__ import annotations
+
+from typing import Sequence
+
+from ..data import FlightLog
+from ..fitting import FitResult
+from .analysis import log_moment_words, rotor_geometry, rotor_geometry_warnings, steady_torque_words
+from .screening import moment_scale_words, row_timing_words
+
+__all__ = ["fit_warnings"]
+
+
+def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile: str = "cached") -> list[str]:
+    """Words on the fit ``res`` of ``logs`` (its estimation data), most telling first.
+
+    Where the fit failed or leaves residuals beyond the noise: rotor columns in another order
+    or a layout read wrong (:func:`~greybox.diagnosis.analysis.rotor_geometry_warnings`), else
+    roll and pitch moments the log gives far off the airframe's
+    (:func:`~greybox.diagnosis.analysis.log_moment_words`). A fit that failed: then a steady
+    torque the model lacks (:func:`~greybox.diagnosis.analysis.steady_torque_words`) — the
+    reasons before its status. A certified fit: then the rows' timing, where held speeds lag a
+    varying signal (:func:`~greybox.diagnosis.screening.row_timing_words`), and a moment gain
+    off the airframe's that ``K_T``, ``b`` and ``Kd`` carry silently
+    (:func:`~greybox.diagnosis.screening.moment_scale_words`). ``greybox fit`` puts them
+    before the fit's own warnings, or in its error when the fit failed.
+
+    Example::
+
+        res = fit(model, est)
+        for words in fit_warnings(res, est):
+            print("warning:", words)
+    """
+    logs = [logs] if isinstance(logs, FlightLog) else list(logs)
+    model = res.model
+    geometry: list[str] = []
+    moments = ""
+    if not res.converged or (res.certificate is not None and not res.certificate.adequate):
+        # a blind audit's M2/M4 swapped: "certified", p and q 1.7x the noise, nothing said; an
+        # inertia a fifth of the vehicle's: "line search failed", or certified at 53 % of the
+        # weight blaming a torque it lacked
+        geometry = rotor_geometry_warnings(model, *rotor_geometry(model, logs))
+        moments = "" if geometry else log_moment_words(model, logs)
+    if not res.converged:
+        torque = "" if geometry else steady_torque_words(model, logs, res)
+        return geometry + [w for w in (torque, moments) if w]
+    return (geometry + ([moments] if moments else []) + row_timing_words(res, logs, compile)
+            + ([] if moments else moment_scale_words(res, logs, compile)))
