@@ -555,7 +555,8 @@ def _refit_and_judge(d: Discovered, model: QuadrotorModel, res: FitResult, pred:
             # what the model's parameters do with it: a blind audit's thrust loss with the climb
             # rate (thrust ~ w (w - k vz)), found to 4 % and set aside on the total (z -16 %,
             # total +1 %): Kd[2] 0.246 +- 0.009 without it, the truth 0.12, nothing said
-            d.shifts = {n: (res.value(n), fr.value(n)) for n in parameter_shifts(res, fr)}
+            d.shifts = {n: (res.value(n), fr.value(n), float(fr.std[fr.free_names.index(n)]))
+                        for n in parameter_shifts(res, fr)}
     else:
         d.significant = True
         d.reason = (f"p = {d.p_value:.2g} (regression), {d.lr_p_value:.2g} (refit); validation {best_ch} "

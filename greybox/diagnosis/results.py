@@ -170,8 +170,8 @@ class Discovered:
     lr_p_value: float | None = None
     reason: str = ""
     # significant in its certified refit but not confirmed on validation: the parameters of the
-    # fit it was added to that the refit moves beyond their std, {name: (without, with)}
-    shifts: dict[str, tuple[float, float]] = field(default_factory=dict)
+    # fit it was added to that the refit moves beyond their std, {name: (without, with, with's std)}
+    shifts: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     effect: type[DiscoveredEffect] | None = field(default=None, repr=False)
     fit: FitResult | None = field(default=None, repr=False)
     prediction: Prediction | None = field(default=None, repr=False)
@@ -199,7 +199,8 @@ class Discovered:
         if self.channels_after is not None:
             out["channels_after"] = {k: _num(v) for k, v in self.channels_after.items()}
         if self.shifts:
-            out["shifts"] = {n: {"without": _num(a), "with": _num(b)} for n, (a, b) in self.shifts.items()}
+            out["shifts"] = {n: {"without": _num(a), "with": _num(b), "with_std": _num(sb)}
+                             for n, (a, b, sb) in self.shifts.items()}
         return out
 
     def effect_class(self) -> type[DiscoveredEffect]:

@@ -545,13 +545,13 @@ def _discovery_shift_words(discovered: Sequence, baseline: FitResult, final: Fit
     for d in discovered:
         if not d.shifts:
             continue
-        said = ", ".join(f"{n} {a:.4g} ± {std.get(n, float('nan')):.2g} without it, {b:.4g} with it"
-                         for n, (a, b) in d.shifts.items())
+        said = ", ".join(f"{n} {a:.4g} ± {std.get(n, float('nan')):.2g} without it, {b:.4g} ± {sb:.2g} with it"
+                         for n, (a, b, sb) in d.shifts.items())
         it, its = ("them", "their") if len(d.shifts) > 1 else ("it", "its")
         found = f"{d.channel} = " + " + ".join(f"{t.coefficient:.4g}*{t.feature}" for t in d.fitted or d.terms)
         out.append(f"{said}: what discovery found, {found} {d.unit} ({d.reason}), moves {it} "
                    f"beyond {its} std; the data do not tell which holds, so what they say of {it} is that range, "
-                   "not the std")
+                   "not the std, each end with its own")
     return out
 
 
