@@ -263,8 +263,8 @@ def steady_torque_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightL
 
 LOG_MOMENT_FAR = 2.0
 """A roll and pitch moment the log alone (:func:`log_moment_scale`) gives this many times the
-airframe's, or this share of it, or further, is said beside a fit that failed
-(:func:`log_moment_words`): a lag between the logged speeds and the thrust, a rotor drag or a
+airframe's, or this share of it, or further, is said beside a fit that failed or leaves
+residuals beyond the noise, and by the diagnosis (:func:`log_moment_words`): a lag between the logged speeds and the thrust, a rotor drag or a
 mixer off the truth move it 10-25 % (blind audits' 30 g vehicles: 0.77-0.98 as given), a
 wrong inertia or arm by its factor."""
 LOG_MOMENT_DIRECTION = 0.9
@@ -297,12 +297,14 @@ def log_moment_scale(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]
 
 
 def log_moment_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> str:
-    """Words for a fit of ``model`` to ``log`` that failed, where the log's own roll and pitch
+    """Words beside a fit of ``model`` to ``log`` (one that failed or leaves residuals beyond the
+    noise, :func:`~greybox.diagnosis.fit_checks.fit_warnings`; every diagnosis), where the log's own roll and pitch
     accelerations per rotor-speed difference (:func:`log_moment_scale`) are
     :data:`LOG_MOMENT_FAR` times the airframe's or further: an inertia, an arm or a mass off
     (:meth:`~greybox.effects.MomentGain.readings`); or "". The fit of a 32 g vehicle given a
-    fifth of its inertia ended "line search failed" with the roll's gaps 3.6e4 times their noise
-    and named neither."""
+    fifth of its inertia ended "line search failed" with the roll's gaps 3.6e4 times their noise,
+    or on a shorter flight certified at 53 % of the weight blaming a torque it lacked, and named
+    neither."""
     scale = log_moment_scale(model, log)
     if scale is None or min(scale) <= 0:
         return ""
