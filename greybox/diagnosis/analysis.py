@@ -313,8 +313,9 @@ def log_moment_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]
         return ""
     return (f"the log's roll and pitch accelerations are {k:.2g} times what the airframe's inertia and arm give "
             f"per logged rotor-speed difference (roll {scale[0]:.2g}, pitch {scale[1]:.2g}; a regression on the log "
-            "alone, with the thrust per speed² that carries the weight), which no fit of this model can follow: "
-            f"{fx.MomentGain.readings(k, model.airframe)}")
+            "alone, with the thrust per speed² that carries the weight), which no fit of this model follows at the noise: "
+            f"{fx.MomentGain.readings(k, model.airframe)}. A fit of this airframe bends K_T, b and Kd around it, "
+            "and where its words blame a torque the model lacks (a CoG offset, rotors that differ) they may mean this")
 
 
 ROTOR_ORDER_MATCH = 0.95
