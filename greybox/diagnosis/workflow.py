@@ -543,7 +543,7 @@ def _discovery_shift_words(discovered: Sequence, baseline: FitResult, final: Fit
     out = []
     std = dict(zip(final.free_names, map(float, final.std)))
     for d in discovered:
-        if not d.shifts:
+        if not d.shifts or d.significant:      # confirmed later (together): no longer set aside
             continue
         said = ", ".join(f"{n} {a:.4g} ± {std.get(n, float('nan')):.2g} without it, {b:.4g} ± {sb:.2g} with it"
                          for n, (a, b, sb) in d.shifts.items())
