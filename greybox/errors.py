@@ -120,16 +120,20 @@ def signal_received() -> int | None:
 def interrupt_status(exc: BaseException) -> int | None:
     """The CLI's exit status for an interrupt — 130 (Ctrl-C, SIGINT) or 143 (SIGTERM) — after
     printing its one line, or None when ``exc`` is not one. Also an exception a C extension
-    made out of an interrupt (CasADi raises ``SystemError`` from a callback it ran into)."""
+    made out of an interrupt (CasADi raises ``SystemError`` from a callback it ran into).
+
+    The signal the handlers above recorded decides which: an extension can turn the
+    :class:`Terminated` our SIGTERM handler raised into a ``KeyboardInterrupt`` (CasADi's
+    interrupt check, while a compiler ran, does), and a SIGTERM is still a SIGTERM."""
     import signal
     import sys
-    if isinstance(exc, KeyboardInterrupt):
-        sig = signal.SIGINT
-    elif isinstance(exc, Terminated):
-        sig = signal.SIGTERM
-    else:
-        sig = signal_received()
-        if sig is None:
+    sig = signal_received()
+    if sig is None:
+        if isinstance(exc, KeyboardInterrupt):
+            sig = signal.SIGINT
+        elif isinstance(exc, Terminated):
+            sig = signal.SIGTERM
+        else:
             return None
     print("greybox: interrupted" if sig == signal.SIGINT else "greybox: terminated", file=sys.stderr)
     return 130 if sig == signal.SIGINT else 143

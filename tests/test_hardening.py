@@ -1105,6 +1105,34 @@ def test_a_signal_a_callback_swallowed_still_ends_the_run_as_that_signal(capsys,
     assert capsys.readouterr().err.strip() == f"greybox: {word}"
 
 
+def test_a_sigterm_an_extension_turned_into_keyboardinterrupt_still_ends_as_terminated(capsys, monkeypatch):
+    """CasADi's interrupt check turns whatever our signal handler raised into its own
+    ``KeyboardInterrupt``; after a SIGTERM the run must still end 143 "terminated" (it ended
+    130 "interrupted": the clean-clone CI failure of
+    ``test_interrupt_ends_cleanly[15-compiling-143-terminated]`` on 136a5fa). A plain Ctrl-C
+    stays 130."""
+    import argparse
+    from greybox import cli
+    from greybox.errors import Terminated, raise_interrupted, raise_terminated
+
+    for handler, rc_want, word in ((raise_terminated, 143, "terminated"), (raise_interrupted, 130, "interrupted")):
+        def converting(args, handler=handler):
+            try:
+                handler(signal.SIGTERM if handler is raise_terminated else signal.SIGINT, None)
+            except (Terminated, KeyboardInterrupt):
+                raise KeyboardInterrupt() from None     # what the extension raises instead
+            return 0
+
+        class Parser:
+            def parse_args(self, argv, func=converting):
+                return argparse.Namespace(func=func)
+
+        monkeypatch.setattr(cli, "_parser", lambda: Parser())
+        capsys.readouterr()
+        assert cli.main([]) == rc_want
+        assert capsys.readouterr().err.strip() == f"greybox: {word}"
+
+
 def test_an_output_that_is_also_an_input_is_refused_and_the_input_kept(short_log, tmp_path, capsys):
     """An output file naming one of the command's inputs (the same path, another spelling, a
     link) is refused before any work and the input left as it was (an audit's `import
