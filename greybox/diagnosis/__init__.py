@@ -62,7 +62,8 @@ from __future__ import annotations
 # in the final model), ``results`` (Diagnosis, its JSON and
 # summary), ``report`` (the HTML report) and ``workflow`` (:func:`diagnose`).
 # the constants are public names of greybox.diagnosis as well
-from .analysis import IMBALANCE_NOTABLE, CommandImbalance, Finding, command_imbalance, residual_analysis
+from .analysis import (IMBALANCE_NOTABLE, CommandImbalance, Finding, ThrustAtTop, command_imbalance, residual_analysis,
+                       thrust_at_top)
 from .closed_loop import TIGHT_PROCESS_NOISE
 from .consistency import CONSISTENCY_MIN_CHANGE, CONSISTENCY_Z
 from .discovery import MAX_THRUST_SHIFT
@@ -81,4 +82,4 @@ __all__ = ["diagnose", "fit_warnings", "Diagnosis", "CandidateResult", "Finding"
            "CommandImbalance", "command_imbalance", "default_candidates", "Discovered", "DiscoveredTerm",
            "order_refitted", "validation_ties", "PARTNER_SCORE_SHARE", "MAX_THRUST_SHIFT",
            "CommandPredictability", "command_predictability", "InputNoise", "input_noise", "SimexCheck",
-           "simex_check"]
+           "simex_check", "ThrustAtTop", "thrust_at_top"]

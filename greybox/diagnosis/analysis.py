@@ -19,7 +19,7 @@ from ..residuals import flight_residuals, whiteness_fraction
 from ..shooting import initial_node_states
 from ..validation import Prediction
 
-__all__ = ["Finding", "CommandImbalance", "command_imbalance", "steady_torque_words", "log_moment_scale", "log_moment_words", "LOG_MOMENT_FAR", "rotor_order", "layout_rotation", "rotor_geometry", "rotor_geometry_warnings", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
+__all__ = ["Finding", "CommandImbalance", "command_imbalance", "steady_torque_words", "log_moment_scale", "log_moment_words", "LOG_MOMENT_FAR", "ThrustAtTop", "thrust_at_top", "thrust_at_top_words", "THRUST_AT_TOP_LOW", "rotor_order", "layout_rotation", "rotor_geometry", "rotor_geometry_warnings", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
            "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE"]
 
 
@@ -316,6 +316,114 @@ def log_moment_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]
             "alone, with the thrust per speed² that carries the weight), which no fit of this model follows at the noise: "
             f"{fx.MomentGain.readings(k, model.airframe)}. A fit of this airframe bends K_T, b and Kd around it, "
             "and where its words blame a torque the model lacks (a CoG offset, rotors that differ) they may mean this")
+
+
+TOP_COMMANDS = 0.02
+"""The share of a flight's rows with its highest commands (the largest rotor speed of each row)
+whose thrust :func:`thrust_at_top` weighs against the commands'."""
+TOP_PAD = 0.3
+"""Seconds added either side of each run of those rows: a motor lag (to 0.1 s) delays the
+thrust it gives without changing its integral, so the padded runs hold all of it."""
+THRUST_AT_TOP_LOW = 0.85
+"""The share of the commanded thrust impulse (:func:`thrust_at_top`) below which the rotors are
+said not to have given what the highest commands asked: a blind audit's 2.6 kg vehicle whose
+commands reached 1400 rad/s on 1000 rad/s motors gave 0.76 and 0.79; its control flights,
+slew-limited and lagged motors, a thrust with a linear term 0.96-0.99; other simulators'
+control flights 0.98-1.00; three real Crazyflie flights 0.94-0.97."""
+THRUST_AT_TOP_EPISODES = 2
+"""...over at least this many separate runs of the highest commands."""
+
+
+@dataclass
+class ThrustAtTop:
+    """The thrust the log's own accelerations give over the runs of its highest commands, as
+    a share of what the commands give (``ratio``: 1 when the rotors follow them), with the
+    rotor speed from which a command counts as highest (``level``, rad/s), the share of rows
+    in the padded runs (``share``) and their number (``episodes``)."""
+    ratio: float
+    level: float
+    share: float
+    episodes: int
+    hover: float
+    """The median largest rotor speed of the flight's rows (rad/s), for scale."""
+
+
+def thrust_at_top(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> ThrustAtTop | None:
+    """Whether the rotors gave the thrust the highest logged commands ask, from the log alone.
+
+    The specific force along the body's z axis is taken from the smoothed positions' second
+    derivative, the attitude and gravity (with the airframe's drag), and weighed against
+    ``K_T`` times the rows' sum of ``w^2``, with ``K_T`` regressed on the rows whose largest
+    command lies below the flight's 90th percentile. ``ratio`` is the integral of the first
+    over the second on the rows of the :data:`TOP_COMMANDS` highest commands, padded by
+    :data:`TOP_PAD` seconds: a lag leaves it at 1, commands beyond what the motors can turn
+    (saturation) take it below, as would a thrust per ``w^2`` falling at the top of the rotors'
+    range. None where the inputs are not rotor speeds, the log has no position, or fewer
+    than 50 rows."""
+    logs = [log] if isinstance(log, FlightLog) else list(log)
+    if model.inputs != "rotor_speeds" or "Kd[0]" not in model.param_names:
+        return None
+    af = model.airframe
+    n_rot = af.n_rotors
+    p = model.default_parameters()
+    Kd = np.array([p[model.param_names.index(f"Kd[{i}]")] for i in range(3)])
+    meas, cmd, rows, wmax = [], [], [], []
+    for lg in logs:
+        if len(lg) < 50 or not all(c in lg.output_names for c in ("x", "y", "z")):
+            return None
+        X = initial_node_states(model, lg, np.arange(len(lg)))
+        acc = np.gradient(X[:, 6:9], lg.t, axis=0)
+        body_z = rotation_matrices(X[:, 3], X[:, 4], X[:, 5])[:, :, 2]      # in the world (down at rest)
+        force = np.array([0.0, 0.0, af.gravity]) - Kd * X[:, 6:9] / af.mass - acc
+        meas.append(np.einsum("ij,ij->i", body_z, force))
+        cmd.append((lg.inputs[:, :n_rot] ** 2).sum(axis=1) / af.mass)
+        wmax.append(lg.inputs[:, :n_rot].max(axis=1))
+        rows.append(lg.t)
+    W = np.concatenate(wmax)
+    ok_all = np.isfinite(np.concatenate(meas))
+    if ok_all.sum() < 50:
+        return None
+    level = float(np.quantile(W[ok_all], 1 - TOP_COMMANDS))
+    below = float(np.quantile(W[ok_all], 0.9))
+    num = den = 0.0
+    fit_num = fit_den = 0.0
+    share_rows = episodes = 0
+    for m_, c_, w_, t_ in zip(meas, cmd, wmax, rows):
+        ok = np.isfinite(m_)
+        base = ok & (w_ <= below)
+        fit_num += float(m_[base] @ c_[base])
+        fit_den += float(c_[base] @ c_[base])
+        hi = (w_ >= level).astype(float)
+        n = max(1, int(round(TOP_PAD / max(float(np.median(np.diff(t_))), 1e-6))))
+        padded = np.convolve(hi, np.ones(2 * n + 1), mode="same") > 0.5
+        episodes += int(np.sum(np.diff(np.concatenate([[0], padded.astype(int)])) == 1))
+        sel = padded & ok
+        share_rows += int(sel.sum())
+        num += float(m_[sel].sum())
+        den += float(c_[sel].sum())
+    if not (fit_den > 0 and den > 0):
+        return None
+    k = fit_num / fit_den
+    return ThrustAtTop(num / (k * den), level, share_rows / int(ok_all.sum()), episodes,
+                       float(np.median(W[ok_all])))
+
+
+def thrust_at_top_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> str:
+    """Words where the rotors gave less than :data:`THRUST_AT_TOP_LOW` of the thrust the highest
+    logged commands ask (:func:`thrust_at_top`), over :data:`THRUST_AT_TOP_EPISODES` runs of
+    them or more; or "". A blind audit's commands logged up to 1400 rad/s on motors that turn
+    1000 were diagnosed ``thrust_curve`` (k_Tw -0.31), ``b`` 34 % low, and nothing said the
+    commands went beyond the motors."""
+    top = thrust_at_top(model, log)
+    if top is None or top.episodes < THRUST_AT_TOP_EPISODES or not top.ratio < THRUST_AT_TOP_LOW:
+        return ""
+    return (f"where the logged commands are highest (a rotor above {top.level:.0f} rad/s, {top.hover:.0f} in the "
+            f"middle of the flight; {top.episodes} runs, {100 * top.share:.1f} % of the rows with {TOP_PAD:g} s either "
+            f"side) the log's own accelerations give {100 * top.ratio:.0f} % of the thrust the commands give with the "
+            "K_T of the rest of the flight (a lag would leave it at 100 %): the rotors did not turn as fast as they "
+            "were told, commands beyond what the motors or their ESCs can give (saturation), or a thrust per w² "
+            "that falls at the top of their range. A model fed these commands takes it up where it can: a thrust "
+            "curve with k_Tw < 0, a lower K_T, b and Kd; log the rotors' measured speeds, or leave those runs out")
 
 
 ROTOR_ORDER_MATCH = 0.95

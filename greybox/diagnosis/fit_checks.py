@@ -8,7 +8,7 @@ from typing import Sequence
 
 from ..data import FlightLog
 from ..fitting import FitResult
-from .analysis import log_moment_words, rotor_geometry, rotor_geometry_warnings, steady_torque_words
+from .analysis import log_moment_words, rotor_geometry, rotor_geometry_warnings, steady_torque_words, thrust_at_top_words
 from .screening import moment_scale_words, row_timing_words
 
 __all__ = ["fit_warnings"]
@@ -20,7 +20,9 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
     Where the fit failed or leaves residuals beyond the noise: rotor columns in another order
     or a layout read wrong (:func:`~greybox.diagnosis.analysis.rotor_geometry_warnings`), else
     roll and pitch moments the log gives far off the airframe's
-    (:func:`~greybox.diagnosis.analysis.log_moment_words`). A fit that failed: then a steady
+    (:func:`~greybox.diagnosis.analysis.log_moment_words`), and the highest commands giving
+    less thrust than they ask (:func:`~greybox.diagnosis.analysis.thrust_at_top_words`: motors
+    at the end of their range). A fit that failed: then a steady
     torque the model lacks (:func:`~greybox.diagnosis.analysis.steady_torque_words`) — the
     reasons before its status. A certified fit: then the rows' timing, where held speeds lag a
     varying signal (:func:`~greybox.diagnosis.screening.row_timing_words`), and a moment gain
@@ -37,15 +39,17 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
     logs = [logs] if isinstance(logs, FlightLog) else list(logs)
     model = res.model
     geometry: list[str] = []
-    moments = ""
+    moments = top = ""
     if not res.converged or (res.certificate is not None and not res.certificate.adequate):
         # a blind audit's M2/M4 swapped: "certified", p and q 1.7x the noise, nothing said; an
         # inertia a fifth of the vehicle's: "line search failed", or certified at 53 % of the
         # weight blaming a torque it lacked
         geometry = rotor_geometry_warnings(model, *rotor_geometry(model, logs))
         moments = "" if geometry else log_moment_words(model, logs)
+        # commands beyond what the motors turn: a blind audit's, diagnosed as a thrust curve
+        top = "" if geometry else thrust_at_top_words(model, logs)
     if not res.converged:
         torque = "" if geometry else steady_torque_words(model, logs, res)
-        return geometry + [w for w in (torque, moments) if w]
-    return (geometry + ([moments] if moments else []) + row_timing_words(res, logs, compile)
+        return geometry + [w for w in (torque, moments, top) if w]
+    return (geometry + [w for w in (moments, top) if w] + row_timing_words(res, logs, compile)
             + ([] if moments else moment_scale_words(res, logs, compile)))

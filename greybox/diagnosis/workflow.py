@@ -26,7 +26,7 @@ from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
-from .analysis import (command_imbalance, estimation_residuals, log_moment_words, residual_analysis,
+from .analysis import (command_imbalance, estimation_residuals, log_moment_words, residual_analysis, thrust_at_top_words,
                        rotor_geometry, rotor_geometry_warnings)
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
@@ -148,7 +148,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # the log's own moments far off the airframe's (an inertia a fifth of the vehicle's: its
         # baseline failed, or took the thrust down and blamed a torque it lacked): said first
         moments = log_moment_words(model, est)
-        warnings[:0] = [moments] if moments else []
+        # the highest commands giving less thrust than they ask (motors at the end of their
+        # range): a blind audit's was diagnosed a thrust curve and nothing said
+        top = thrust_at_top_words(model, est)
+        warnings[:0] = [w for w in (moments, top) if w]
     # effects the logged commands point at (data only, no model) are refitted whatever their score
     evidence = imbalance.evidence if imbalance is not None else set()
     nominated = [n for n in remaining if evidence & set(getattr(fx.known_effects().get(n), "trim_evidence", ()))]
