@@ -347,6 +347,12 @@ class ThrustAtTop:
     hover: float
     """The median largest rotor speed of the flight's rows (rad/s), for scale."""
 
+    @property
+    def low(self) -> bool:
+        """The highest commands gave less than :data:`THRUST_AT_TOP_LOW` of their thrust, over
+        :data:`THRUST_AT_TOP_EPISODES` runs of them or more."""
+        return self.episodes >= THRUST_AT_TOP_EPISODES and self.ratio < THRUST_AT_TOP_LOW
+
 
 def thrust_at_top(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> ThrustAtTop | None:
     """Whether the rotors gave the thrust the highest logged commands ask, from the log alone.
@@ -415,7 +421,7 @@ def thrust_at_top_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightL
     1000 were diagnosed ``thrust_curve`` (k_Tw -0.31), ``b`` 34 % low, and nothing said the
     commands went beyond the motors."""
     top = thrust_at_top(model, log)
-    if top is None or top.episodes < THRUST_AT_TOP_EPISODES or not top.ratio < THRUST_AT_TOP_LOW:
+    if top is None or not top.low:
         return ""
     return (f"where the logged commands are highest (a rotor above {top.level:.0f} rad/s, {top.hover:.0f} in the "
             f"middle of the flight; {top.episodes} runs, {100 * top.share:.1f} % of the rows with {TOP_PAD:g} s either "
@@ -423,7 +429,9 @@ def thrust_at_top_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightL
             "K_T of the rest of the flight (a lag would leave it at 100 %): the rotors did not turn as fast as they "
             "were told, commands beyond what the motors or their ESCs can give (saturation), or a thrust per w² "
             "that falls at the top of their range. A model fed these commands takes it up where it can: a thrust "
-            "curve with k_Tw < 0, a lower K_T, b and Kd; log the rotors' measured speeds, or leave those runs out")
+            "curve with k_Tw < 0, a lower K_T, b and Kd, and a roll and pitch moment smaller than the commands "
+            "give (read as a moment gain below 1 or a larger inertia); log the rotors' measured speeds, or leave "
+            "those runs out")
 
 
 ROTOR_ORDER_MATCH = 0.95

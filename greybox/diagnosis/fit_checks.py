@@ -27,7 +27,8 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
     reasons before its status. A certified fit: then the rows' timing, where held speeds lag a
     varying signal (:func:`~greybox.diagnosis.screening.row_timing_words`), and a moment gain
     off the airframe's that ``K_T``, ``b`` and ``Kd`` carry silently
-    (:func:`~greybox.diagnosis.screening.moment_scale_words`). ``greybox fit`` puts them
+    (:func:`~greybox.diagnosis.screening.moment_scale_words`; not beside highest commands the
+    motors did not follow, which take the moments down too). ``greybox fit`` puts them
     before the fit's own warnings, or in its error when the fit failed.
 
     Example::
@@ -51,5 +52,7 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
     if not res.converged:
         torque = "" if geometry else steady_torque_words(model, logs, res)
         return geometry + [w for w in (torque, moments, top) if w]
+    # a moment gain's reading (an inertia, an arm, a mass off) is not offered beside commands
+    # the motors did not follow: the saturated audit's fit read k_M 0.48 as an inertia 2x off
     return (geometry + [w for w in (moments, top) if w] + row_timing_words(res, logs, compile)
-            + ([] if moments else moment_scale_words(res, logs, compile)))
+            + ([] if moments or top else moment_scale_words(res, logs, compile)))

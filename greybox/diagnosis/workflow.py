@@ -26,8 +26,8 @@ from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
-from .analysis import (command_imbalance, estimation_residuals, log_moment_words, residual_analysis, thrust_at_top_words,
-                       rotor_geometry, rotor_geometry_warnings)
+from .analysis import (command_imbalance, estimation_residuals, log_moment_words, residual_analysis, rotor_geometry,
+                       rotor_geometry_warnings, thrust_at_top, thrust_at_top_words)
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
@@ -751,6 +751,15 @@ def _added_effect_checks(model: QuadrotorModel, cur_model: QuadrotorModel, cur_r
     values, std = cur_model.parameter_dict(cur_res.p), dict(zip(cur_res.free_names, map(float, cur_res.std)))
     for e in added_effects:
         words += [f"final model: {w}" for w in e.interpretation_notes(values, std, cur_model.airframe)]
+    lowering = [(e.name, w) for e in added_effects if (w := e.lowers_top_thrust(values))]
+    top = thrust_at_top(model, est) if lowering else None
+    if top is not None and top.low:
+        # a blind audit's commands beyond its motors' range were named thrust_curve, k_Tw -0.31
+        words.append("final model: " + ", ".join(f"{n}'s {w}" for n, w in lowering) + " lowers the thrust at the "
+                     f"highest rotor speeds, where the log's own accelerations give {100 * top.ratio:.0f} % of what "
+                     "the highest commands ask (above): it may stand for commands beyond what the motors can turn "
+                     "rather than the propellers' own curve, which this flight cannot tell apart; fly to the "
+                     "highest commands without reaching the motors' limit, or log the rotors' measured speeds")
     words += [f"final model: {w}" for w in undetermined_parameters(cur_res, [e.name for e in added_effects])]
     # whether the added parameters' std can be believed: each half of the flight alone, and
     # the validation flights alone (the halves can agree by chance)

@@ -234,6 +234,14 @@ class Effect:
         and ``std`` as there. Default: none."""
         return []
 
+    def lowers_top_thrust(self, values: Mapping[str, float]) -> str:
+        """Words naming what, at these fitted ``values``, makes the thrust per ``w^2`` fall
+        at the highest rotor speeds (a thrust curve with ``k_Tw < 0``), or "" where nothing
+        does (the default). Where the log's highest commands gave less thrust than they ask
+        (:func:`~greybox.diagnosis.thrust_at_top`), such an effect may stand for commands
+        beyond the motors' range, and the diagnosis says so beside it."""
+        return ""
+
     def reduces_to(self, other: str, values: Mapping[str, float], covariance: np.ndarray,
                    free_names: Sequence[str], airframe: "Airframe") -> str:
         """Words saying that this effect's fitted values are what the effect named ``other``

@@ -285,6 +285,10 @@ class ThrustCurve(Effect):
                 "changes the yaw torque as well: where the logged speeds are commands, add rotor_map to the "
                 "candidates (--candidates) to tell them apart"]
 
+    def lowers_top_thrust(self, values):
+        k = values.get("k_Tw")
+        return f"k_Tw = {k:.3g}" if k is not None and k < 0 else ""
+
     def modify(self, ctx):
         af = ctx.airframe
         w_hover = ca.sqrt(af.mass * af.gravity / (af.n_rotors * ctx.params["K_T"]))
