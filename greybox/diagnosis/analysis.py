@@ -329,7 +329,7 @@ THRUST_AT_TOP_LOW = 0.85
 said not to have given what the highest commands asked: a blind audit's 2.6 kg vehicle whose
 commands reached 1400 rad/s on 1000 rad/s motors gave 0.76 and 0.79; its control flights,
 slew-limited and lagged motors, a thrust with a linear term 0.96-0.99; other simulators'
-control flights 0.98-1.00; three real Crazyflie flights 0.94-0.97."""
+flights (audits 25 and 28-30) 0.98-1.00; the ten real Crazyflie flights 0.94-0.99."""
 THRUST_AT_TOP_EPISODES = 2
 """...over at least this many separate runs of the highest commands."""
 
@@ -339,13 +339,13 @@ class ThrustAtTop:
     """The thrust the log's own accelerations give over the runs of its highest commands, as
     a share of what the commands give (``ratio``: 1 when the rotors follow them), with the
     rotor speed from which a command counts as highest (``level``, rad/s), the share of rows
-    in the padded runs (``share``) and their number (``episodes``)."""
+    in the padded runs (``share``), their number (``episodes``) and, for scale, the median
+    of the rows' largest rotor speed (``median_speed``, rad/s)."""
     ratio: float
     level: float
     share: float
     episodes: int
-    hover: float
-    """The median largest rotor speed of the flight's rows (rad/s), for scale."""
+    median_speed: float
 
     @property
     def low(self) -> bool:
@@ -423,7 +423,7 @@ def thrust_at_top_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightL
     top = thrust_at_top(model, log)
     if top is None or not top.low:
         return ""
-    return (f"where the logged commands are highest (a rotor above {top.level:.0f} rad/s, {top.hover:.0f} in the "
+    return (f"where the logged commands are highest (a rotor above {top.level:.0f} rad/s, {top.median_speed:.0f} in the "
             f"middle of the flight; {top.episodes} runs, {100 * top.share:.1f} % of the rows with {TOP_PAD:g} s either "
             f"side) the log's own accelerations give {100 * top.ratio:.0f} % of the thrust the commands give with the "
             "K_T of the rest of the flight (a lag would leave it at 100 %): the rotors did not turn as fast as they "
