@@ -630,3 +630,24 @@ def test_the_thrust_at_the_highest_commands_is_what_they_ask_on_every_real_fligh
         top = thrust_at_top(model, imp.log)
         assert top is not None and THRUST_AT_TOP_LOW + 0.05 < top.ratio < 1.05, (path.name, top)
         assert thrust_at_top_words(model, imp.log) == "", path.name
+
+
+@needs_real
+def test_positions_below_the_ground_plane_are_said_and_a_real_flight_above_it_is_not():
+    """Every real flight stays above the ground plane the importer sets (its rest height): no
+    words. The same flight given a ground 1 m above the log's origin (``ground_z = -1``) goes
+    0.94 m below it: said, with the depth and the share of samples (a blind audit's flight that
+    fell 98 m below the ground was diagnosed at length, and nothing said)."""
+    import tomllib
+    from greybox.diagnosis.analysis import below_ground_words
+    for path in FILES:
+        imp = import_nanobench(path)
+        text = crazyflie_airframe_toml(0.030, imp.hover_rotor_speed, ground_z=-(imp.rest_height - 0.025))
+        assert below_ground_words(QuadrotorModel(airframe_from_dict(tomllib.loads(text), "cf")), imp.log) == "", path.name
+    imp = import_nanobench(REAL / "B2_circle_fast_rep1.csv")
+    z_max = float(np.nanmax(imp.log.output("z")))
+    lifted = QuadrotorModel(airframe_from_dict(tomllib.loads(crazyflie_airframe_toml(0.030, imp.hover_rotor_speed,
+                                                                                     ground_z=-1.0)), "cf"))
+    words = below_ground_words(lifted, imp.log)
+    assert words.startswith(f"the logged positions go down to {z_max + 1.0:.3g} m below the airframe's ground plane"), words
+    assert "set ground_z in the airframe to the z of the floor" in words

@@ -19,7 +19,7 @@ from ..residuals import flight_residuals, whiteness_fraction
 from ..shooting import initial_node_states
 from ..validation import Prediction
 
-__all__ = ["Finding", "CommandImbalance", "command_imbalance", "steady_torque_words", "log_moment_scale", "log_moment_words", "LOG_MOMENT_FAR", "ThrustAtTop", "thrust_at_top", "thrust_at_top_words", "THRUST_AT_TOP_LOW", "rotor_order", "layout_rotation", "rotor_geometry", "rotor_geometry_warnings", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
+__all__ = ["Finding", "CommandImbalance", "command_imbalance", "steady_torque_words", "log_moment_scale", "log_moment_words", "LOG_MOMENT_FAR", "ThrustAtTop", "thrust_at_top", "thrust_at_top_words", "THRUST_AT_TOP_LOW", "below_ground_words", "BELOW_GROUND", "rotor_order", "layout_rotation", "rotor_geometry", "rotor_geometry_warnings", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
            "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE"]
 
 
@@ -432,6 +432,37 @@ def thrust_at_top_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightL
             "curve with k_Tw < 0, a lower K_T, b and Kd, and a roll and pitch moment smaller than the commands "
             "give (read as a moment gain below 1 or a larger inertia); log the rotors' measured speeds, or leave "
             "those runs out")
+
+
+BELOW_GROUND = 0.1
+"""Metres below the airframe's ground plane (NED ``z`` beyond ``ground_z``) from which a logged
+position is said (:func:`below_ground_words`): the centre of gravity of a vehicle on the ground
+lies above it, and motion capture's noise is millimetres."""
+
+
+def below_ground_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> str:
+    """Words where the logged positions go more than :data:`BELOW_GROUND` below the airframe's
+    ground plane, or "": a flight through the ground is a crash or a ground plane that is not
+    where the log's floor is (``ground_z``, from which the ground effect's heights are taken).
+    A blind audit's flight that fell 98 m below it was diagnosed at length, and nothing said."""
+    logs = [log] if isinstance(log, FlightLog) else list(log)
+    deepest, rows, below = -np.inf, 0, 0
+    for lg in logs:
+        if "z" not in lg.output_names:
+            continue
+        z = lg.output("z")
+        z = z[np.isfinite(z)]
+        if z.size:
+            deepest = max(deepest, float(z.max()) - model.airframe.ground_z)
+            rows += z.size
+            below += int(np.sum(z - model.airframe.ground_z > BELOW_GROUND))
+    if not deepest > BELOW_GROUND:
+        return ""
+    return (f"the logged positions go down to {deepest:.3g} m below the airframe's ground plane (ground_z = "
+            f"{model.airframe.ground_z:g} m, NED: z grows downwards), {100 * below / rows:.2g} % of the position "
+            "samples beyond 10 cm: a flight through the ground is a crash (the model holds no ground contact), or the "
+            "ground is not at ground_z: set ground_z in the airframe to the z of the floor (the ground effect's "
+            "heights are taken from it)")
 
 
 ROTOR_ORDER_MATCH = 0.95

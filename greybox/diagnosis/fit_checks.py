@@ -8,7 +8,8 @@ from typing import Sequence
 
 from ..data import FlightLog
 from ..fitting import FitResult
-from .analysis import log_moment_words, rotor_geometry, rotor_geometry_warnings, steady_torque_words, thrust_at_top_words
+from .analysis import (below_ground_words, log_moment_words, rotor_geometry, rotor_geometry_warnings, steady_torque_words,
+                       thrust_at_top_words)
 from .screening import moment_scale_words, row_timing_words
 
 __all__ = ["fit_warnings"]
@@ -17,6 +18,8 @@ __all__ = ["fit_warnings"]
 def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile: str = "cached") -> list[str]:
     """Words on the fit ``res`` of ``logs`` (its estimation data), most telling first.
 
+    First, whatever the fit: positions below the airframe's ground plane (a crash, or a ground
+    plane elsewhere; :func:`~greybox.diagnosis.analysis.below_ground_words`).
     Where the fit failed or leaves residuals beyond the noise: rotor columns in another order
     or a layout read wrong (:func:`~greybox.diagnosis.analysis.rotor_geometry_warnings`), else
     roll and pitch moments the log gives far off the airframe's
@@ -49,10 +52,11 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
         moments = "" if geometry else log_moment_words(model, logs)
         # commands beyond what the motors turn: a blind audit's, diagnosed as a thrust curve
         top = "" if geometry else thrust_at_top_words(model, logs)
+    ground = [w for w in (below_ground_words(model, logs),) if w]
     if not res.converged:
         torque = "" if geometry else steady_torque_words(model, logs, res)
-        return geometry + [w for w in (torque, moments, top) if w]
+        return ground + geometry + [w for w in (torque, moments, top) if w]
     # a moment gain's reading (an inertia, an arm, a mass off) is not offered beside commands
     # the motors did not follow: the saturated audit's fit read k_M 0.48 as an inertia 2x off
-    return (geometry + [w for w in (moments, top) if w] + row_timing_words(res, logs, compile)
+    return (ground + geometry + [w for w in (moments, top) if w] + row_timing_words(res, logs, compile)
             + ([] if moments or top else moment_scale_words(res, logs, compile)))

@@ -26,8 +26,8 @@ from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
-from .analysis import (command_imbalance, estimation_residuals, log_moment_words, residual_analysis, rotor_geometry,
-                       rotor_geometry_warnings, thrust_at_top, thrust_at_top_words)
+from .analysis import (below_ground_words, command_imbalance, estimation_residuals, log_moment_words, residual_analysis,
+                       rotor_geometry, rotor_geometry_warnings, thrust_at_top, thrust_at_top_words)
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
@@ -152,6 +152,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # range): a blind audit's was diagnosed a thrust curve and nothing said
         top = thrust_at_top_words(model, est)
         warnings[:0] = [w for w in (moments, top) if w]
+    # a flight through the ground (a crash, or a ground plane elsewhere): said first, whatever else
+    ground = below_ground_words(model, list(est) + list(val or []))
+    warnings[:0] = [ground] if ground else []
     # effects the logged commands point at (data only, no model) are refitted whatever their score
     evidence = imbalance.evidence if imbalance is not None else set()
     nominated = [n for n in remaining if evidence & set(getattr(fx.known_effects().get(n), "trim_evidence", ()))]
