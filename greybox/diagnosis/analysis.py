@@ -353,6 +353,20 @@ class ThrustAtTop:
         :data:`THRUST_AT_TOP_EPISODES` runs of them or more."""
         return self.episodes >= THRUST_AT_TOP_EPISODES and self.ratio < THRUST_AT_TOP_LOW
 
+    def words(self) -> str:
+        """What a user is told where :attr:`low`; else ""."""
+        if not self.low:
+            return ""
+        return (f"where the logged commands are highest (a rotor above {self.level:.0f} rad/s, {self.median_speed:.0f} in the "
+                f"middle of the flight; {self.episodes} runs, {100 * self.share:.1f} % of the rows with {TOP_PAD:g} s either "
+                f"side) the log's own accelerations give {100 * self.ratio:.0f} % of the thrust the commands give with the "
+                "K_T of the rest of the flight (a lag would leave it at 100 %): the rotors did not turn as fast as they "
+                "were told, commands beyond what the motors or their ESCs can give (saturation), or a thrust per w² "
+                "that falls at the top of their range. A model fed these commands takes it up where it can: a thrust "
+                "curve with k_Tw < 0, a lower K_T, b and Kd, and a roll and pitch moment smaller than the commands "
+                "give (read as a moment gain below 1 or a larger inertia); log the rotors' measured speeds, or leave "
+                "those runs out")
+
 
 def thrust_at_top(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> ThrustAtTop | None:
     """Whether the rotors gave the thrust the highest logged commands ask, from the log alone.
@@ -416,22 +430,12 @@ def thrust_at_top(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -
 
 def thrust_at_top_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> str:
     """Words where the rotors gave less than :data:`THRUST_AT_TOP_LOW` of the thrust the highest
-    logged commands ask (:func:`thrust_at_top`), over :data:`THRUST_AT_TOP_EPISODES` runs of
-    them or more; or "". A blind audit's commands logged up to 1400 rad/s on motors that turn
-    1000 were diagnosed ``thrust_curve`` (k_Tw -0.31), ``b`` 34 % low, and nothing said the
-    commands went beyond the motors."""
+    logged commands ask (:func:`thrust_at_top`, :meth:`ThrustAtTop.words`), over
+    :data:`THRUST_AT_TOP_EPISODES` runs of them or more; or "". A blind audit's commands logged
+    up to 1400 rad/s on motors that turn 1000 were diagnosed ``thrust_curve`` (k_Tw -0.31),
+    ``b`` 34 % low, and nothing said the commands went beyond the motors."""
     top = thrust_at_top(model, log)
-    if top is None or not top.low:
-        return ""
-    return (f"where the logged commands are highest (a rotor above {top.level:.0f} rad/s, {top.median_speed:.0f} in the "
-            f"middle of the flight; {top.episodes} runs, {100 * top.share:.1f} % of the rows with {TOP_PAD:g} s either "
-            f"side) the log's own accelerations give {100 * top.ratio:.0f} % of the thrust the commands give with the "
-            "K_T of the rest of the flight (a lag would leave it at 100 %): the rotors did not turn as fast as they "
-            "were told, commands beyond what the motors or their ESCs can give (saturation), or a thrust per w² "
-            "that falls at the top of their range. A model fed these commands takes it up where it can: a thrust "
-            "curve with k_Tw < 0, a lower K_T, b and Kd, and a roll and pitch moment smaller than the commands "
-            "give (read as a moment gain below 1 or a larger inertia); log the rotors' measured speeds, or leave "
-            "those runs out")
+    return "" if top is None else top.words()
 
 
 BELOW_GROUND = 0.1

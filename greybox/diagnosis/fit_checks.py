@@ -52,11 +52,11 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
         moments = "" if geometry else log_moment_words(model, logs)
         # commands beyond what the motors turn: a blind audit's, diagnosed as a thrust curve
         top = "" if geometry else thrust_at_top_words(model, logs)
-    ground = [w for w in (below_ground_words(model, logs),) if w]
+    ground = below_ground_words(model, logs)
     if not res.converged:
         torque = "" if geometry else steady_torque_words(model, logs, res)
-        return ground + geometry + [w for w in (torque, moments, top) if w]
+        return [w for w in (ground, *geometry, torque, moments, top) if w]
     # a moment gain's reading (an inertia, an arm, a mass off) is not offered beside commands
     # the motors did not follow: the saturated audit's fit read k_M 0.48 as an inertia 2x off
-    return (ground + geometry + [w for w in (moments, top) if w] + row_timing_words(res, logs, compile)
+    return ([w for w in (ground, *geometry, moments, top) if w] + row_timing_words(res, logs, compile)
             + ([] if moments or top else moment_scale_words(res, logs, compile)))

@@ -26,8 +26,8 @@ from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
-from .analysis import (below_ground_words, command_imbalance, estimation_residuals, log_moment_words, residual_analysis,
-                       rotor_geometry, rotor_geometry_warnings, thrust_at_top, thrust_at_top_words)
+from .analysis import (ThrustAtTop, below_ground_words, command_imbalance, estimation_residuals, log_moment_words,
+                       residual_analysis, rotor_geometry, rotor_geometry_warnings, thrust_at_top)
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
@@ -139,6 +139,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     imbalance = command_imbalance(model, est)
     order, turned = rotor_geometry(model, est)
     geometry = rotor_geometry_warnings(model, order, turned)
+    # the highest commands against the thrust they gave (motors at the end of their range):
+    # said below, and beside a final model that lowers the thrust at the top
+    top_thrust = None if geometry else thrust_at_top(model, est)
     if geometry:
         # nothing is tested: read in the wrong order or turned, what the columns do is "physics"
         # no effect holds
@@ -150,8 +153,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         moments = log_moment_words(model, est)
         # the highest commands giving less thrust than they ask (motors at the end of their
         # range): a blind audit's was diagnosed a thrust curve and nothing said
-        top = thrust_at_top_words(model, est)
-        warnings[:0] = [w for w in (moments, top) if w]
+        top_words = top_thrust.words() if top_thrust is not None else ""
+        warnings[:0] = [w for w in (moments, top_words) if w]
     # a flight through the ground (a crash, or a ground plane elsewhere): said first, whatever else
     ground = below_ground_words(model, list(est) + list(val or []))
     warnings[:0] = [ground] if ground else []
@@ -333,7 +336,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     val_spread: dict[str, tuple[float, float, float, float]] | None = {}
     if cur_res is not res:
         words, spread, val_spread = _added_effect_checks(model, cur_model, cur_res, est, val, validation is None,
-                                                         compile, say)
+                                                         compile, say, top_thrust)
         warnings += words
     # whether the logged commands' torque shows in the attitude at all (data only): why a model of
     # the vehicle may lose to the naive attitude predictor whatever its parameters
@@ -743,9 +746,11 @@ def _force_warning(cur_res: FitResult, unexplained: Mapping[str, float],
 
 def _added_effect_checks(model: QuadrotorModel, cur_model: QuadrotorModel, cur_res: FitResult,
                          est: Sequence[FlightLog], val: Sequence[FlightLog], validation_is_tail: bool, compile: str,
-                         say: Callable[[str], None]):
+                         say: Callable[[str], None], top_thrust: ThrustAtTop | None = None):
     """How to read the parameters the rounds added to ``model`` (the final model ``cur_model``
-    fitted as ``cur_res``): their interpretation notes, undetermined ones, and whether their
+    fitted as ``cur_res``; ``top_thrust``: :func:`thrust_at_top` on ``est``): their
+    interpretation notes, a thrust lowered at the top beside commands the motors did not
+    follow, undetermined ones, and whether their
     std can be believed, judged on each half of the estimation data and on the validation data
     alone. Returns ``(words, spread, validation_spread)`` (a spread ``None``: not checked)."""
     words: list[str] = []
@@ -755,11 +760,10 @@ def _added_effect_checks(model: QuadrotorModel, cur_model: QuadrotorModel, cur_r
     for e in added_effects:
         words += [f"final model: {w}" for w in e.interpretation_notes(values, std, cur_model.airframe)]
     lowering = [(e.name, w) for e in added_effects if (w := e.lowers_top_thrust(values))]
-    top = thrust_at_top(model, est) if lowering else None
-    if top is not None and top.low:
+    if lowering and top_thrust is not None and top_thrust.low:
         # a blind audit's commands beyond its motors' range were named thrust_curve, k_Tw -0.31
         words.append("final model: " + ", ".join(f"{n}'s {w}" for n, w in lowering) + " lowers the thrust at the "
-                     f"highest rotor speeds, where the log's own accelerations give {100 * top.ratio:.0f} % of what "
+                     f"highest rotor speeds, where the log's own accelerations give {100 * top_thrust.ratio:.0f} % of what "
                      "the highest commands ask (above): it may stand for commands beyond what the motors can turn "
                      "rather than the propellers' own curve, which this flight cannot tell apart; fly to the "
                      "highest commands without reaching the motors' limit, or log the rotors' measured speeds")
