@@ -329,6 +329,25 @@ def test_certificate_says_how_far_white_residuals_within_twice_the_noise_are():
     assert "residuals at the sensor noise" in at.text()
 
 
+def test_systematic_gaps_of_an_effects_own_states_are_said_in_its_words():
+    """Mostly systematic gaps in a body state are a force or torque the model lacks; in a motor
+    lag's effective speeds they say the motors do not follow a first-order lag (a blind audit's
+    slew-limited motors left them 2-3x their random part, and the fit blamed a force)."""
+    from greybox.effects import MotorLag
+    from greybox.fitting.certificate import Certificate
+
+    cert = Certificate(optimal=True, step_over_std=0.01, state_step_over_noise=0.0, gap_over_noise=0.0, held=[],
+                       residual_over_noise={"x": 1.0}, whiteness={"x": 0.0}, sensor_noise={"x": 1e-3},
+                       systematic_gaps={"r": 2.2, "w_eff1": 2.59, "w_eff2": 1.1, "w_eff3": 2.01}, soft=True,
+                       state_words={f"w_eff{i}": MotorLag.systematic_gap_words for i in range(1, 5)})
+    assert not cert.adequate and cert.off_states() == ["r", "w_eff1", "w_eff3"]
+    text = cert.text()
+    assert ("the shooting gaps of r (2.2x their random part) are mostly systematic: a force or torque the model "
+            "lacks acts there over many intervals") in text, text
+    assert ("the shooting gaps of w_eff1 (2.59x their random part), w_eff3 (2.01x their random part) are mostly "
+            "systematic: the motors do not follow a first-order lag there (a slew-rate limit") in text, text
+
+
 def test_a_covariance_that_is_not_all_numbers_is_said_not_raised():
     """A candidate's cold refit on the peer simulator's weak-rotor flight once ended with NaNs in
     its scaled covariance, and the near-singularity check's eigenvalue routine raised

@@ -93,6 +93,11 @@ class Effect:
     what the model leaves out of that other state (``d_p`` of ``p``). A fit with process noise
     starts its random walk at the other state's shooting gaps per second: the base model's
     gaps in ``p`` are the unmodelled torque over one interval."""
+    systematic_gap_words: ClassVar[str] = ""
+    """What its own states' shooting gaps say when, in a fit with process noise, they are
+    mostly systematic (:meth:`~greybox.fitting.Certificate.off_states`): the law those states
+    follow does not hold there. Default (and for the body's states): a force or torque the
+    model lacks."""
     scales_commanded_moment: ClassVar[bool] = False
     """Whether its torque is a multiple of the moment the logged commands give. A closed-loop
     controller answers a torque the model lacks through the commands (they carry minus that

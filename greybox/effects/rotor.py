@@ -101,6 +101,8 @@ class MotorLag(Effect):
     distinguish = {
         'position_delay': 'fast rotor-speed steps with attitude recorded: motor lag delays attitude too, a vision delay only position',
     }
+    systematic_gap_words = ("the motors do not follow a first-order lag there (a slew-rate limit or saturation, "
+                            "or a lag unlike up and down)")
 
     def parameters(self, airframe):
         # The lower bound keeps the fixed-step integrators stable (see integrate.MAX_STEP).

@@ -93,6 +93,10 @@ class Certificate:
     (:func:`~greybox.fitting.input_errors.output_input_noise`), in the channel's unit. Set
     where some channel's residuals would otherwise be judged off the noise; an exact model's
     residuals there are the sensor's noise and this together (:meth:`noise_ratio`)."""
+    state_words: dict[str, str] = field(default_factory=dict)
+    """Per effect state, what its mostly systematic gaps say (the effect's
+    :attr:`~greybox.effects.Effect.systematic_gap_words`); the others: a force or torque the
+    model lacks."""
     flightless: float | None = None
     """Set where the end point passed every check of optimality but its rotors' mean thrust
     cannot be a flying vehicle's (:data:`~greybox.fitting.THRUST_IMPOSSIBLE`): their share of
@@ -208,10 +212,13 @@ class Certificate:
                      ": that estimate takes fast motion for noise (a log rate low for the vehicle's dynamics), "
                      "so these channels are judged against a noise larger than theirs")
         states = self.off_states()
-        if states:
+        groups: dict[str, list[str]] = {}
+        for n in states:
+            groups.setdefault(self.state_words.get(n, ""), []).append(n)
+        for words, names in groups.items():
             tail += ("; the shooting gaps of " + ", ".join(f"{n} ({self.systematic_gaps[n]:.3g}x their random part)"
-                                                         for n in states) +
-                     " are mostly systematic: a force or torque the model lacks acts there over many intervals")
+                                                         for n in names) +
+                     " are mostly systematic: " + (words or "a force or torque the model lacks acts there over many intervals"))
         return f"{head}. {tail}."
 
     def as_dict(self) -> dict:
