@@ -159,7 +159,9 @@ def fit_result_json(model: QuadrotorModel, res, validation: dict | None) -> dict
 def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
               input_noise: str = "smooth", outliers: str = "drop", held: str = "hold") -> FlightLog:
     """``log`` checked against ``model``'s rotors (and their plausible speeds with parameters
-    ``p0``) and ready to fit; errors name ``where`` (also used by ``greybox batch``). Rotor
+    ``p0``) and ready to fit; errors name ``where`` (also used by ``greybox batch``). The rows
+    on the ground at its start and end, where it starts or ends with its rotors stopped, are
+    left out with a note (:func:`~greybox.io.base.airborne_log`). Rotor
     speeds that are a slower signal held on the rows (:func:`~greybox.io.held_inputs`) are
     interpolated between their fresh rows with ``held="interpolate"``
     (:func:`~greybox.io.interpolate_held_inputs`) and fitted as logged with ``"hold"``, a note
@@ -172,6 +174,8 @@ def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
     if log.input_names != model.command_names:
         raise GreyboxInputError(f"{where}: has rotor speeds {','.join(log.input_names)} but the airframe "
                                 f"has {model.airframe.n_rotors} rotors")
+    from .io.base import airborne_log
+    log = airborne_log(log, where)
     model.check_rotor_speeds(log.inputs[:, :model.airframe.n_rotors], p0, where)
     log = _held_speeds(log, held)
     if input_noise == "smooth":

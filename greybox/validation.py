@@ -284,8 +284,9 @@ def _predict_windows(model: QuadrotorModel, p: np.ndarray, log: FlightLog, start
 
 def _too_short(log: FlightLog, init_window: float, dt: float) -> GreyboxInputError:
     """The error for a log too short to start one validation window on."""
-    return GreyboxInputError(f"{log.source or 'log'}: too short for validation: need more than "
-                             f"{init_window + 2 * dt:.3f} s")
+    span = float(log.t[-1] - log.t[0]) if log.t.size else 0.0
+    return GreyboxInputError(f"{log.source or 'log'}: too short for validation: the rows validated on span "
+                             f"{span:.3f} s, need more than {init_window + 2 * dt:.3f} s")
 
 
 def check_validation_length(log: FlightLog, init_window: float = DEFAULT_INIT_WINDOW) -> None:

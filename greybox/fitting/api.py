@@ -23,6 +23,7 @@ from ..data import FlightLog, check_distinct_flights
 from ..errors import ConvergenceWarning, GreyboxInputError, SolverError
 from ..fitted import FittedModel, provenance
 from ..kinematics import gyro_scale, input_lead
+from ..io.base import airborne_log
 from ..model import BASE_STATES, OUTPUTS, QuadrotorModel
 from ..outliers import find_outliers
 from ..residuals import (AttitudeMotion, attitude_motion, fitted_trajectory, flight_residuals, output_residuals,
@@ -836,6 +837,24 @@ def _outlier_warnings(logs: Sequence[FlightLog]) -> list[str]:
     return out
 
 
+def _ground_warnings(logs: Sequence[FlightLog]) -> list[str]:
+    """A log fitted with the vehicle standing on the ground at its start or end
+    (:func:`greybox.io.airborne_log`): the model has no ground reaction force, so the fit
+    reads the floor's support as a thrust, a drag or a lift it lacks."""
+    out = []
+    for i, log in enumerate(logs):
+        where = log.source or f"flight {i + 1}"
+        try:
+            flight = airborne_log(log, where)
+        except GreyboxInputError as e:
+            out.append(f"{e}; fitted as given")
+            continue
+        if flight is not log:
+            out.append(f"{flight.notes[-1].replace(' left out, as the importers do', ' fitted as data')}; "
+                       "greybox.io.airborne_log(log) leaves them out, as greybox fit and diagnose do")
+    return out
+
+
 def filtered_attitude_notes(logs: Sequence[FlightLog], given: Mapping[str, float]) -> list[str]:
     """Words for the attitude channels weighed by their disagreement with the gyro rather than
     their high-frequency noise (:func:`greybox.shooting.filtered_attitude_channels`), the user
@@ -1378,7 +1397,7 @@ def _fit_formulation(model: QuadrotorModel, logs: "FlightLog | Sequence[FlightLo
     else:
         warnings += _gyro_scale_unidentifiable(logs)
     warnings += _input_lead_warnings(model, logs)
-    warnings += _outlier_warnings(logs)
+    warnings += _outlier_warnings(logs) + _ground_warnings(logs)
     node_states, k = [], 0
     for _, M in data.flights:
         node_states.append(X[k:k + M + 1].copy())

@@ -491,6 +491,67 @@ def flight_from_height(t: np.ndarray, height: np.ndarray, running: np.ndarray, w
     return FlightSpan(k0, k1, on_ground, rest, note)
 
 
+ROTORS_STOPPED_SHARE = 0.2
+"""A row's rotors are stopped (or idling) when every one turns below this share of the log's
+median rotor speed: under 4 % of the usual thrust, which nothing flies on."""
+
+
+def airborne_log(log: FlightLog, where: str | None = None) -> FlightLog:
+    """``log`` without the rows on the ground at its start and end, a note saying so; ``log``
+    itself when it neither starts nor ends with its rotors stopped (or, without a height or an
+    accelerometer, cannot tell when it flies).
+
+    The model has no ground reaction force, and a log written by a user's own tool (not an
+    importer, which trims its flights) may hold the vehicle standing before take-off and after
+    touchdown (a blind audit's: rotors stopped in 15 % of the rows, on the floor in 23 %; the
+    fit's thrust was told to carry 79 % of the weight, Kd[2] ended on its bound). Only a log
+    that starts or ends with every rotor stopped (:data:`ROTORS_STOPPED_SHARE`) is judged:
+    then :func:`flight_from_height` finds the flight, its take-off height five times the
+    height's noise at rest (at least 1 cm) above the resting height, the motors running; a log
+    without a height, from motor start to motor stop (:func:`flight_from_imu`). A log that
+    begins in the air is returned as it is.
+
+    Raises:
+        GreyboxInputError: the vehicle never leaves the ground.
+    """
+    if not log.input_names or not log.input_names[0].startswith("w") or log.t.size < 10:
+        return log
+    n_rot = sum(1 for n in log.input_names if n[1:].isdigit())
+    speeds = np.abs(log.inputs[:, :n_rot])
+    turning = speeds.max(axis=1)
+    if not np.any(turning > 0):
+        return log
+    stopped = turning < ROTORS_STOPPED_SHARE * float(np.median(turning[turning > 0]))
+    if not (stopped[0] or stopped[-1]):
+        return log
+    where = where or log.source or "the log"
+    if log.measures("z"):
+        height = -log.output("z")
+        rest_rows = np.flatnonzero(stopped[:np.argmin(stopped)] if stopped[0] else stopped)
+        at_rest = height[rest_rows][np.isfinite(height[rest_rows])]
+        noise = float(np.std(np.diff(at_rest)) / math.sqrt(2)) if at_rest.size >= 5 else 0.0
+        span = flight_from_height(log.t, height, ~stopped, where, takeoff_height=max(0.01, 5 * noise),
+                                  hint=" (its rotors stopped at its start or end: a vehicle standing on the ground)")
+    elif all(log.measures(n) for n in ("ax", "ay", "az")):
+        # an IMU-only log: from motor start to motor stop, as the uSD importer takes it
+        span = flight_from_imu(log.t, np.column_stack([log.output(n) for n in ("ax", "ay", "az")]), ~stopped, where)
+    else:
+        return log
+    before, after = span.k0, log.t.size - 1 - span.k1
+    if before == 0 and after == 0:
+        return log
+    out = log.slice(span.k0, span.k1 + 1)
+    touch = int(span.on_ground[span.k0:span.k1 + 1].sum())
+    found = (span.note if math.isnan(span.rest_height) else
+             f"{span_words(log.t, span.k0, span.k1)}, resting height {span.rest_height:.3f} m")
+    out.notes.append(f"{where}: on the ground at its {'start and end' if before and after else 'start' if before else 'end'}"
+                     f" ({found}; rotors stopped "
+                     f"in {100 * stopped.mean():.0f} % of the rows): the {before} rows before and {after} after left out, "
+                     "as the importers do: the model has no ground reaction force"
+                     + (f"; {touch} rows in between touch the ground and stay in" if touch else ""))
+    return out
+
+
 def flight_from_imu(t: np.ndarray, specific_force: np.ndarray, running: np.ndarray, where: str,
                     impact_g: float = 3.0, margin: float = 0.01, min_samples: int = 20) -> FlightSpan:
     """The flight of a log without a height: from the first to the last sample with the
