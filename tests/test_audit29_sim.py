@@ -29,6 +29,7 @@ def _flight(tmp: Path, case: str, seconds: float, seed: int = 7, **airframe) -> 
     return str(log), str(af)
 
 
+@pytest.mark.slow
 def test_a_fit_without_the_cog_offset_says_the_steady_torque_it_lacks(tmp_path, capsys):
     """The centre of gravity 2.5 mm forward and 2 mm left of the rotors' centre: the controller
     holds it with rotors 3 and 4 about 14 % apart in w^2, and the base model, which holds no
@@ -51,6 +52,7 @@ def test_a_fit_without_the_cog_offset_says_the_steady_torque_it_lacks(tmp_path, 
         assert said == pytest.approx(share, abs=0.01), (rotor, said, share)
 
 
+@pytest.mark.slow
 def test_a_fit_given_a_fifth_of_the_inertia_says_the_inertia_the_log_gives(tmp_path, capsys):
     """The control flight given an airframe with a fifth of the vehicle's inertia: on the
     audit's 30-s flight the fit ended "line search failed" with the roll's gaps 3.6e4 times

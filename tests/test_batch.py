@@ -65,6 +65,7 @@ def _one_blas_thread(monkeypatch):
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
 
 
+@pytest.mark.slow
 def test_folder_with_a_corrupt_file_then_a_rerun_skips_and_retries(flights, tmp_path, capsys):
     flights = Path(shutil.copytree(flights, tmp_path / "in"))      # mended below
     out = tmp_path / "out"
@@ -148,6 +149,7 @@ def test_folder_with_a_corrupt_file_then_a_rerun_skips_and_retries(flights, tmp_
     assert greybox.load(tmp_path / "held" / "fleet_model.json").value("b") == pytest.approx(b_held, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_a_worker_that_dies_costs_only_its_own_flight(flights, tmp_path, monkeypatch):
     """The hook ends the worker process (os._exit) on good1 every time (failed after one
     retry, with its reason) and on good2 the first time only (retried on a fresh worker: ok)."""
@@ -457,6 +459,7 @@ def test_batch_against_a_scheduler_and_a_worker_started_apart(flights, tmp_path)
                 p.wait(timeout=30)
 
 
+@pytest.mark.slow
 def test_imu_only_flights_get_the_imu_only_fit_and_stay_out_of_the_joint_fit(tmp_path, capsys):
     """A nineteenth blind audit's uSD logs (gyro, accelerometer, motors; no position) all failed
     in a batch ("column 'x' is empty") where `greybox fit` fits them by the IMU-only equations:
@@ -493,6 +496,7 @@ def test_imu_only_flights_get_the_imu_only_fit_and_stay_out_of_the_joint_fit(tmp
     assert "IMU-only fit (no position: not diagnosed)" in err and "IMU-only, fitted on their own" in err
 
 
+@pytest.mark.slow
 def test_the_final_models_values_stand_beside_the_baselines(weak_flight, flights, tmp_path):
     """A blind audit's hidden motor lag was the verdict, but the summary held the baseline's
     values (Kd[2] 4.6 std off) and no tau_m: where a diagnosis added effects, the final model's

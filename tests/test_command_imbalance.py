@@ -110,6 +110,7 @@ def test_an_h_frame_hovers_with_its_rear_rotors_working_harder_and_that_is_no_im
     assert weak.notable and weak.share["w1"] == pytest.approx(1 / 0.9 - 1, abs=0.03)
 
 
+@pytest.mark.slow
 def test_rotor_columns_logged_in_another_order_are_told(base):
     """A flight's rotor-speed columns written in Betaflight's motor order (rear-right first)
     for greybox's X layout (front-right first): the roll and pitch the columns move match the

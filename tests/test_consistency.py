@@ -49,6 +49,7 @@ def test_a_difference_too_small_to_matter_is_not_flagged(paper):
     assert CONSISTENCY_MIN_CHANGE == 0.02 and fits.converged
 
 
+@pytest.mark.slow
 def test_a_flights_own_conditions_are_not_compared_with_another_flights():
     """The final model's parameters against a fit on the validation data alone
     (``validation_spread``), on another simulator's 1 kg vehicle (tests/foreign_sim.py) flown

@@ -165,6 +165,7 @@ def cascade_flight(tmp_path_factory):
     return QuadrotorModel(load_airframe(paths["airframe"])), load_log(paths["log"]), paths
 
 
+@pytest.mark.slow
 def test_the_cascade_of_an_autopilot_is_read_as_a_stabilising_law_that_predicts_attitude(cascade_flight):
     """On a controller greybox did not write: the law restores (roll torque against roll and
     against an error to the right, pitch likewise, more thrust when below the setpoint: NED
@@ -287,6 +288,7 @@ def test_a_closed_loop_model_asks_for_setpoints_and_a_fitted_law_and_flies_a_com
     assert extra == pytest.approx(0.028) and left_out == ["command_delay"]
 
 
+@pytest.mark.slow
 def test_fit_json_holds_the_closed_loop_where_the_log_has_setpoints(cascade_flight, tmp_path, capsys):
     """``greybox fit`` on a log with setpoints: the JSON's ``closed_loop`` holds the law and the
     horizons in the contract's shape; the summary says what the loop beats the naive predictor

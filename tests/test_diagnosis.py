@@ -143,6 +143,7 @@ def test_diagnose_cli_separate_validation_flight(paper, normal_flight, tmp_path,
     assert d.baseline.n_residuals > 0 and len(d.log) == len(normal_flight.log)
 
 
+@pytest.mark.slow
 def test_a_parameter_held_by_the_user_stays_held_in_the_baseline_and_every_refit(paper, normal_flight, tmp_path,
                                                                                   paper_airframe_path, capsys):
     """diagnose --set b=... --fixed b (b measured on a bench): the baseline, each candidate's

@@ -38,6 +38,7 @@ def drift_beside_battery(tmp_path_factory):
     return res, predict_after_fit(res, est, val), est, val, flights[0].truth["greybox_equivalent"]
 
 
+@pytest.mark.slow
 def test_a_thrust_drift_that_stood_in_for_the_battery_is_left_out(drift_beside_battery):
     res, pred, est, val, truth = drift_beside_battery
     # the Wald screen does not spare the drift (2.5 std at most): it is refitted out
@@ -78,6 +79,7 @@ def test_the_battery_that_is_there_stands_on_its_refit_too(drift_beside_battery,
     assert "battery_voltage" in final.model.effect_names and "thrust_drift" not in final.model.effect_names
 
 
+@pytest.mark.slow
 def test_when_round_ones_verdict_no_longer_stands_the_verdict_moves_on(monkeypatch):
     """The workflow's side of a removal. No foreign flight was found where forward selection
     takes a stand-in first (the peer's battery wins round 1 over the drift even with a 0.15-V

@@ -1,5 +1,6 @@
 """Multiple-shooting fitting: recovered parameters, honest uncertainties, failures reported."""
 import json
+import re
 
 import numpy as np
 import pytest
@@ -217,6 +218,8 @@ def test_fit_cli_refuses_a_flight_too_short_to_validate_before_fitting(tmp_path,
     rc = main(["fit", str(tmp_path / "f.csv"), str(tmp_path / "short.csv"), "--airframe", str(paper_airframe_path)])
     err = capsys.readouterr().err
     assert rc == 2 and "short.csv: too short for validation" in err and "Traceback" not in err, err
+    # how long the rows it validates on are, beside what it needs (a blind audit's 0.3-s log)
+    assert re.search(r"the rows validated on span 0\.\d+ s, need more than 0\.\d+ s", err), err
 
 
 def test_fit_cli_wrong_rotor_count(tmp_path, flight, capsys):
@@ -363,6 +366,7 @@ def test_a_covariance_that_is_not_all_numbers_is_said_not_raised():
     assert any("not all numbers" in w for w in out)
 
 
+@pytest.mark.slow
 def test_a_thrust_held_from_the_weight_by_torques_the_fit_explains_says_a_force_is_missing(paper_model):
     """A constant upward force of a quarter of the weight (a lift, a tether) that the model
     lacks: the rotors carry 75 % of the weight. The roll and pitch torques of the rotor speeds'

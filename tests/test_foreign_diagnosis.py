@@ -32,6 +32,7 @@ def cf_clean():
     return _flights(crazyflie())
 
 
+@pytest.mark.slow
 def test_crazyflie_fit_is_certified_and_recovers_thrust_and_torque_coefficients(cf_clean):
     """30 g, 500 Hz, 1 mm position at 100 Hz: the fit reaches and certifies its optimum."""
     est, _ = cf_clean
@@ -46,6 +47,7 @@ def test_crazyflie_fit_is_certified_and_recovers_thrust_and_torque_coefficients(
         assert res.certificate.residual_over_noise[ch] < 1.5, ch
 
 
+@pytest.mark.slow
 def test_crazyflie_with_nothing_missing_gives_a_null_verdict(cf_clean):
     """Nothing is missing but the log's timing: the simulator logs the rotor speeds it
     integrates, samples of a signal that varies between rows, which the model would hold. The

@@ -46,6 +46,7 @@ def test_hover_rotor_speed(make):
     assert np.all(np.abs(w_mean / w_expected - 1) < 0.005), (w_mean, w_expected)
 
 
+@pytest.mark.slow
 def test_hover_tracking_with_disturbances():
     """The closed loop holds its set point against disturbances its trim does not know
     (wind on linear drag), with a wrong controller K_T, a CoG offset and a weak motor
@@ -266,6 +267,7 @@ def test_a_log_fitted_with_another_vehicles_airframe_is_not_certified(tmp_path, 
     assert "turned about the body's z axis: nothing was tested" in repr(d)
 
 
+@pytest.mark.slow
 def test_an_x_quad_read_with_a_plus_airframe_is_told_and_nothing_is_tested():
     """The foreign simulator's x-layout Crazyflie read with a "plus" airframe: its rotors'
     roll and pitch moments match no order of the airframe's, and match them turned by 45

@@ -356,6 +356,7 @@ def test_a_battery_voltage_in_millivolts_is_refused(tmp_path, capsys):
             assert rc == 2 and "column 'vbat'" in line and "is it in millivolts? V = mV / 1000" in line, err
 
 
+@pytest.mark.slow
 def test_k_t_far_from_the_airframes_value_asks_about_the_speeds_unit(tmp_path):
     """Rotor speeds logged in another unit by a factor the unit checks cannot see (a racer's raw
     DShot telemetry, eRPM/100 with 7 pole pairs: 0.67 of rad/s) are fitted with a K_T 1/0.67^2
@@ -1262,6 +1263,7 @@ def test_a_channel_noise_given_weights_the_fit_and_judges_its_residuals(tmp_path
     assert 0.2 < r["certificate"]["residual_over_noise"]["phi"] < 0.45
 
 
+@pytest.mark.slow
 def test_an_attitude_filtered_from_the_gyro_is_weighed_by_its_disagreement_with_the_gyro(tmp_path, capsys):
     """An attitude whose high-frequency content sits at greybox's floor is an estimate filtered
     from the gyro; its slow error does not show there, and the fit had weighed it as accurate to
@@ -1313,6 +1315,7 @@ def test_a_refit_in_a_fits_formulation_keeps_the_sensor_noise_the_user_gave():
     assert plain.sensor_given == {} and plain.certificate.sensor_noise["phi"] < 0.005
 
 
+@pytest.mark.slow
 def test_diagnose_takes_the_channel_noise_given_for_its_baseline_and_refits(tmp_path, capsys):
     """``greybox diagnose --noise``: the baseline is weighted by it and its certificate judges
     against it; a candidate's refit in the baseline's formulation keeps it."""

@@ -42,6 +42,7 @@ def airframe_file(foreign, tmp_path):
     return af
 
 
+@pytest.mark.slow
 def test_imu_only_fit_recovers_thrust_torque_and_motor_lag_on_foreign_data(foreign):
     veh, log = foreign
     assert is_imu_only(log)
@@ -88,6 +89,7 @@ def test_where_the_log_says_the_rotors_start_does_not_move_the_fit(foreign):
     assert res.value("tau_m") == pytest.approx(veh.tau_motor, rel=0.05)
 
 
+@pytest.mark.slow
 def test_a_weak_rotor_makes_the_imu_only_fit_inadequate_and_says_so(foreign, airframe_file, tmp_path, capsys):
     """A blind audit's 8 % weak rotor gave roll/pitch gains 0.93 at 8 std and no word: the
     torque equations, averaged over 0.1 s where the gyro's noise averages out, leave a

@@ -67,6 +67,7 @@ def test_a_lag_under_half_a_row_of_the_inputs_cannot_be_told_from_the_logs_timin
     assert within_row_timing(curved, "thrust_curve", {"k_Tw": 1e-4}, [log]) == ""
 
 
+@pytest.mark.slow
 def test_a_verdict_the_inputs_noise_check_could_not_judge_says_so(noisy, monkeypatch):
     """When SIMEX cannot judge the verdict-to-be (one of its noisier refits fails or is not
     certified), the verdict keeps its place and its reason says the check could not be made."""

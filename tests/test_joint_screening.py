@@ -73,6 +73,7 @@ def test_an_effect_that_is_not_nothing_at_its_null_stops_the_joint_screen(baseli
         fx.unregister("test_always_pushing")
 
 
+@pytest.mark.slow
 def test_a_screening_starts_no_compiler_but_takes_a_cached_library(baseline, monkeypatch, tmp_path):
     """A screening evaluates each model once: with ``compile="auto"`` it must not start the
     C compiler on it (the model of a round's candidates together is new each round and took

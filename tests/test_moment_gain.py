@@ -81,6 +81,7 @@ def test_a_candidate_held_on_a_bound_away_from_its_null_is_named_and_one_at_its_
     assert held_on_bound(lag, "motor_lag") == ""
 
 
+@pytest.mark.slow
 def test_a_mass_given_too_light_is_named_beside_the_moment_gain_it_shows_as():
     """Another simulator's 32.5 g vehicle given 26 g (0.8 of it: a sprayer's dry mass for a
     full tank, a blind audit's case): K_T carries the weight given, so every moment is 0.8 of
@@ -105,6 +106,7 @@ def test_a_mass_given_too_light_is_named_beside_the_moment_gain_it_shows_as():
     assert not any("mass is off" in w for w in res.warnings), (res.value("k_M"), res.std)
 
 
+@pytest.mark.slow
 def test_a_plain_fit_says_when_the_moments_are_not_the_airframes():
     """``greybox fit`` on the base model carries a wrong mass or inertia silently in K_T, b and
     Kd (a blind audit's 1.1 kg vehicle given an inertia 35 % too large: b 35 % high at 0.03 %,

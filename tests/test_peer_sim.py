@@ -56,6 +56,7 @@ def test_hover_balances_gravity_and_torques_by_hand():
     assert acc[2] == pytest.approx(-dT / veh.mass, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_the_cascaded_pid_flies_on_what_the_vehicle_measures_and_holds_a_weak_rotor_where_its_moment_cancels():
     """The second controller (an autopilot's cascade) reads the gyro with its noise, so its
     commands carry that noise (the geometric controller's do not: it reads the true state);
@@ -254,6 +255,7 @@ def cf_flights(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_log_is_read_as_a_users_file(cf_flights):
     paths, _ = cf_flights["jittered"]
     log = load_log(paths["log"])
@@ -295,6 +297,7 @@ def test_jittered_time_stamps_make_fit_use_process_noise(cf_flights):
 
 @pytest.mark.parametrize("k_t_factor, duration, seed", [(1.4, 6.0, 1), pytest.param(0.6, 6.0, 1, marks=pytest.mark.slow),
                                                           (1.4, 8.0, 3)])
+@pytest.mark.slow
 def test_a_fit_that_lets_the_thrust_go_is_started_again_where_the_rotors_carry_the_weight(tmp_path, k_t_factor,
                                                                                           duration, seed):
     """A 6-s flight of the 30 g vehicle with 1 % noise on its logged speeds, started with K_T
@@ -423,6 +426,7 @@ def test_frames_that_are_no_square_x_are_diagnosed_as_flown(tmp_path):
             assert abs(devs[i] - truth["K_T_dev"][i]) < 3 * std, (i, devs[i], truth["K_T_dev"][i], std)
 
 
+@pytest.mark.slow
 def test_a_swinging_slung_load_leaves_systematic_velocity_gaps(tmp_path):
     """A 0.1-kg load on a 0.5-m cable under the 1.2 kg vehicle (logged at 200 Hz; the airframe
     carries both masses, as a user weighs them): the cable's pull is a force no effect holds.
@@ -788,6 +792,7 @@ def test_three_kg_ground_effect_is_named_and_k_ge_is_the_truths_at_the_hubs(tmp_
     assert final.value("K_T") == pytest.approx(truth["K_T"], rel=0.05)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("commands", [True, False])
 def test_motor_lags_screening_statistic_is_its_refits_likelihood_ratio_not_its_floors(tmp_path, commands):
     """A motor lag cannot vanish (``tau_m`` >= 2 ms, the integrators' floor): its screening
@@ -1122,6 +1127,7 @@ def test_a_2_5_kg_vehicle_with_nothing_missing_is_null_with_no_failure_to_locate
     assert d.findings == []
 
 
+@pytest.mark.slow
 def test_attitude_bias_and_vision_latency_are_what_the_log_reports():
     """By hand: with the estimator's level reference off by (0.03, -0.02) rad, the logged roll
     and pitch are the vehicle's plus the bias (their mean difference is the bias within the

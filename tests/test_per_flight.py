@@ -62,6 +62,7 @@ def test_each_flight_gets_its_own_wind_and_the_vehicle_its_shared_drag(windy):
     assert res.residual_rms["phi"] < 3 * veh.att_noise
 
 
+@pytest.mark.slow
 def test_fit_cli_per_flight_json_and_a_bad_name(windy, tmp_path, capsys):
     _, af, _, flights = windy
     (tmp_path / "a.toml").write_text(airframe_toml(af))
@@ -115,6 +116,7 @@ def test_fleet_comparison_leaves_a_flights_wind_out_and_needs_four_flights():
     assert "wind[0]" not in c["parameters"]["a"] and c["outliers"]["d"]
 
 
+@pytest.mark.slow
 def test_diagnose_of_two_flights_in_two_winds_names_the_wind_with_each_flights_value(windy):
     """The base model (no wind) on two flights in different winds: the wind candidate is
     refitted with one wind per flight (4 degrees of freedom) and is the verdict; its values
@@ -218,6 +220,7 @@ def test_soft_fit_of_several_flights_gives_each_its_own_process_noise(tmp_path):
     assert weak_alone.converged and weak_alone.process_noise["p"] == q_p[1]
 
 
+@pytest.mark.slow
 def test_flights_whose_rotors_carry_different_shares_of_the_weight_are_told_to_get_their_own_thrust():
     """A blind audit's three flights at 4.15, 3.95 and 3.75 V without the voltage logged were
     fitted with one K_T and nothing said (the diagnosis named a thrust drift, Kd[2] 26 times

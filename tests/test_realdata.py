@@ -238,6 +238,7 @@ def test_disturbance_torque_lifts_b_into_the_propeller_range_on_a_real_flight(tm
     assert back.predict(val).total == pytest.approx(res.predict(val).total, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_diagnosis_names_the_closed_loop_bias_of_b_and_the_value_to_take(monkeypatch):
     """A certified fit whose b/K_T is below what propellers give is refitted with a disturbance
     torque, and the words give that b. The bundled slice's base fit gives 0.0010 m, on the
@@ -385,6 +386,7 @@ def test_process_noise_between_longer_intervals_fits_and_checks_its_residuals():
     assert all(v < 3.0 for v in res.certificate.residual_over_noise.values())
 
 
+@pytest.mark.slow
 def test_process_noise_diagnosis_finds_the_missing_yaw_torque():
     """The seed paper's story with soft continuity: screening and refits use the baseline's
     process noise, and the verdict and the recovered b are right."""
@@ -424,6 +426,7 @@ def test_motor_lag_fit_started_at_the_true_values_stays_there_and_is_certified()
     assert max(res.certificate.residual_over_noise.values()) < 1.5
 
 
+@pytest.mark.slow
 @needs_real
 def test_discovered_thrust_that_takes_over_the_rotors_is_not_taken_as_a_force():
     """B6_linear_ramp: the base model over-predicts the roll moment the logged PWM gives
@@ -584,6 +587,7 @@ def test_a_thrust_kept_from_the_weight_by_a_torque_the_model_lacks_says_which_ch
     assert "largest gap" not in res.certificate.text()
 
 
+@pytest.mark.slow
 @needs_real
 def test_on_a_real_flight_the_model_flown_by_its_law_is_the_reported_prediction_and_beats_naive():
     """B2_circle_fast: the model (base plus the CoG offset, drag moment and moment gain the

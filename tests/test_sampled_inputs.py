@@ -200,6 +200,7 @@ def test_diagnosis_keeps_the_hold_for_held_commands():
     assert "sampled_inputs" not in [c.effect for c in d.ranking]
 
 
+@pytest.mark.slow
 def test_a_lag_fitted_to_rows_that_sample_a_varying_command_is_said(tmp_path, capsys):
     """A 30-ms motor lag behind commands that vary between the 100-Hz rows (flown at 1 kHz,
     every tenth row kept): ``greybox fit --effects motor_lag`` took tau_m 27.7 ± 0.25 ms
