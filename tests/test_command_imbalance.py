@@ -24,11 +24,31 @@ def test_a_weak_rotor_is_driven_harder_and_equal_rotors_are_not(base):
     m0, p0 = model_with_hidden_effects(base, [])
     equal = command_imbalance(base, synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log)
     assert not equal.notable and max(abs(v) for v in equal.share.values()) < 0.01
-    assert set(equal.as_dict()) == {"share", "share_std", "spin", "seconds", "notable", "speed_trim", "at_limit"}
+    assert set(equal.as_dict()) == {"share", "share_std", "spin", "seconds", "notable", "speed_trim", "at_limit",
+                                    "share_step"}
     # the shares scatter little from one half second of steady flight to the next
     assert max(weak.share_std.values()) < 0.01 and weak.share["w1"] > 3 * weak.share_std["w1"]
     assert "speed" not in equal.evidence and "steady" in weak.evidence
     assert equal.at_limit == {} and weak.at_limit == {}
+
+
+def test_a_rotor_that_changes_during_the_flight_is_told_with_when(base):
+    """A blind audit's propeller that lost 15 % of its thrust at 20 s was diagnosed for 15 minutes
+    as constant stand-ins, the imbalance averaged over the flight ("w3 +7.2 %"). Here rotor 1's
+    logged speeds are 1/sqrt(0.85) of what they were from 10 s on (what a controller asks of a
+    rotor that lost 15 %): its share of the squared speeds steps from 0 to 1/0.85 over the new
+    mean, +12.7 %, and it is said with the time; the same flight untouched says nothing."""
+    m0, p0 = model_with_hidden_effects(base, [])
+    log = synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log
+    assert command_imbalance(base, log).share_step is None
+    log.inputs[log.t >= 10.0, 0] /= np.sqrt(0.85)
+    ci = command_imbalance(base, log)
+    step = ci.share_step
+    assert step is not None and step["rotor"] == "w1" and 9.5 <= step["t"] <= 11.0, step
+    assert step["after"] - step["before"] == pytest.approx((1 / 0.85) / ((1 / 0.85 + 3) / 4) - 1, abs=0.01), step
+    assert step["t_stat"] > 10, step
+    assert ci.notable and "rotor w1's share of the squared speeds steps from" in ci.text(), ci.text()
+    assert "a rotor that changed during the flight" in ci.text() and ci.as_dict()["share_step"]["rotor"] == "w1"
 
 
 def test_a_command_clipped_at_the_end_of_its_range_is_told(base):

@@ -82,6 +82,16 @@ IMBALANCE_BLOCK = 0.5
 """Seconds of steady flight per block over which the shares are averaged to see how they
 scatter: a controller's transients last longer than a sample, so samples are not independent."""
 
+SHARE_STEP_T = 10.0
+"""A rotor's steady-flight share that steps between two parts of a flight by this many of its
+scatter (a two-sample t over :data:`IMBALANCE_BLOCK` blocks, at the best split)... """
+SHARE_STEP_SIZE = 0.05
+"""...and by at least this much (5 % of the mean squared speed: beyond any trim's drift) is a
+rotor that changed during the flight. A blind audit's propeller that lost 15 % of its thrust
+at 20 s stepped its rotor's share by +12.7 % (t = 22); its control and other flights, audits
+28-31's and nine real Crazyflie flights (the tenth too little steady flight to tell) stay within
+|t| 8 or 4.7 %."""
+
 IMBALANCE_MIN_BLOCKS = 4
 """Fewest such blocks (2 s of steady flight) from which the shares' scatter, and so their
 imbalance, can be told: a blind audit's outdoor flight kept 1.15 s, during a yaw command that
@@ -123,6 +133,12 @@ class CommandImbalance:
     at the flight's highest value: a command clipped at the end of its range (a PWM of 65535
     on a Crazyflie with a sagging battery), where the controller asked for more than the rotor
     gave. Only rotors at or above :data:`AT_LIMIT_NOTABLE` are listed."""
+    share_step: dict | None = None
+    """Where one rotor's share steps during a flight (:data:`SHARE_STEP_T`,
+    :data:`SHARE_STEP_SIZE`): ``{"rotor", "flight", "t", "before", "after", "t_stat"}`` (``t``:
+    the first steady time after the step, in the flight's own seconds: the controller's trim
+    follows the rotor within seconds; the shares before and after); a rotor that weakened in
+    flight (a damaged propeller), which no constant effect holds. None otherwise."""
     share_std: dict[str, float] = field(default_factory=dict)
     """Per rotor, the standard error of ``share`` from its scatter over blocks of
     :data:`IMBALANCE_BLOCK` seconds of steady flight (NaN with fewer than
@@ -131,7 +147,7 @@ class CommandImbalance:
 
     @property
     def notable(self) -> bool:
-        return bool(self.evidence) or bool(self.at_limit)
+        return bool(self.evidence) or bool(self.at_limit) or self.share_step is not None
 
     @property
     def follows_speed(self) -> bool:
@@ -172,6 +188,14 @@ class CommandImbalance:
             lead = "" if parts else f"in {self.seconds:.1f} s of steady flight "
             parts.append(f"{lead}{moves}: a moment that follows the speed, as drag acting above the centre of "
                          "gravity gives (drag_moment)")
+        step = self.share_step
+        if step is not None:
+            lead = "" if parts else "in steady flight "
+            parts.append(f"{lead}rotor {step['rotor']}'s share of the squared speeds steps from {100 * step['before']:+.1f} % "
+                         f"to {100 * step['after']:+.1f} % around {step['t']:.1f} s of {step['flight']} (t = "
+                         f"{step['t_stat']:.0f}): a rotor that changed during the flight (a damaged propeller, a failing "
+                         "motor or ESC), which no constant effect holds (motor_asymmetry would take an average of the "
+                         "two); fit the parts before and after apart")
         if self.at_limit:
             rotors = ", ".join(f"{n} in {100 * v:.0f} %" for n, v in self.at_limit.items())
             parts.append(f"commands clipped at their highest value ({rotors} of the samples): there the rotor "
@@ -183,6 +207,7 @@ class CommandImbalance:
         return {"share": dict(self.share), "spin": {str(k): v for k, v in self.spin.items()},
                 "share_std": {n: (v if np.isfinite(v) else None) for n, v in self.share_std.items()},
                 "seconds": self.seconds, "notable": self.notable, "at_limit": dict(self.at_limit),
+                "share_step": None if self.share_step is None else dict(self.share_step),
                 "speed_trim": {ax: {"slope": v[0], "r": v[1], "change": v[2]} for ax, v in self.speed_trim.items()}}
 
 
@@ -197,9 +222,10 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     n_rot = model.airframe.n_rotors
     if model.inputs != "rotor_speeds":
         return None
-    rows, vbs, blocks, seconds = [], [], [], 0.0
+    rows, vbs, blocks, seconds, steps = [], [], [], 0.0, []
     logs = [lg for lg in ([log] if isinstance(log, FlightLog) else list(log)) if len(lg) >= 10]
-    for lg in logs:
+    hover = model.airframe.hover_shares()
+    for f, lg in enumerate(logs):
         X, acc = _states_and_angular_acceleration(model, lg)
         rates = X[:, 9:12]
         steady = ((np.abs(rates).max(axis=1) < max_rate) & (np.abs(X[:, 3:5]).max(axis=1) < max_tilt)
@@ -210,13 +236,17 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
         vbs.append(_body_velocity(X[steady]))
         # blocks of IMBALANCE_BLOCK seconds of steady flight, in time order (a short last one dropped)
         block = np.floor(np.cumsum(dt) / IMBALANCE_BLOCK).astype(int)
-        blocks += [rows[-1][block == k] for k in range(int(dt.sum() // IMBALANCE_BLOCK))]
+        own = [rows[-1][block == k] for k in range(int(dt.sum() // IMBALANCE_BLOCK))]
+        blocks += own
+        t_steady = lg.t[steady]
+        step = _share_step(own, [t_steady[block == k][0] for k in range(len(own))], hover)
+        if step is not None:
+            steps.append(dict(step, rotor=model.command_names[step["rotor"]], flight=lg.source or f"flight {f + 1}"))
     if seconds < 1.0:
         return None
     W2 = np.vstack(rows)
     # relative to what the frame's geometry asks of equal rotors in a hover (all equal on a
     # symmetric frame; an H-frame's rear rotors work harder), so that only the rest is evidence
-    hover = model.airframe.hover_shares()
 
     def shares(w2: np.ndarray) -> np.ndarray:
         """Each rotor's mean w^2 over the hover share, over their mean, less 1."""
@@ -234,7 +264,39 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     spin = {int(s): float(mean[spins == s].mean() / mean.mean() - 1.0) for s in np.unique(spins)}
     clipped = {name: float(f) for name, f in zip(names, _at_limit(np.vstack([lg.inputs[:, :n_rot] for lg in logs])))
                if f >= AT_LIMIT_NOTABLE}
-    return CommandImbalance(share, spin, seconds, _speed_trim(model, W2, np.vstack(vbs)), clipped, share_std)
+    return CommandImbalance(share, spin, seconds, _speed_trim(model, W2, np.vstack(vbs)), clipped,
+                            max(steps, key=lambda s: abs(s["t_stat"])) if steps else None, share_std)
+
+
+def _share_step(blocks: Sequence[np.ndarray], times: Sequence[float], hover: np.ndarray) -> dict | None:
+    """The largest step in one rotor's share between two parts of one flight's steady blocks
+    (``blocks``: each (samples, rotors) of w^2, starting at ``times``): ``{"rotor": index, "t":
+    the first block after it, "before", "after", "t_stat"}`` where it is beyond
+    :data:`SHARE_STEP_T` and :data:`SHARE_STEP_SIZE`, else None. Each part keeps three blocks
+    at least."""
+    sh, tb = [], []
+    for b, t in zip(blocks, times):
+        m = b.mean(axis=0) / hover
+        if m.mean() > 0:
+            sh.append(m / m.mean() - 1.0)
+            tb.append(t)
+    n = len(sh)
+    if n < 8:
+        return None
+    sh = np.array(sh)
+    best = None
+    for k in range(3, n - 2):
+        a, b = sh[:k], sh[k:]
+        sd = np.sqrt((((a - a.mean(0)) ** 2).sum(0) + ((b - b.mean(0)) ** 2).sum(0)) / (n - 2))
+        d = b.mean(0) - a.mean(0)
+        t = d / np.maximum(sd * np.sqrt(1 / k + 1 / (n - k)), 1e-12)
+        j = int(np.argmax(np.abs(t)))
+        if best is None or abs(t[j]) > abs(best["t_stat"]):
+            best = {"rotor": j, "t": float(tb[k]), "before": float(a[:, j].mean()), "after": float(b[:, j].mean()),
+                    "t_stat": float(t[j])}
+    if best is None or abs(best["t_stat"]) < SHARE_STEP_T or abs(best["after"] - best["before"]) < SHARE_STEP_SIZE:
+        return None
+    return best
 
 
 def steady_torque_words(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], res: FitResult) -> str:
