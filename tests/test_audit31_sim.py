@@ -31,6 +31,7 @@ def _flight(tmp_path, case: str, kind: str = "val"):
     return QuadrotorModel(load_airframe(tmp_path / f"{case}.toml")), load_log(tmp_path / f"{case}_{kind}.csv")
 
 
+@pytest.mark.slow
 def test_commands_beyond_what_the_motors_turn_are_told_from_the_log_alone(tmp_path):
     """The saturated validation flight (commands to 1400 rad/s, motors to 1000) gives 79 % of
     the thrust its highest commands ask over four runs of them, and says so; the control

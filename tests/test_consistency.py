@@ -124,6 +124,7 @@ def test_a_diagnosis_whose_validation_comparison_failed_says_which_std_went_unch
     assert "halves" not in said[0] and d.final_spread is not None
 
 
+@pytest.mark.slow
 def test_a_parameter_the_data_do_not_determine_is_named_with_what_it_trades_with(paper):
     """A hub drag's height multiplies the hub drag's force: with no hub drag in the flight
     (k_rdh fits to about zero) the height is free across its whole range and is said to be

@@ -98,6 +98,7 @@ def test_a_log_prepared_for_a_model_with_more_inputs_is_read_with_this_models_in
         effect_accelerations(res, "wind", [log]))
 
 
+@pytest.mark.slow
 def test_an_input_timing_behind_a_motor_lag_is_not_judged_at_one_instant():
     """``sampled_inputs`` changes what the motors are driven towards; with ``motor_lag`` the
     thrust comes from the lag's own states, so at any one instant its force is exactly zero

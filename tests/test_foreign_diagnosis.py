@@ -170,6 +170,7 @@ def test_one_kg_weak_rotor_is_named_and_its_deviations_recovered():
     assert f.value("K_T") == pytest.approx(est.truth["K_T"] * gains.mean(), rel=0.01)
 
 
+@pytest.mark.slow
 def test_accelerometer_channel_is_predicted_and_fitted_on_foreign_data():
     """The accelerometer (ax, ay, az: body specific force) as a measurement: the foreign
     simulator computes it with its own dynamics (its rotor drag, its thrust); greybox's output

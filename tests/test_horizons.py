@@ -286,6 +286,7 @@ def test_a_prediction_that_blows_up_to_huge_finite_values_scores_inf_without_a_w
     assert he.model["z"][k] == float("inf") and np.isfinite(he.naive["z"][k])
 
 
+@pytest.mark.slow
 def test_measured_start_is_chosen_only_where_the_estimate_drifts():
     """Another simulator's vehicle with three times the roll and pitch inertia the airframe
     gives: over a 0.5-s start window the model's roll diverges, and its windows predict the

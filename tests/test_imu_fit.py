@@ -144,6 +144,7 @@ def _low_passed(log: FlightLog, cutoff_hz: float) -> FlightLog:
     return FlightLog(log.t, log.inputs, log.input_names, Y, list(log.output_names), dict(log.extras), [], "lp.csv")
 
 
+@pytest.mark.slow
 def test_a_low_passed_gyro_is_not_read_as_a_missing_torque(foreign):
     """An autopilot's gyro is low-passed: its second differences then understate its noise
     (80 Hz at 500 Hz: 3.6x), and a flight with nothing missing read NOT ADEQUATE against them.

@@ -83,6 +83,7 @@ def test_a_verdict_the_inputs_noise_check_could_not_judge_says_so(noisy, monkeyp
     assert "could not be checked" in top.reason, top.reason
 
 
+@pytest.mark.slow
 def test_b_the_disturbance_refit_does_not_move_is_kept(noisy):
     """Nothing missing, noise on the logged speeds: when the halves' b disagree, the refit with a
     disturbance torque leaves b where it was (+0.2 %, 0.1 std), so the words keep the fit's b
@@ -263,6 +264,7 @@ def _peer_cf(tmp_path, speed_noise: float, duration: float = 20.0, seed: int = 1
     return QuadrotorModel(load_airframe(paths["airframe"])), load_log(paths["log"]), flight.truth["greybox_equivalent"]
 
 
+@pytest.mark.slow
 def test_the_noise_on_logged_speeds_moves_a_small_vehicles_rates_by_more_than_the_gyros_noise(tmp_path):
     """30 g at 500 Hz: 1 % noise on ~1800 rad/s speeds is 2 % thrust noise per rotor, a roll and
     pitch acceleration noise that moves p and q by more than the gyro's noise per row (about

@@ -82,6 +82,7 @@ def test_the_effect_gyro_scale_fits_the_scale_and_the_parameters_come_back(fligh
     assert not [w for w in res.warnings if "the gyro reads" in w]
 
 
+@pytest.mark.slow
 def test_a_diagnosis_that_finds_nothing_missing_names_the_gyros_scale(flight):
     """Nothing in the catalogue is missing, the gyro reads 5 % high: the null says so, and why
     the parameters cannot be believed, rather than "nothing significant is missing"."""
@@ -96,6 +97,7 @@ def test_a_diagnosis_that_finds_nothing_missing_names_the_gyros_scale(flight):
     assert diagnose(model, log, candidates=["ground_effect"], iterate=False, discover=False).gyro_scale is None
 
 
+@pytest.mark.slow
 def test_a_diagnosis_names_gyro_scale_when_it_may_try_it(flight):
     """The same flight with the effect among the candidates: the verdict is gyro_scale, each
     axis's scale within 3 std of 0.05 in the final model."""

@@ -55,6 +55,7 @@ def test_a_vehicle_three_times_as_heavy_in_roll_and_pitch_is_found_with_a_third_
     assert mean["with"] < 0.7 * mean["without"], mean
 
 
+@pytest.mark.slow
 def test_a_candidate_held_on_a_bound_away_from_its_null_is_named_and_one_at_its_null_side_is_not():
     """A flight with 70 % of the airframe's roll/pitch moment, fitted with a gain allowed only
     0.9-0.95: the fit holds k_M on its lower bound, and ``held_on_bound`` names it. A flight

@@ -187,6 +187,7 @@ def test_batch_joint_with_winds_found_by_each_flights_diagnosis(windy, tmp_path)
     assert "wind[0]" not in fleet["comparison"]["parameters"]["wind0"]
 
 
+@pytest.mark.slow
 def test_soft_fit_of_several_flights_gives_each_its_own_process_noise(tmp_path):
     """A weak-rotor flight beside a healthy one, both fitted with process noise and a model
     without ``motor_asymmetry``: the weak one's gaps are far larger, and each flight gets its own

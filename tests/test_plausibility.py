@@ -74,6 +74,7 @@ def test_rotor_gains_that_only_differ_by_spin_direction_need_a_b_near_zero_and_s
     assert ma.plausibility_warnings({"K_T": 1.337e-8, "b": 3.8e-14} | gains, {}, af) == []
 
 
+@pytest.mark.slow
 def test_a_rotor_deviation_beyond_the_limit_is_never_the_verdict(tmp_path):
     """Rotor 1 at 62 % of the others' thrust (d = -0.3 against +0.1 for the rest): the refit
     recovers it, and the diagnosis refuses it as the verdict, saying why (on a real flight
