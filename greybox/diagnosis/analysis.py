@@ -222,7 +222,7 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     n_rot = model.airframe.n_rotors
     if model.inputs != "rotor_speeds":
         return None
-    rows, vbs, blocks, seconds, steps = [], [], [], 0.0, []
+    rows, vbs, per_block, seconds, steps = [], [], [], 0.0, []
     logs = [lg for lg in ([log] if isinstance(log, FlightLog) else list(log)) if len(lg) >= 10]
     hover = model.airframe.hover_shares()
     for f, lg in enumerate(logs):
@@ -236,27 +236,20 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
         vbs.append(_body_velocity(X[steady]))
         # blocks of IMBALANCE_BLOCK seconds of steady flight, in time order (a short last one dropped)
         block = np.floor(np.cumsum(dt) / IMBALANCE_BLOCK).astype(int)
-        own = [rows[-1][block == k] for k in range(int(dt.sum() // IMBALANCE_BLOCK))]
-        blocks += own
         t_steady = lg.t[steady]
-        step = _share_step(own, [t_steady[block == k][0] for k in range(len(own))], hover)
+        own = [k for k in (np.flatnonzero(block == b) for b in range(int(dt.sum() // IMBALANCE_BLOCK))) if k.size]
+        own_shares = [_rotor_shares(rows[-1][k], hover) for k in own]
+        per_block += own_shares
+        step = _share_step(own_shares, [t_steady[k[0]] for k in own])
         if step is not None:
             steps.append(dict(step, rotor=model.command_names[step["rotor"]], flight=lg.source or f"flight {f + 1}"))
     if seconds < 1.0:
         return None
     W2 = np.vstack(rows)
-    # relative to what the frame's geometry asks of equal rotors in a hover (all equal on a
-    # symmetric frame; an H-frame's rear rotors work harder), so that only the rest is evidence
-
-    def shares(w2: np.ndarray) -> np.ndarray:
-        """Each rotor's mean w^2 over the hover share, over their mean, less 1."""
-        m = w2.mean(axis=0) / hover
-        return m / m.mean() - 1.0
-
     mean = W2.mean(axis=0) / hover
     names = model.command_names[:n_rot]
-    share = {name: float(v) for name, v in zip(names, shares(W2))}
-    per_block = np.array([shares(b) for b in blocks if len(b)]).reshape(-1, n_rot)
+    share = {name: float(v) for name, v in zip(names, _rotor_shares(W2, hover))}
+    per_block = np.array(per_block).reshape(-1, n_rot)
     scatter = (per_block.std(axis=0, ddof=1) / np.sqrt(len(per_block)) if len(per_block) >= IMBALANCE_MIN_BLOCKS
                else np.full(n_rot, np.nan))
     share_std = {name: float(v) for name, v in zip(names, scatter)}
@@ -268,22 +261,27 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
                             max(steps, key=lambda s: abs(s["t_stat"])) if steps else None, share_std)
 
 
-def _share_step(blocks: Sequence[np.ndarray], times: Sequence[float], hover: np.ndarray) -> dict | None:
+def _rotor_shares(w2: np.ndarray, hover: np.ndarray) -> np.ndarray:
+    """Each rotor's mean ``w^2`` over its hover share, over their mean, less 1: relative to what
+    the frame's geometry asks of equal rotors in a hover (all equal on a symmetric frame; an
+    H-frame's rear rotors work harder), so that only the rest is evidence. NaN where every
+    rotor is stopped."""
+    m = w2.mean(axis=0) / hover
+    return m / m.mean() - 1.0
+
+
+def _share_step(shares: Sequence[np.ndarray], times: Sequence[float]) -> dict | None:
     """The largest step in one rotor's share between two parts of one flight's steady blocks
-    (``blocks``: each (samples, rotors) of w^2, starting at ``times``): ``{"rotor": index, "t":
-    the first block after it, "before", "after", "t_stat"}`` where it is beyond
-    :data:`SHARE_STEP_T` and :data:`SHARE_STEP_SIZE`, else None. Each part keeps three blocks
-    at least."""
-    sh, tb = [], []
-    for b, t in zip(blocks, times):
-        m = b.mean(axis=0) / hover
-        if m.mean() > 0:
-            sh.append(m / m.mean() - 1.0)
-            tb.append(t)
-    n = len(sh)
+    (``shares``: each block's :func:`_rotor_shares`, starting at ``times``): ``{"rotor": index,
+    "t": the first block after it, "before", "after", "t_stat"}`` where it is beyond
+    :data:`SHARE_STEP_T` and :data:`SHARE_STEP_SIZE`, else None. Blocks with every rotor
+    stopped are left out; each part keeps three blocks at least."""
+    kept = [k for k, s in enumerate(shares) if np.all(np.isfinite(s))]
+    n = len(kept)
     if n < 8:
         return None
-    sh = np.array(sh)
+    sh = np.array([shares[k] for k in kept])
+    tb = [times[k] for k in kept]
     best = None
     for k in range(3, n - 2):
         a, b = sh[:k], sh[k:]

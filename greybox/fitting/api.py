@@ -23,7 +23,7 @@ from ..data import FlightLog, check_distinct_flights
 from ..errors import ConvergenceWarning, GreyboxInputError, SolverError
 from ..fitted import FittedModel, provenance
 from ..kinematics import gyro_scale, input_lead
-from ..io.base import airborne_log
+from ..io.base import ground_rows
 from ..model import BASE_STATES, OUTPUTS, QuadrotorModel
 from ..outliers import find_outliers
 from ..residuals import (AttitudeMotion, attitude_motion, fitted_trajectory, flight_residuals, output_residuals,
@@ -839,18 +839,18 @@ def _outlier_warnings(logs: Sequence[FlightLog]) -> list[str]:
 
 def _ground_warnings(logs: Sequence[FlightLog]) -> list[str]:
     """A log fitted with the vehicle standing on the ground at its start or end
-    (:func:`greybox.io.airborne_log`): the model has no ground reaction force, so the fit
+    (:func:`greybox.io.ground_rows`): the model has no ground reaction force, so the fit
     reads the floor's support as a thrust, a drag or a lift it lacks."""
     out = []
     for i, log in enumerate(logs):
         where = log.source or f"flight {i + 1}"
         try:
-            flight = airborne_log(log, where)
+            ground = ground_rows(log, where)
         except GreyboxInputError as e:
             out.append(f"{e}; fitted as given")
             continue
-        if flight is not log:
-            out.append(f"{flight.notes[-1].replace(' left out, as the importers do', ' fitted as data')}; "
+        if ground is not None:
+            out.append(f"{ground.words('fitted as data')}; "
                        "greybox.io.airborne_log(log) leaves them out, as greybox fit and diagnose do")
     return out
 

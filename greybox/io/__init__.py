@@ -14,7 +14,7 @@ The CLI: ``greybox import nanobench|px4|crazyflie-usd FILE --out LOG.csv [--airf
 """
 from __future__ import annotations
 
-from .base import (CRAZYFLIE_PWM_MAP, G0, PX4_PWM_MAP, FlightSpan, ImportResult, PwmMap, airborne_log, assemble_log,
+from .base import (CRAZYFLIE_PWM_MAP, G0, PX4_PWM_MAP, FlightSpan, ImportResult, PwmMap, GroundRows, airborne_log, assemble_log,
                    commands_on_grid, deg_to_rad, euler_from_quaternion, euler_zup_to_ned, flight_from_height, held_run_knots,
                    flight_from_imu, flu_to_frd, fresh_rows, g_to_ms2, grid_with, held_inputs, interpolate_fresh,
                    interpolate_held_inputs,
@@ -29,4 +29,4 @@ __all__ = ["import_nanobench", "import_px4", "import_crazyflie_usd", "read_usd_l
            "zup_to_ned", "euler_zup_to_ned", "euler_from_quaternion", "wrap_angle", "deg_to_rad", "g_to_ms2",
            "rpm_to_rad_s", "time_base", "fresh_rows", "interpolate_fresh", "commands_on_grid", "held_run_knots",
            "held_inputs", "interpolate_held_inputs",
-           "flight_from_height", "flight_from_imu", "airborne_log", "grid_with", "snap", "assemble_log"]
+           "flight_from_height", "flight_from_imu", "airborne_log", "ground_rows", "GroundRows", "grid_with", "snap", "assemble_log"]

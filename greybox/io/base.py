@@ -496,10 +496,27 @@ ROTORS_STOPPED_SHARE = 0.2
 median rotor speed: under 4 % of the usual thrust, which nothing flies on."""
 
 
-def airborne_log(log: FlightLog, where: str | None = None) -> FlightLog:
-    """``log`` without the rows on the ground at its start and end, a note saying so; ``log``
-    itself when it neither starts nor ends with its rotors stopped (or, without a height or an
-    accelerometer, cannot tell when it flies).
+@dataclass
+class GroundRows:
+    """The rows of a log on the ground at its start and end (:func:`ground_rows`): the flight
+    is rows ``k0..k1``; ``text`` says where, how found and how many rows lie on either side;
+    ``touch`` rows in between touch the ground."""
+
+    k0: int
+    k1: int
+    text: str
+    touch: int = 0
+
+    def words(self, fate: str) -> str:
+        """The note or warning: what is done with those rows (``fate``) and why it matters."""
+        return (f"{self.text} {fate}: the model has no ground reaction force"
+                + (f"; {self.touch} rows in between touch the ground and stay in" if self.touch else ""))
+
+
+def ground_rows(log: FlightLog, where: str | None = None) -> GroundRows | None:
+    """The rows of ``log`` on the ground at its start and end (:class:`GroundRows`); None when
+    it neither starts nor ends with its rotors stopped (or, without a height or an
+    accelerometer, cannot tell when it flies), or it flies from its first row to its last.
 
     The model has no ground reaction force, and a log written by a user's own tool (not an
     importer, which trims its flights) may hold the vehicle standing before take-off and after
@@ -509,21 +526,21 @@ def airborne_log(log: FlightLog, where: str | None = None) -> FlightLog:
     then :func:`flight_from_height` finds the flight, its take-off height five times the
     height's noise at rest (at least 1 cm) above the resting height, the motors running; a log
     without a height, from motor start to motor stop (:func:`flight_from_imu`). A log that
-    begins in the air is returned as it is.
+    begins in the air has none.
 
     Raises:
         GreyboxInputError: the vehicle never leaves the ground.
     """
     if not log.input_names or not log.input_names[0].startswith("w") or log.t.size < 10:
-        return log
+        return None
     n_rot = sum(1 for n in log.input_names if n[1:].isdigit())
     speeds = np.abs(log.inputs[:, :n_rot])
     turning = speeds.max(axis=1)
     if not np.any(turning > 0):
-        return log
+        return None
     stopped = turning < ROTORS_STOPPED_SHARE * float(np.median(turning[turning > 0]))
     if not (stopped[0] or stopped[-1]):
-        return log
+        return None
     where = where or log.source or "the log"
     if log.measures("z"):
         height = -log.output("z")
@@ -536,19 +553,26 @@ def airborne_log(log: FlightLog, where: str | None = None) -> FlightLog:
         # an IMU-only log: from motor start to motor stop, as the uSD importer takes it
         span = flight_from_imu(log.t, np.column_stack([log.output(n) for n in ("ax", "ay", "az")]), ~stopped, where)
     else:
-        return log
+        return None
     before, after = span.k0, log.t.size - 1 - span.k1
     if before == 0 and after == 0:
-        return log
-    out = log.slice(span.k0, span.k1 + 1)
-    touch = int(span.on_ground[span.k0:span.k1 + 1].sum())
+        return None
     found = (span.note if math.isnan(span.rest_height) else
              f"{span_words(log.t, span.k0, span.k1)}, resting height {span.rest_height:.3f} m")
-    out.notes.append(f"{where}: on the ground at its {'start and end' if before and after else 'start' if before else 'end'}"
-                     f" ({found}; rotors stopped "
-                     f"in {100 * stopped.mean():.0f} % of the rows): the {before} rows before and {after} after left out, "
-                     "as the importers do: the model has no ground reaction force"
-                     + (f"; {touch} rows in between touch the ground and stay in" if touch else ""))
+    return GroundRows(span.k0, span.k1,
+                      f"{where}: on the ground at its {'start and end' if before and after else 'start' if before else 'end'}"
+                      f" ({found}; rotors stopped in {100 * stopped.mean():.0f} % of the rows): the {before} rows "
+                      f"before and {after} after", int(span.on_ground[span.k0:span.k1 + 1].sum()))
+
+
+def airborne_log(log: FlightLog, where: str | None = None) -> FlightLog:
+    """``log`` without the rows on the ground at its start and end (:func:`ground_rows`), a note
+    saying so; ``log`` itself when there are none."""
+    ground = ground_rows(log, where)
+    if ground is None:
+        return log
+    out = log.slice(ground.k0, ground.k1 + 1)
+    out.notes.append(ground.words("left out, as the importers do"))
     return out
 
 
