@@ -12,8 +12,9 @@ touchdown (rotors stopped in 15 % of its rows, on the floor in 23 %) was fitted 
 its thrust said to carry 79 % of the weight "or the mass or the rotor speeds' units are wrong",
 a K_T 26 % off offered, ``Kd[2]`` on its bound (67 times the truth), six minutes of diagnosis to
 "unexplained". Now those rows are left out with a note, as the importers do. A propeller damaged
-mid-flight (rotor 3 -15 % from 20 s) was averaged over the flight by the command imbalance;
-its step is now told with its time."""
+mid-flight (rotor 3 -15 % from 20 s) was averaged over the flight by the command imbalance
+and diagnosed for over 15 minutes as constant stand-ins; its step is now told with its time,
+and the diagnosis tests nothing against it (null, ``"rotor_changed"``)."""
 import json
 
 import numpy as np
@@ -93,3 +94,17 @@ def test_a_propeller_damaged_mid_flight_is_told_as_a_step_in_its_rotors_share(tm
     assert 0.10 < step["after"] - step["before"] < 0.15 and step["t_stat"] > 15, step
     assert "a rotor that changed during the flight" in ci.text(), ci.text()
     assert command_imbalance(model, load_log(tmp_path / "control_est.csv")).share_step is None
+    # the diagnosis says so and tests nothing (it ran 15 minutes into a weak rotor, a moment
+    # gain and a centre of gravity off): half a minute here, the halves' K_T beside it
+    _case(tmp_path, "damage", ("val",))
+    out = tmp_path / "diag.json"
+    rc = main(["diagnose", str(tmp_path / "damage_est.csv"), "--validation", str(tmp_path / "damage_val.csv"),
+               "--airframe", str(tmp_path / "airframe.toml"), "--json", str(out), "--quiet"])
+    assert rc == 0
+    d = json.loads(out.read_text())
+    assert d["verdict"] is None and d["null_reason"] == "rotor_changed", (d["verdict"], d["null_reason"])
+    assert d["ranking"] == [] and d["discovered"] == [], d["ranking"]
+    assert d["command_imbalance"]["share_step"]["rotor"] == "w3"
+    # the first half, before the damage, holds the vehicle's K_T
+    first = d["inconsistent_parameters"]["K_T"]["first_half"]
+    assert abs(first / sim.K_T - 1) < 0.01, d["inconsistent_parameters"]

@@ -51,6 +51,31 @@ def test_a_rotor_that_changes_during_the_flight_is_told_with_when(base):
     assert "a rotor that changed during the flight" in ci.text() and ci.as_dict()["share_step"]["rotor"] == "w1"
 
 
+def test_a_diagnosis_of_a_flight_whose_rotor_changed_tests_nothing(base, tmp_path):
+    """No constant effect holds a rotor that weakened in flight: the diagnosis says which rotor
+    and when, and tests no candidate nor discovery (a blind audit's ran 15 minutes into a weak
+    rotor, a moment gain and a centre of gravity off). Rotor 1's logged speeds from 6 s of a
+    12-s flight are 1/sqrt(0.85) of what they were, as in the test above."""
+    import json
+    from greybox import diagnose
+    m0, p0 = model_with_hidden_effects(base, [])
+    log = synthesize(m0, p0, 12.0, SensorSpec(rate=100.0, vision_rate=50.0), seed=3).log
+    log.inputs[log.t >= 6.0, 0] /= np.sqrt(0.85)
+    val = synthesize(m0, p0, 6.0, SensorSpec(rate=100.0, vision_rate=50.0), seed=4).log
+    d = diagnose(base, log, validation=val, discover=True)
+    assert d.verdict is None and d.null_reason == "rotor_changed", (d.verdict, d.null_reason)
+    assert d.ranking == [] and d.discovered == [] and d.rounds == []
+    assert "rotor w1 changed during the flight" in d.verdict_text() and "nothing was tested" in d.verdict_text()
+    assert "not run: rotor w1 changed" in d.discovery["text"]
+    out = d.as_json()
+    assert out["null_reason"] == "rotor_changed" and out["command_imbalance"]["share_step"]["rotor"] == "w1"
+    json.dumps(out)
+    # greybox fit says it too, before the fit's own warnings (its fit is not at the noise)
+    from greybox.diagnosis.fit_checks import fit_warnings
+    said = [w for w in fit_warnings(d.baseline, log) if "a rotor that changed during the flight" in w]
+    assert said and said[0].startswith("Rotor w1's share") and "an average of the two" in said[0], said
+
+
 def test_a_command_clipped_at_the_end_of_its_range_is_told(base):
     """A rotor whose command is cut at a ceiling (a PWM of 65535) shows as a plateau at its
     maximum; the same flight unclipped, and a rotor held constant, do not."""

@@ -86,3 +86,21 @@ def test_a_vehicle_that_never_leaves_the_ground_is_refused_and_one_without_a_hei
     blind = log.slice(0, log.t.size)
     blind.outputs[:, [blind.output_names.index(n) for n in ("x", "y", "z")]] = np.nan
     assert airborne_log(blind) is blind                          # no height, no accelerometer: cannot tell
+
+
+def test_the_command_imbalance_reads_the_flight_not_the_rotors_spinning_up_on_the_ground(monkeypatch):
+    """Standing on the floor the vehicle is "steady" while its rotors spin up unequally (an
+    integrator winding up on the ground): a blind audit's log showed a step in one rotor's
+    share at take-off (t = 11-16), which would end its diagnosis as a rotor changed in flight.
+    The imbalance reads the flight only; read with the ground rows, the same log steps."""
+    from greybox import QuadrotorModel, load_airframe
+    from greybox.diagnosis import analysis, command_imbalance
+    flight = load_log(DEMO)
+    log, (k0, _) = _with_ground(flight, before=4.0, spin_up=3.0)
+    log.inputs[:k0, 0] *= 1.3
+    model = QuadrotorModel(load_airframe("greybox/data/airframes/paper.toml"))
+    assert command_imbalance(model, flight).share_step is None
+    assert command_imbalance(model, log).share_step is None
+    monkeypatch.setattr(analysis, "_in_the_air", lambda lg: lg)
+    step = command_imbalance(model, log).share_step
+    assert step is not None and step["rotor"] == "w1" and step["t"] <= 4.5, step

@@ -13,6 +13,8 @@ from scipy import stats
 
 from .. import effects as fx
 from ..data import FlightLog
+from ..errors import GreyboxInputError
+from ..io.base import airborne_log
 from ..fitting import THRUST_IMPOSSIBLE, FitResult, thrust_ratio
 from ..model import OUTPUTS, QuadrotorModel, rotation_matrices
 from ..residuals import flight_residuals, whiteness_fraction
@@ -188,20 +190,25 @@ class CommandImbalance:
             lead = "" if parts else f"in {self.seconds:.1f} s of steady flight "
             parts.append(f"{lead}{moves}: a moment that follows the speed, as drag acting above the centre of "
                          "gravity gives (drag_moment)")
-        step = self.share_step
-        if step is not None:
-            lead = "" if parts else "in steady flight "
-            parts.append(f"{lead}rotor {step['rotor']}'s share of the squared speeds steps from {100 * step['before']:+.1f} % "
-                         f"to {100 * step['after']:+.1f} % around {step['t']:.1f} s of {step['flight']} (t = "
-                         f"{step['t_stat']:.0f}): a rotor that changed during the flight (a damaged propeller, a failing "
-                         "motor or ESC), which no constant effect holds (motor_asymmetry would take an average of the "
-                         "two); fit the parts before and after apart")
+        if self.share_step is not None:
+            parts.append(("" if parts else "in steady flight ") + self.share_step_words())
         if self.at_limit:
             rotors = ", ".join(f"{n} in {100 * v:.0f} %" for n, v in self.at_limit.items())
             parts.append(f"commands clipped at their highest value ({rotors} of the samples): there the rotor "
                          "was at the end of its range and the controller got less than it asked for; a model "
                          "fed these commands is outside what it was fitted for, and its predictions there are weak")
         return ". And ".join(parts)
+
+    def share_step_words(self) -> str:
+        """The step in one rotor's share (:attr:`share_step`) in words; empty without one."""
+        step = self.share_step
+        if step is None:
+            return ""
+        return (f"rotor {step['rotor']}'s share of the squared speeds steps from {100 * step['before']:+.1f} % "
+                f"to {100 * step['after']:+.1f} % around {step['t']:.1f} s of {step['flight']} (t = "
+                f"{step['t_stat']:.0f}): a rotor that changed during the flight (a damaged propeller, a failing "
+                "motor or ESC), which no constant effect holds (motor_asymmetry would take an average of the "
+                "two); fit the parts before and after apart")
 
     def as_dict(self) -> dict:
         return {"share": dict(self.share), "spin": {str(k): v for k, v in self.spin.items()},
@@ -223,7 +230,7 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
     if model.inputs != "rotor_speeds":
         return None
     rows, vbs, per_block, seconds, steps = [], [], [], 0.0, []
-    logs = [lg for lg in ([log] if isinstance(log, FlightLog) else list(log)) if len(lg) >= 10]
+    logs = [_in_the_air(lg) for lg in ([log] if isinstance(log, FlightLog) else list(log)) if len(lg) >= 10]
     hover = model.airframe.hover_shares()
     for f, lg in enumerate(logs):
         X, acc = _states_and_angular_acceleration(model, lg)
@@ -261,13 +268,24 @@ def command_imbalance(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog
                             max(steps, key=lambda s: abs(s["t_stat"])) if steps else None, share_std)
 
 
+def _in_the_air(log: FlightLog) -> FlightLog:
+    """``log`` without its rows on the ground at the start and end (:func:`~greybox.io.airborne_log`):
+    standing still, the vehicle is "steady" while its rotors spin up, and a blind audit's log
+    with 4 s on the floor showed a step in one rotor's share at take-off (t = 11-16)."""
+    try:
+        return airborne_log(log)
+    except GreyboxInputError:      # it never leaves the ground: its fit says so
+        return log
+
+
 def _rotor_shares(w2: np.ndarray, hover: np.ndarray) -> np.ndarray:
     """Each rotor's mean ``w^2`` over its hover share, over their mean, less 1: relative to what
     the frame's geometry asks of equal rotors in a hover (all equal on a symmetric frame; an
     H-frame's rear rotors work harder), so that only the rest is evidence. NaN where every
     rotor is stopped."""
     m = w2.mean(axis=0) / hover
-    return m / m.mean() - 1.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return m / m.mean() - 1.0
 
 
 def _share_step(shares: Sequence[np.ndarray], times: Sequence[float]) -> dict | None:

@@ -8,8 +8,8 @@ from typing import Sequence
 
 from ..data import FlightLog
 from ..fitting import FitResult
-from .analysis import (below_ground_words, log_moment_words, rotor_geometry, rotor_geometry_warnings, steady_torque_words,
-                       thrust_at_top_words)
+from .analysis import (below_ground_words, command_imbalance, log_moment_words, rotor_geometry, rotor_geometry_warnings,
+                       steady_torque_words, thrust_at_top_words)
 from .screening import moment_scale_words, row_timing_words
 
 __all__ = ["fit_warnings"]
@@ -25,7 +25,9 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
     roll and pitch moments the log gives far off the airframe's
     (:func:`~greybox.diagnosis.analysis.log_moment_words`), and the highest commands giving
     less thrust than they ask (:func:`~greybox.diagnosis.analysis.thrust_at_top_words`: motors
-    at the end of their range). A fit that failed: then a steady
+    at the end of their range), and a rotor whose share of the work steps during a flight
+    (:attr:`~greybox.diagnosis.analysis.CommandImbalance.share_step`: a propeller damaged in
+    flight, which no constant parameter holds). A fit that failed: then a steady
     torque the model lacks (:func:`~greybox.diagnosis.analysis.steady_torque_words`) — the
     reasons before its status. A certified fit: then the rows' timing, where held speeds lag a
     varying signal (:func:`~greybox.diagnosis.screening.row_timing_words`), and a moment gain
@@ -43,7 +45,7 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
     logs = [logs] if isinstance(logs, FlightLog) else list(logs)
     model = res.model
     geometry: list[str] = []
-    moments = top = ""
+    moments = top = changed = ""
     if not res.converged or (res.certificate is not None and not res.certificate.adequate):
         # a blind audit's M2/M4 swapped: "certified", p and q 1.7x the noise, nothing said; an
         # inertia a fifth of the vehicle's: "line search failed", or certified at 53 % of the
@@ -52,11 +54,18 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
         moments = "" if geometry else log_moment_words(model, logs)
         # commands beyond what the motors turn: a blind audit's, diagnosed as a thrust curve
         top = "" if geometry else thrust_at_top_words(model, logs)
+        # a rotor that changed in flight (a damaged propeller): a blind audit's fit said only
+        # that K_T differed between the halves, and the diagnosis said it in its verdict
+        imbalance = None if geometry else command_imbalance(model, logs)
+        changed = imbalance.share_step_words() if imbalance is not None else ""
+        if changed:
+            changed = (changed[0].upper() + changed[1:] + ": the parameters fitted across it are an average "
+                       "of the two")
     ground = below_ground_words(model, logs)
     if not res.converged:
-        torque = "" if geometry else steady_torque_words(model, logs, res)
-        return [w for w in (ground, *geometry, torque, moments, top) if w]
+        torque = "" if geometry or changed else steady_torque_words(model, logs, res)
+        return [w for w in (ground, *geometry, changed, torque, moments, top) if w]
     # a moment gain's reading (an inertia, an arm, a mass off) is not offered beside commands
     # the motors did not follow: the saturated audit's fit read k_M 0.48 as an inertia 2x off
-    return ([w for w in (ground, *geometry, moments, top) if w] + row_timing_words(res, logs, compile)
+    return ([w for w in (ground, *geometry, changed, moments, top) if w] + row_timing_words(res, logs, compile)
             + ([] if moments or top else moment_scale_words(res, logs, compile)))

@@ -443,7 +443,9 @@ class Diagnosis:
         """Why the verdict is null: ``"rotor_order"`` (the logged rotor speeds act as the
         airframe's rotors in another order: nothing was tested), ``"rotor_layout"`` (they act as
         the airframe's rotors turned about the body's z, an "x" layout read as "plus" or back:
-        nothing was tested), ``"uncertified"`` (the baseline
+        nothing was tested), ``"rotor_changed"`` (a rotor's share of the work steps during an
+        estimation flight, :attr:`CommandImbalance.share_step`: a propeller damaged in flight,
+        which no constant effect holds; nothing was tested), ``"uncertified"`` (the baseline
         fit is not certified, nothing was tested), ``"input_timing"`` (the logged rotor speeds
         are stamped late against the gyro: what the model misses may be that timing,
         :func:`~greybox.kinematics.input_lead`), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
@@ -464,6 +466,8 @@ class Diagnosis:
             return "rotor_order"
         if self.layout_rotation is not None:
             return "rotor_layout"
+        if self.rotor_changed is not None:
+            return "rotor_changed"
         if not self.baseline_certified:
             return "uncertified"
         if self.input_lead is not None and self.input_lead.late():
@@ -484,6 +488,14 @@ class Diagnosis:
         if self.misfit():
             return "small_misfit"
         return "nothing_missing"
+
+    def _rotor_changed_words(self) -> str:
+        step = self.rotor_changed or {}
+        return (f"null -- rotor {step.get('rotor')} changed during the flight: its share of the squared speeds "
+                f"steps from {100 * step.get('before', 0.0):+.1f} % to {100 * step.get('after', 0.0):+.1f} % around "
+                f"{step.get('t', 0.0):.1f} s of {step.get('flight')} (a damaged propeller, a failing motor or ESC); "
+                "no constant effect holds that, so nothing was tested: diagnose the parts before and after it "
+                "apart (FlightLog.slice, or the log's rows cut there)")
 
     def _random_torque_words(self) -> str:
         """The null of a model that holds what it misses as a disturbance torque. Turbulence, or
@@ -516,6 +528,14 @@ class Diagnosis:
                 [f"{n}'s gaps ({cert.systematic_gaps[n]:.2g}x their random part" +
                  (f": {acting[n]} the model lacks, acting over many intervals" if n in acting else "") + ")"
                  for n in cert.off_states()])
+
+    @property
+    def rotor_changed(self) -> dict | None:
+        """The step in one rotor's share of the squared speeds during an estimation flight
+        (:attr:`CommandImbalance.share_step`), when there is one: nothing is tested then."""
+        ci = self.command_imbalance
+        return ci.share_step if ci is not None and self.rotor_order is None and self.layout_rotation is None \
+            else None
 
     @property
     def added_disturbance(self) -> bool:
@@ -555,6 +575,7 @@ class Diagnosis:
                 "rotor_layout": f"null -- the logged rotor speeds act as the airframe's rotors turned by "
                                 f"{math.degrees(self.layout_rotation or 0.0):+.0f} degrees about the body's z axis: "
                                 "nothing was tested; check the airframe's layout and rotor positions",
+                "rotor_changed": self._rotor_changed_words(),
                 "uncertified": "null (cannot tell: the baseline fit is not certified)",
                 "input_timing": f"null -- {self.input_lead.words() if self.input_lead else ''}, and diagnose "
                                 "again: what the model misses may be that timing, not physics",

@@ -112,7 +112,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     # traded for the thrust) is still one candidates can be tested against: only a refit that
     # makes the vehicle fly is certified, so only such a candidate can stand
     tested = _tests_hold(res)
-    if timing_candidate and tested:
+    imbalance = command_imbalance(model, est)
+    if timing_candidate and tested and (imbalance is None or imbalance.share_step is None):
         model, res, pred, timing, timing_refit, timing_unconfirmed = _input_timing(
             model, res, pred, est, val, timing_candidate, compile, n_refit, say)
     findings, white, incorr, E, regimes = residual_analysis(model, res, est, pred,
@@ -136,15 +137,18 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                         "in for that: diagnose again with the speeds interpolated between their fresh rows "
                         "(--held interpolate; greybox.io.interpolate_held_inputs)")
     remaining = list(candidates) if tested else []
-    imbalance = command_imbalance(model, est)
     order, turned = rotor_geometry(model, est)
     geometry = rotor_geometry_warnings(model, order, turned)
     # the highest commands against the thrust they gave (motors at the end of their range):
     # said below, and beside a final model that lowers the thrust at the top
     top_thrust = None if geometry else thrust_at_top(model, est)
-    if geometry:
+    # a rotor whose share of the work steps during the flight (a propeller damaged in flight):
+    # no constant effect holds it, and a blind audit's diagnosis stacked constant stand-ins for
+    # over 15 minutes (a weak rotor, a moment gain, a centre of gravity off): nothing is tested
+    changed = imbalance.share_step if imbalance is not None and not geometry else None
+    if geometry or changed:
         # nothing is tested: read in the wrong order or turned, what the columns do is "physics"
-        # no effect holds
+        # no effect holds; a rotor that changed, a step no constant effect holds
         remaining = []
         warnings[:0] = geometry
     else:
@@ -243,6 +247,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         discovery_note = {"status": "not run", "text": "not run: the logged rotor speeds act as the airframe's "
                                                          "rotors " + ("in another order" if order is not None else
                                                                       "turned about the body's z"), "together": None}
+    elif changed:
+        discovery_note = {"status": "not run", "text": f"not run: rotor {changed['rotor']} changed during the "
+                                                         "flight", "together": None}
     elif discover:
         # on the model as given, like the candidates (the same nrmse before): a catalogue
         # effect added in its place may be a compensating stand-in, and the residual forces
