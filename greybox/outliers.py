@@ -82,10 +82,11 @@ class Outliers:
             chans = [c for c in OUTLIER_GROUPS[group] if c in self.size]
             when = ", ".join(f"{t[r]:.6g}" for r in rows[:5]) + (", ..." if rows.size > 5 else "")
             parts.append(f"{rows.size} {group} sample{'s' if rows.size != 1 else ''} of {self.samples[group]} "
-                         f"(t = {when} s) leave the track of their neighbours by up to "
+                         f"(t = {when} s) {'leave the track of their' if rows.size != 1 else 'leaves the track of its'} neighbours by up to "
                          + ", ".join(f"{self.size[c]:.3g} {'m' if group == 'position' else 'rad'} ({c})"
                                      for c in chans)
-                         + f", over {OUTLIER_THRESHOLD:g} times the noise of the samples around them, and come back")
+                         + f", over {OUTLIER_THRESHOLD:g} times the noise of the samples around them, and "
+                         + ("come back" if rows.size != 1 else "comes back"))
         return "; ".join(parts)
 
 
@@ -102,9 +103,18 @@ def _cubic_at(t: np.ndarray, y: np.ndarray, i: np.ndarray, nodes: np.ndarray) ->
     return pred
 
 
+_END_NOISE_GAIN = 1.3944 / 2.4495
+"""White noise's residual against the interior cubic (``sqrt(1 + 2 (1/6)^2 + 2 (2/3)^2)``)
+over its residual against the line through the next two samples (``sqrt(1 + 2^2 + 1)``): an
+end sample's residual is scaled by it, so that noise gives both the same spread."""
+
+
 def neighbour_residuals(t: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Each sample less the cubic through its two neighbours on each side, at its time;
-    NaN at the ends and where the four neighbours span a dropout."""
+    """Each sample less the cubic through its two neighbours on each side, at its time; the
+    first and last samples less the line through the next two inward, scaled to the same
+    spread for white noise (:data:`_END_NOISE_GAIN`: a blind audit's motion capture logged its
+    first frame at the origin, 1.5 m off, and the fit took it). NaN at the second and
+    second-to-last samples and where the neighbours span a dropout."""
     n = t.size
     r = np.full(n, np.nan)
     if n < 5:
@@ -114,6 +124,10 @@ def neighbour_residuals(t: np.ndarray, y: np.ndarray) -> np.ndarray:
     i = i[(t[i + 2] - t[i - 2]) <= (_GAP_STEPS + 1e-6) * step]
     if i.size:
         r[i] = y[i] - _cubic_at(t, y, i, np.stack([i - 2, i - 1, i + 1, i + 2], axis=1))
+    for end, a, b in ((0, 1, 2), (n - 1, n - 2, n - 3)):
+        if abs(t[b] - t[end]) <= (0.5 * _GAP_STEPS + 1e-6) * step:
+            line = y[a] + (y[a] - y[b]) * (t[end] - t[a]) / (t[a] - t[b])
+            r[end] = _END_NOISE_GAIN * (y[end] - line)
     return r
 
 
@@ -144,7 +158,8 @@ def _scaled(r: np.ndarray, floor: float) -> np.ndarray:
     if fin.sum() < 5:
         return np.zeros_like(a)
     global_scale = robust_std(r)
-    local = 1.4826 * median_filter(a, size=LOCAL_SAMPLES, mode="nearest")
+    # mirrored at the ends: an end sample repeated would set its own scale (a first glitch)
+    local = 1.4826 * median_filter(a, size=LOCAL_SAMPLES, mode="mirror")
     scale = np.maximum(np.maximum(local, global_scale), floor * np.sqrt(1 + 34 / 36))
     return np.where(fin, a / scale, 0.0)
 
@@ -209,6 +224,11 @@ def find_outliers(log: FlightLog, threshold: float = OUTLIER_THRESHOLD,
                 inside = (after > 0) & (after < rest.size)
                 follow = np.full(idx.size, np.inf)
                 follow[inside] = np.fmax(r_rest[after[inside] - 1], r_rest[after[inside]])
+                # a first or last sample: the track beyond it, the next kept sample's own
+                # residual (then an end's)
+                first, last = (after == 0) & (rest.size > 0), (after == rest.size) & (rest.size > 0)
+                follow[first] = r_rest[0]
+                follow[last] = r_rest[-1]
                 follow = np.where(np.isnan(follow), np.inf, follow)
                 scale = np.abs(resid[c][idx]) / z[idx]
                 ok = follow <= 0.5 * threshold * scale
@@ -217,7 +237,9 @@ def find_outliers(log: FlightLog, threshold: float = OUTLIER_THRESHOLD,
                     ok &= gyro_z[idx, chans.index(c)] > threshold
                 hit = idx[ok]
                 if hit.size:
-                    worst[c] = max(worst[c], float(np.abs(resid[c][hit]).max()))
+                    # an end sample's residual was scaled to the interior's spread: said as it is
+                    size = np.abs(resid[c][hit]) / np.where((hit == 0) | (hit == k.size - 1), _END_NOISE_GAIN, 1.0)
+                    worst[c] = max(worst[c], float(size.max()))
                 new[hit] = True
             if not new.any():
                 break

@@ -58,8 +58,29 @@ def test_neighbour_residual_of_white_noise_and_of_a_cubic():
     assert np.nanstd(r) == pytest.approx(0.01 * np.sqrt(1 + 34 / 36), rel=0.03)
     t = np.cumsum(rng.uniform(0.005, 0.015, 20000))
     r = neighbour_residuals(t, 3 - 2 * t + 0.5 * t ** 2 - 0.1 * t ** 3)
-    assert np.nanmax(np.abs(r)) < 1e-9 * np.abs(0.1 * t ** 3).max()
-    assert np.isnan(r[:2]).all() and np.isnan(r[-2:]).all()
+    assert np.nanmax(np.abs(r[2:-2])) < 1e-9 * np.abs(0.1 * t ** 3).max()
+    assert np.isnan(r[1]) and np.isnan(r[-2]) and np.isfinite(r[0]) and np.isfinite(r[-1])
+    # the first and last samples against the line through the next two inward, scaled so that
+    # white noise gives them the interior's spread (1 + 2^2 + 1 times the noise's variance)
+    ends = np.array([neighbour_residuals(np.arange(8) * 0.01, 0.01 * rng.standard_normal(8))[[0, -1]]
+                     for _ in range(20000)])
+    assert np.std(ends) == pytest.approx(0.01 * np.sqrt(1 + 34 / 36), rel=0.03)
+
+
+def test_a_glitch_in_the_first_or_last_position_sample_is_found(clean):
+    """A blind audit's motion capture logged its first frame at the origin, 1.5 m off the
+    vehicle's height, and the fit took it (the vertical drag 15 std off, validation z nrmse 25
+    times the clean flight's): the ends are judged too, against the line through the next two
+    samples, and the size said is the sample's own offset."""
+    Y = clean.outputs.copy()
+    vis = np.flatnonzero(np.isfinite(Y[:, 0]))
+    for row, dz in ((vis[0], 1.5), (vis[-1], -0.4)):
+        Y[row, 2] += dz
+    log = log_from_arrays(clean.t, clean.inputs, Y, output_names=clean.output_names)
+    found = find_outliers(log)
+    assert list(found.rows["position"]) == [vis[0], vis[-1]], found.rows
+    assert found.size["z"] == pytest.approx(1.5, abs=0.02), found.size
+    assert not find_outliers(clean)
 
 
 def test_clean_independent_flight_has_no_glitch(clean):
