@@ -95,6 +95,12 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert first["effect"] == "yaw_torque" and first["significant"] is True
     assert first["nrmse_after"] < first["nrmse_before"]
     assert {c["effect"] for c in r["ranking"]} == {"yaw_torque", "attitude_bias"}
+    # the headline loop round by round (one round: --no-iterate)
+    assert r["added"] == ["yaw_torque"] and len(r["rounds"]) == 1, r["rounds"]
+    rd = r["rounds"][0]
+    assert rd["round"] == 1 and rd["verdict"] == "yaw_torque" and rd["with"] == [] and rd["in_final_model"]
+    assert rd["nrmse_before"] == pytest.approx(r["baseline"]["nrmse"]) and rd["nrmse_after"] == first["nrmse_after"]
+    assert rd["best"] == "yaw_torque" and rd["reason"] == first["reason"]
     # nothing acts on this flight that the log does not show: the commands' torque shows in the
     # attitude (diagnosis.predictability), far better than the naive predictor
     cp = r["command_predictability"]

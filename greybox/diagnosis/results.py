@@ -402,7 +402,7 @@ class Diagnosis:
                 for n, (a, sa, b, sb) in self.final_validation_spread.items()},
                "timing_bound": dict(self.timing_bound)}
         if self.final_model is not None and self.final_prediction is not None:
-            out["added"] = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
+            out["added"] = self.added_effects()
             final_open = self.final_horizons or self.final_prediction.horizon_errors()
             out["final"] = {"effects": self.final_model.effect_names, "nrmse": self.final_prediction.total,
                             "channels": dict(self.final_prediction.nrmse),
@@ -433,6 +433,7 @@ class Diagnosis:
             out["model"]["per_flight"] = {n: {"value": [_num(x) for x in v["value"]],
                                               "std": [_num(x) for x in v["std"]]}
                                           for n, v in self.fitted_model.per_flight_.items()}
+        out["rounds"] = self.rounds_as_json()
         out["discovered"] = [d.as_dict() for d in self.discovered]
         out["discovery"] = _clean(self.discovery)
         out["time_s"] = self.timings.get("total")
@@ -640,10 +641,7 @@ class Diagnosis:
             lines.append(f"   and the model still misses something no candidate explains: {self._far_off()}")
         lines += self._later_round_lines()
         if self.final_prediction is not None and self.final_model is not None:
-            added = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
-            # in the order the rounds named them (the model holds them in its order of application)
-            named = {r.verdict: i for i, r in enumerate(self.rounds) if r.verdict}
-            added.sort(key=lambda e: named.get(e, len(named)))
+            added = self.added_effects()
             f = self.final_prediction
             # a verdict the final model lacks (its refit not certified, or left out since) says so
             # here too: "verdict: motor_lag" above "added nothing" read as a contradiction
@@ -795,6 +793,38 @@ class Diagnosis:
                          f"{min(found):.3f}), too little to call it what is missing: a lead to fly for, not a "
                          "finding)")
         return lines
+
+    def added_effects(self) -> list[str]:
+        """The effects the final model holds beyond the model as given, in the order the rounds
+        named them (the model holds them in its order of application; a blind audit read
+        ``["quadratic_drag", "thrust_drift"]`` as the rounds' order, which was the other way),
+        then any other (the log's timing, a disturbance torque)."""
+        if self.final_model is None:
+            return []
+        added = [e for e in self.final_model.effect_names if e not in self.model.effect_names]
+        named = {r.verdict: i for i, r in enumerate(self.rounds) if r.verdict}
+        return sorted(added, key=lambda e: named.get(e, len(named)))
+
+    def rounds_as_json(self) -> list[dict]:
+        """Per round, in order: its verdict (or None: the round that stopped), the validation
+        nrmse of the model it screened and of that model with the verdict, the effects it
+        screened against (beyond the model as given), its best refitted candidate and why it is
+        or is not the verdict, and whether the verdict is in the final model (backward
+        elimination may have left it out)."""
+        out = []
+        for k, rnd in enumerate(self.rounds, start=1):
+            best = next((c for c in rnd.ranking if c.lr is not None), rnd.ranking[0] if rnd.ranking else None)
+            win = next((c for c in rnd.ranking if c.effect == rnd.verdict), None) if rnd.verdict else None
+            out.append({"round": k, "verdict": rnd.verdict,
+                        "with": [e for e in rnd.model.effect_names if e not in self.model.effect_names],
+                        "nrmse_before": _num(rnd.prediction.total),
+                        "nrmse_after": _num(win.nrmse_after) if win is not None and win.nrmse_after is not None
+                        else None,
+                        "best": best.effect if best is not None else None,
+                        "reason": best.reason if best is not None else None,
+                        "in_final_model": bool(rnd.verdict and self.final_model is not None
+                                               and rnd.verdict in self.final_model.effect_names)})
+        return out
 
     def _later_round_lines(self) -> list[str]:
         """One line per round after the first: what it added, or why it stopped (its best
