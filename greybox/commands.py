@@ -103,7 +103,16 @@ def build_model(airframe_path: str, effects: str | None = None, without: str | N
 
 
 def edit_model(model: QuadrotorModel, effects: str | None, without: str | None) -> QuadrotorModel:
-    """``model`` plus the effects named in ``effects``, minus those in ``without`` (comma lists)."""
+    """``model`` plus the effects named in ``effects``, minus those in ``without`` (comma lists).
+
+    Raises:
+        GreyboxInputError: an effect named in both (a blind audit's ``--effects wind --without
+            wind`` ran without wind, silently).
+    """
+    both = sorted(set(fx.parse_effect_names(effects)) & set(fx.parse_effect_names(without)))
+    if both:
+        raise GreyboxInputError(f"--effects and --without both name {', '.join(both)}: add it or remove it, "
+                                "not both")
     for name in fx.parse_effect_names(effects):
         if name not in model.effects:
             model = model + fx.by_name(name)

@@ -124,6 +124,10 @@ def test_simulate_says_which_columns_of_its_inputs_it_ignores(tmp_path, paper_ai
     (lambda d: write_inputs(d / "u.csv", [0, 0.1], np.ones((2, 4))), ["--set", "nope=1"], "unknown parameter 'nope'"),
     (lambda d: write_inputs(d / "u.csv", [0, 0.1], np.ones((2, 4))), ["--effects", "magic"], "unknown effect 'magic'"),
     (lambda d: write_inputs(d / "u.csv", [0, 0.1], np.ones((2, 4))), ["--x0", "1,2,3"], "needs 12 values"),
+    # contradictory: it ran without wind, silently (a blind audit)
+    (lambda d: write_inputs(d / "u.csv", [0, 0.1], np.ones((2, 4))), ["--effects", "wind,ground_effect",
+                                                                       "--without", "wind"],
+     "--effects and --without both name wind"),
     (lambda d: None, [], "u.csv: file not found"),
 ])
 def test_simulate_bad_input_exit_2_and_no_output(tmp_path, capsys, paper_airframe_path, setup, args, message):
