@@ -20,7 +20,8 @@ import numpy as np
 from . import __version__
 from . import effects as fx
 from .airframe import load_airframe
-from .data import FlightLog, atomic_write, check_rotor_speed_units, check_sample_times, read_csv_table, save_log
+from .data import (FlightLog, atomic_write, check_rotor_speed_units, check_sample_times, read_csv_table,
+                   rotor_speed_magnitudes, save_log)
 from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, forget_signals, interrupt_status, raise_interrupted, raise_terminated, signal_received
 from .integrate import simulate
 from .model import QuadrotorModel
@@ -122,7 +123,9 @@ def _read_inputs(path: str, model: QuadrotorModel, p: np.ndarray) -> tuple[np.nd
                                     source=path)).inputs
     if model.inputs == "rotor_speeds":
         n_rot = model.airframe.n_rotors
-        for note in check_rotor_speed_units(U[:, :n_rot], model.input_names[:n_rot], path, lines):
+        U = U.copy()
+        U[:, :n_rot], signs = rotor_speed_magnitudes(U[:, :n_rot], model.input_names[:n_rot], path)
+        for note in signs + check_rotor_speed_units(U[:, :n_rot], model.input_names[:n_rot], path, lines):
             print(f"note: {note}", file=sys.stderr)
         for note in model.check_rotor_speeds(U[:, :n_rot], p, path, too_slow="note"):
             print(f"note: {note}", file=sys.stderr)
