@@ -518,13 +518,24 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from . import plotting
     from .controller_law import closed_loop_or_why
     from .validation import check_validation_length, horizon_errors_after, predict, prediction_options
+    from .validation import validation_vectors
     model, p0, logs = _load_fit_inputs(args)
     free, fixed = _parameter_names(model, args.free, "--free"), _parameter_names(model, args.fixed, "--fixed")
     if any(is_imu_only(log) for log in logs):
+        if args.validation:
+            raise GreyboxInputError("--validation: a log without positions is fitted with its own validation "
+                                    "(the IMU's channels), not a separate flight's")
         return _fit_imu_only(args, model, logs)
-    parts = [log.split(0.8) for log in logs]
-    for _, val in parts:
-        # each flight's last 20 % is validated: too short for it is said before the fit runs
+    if args.validation:
+        # separate flights validate: all of each LOG is estimation data (as diagnose's)
+        vals = [_load_model_log(model, path, p0, args.input_noise, args.outliers, args.held)
+                for path in args.validation]
+        parts = [(log, None) for log in logs]
+    else:
+        parts = [log.split(0.8) for log in logs]
+        vals = [val for _, val in parts]
+    for val in vals:
+        # each validation flight (or each flight's last 20 %): too short for it is said before the fit runs
         check_validation_length(val)
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", ConvergenceWarning)   # said below, once, as the error
@@ -540,27 +551,28 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if not res.converged:
         raise GreyboxError(f"fit did not converge: {'; '.join(checks + [res.status])}")
     res.warnings[:0] = checks
-    # each flight validated with its own values of the per-flight parameters (wind, battery sag)
-    preds = [predict(model, res.flight_p(i), val, horizon=args.horizon, **prediction_options(res))
-             for i, (_, val) in enumerate(parts)]
+    # each flight's tail validated with its own values of the per-flight parameters (wind,
+    # battery sag); a separate flight with their mean (its wind was never seen)
+    est = [e for e, _ in parts]
+    val_ps = validation_vectors(res, est, vals)
+    preds = [predict(model, p, val, horizon=args.horizon, **prediction_options(res)) for p, val in zip(val_ps, vals)]
     print(res.summary())
-    for log, pred in zip(logs, preds):
-        where = f" of {log.source}" if len(logs) > 1 else ""
-        print(f"validation ({pred.horizon_label}, last 20 %{where}): nrmse {pred.total:.4f}  " +
+    for val, pred in zip(vals, preds):
+        where = (val.source or "validation flight") if args.validation else \
+            ("last 20 %" + (f" of {val.source}" if len(logs) > 1 else ""))
+        print(f"validation ({pred.horizon_label}, {where}): nrmse {pred.total:.4f}  " +
               "  ".join(f"{c}={v:.3f}" for c, v in pred.nrmse.items()))
     # the error-against-horizon report predicts the validation part again from many starts:
     # only when a file shows it
-    he = horizon_errors_after(res, preds, [res.flight_p(i) for i in range(len(preds))], est=[e for e, _ in parts]) \
-        if args.json or args.plots else None
-    if len(logs) > 1:
-        print(f"validation, mean over {len(logs)} flights: nrmse {float(np.mean([pr.total for pr in preds])):.4f}")
+    he = horizon_errors_after(res, preds, val_ps, est=est) if args.json or args.plots else None
+    if len(preds) > 1:
+        print(f"validation, mean over {len(preds)} flights: nrmse {float(np.mean([pr.total for pr in preds])):.4f}")
     # the model flown by its controller's law, where the logs carry setpoints (controller_law):
     # like the horizon report, only when a file shows it
     closed = None
     if args.json or args.plots:
-        flight_ps = [res.flight_p(i) for i in range(len(preds))]
-        closed, why = closed_loop_or_why(model, flight_ps, [e for e, _ in parts], [v for _, v in parts],
-                                         horizons=he.horizons, open_loop=he, est_ps=flight_ps)
+        closed, why = closed_loop_or_why(model, val_ps, est, vals, horizons=he.horizons, open_loop=he,
+                                         est_ps=[res.flight_p(i) for i in range(len(est))])
         if why:
             print(f"greybox: warning: {why}", file=sys.stderr)
         if closed is not None:
@@ -577,7 +589,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
         outputs.append((out / "horizons.png", plotting.to_bytes(plotting.horizons(
             he, closed_loop=closed.horizons if closed is not None else None))))
     if args.json:
-        result = fit_json(model, res, preds, [log.source for log in logs], horizons=he, closed_loop=closed)
+        result = fit_json(model, res, preds, [val.source for val in vals] if args.validation else
+                          [log.source for log in logs], horizons=he, closed_loop=closed, ps=val_ps)
         result["log_notes"] = _log_notes(logs)
         outputs.append((Path(args.json), _json_text(result)))
     if args.save:
@@ -841,7 +854,8 @@ def _parser() -> argparse.ArgumentParser:
 
     f = sub.add_parser("fit", help="fit the model's parameters to a flight log",
                        description="Fit the free parameters by multiple-shooting least squares on the "
-                                   "first 80 % of the log and validate on the last 20 %.")
+                                   "first 80 % of the log and validate on the last 20 % (or on separate flights: "
+                                   "--validation).")
     f.add_argument("log", nargs="+", help="flight log CSV; several flights share the parameters, each has "
                                           "its own states (each is fitted on its first 80 %%, validated on the rest)")
     _model_args(f, "starting value (repeatable)")
@@ -854,6 +868,9 @@ def _parser() -> argparse.ArgumentParser:
                   "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
                   "comma list of effects / parameters", process_noise_default=FIT_DEFAULTS["process_noise"])
     f.add_argument("--held", choices=["hold", "interpolate"], default="hold", help=HELD_HELP)
+    f.add_argument("--validation", metavar="LOGV", nargs="+",
+                   help="separate flight(s) to validate on (then all of each LOG is estimation data; default: the "
+                        "last 20 %% of each LOG)")
     f.add_argument("--horizon", type=_positive, default=FIT_DEFAULTS["horizon"],
                    help=f"validation prediction horizon, s (default {FIT_DEFAULTS['horizon']:g})")
     f.add_argument("--plots", help="folder for compare/residual plots")

@@ -221,7 +221,8 @@ def _held_speeds(log: FlightLog, held: str) -> FlightLog:
     return replace(log, notes=list(log.notes) + [note])
 
 
-def fit_json(model: QuadrotorModel, res, preds, sources, horizons=None, est=None, closed_loop=None) -> dict:
+def fit_json(model: QuadrotorModel, res, preds, sources, horizons=None, est=None, closed_loop=None,
+             ps=None) -> dict:
     """The whole ``greybox fit --json`` document of a fit validated by ``preds`` (one
     prediction per flight, named by ``sources``): parameters, validation, the open loop's
     horizons (``horizons``, a :class:`~greybox.validation.HorizonErrors`, when already computed;
@@ -230,10 +231,11 @@ def fit_json(model: QuadrotorModel, res, preds, sources, horizons=None, est=None
     already computed; else computed when ``est`` is given and the logs hold setpoints), the
     contract's ``horizons`` from the better of the two on the estimation flights
     (:func:`~greybox.controller_law.reported_horizons`) and the extra keys (also written by
-    ``greybox batch``)."""
+    ``greybox batch``). ``ps``: the parameter vector each prediction was made with (default:
+    each flight's own, the predictions being the estimation flights' tails)."""
     from .controller_law import closed_loop_or_why, reported_horizons
     from .validation import horizon_errors_after
-    ps = [res.flight_p(i) for i in range(len(preds))]
+    ps = [res.flight_p(i) for i in range(len(preds))] if ps is None else list(ps)
     if horizons is None:
         horizons = horizon_errors_after(res, preds, ps, est=est)
     out = fit_result_json(model, res, _combined_validation(preds, sources))

@@ -181,6 +181,25 @@ def test_fit_cli_json_contract(paper_model, flight, tmp_path, paper_airframe_pat
     assert set(cert["residual_over_noise"]) >= {"x", "psi"} and "optimum certified" in cert["text"]
 
 
+def test_fit_cli_validates_on_a_separate_flight(paper_model, flight, tmp_path, paper_airframe_path, capsys):
+    """--validation as diagnose's: all of the log is estimation data and the other flight is
+    predicted (a blind audit's loop through greybox fit alone read its last 20 %, where little
+    moved, and the effects' gain hid)."""
+    other = synthesize(paper_model, duration=8.0, seed=12)
+    save_log(flight.log, tmp_path / "f.csv")
+    save_log(other.log, tmp_path / "g.csv")
+    rc = main(["fit", str(tmp_path / "f.csv"), "--validation", str(tmp_path / "g.csv"), "--airframe",
+               str(paper_airframe_path), "--quiet", "--set", "K_T=3e-5", "--json", str(tmp_path / "r.json")])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert re.search(r"validation \(1 s-ahead, \S*g\.csv\): nrmse", out), out
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert r["parameters"]["K_T"]["value"] == pytest.approx(2.395e-5, rel=0.01)
+    # 1-s windows over the 8-s flight, not over the last 20 % of the 16-s one (3.2 s)
+    assert r["validation"]["windows"] >= 6 and r["validation"]["nrmse"] < 0.2, r["validation"]
+    assert r["horizons"]["horizons"] and "x" in r["horizons"]["model"]
+
+
 @pytest.mark.parametrize("rows, message", [
     (30, "too short to fit: 30 samples"),
 ])
