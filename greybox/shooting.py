@@ -35,7 +35,7 @@ from .integrate import Substeps, integrate_states_along, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import body_rates_from_euler_rates, euler_rate_matrices
 
-__all__ = ["ShootingProblem", "MappedPair", "BufferedFunction", "ShootingData", "layout", "initial_node_states",
+__all__ = ["attitude_gyro_disagreement", "ShootingProblem", "MappedPair", "BufferedFunction", "ShootingData", "layout", "initial_node_states",
            "estimate_noise", "difference_noise", "robust_std", "noise_levels", "NOISE_FLOOR", "sensor_noise", "channel_noise", "filtered_attitude_error",
            "filtered_attitude_levels", "filtered_attitude_channels", "free_indices", "parameter_bounds",
            "DEFAULT_INTERVAL_S", "default_interval"]
@@ -750,6 +750,30 @@ def filtered_attitude_channels(logs: Sequence[FlightLog]) -> dict[str, tuple[flo
         pairs = [(lv[name], estimate_noise(lg.output(name))) for lg, lv in zip(logs, per_log) if name in lv]
         if pairs and 2 * len(pairs) > sum(name in lg.output_names for lg in logs):
             out[name] = (float(np.median([a for a, _ in pairs])), float(np.median([b for _, b in pairs])))
+    return out
+
+
+def attitude_gyro_disagreement(logs: Sequence[FlightLog]) -> dict[str, tuple[float, float]]:
+    """Roll and pitch weighed by their high-frequency noise (not an estimate propagated from the
+    gyro: :func:`filtered_attitude_channels` leaves them) that disagree with the gyro's integral
+    (:func:`filtered_attitude_error`) by more than :data:`FILTERED_ATTITUDE_RATIO` times that
+    noise: ``{channel: (disagreement, high-frequency noise)}``, medians over the flights, on
+    most of them. Either the attitude has a slow error of that size (an onboard estimate with
+    noise on it: a blind audit's complementary filter with 1 mrad of noise, 40 and 16 mrad of
+    slow error, weighed at 1 mrad, gave a confident wrong verdict) or the gyro's scale or
+    timing is off (the NanoBench flights' motion-capture attitude, 6-190 times): the log alone
+    cannot tell which, so it is said, not acted on."""
+    weighed = filtered_attitude_channels(logs)
+    out: dict[str, tuple[float, float]] = {}
+    per_log = [filtered_attitude_error(lg) for lg in logs]
+    for name in ("phi", "theta"):
+        if name in weighed:
+            continue
+        pairs = [(kin[name], estimate_noise(lg.output(name))) for lg, kin in zip(logs, per_log)
+                 if name in kin and name in lg.output_names]
+        off = [(k, h) for k, h in pairs if np.isfinite(h) and k > FILTERED_ATTITUDE_RATIO * max(h, 1e-4)]
+        if off and 2 * len(off) > len(pairs):
+            out[name] = (float(np.median([k for k, _ in off])), float(np.median([h for _, h in off])))
     return out
 
 

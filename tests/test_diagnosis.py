@@ -101,6 +101,7 @@ def test_diagnose_cli_json_and_report(paper, normal_flight, tmp_path, paper_airf
     assert rd["round"] == 1 and rd["verdict"] == "yaw_torque" and rd["with"] == [] and rd["in_final_model"]
     assert rd["nrmse_before"] == pytest.approx(r["baseline"]["nrmse"]) and rd["nrmse_after"] == first["nrmse_after"]
     assert rd["best"] == "yaw_torque" and rd["reason"] == first["reason"]
+    assert r["attitude_gyro_disagreement"] is None          # white attitude noise: nothing to say
     # nothing acts on this flight that the log does not show: the commands' torque shows in the
     # attitude (diagnosis.predictability), far better than the naive predictor
     cp = r["command_predictability"]

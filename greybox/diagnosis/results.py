@@ -316,6 +316,9 @@ class Diagnosis:
     # the gyro read against the attitude's turning on the estimation flights, when some axis is
     # off (kinematics.gyro_scale)
     gyro_scale: GyroScale | None = None
+    # roll and pitch (weighed by their high-frequency noise) that disagree with the gyro's integral
+    # far beyond it: channel -> (disagreement, that noise), rad (shooting.attitude_gyro_disagreement)
+    attitude_gyro_disagreement: dict[str, tuple[float, float]] = field(default_factory=dict)
     # the logged rotor speeds against the gyro on the estimation flights, when they are stamped
     # late (kinematics.input_lead)
     input_lead: InputLead | None = None
@@ -373,6 +376,8 @@ class Diagnosis:
                {"shift_s": _num(self.input_lead.shift), "correlation": _num(self.input_lead.correlation),
                 "correlation_as_logged": _num(self.input_lead.at_zero)},
                "judged_with_disturbance": self.judged_with_disturbance,
+               "attitude_gyro_disagreement": {ch: {"disagreement": _num(k), "noise": _num(h)}
+                                              for ch, (k, h) in self.attitude_gyro_disagreement.items()} or None,
                "rates_from_input_noise": dict(self.rates_from_input_noise),
                "input_noise_corrected": {n: {"value": _num(z), "std": _num(sd), "fitted": _num(one)}
                                          for n, (one, _, _, z, sd) in self.input_noise_corrected.items()} or None,
@@ -637,6 +642,13 @@ class Diagnosis:
             lines.append("   (no candidate tested: the baseline fit is not at a certified optimum, and a test "
                          "statistic against it would be meaningless)")
         lines.append(f"   verdict: {self.verdict_text()}")
+        if self.verdict and self.attitude_gyro_disagreement:
+            # a blind audit's onboard filter with noise on it: position_delay named, 13 std from none
+            lines.append("   judged with " + " and ".join(self.attitude_gyro_disagreement) + " weighed by their "
+                         "sample-to-sample noise, which they disagree with the gyro's integral by " +
+                         ", ".join(f"{k / max(h, 1e-4):.0f}" for k, h in self.attitude_gyro_disagreement.values())
+                         + " times: if the attitude is an onboard estimate, the verdict may stand in for its slow "
+                         "error (see the warnings)")
         if self.verdict and (self.unexplained or self.unexplained_gaps):
             lines.append(f"   and the model still misses something no candidate explains: {self._far_off()}")
         lines += self._later_round_lines()

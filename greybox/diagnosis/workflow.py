@@ -24,6 +24,7 @@ from ..fitting.input_errors import followed_share
 from ..kinematics import gyro_scale, input_lead
 from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
+from ..shooting import attitude_gyro_disagreement
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import (ThrustAtTop, below_ground_words, command_imbalance, estimation_residuals, log_moment_words,
@@ -362,6 +363,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      thrust_over_weight={"baseline": thrust_ratio(res.model, est, res.p),
                                          "final": thrust_ratio(cur_res.model, est, cur_res.p)},
                      gyro_scale=next((g for g in map(gyro_scale, est) if g is not None and g.off()), None),
+                     attitude_gyro_disagreement={ch: v for ch, v in attitude_gyro_disagreement(est).items()
+                                                 if ch not in (noise or {})},
                      input_lead=None if model.inputs == "controls" else
                      next((g for g in (input_lead(lg, model.airframe.rotor_positions) for lg in est)
                            if g is not None and g.late()), None))

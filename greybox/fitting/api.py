@@ -28,7 +28,8 @@ from ..model import BASE_STATES, OUTPUTS, QuadrotorModel
 from ..outliers import find_outliers
 from ..residuals import (AttitudeMotion, attitude_motion, fitted_trajectory, flight_residuals, output_residuals,
                          whiteness_fraction)
-from ..shooting import NOISE_FLOOR, default_interval, filtered_attitude_channels, free_indices, noise_levels
+from ..shooting import (NOISE_FLOOR, attitude_gyro_disagreement, default_interval, filtered_attitude_channels,
+                        free_indices, noise_levels)
 from ..shooting import sensor_noise as estimated_sensor_noise
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
 from .certificate import FILTERED_SENSOR_RATIO, GAP_FORCE_SHARE, GAP_VISIBLE, NOISE_RATIO_COLOURED, Certificate
@@ -861,7 +862,7 @@ def filtered_attitude_notes(logs: Sequence[FlightLog], given: Mapping[str, float
     having given no noise for them."""
     chans = {ch: v for ch, v in filtered_attitude_channels(logs).items() if ch not in given}
     if not chans:
-        return []
+        return _attitude_disagreement_notes(logs, given)
     # the horizontal drag is read through the tilt, whose filter error follows the acceleration:
     # blind audits' complementary filters left Kd[0], Kd[1] 3-22 % low, 4-7 std, nothing said
     tilt = [ch for ch in chans if ch in ("phi", "theta")]
@@ -871,7 +872,29 @@ def filtered_attitude_notes(logs: Sequence[FlightLog], given: Mapping[str, float
             "high-frequency noise " + ", ".join(f"{1e3 * hf:.2g}" for _, hf in chans.values()) + " mrad) "
             "that disagrees with the gyro's integral by " + ", ".join(f"{1e3 * lv:.3g}" for lv, _ in chans.values())
             + " mrad over 0.5-2 s, its own slow error: the fit weighs it by that (an accuracy given with "
-            + " ".join(f"--noise {ch}=SD" for ch in chans) + f" takes its place){drag}"]
+            + " ".join(f"--noise {ch}=SD" for ch in chans) + f" takes its place){drag}"] \
+        + _attitude_disagreement_notes(logs, given)
+
+
+def _attitude_disagreement_notes(logs: Sequence[FlightLog], given: Mapping[str, float]) -> list[str]:
+    """Words for roll and pitch weighed by their high-frequency noise that disagree with the
+    gyro's integral far beyond it (:func:`greybox.shooting.attitude_gyro_disagreement`), the
+    user having given no noise for them: which of the two is off the log cannot tell, and an
+    attitude's slow error weighed as its noise pulls the parameters and may be named as an
+    effect (a blind audit's onboard filter: a position delay of 22 ms, 13 std, for none)."""
+    chans = {ch: v for ch, v in attitude_gyro_disagreement(logs).items() if ch not in given}
+    if not chans:
+        return []
+    names = ", ".join(chans)
+    return [f"{names} disagree{'s' if len(chans) == 1 else ''} with the gyro's integral by "
+            + ", ".join(f"{1e3 * kin:.3g}" for kin, _ in chans.values()) + " mrad over 0.5-2 s, "
+            + ", ".join(f"{kin / max(hf, 1e-4):.0f}" for kin, hf in chans.values())
+            + " times the sample-to-sample noise (" + ", ".join(f"{1e3 * hf:.2g}" for _, hf in chans.values())
+            + " mrad) by which the fit weighs them: either the attitude has a slow error of that size (an "
+            "onboard estimate with noise on it, a mounting offset) or the gyro's scale or timing is off, which "
+            "the log alone cannot tell. If the attitude is an onboard estimate, its slow error pulls the "
+            "parameters and an effect may be named for it: give its accuracy ("
+            + " ".join(f"--noise {ch}={kin:.2g}" for ch, (kin, _) in chans.items()) + ") and compare"]
 
 
 def _flight_words(logs: Sequence[FlightLog], words_of: Callable[[FlightLog], str]) -> list[str]:
