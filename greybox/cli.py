@@ -634,6 +634,56 @@ def write_outputs(outputs: Sequence[tuple[Path, str | bytes]]) -> None:
         raise
 
 
+def cmd_compare(args: argparse.Namespace) -> int:
+    """MATLAB's ``compare``: each model's k-step-ahead prediction of the logs, side by side
+    (nrmse per channel, lower is better), the measured and predicted signals in plots."""
+    from . import plotting
+    from .fitted import load
+    from .validation import check_validation_length, predict_flights, prediction_options
+    if not args.model and not args.airframe:
+        raise GreyboxInputError("compare needs models: --model M.json [M2.json ...] and/or --airframe A.toml")
+    if not args.airframe and (args.effects or args.without or args.set):
+        raise GreyboxInputError("--effects, --without and --set apply to --airframe's model; a saved model "
+                                "(--model) is compared as fitted")
+    entries = []          # (label, model, parameter vector, prediction options)
+    if args.airframe:
+        model = build_model(args.airframe, args.effects, args.without)
+        entries.append((f"{Path(args.airframe).name} (its parameters)", model, _parameters(model, {}, args.set), {}))
+    for path in args.model or []:
+        fm = load(path)
+        entries.append((Path(path).name, fm.model, fm.p, prediction_options(fm)))
+    preds = []
+    for label, model, p, options in entries:
+        logs = [_load_model_log(model, path, p, held=args.held) for path in args.log]
+        for log in logs:
+            check_validation_length(log)
+        preds.append(predict_flights(model, p, logs, horizon=args.horizon, **options))
+    channels = list(preds[0].nrmse)
+    width = max(len(label) for label, *_ in entries)
+    print(f"{preds[0].horizon_label} prediction of {', '.join(args.log)}: nrmse (lower is better)")
+    print(f"{'model':<{width}}  {'total':>7}  " + "  ".join(f"{c:>7}" for c in channels))
+    for (label, *_), pred in zip(entries, preds):
+        print(f"{label:<{width}}  {pred.total:7.4f}  " + "  ".join(f"{pred.nrmse.get(c, float('nan')):7.4f}"
+                                                             for c in channels))
+    outputs: list[tuple[Path, str | bytes]] = []
+    if args.plots:
+        labels = [label for label, *_ in entries]
+        flights = [getattr(pr, "parts", None) or [pr] for pr in preds]
+        for k in range(len(args.log)):
+            suffix = f"_{k + 1}" if len(args.log) > 1 else ""
+            fig = plotting.compare([parts[k] for parts in flights], labels=labels)
+            outputs.append((Path(args.plots) / f"compare{suffix}.png", plotting.to_bytes(fig)))
+    if args.json:
+        doc = {"logs": list(args.log), "horizon": preds[0].horizon,
+               "models": [{"name": label, "effects": model.effect_names, "nrmse": pred.total,
+                           "channels": dict(pred.nrmse)} for (label, model, *_), pred in zip(entries, preds)]}
+        outputs.append((Path(args.json), _json_text(doc)))
+    write_outputs(outputs)
+    if args.plots:
+        print(f"plots: {args.plots}")
+    return 0
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnosis import diagnose
     model, p0, logs = _load_fit_inputs(args)
@@ -879,6 +929,25 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--save", metavar="MODEL.json",
                    help="save the fitted model (structure, parameters, covariance) for --model and greybox.load")
     f.set_defaults(func=cmd_fit)
+
+    c = sub.add_parser("compare", help="compare models' predictions of flight logs (MATLAB's compare)",
+                       description="Predict each log k steps ahead with each model (saved fits, and/or an "
+                                   "airframe's model with its parameters) and show their nrmse per channel "
+                                   "side by side, lower is better; --plots draws them over the measurements.")
+    c.add_argument("log", nargs="+", help="flight log CSV(s) to predict (pooled)")
+    c.add_argument("--model", metavar="MODEL.json", nargs="+",
+                   help="fitted models saved by 'greybox fit --save' or 'diagnose --save'")
+    c.add_argument("--airframe", help="also an airframe's model with its [parameters] (and --effects, --set)")
+    _effects_file_arg(c)
+    c.add_argument("--effects", help="comma list of effects to add to the airframe's model")
+    c.add_argument("--without", help="comma list of effects to remove from the airframe's model")
+    c.add_argument("--set", action="append", metavar="NAME=VALUE", help="a parameter of the airframe's model")
+    c.add_argument("--held", choices=["hold", "interpolate"], default="hold", help=HELD_HELP)
+    c.add_argument("--horizon", type=_positive, default=FIT_DEFAULTS["horizon"],
+                   help=f"prediction horizon, s (default {FIT_DEFAULTS['horizon']:g})")
+    c.add_argument("--plots", help="folder for the compare plots (one per log)")
+    c.add_argument("--json", help="write the comparison here")
+    c.set_defaults(func=cmd_compare)
 
     g = sub.add_parser("diagnose", help="find where the model fails and which effect is missing",
                        description="Fit the model, show where it fails, try the catalogue's candidate effects "

@@ -26,7 +26,8 @@ from .errors import GreyboxInputError
 __all__ = ["FlightLog", "check_distinct_flights", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write",
            "ATOMIC_NAME_EXTRA", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
-           "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "rotor_speed_magnitudes", "median_row_interval",
+           "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "rotor_speed_magnitudes",
+           "median_row_interval",
            "check_measurement_units", "unwrap_heading", "UNIT_RATIO_LIMIT", "check_channel_noise", "RECORD_EXTRAS", "is_command_column"]
 
 REQUIRED_OUTPUTS = ["x", "y", "z", "phi", "theta", "psi"]

@@ -82,7 +82,8 @@ class Outliers:
             chans = [c for c in OUTLIER_GROUPS[group] if c in self.size]
             when = ", ".join(f"{t[r]:.6g}" for r in rows[:5]) + (", ..." if rows.size > 5 else "")
             parts.append(f"{rows.size} {group} sample{'s' if rows.size != 1 else ''} of {self.samples[group]} "
-                         f"(t = {when} s) {'leave the track of their' if rows.size != 1 else 'leaves the track of its'} neighbours by up to "
+                         f"(t = {when} s) "
+                         f"{'leave the track of their' if rows.size != 1 else 'leaves the track of its'} neighbours by up to "
                          + ", ".join(f"{self.size[c]:.3g} {'m' if group == 'position' else 'rad'} ({c})"
                                      for c in chans)
                          + f", over {OUTLIER_THRESHOLD:g} times the noise of the samples around them, and "

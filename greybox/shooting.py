@@ -35,7 +35,8 @@ from .integrate import Substeps, integrate_states_along, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
 from .rotations import body_rates_from_euler_rates, euler_rate_matrices
 
-__all__ = ["attitude_gyro_disagreement", "ShootingProblem", "MappedPair", "BufferedFunction", "ShootingData", "layout", "initial_node_states",
+__all__ = ["attitude_gyro_disagreement",
+           "ShootingProblem", "MappedPair", "BufferedFunction", "ShootingData", "layout", "initial_node_states",
            "estimate_noise", "difference_noise", "robust_std", "noise_levels", "NOISE_FLOOR", "sensor_noise", "channel_noise", "filtered_attitude_error",
            "filtered_attitude_levels", "filtered_attitude_channels", "free_indices", "parameter_bounds",
            "DEFAULT_INTERVAL_S", "default_interval"]
