@@ -338,6 +338,14 @@ def airframe_from_dict(doc: Mapping[str, Any], source: str = "<airframe>") -> Ai
                 raise GreyboxInputError(f"{source}: [[rotor]] positions: every rotor is at {coord} = 0, so the "
                                         f"rotors give no {what} torque; positions are the hubs' in the body frame "
                                         "(FRD, m) from the centre of gravity")
+        # one rotor written twice (a copy-paste): a blind audit's fitted without a word; a
+        # coaxial pair shares a place but turns the other way
+        for j in range(len(rotors)):
+            for i in range(j):
+                if rotors[i].spin == rotors[j].spin and np.allclose(P[i], P[j], atol=1e-3):
+                    raise GreyboxInputError(
+                        f"{source}: rotor {j + 1} has rotor {i + 1}'s position and spin: two rotors in one place "
+                        "turning the same way are one rotor written twice (a coaxial pair turns opposite ways)")
         layout = "custom"   # an arm not given is the hubs' mean distance (Airframe.__post_init__)
     else:
         raise GreyboxInputError(f"{source}: give airframe.layout ('plus' or 'x') or [[rotor]] tables")

@@ -123,6 +123,14 @@ def test_bad_rotor_tables(tmp_path):
     line = "".join(f"[[rotor]]\nposition = [0, {y}, 0]\nspin = {s}\n" for y, s in ((0.1, 1), (-0.1, -1)))
     with pytest.raises(GreyboxInputError, match="no pitch torque"):
         load_airframe(write(tmp_path, base + line))
+    # one rotor written twice (a blind audit's copy-paste, fitted without a word); a coaxial
+    # pair (one place, opposite spins) is a rotor layout
+    quad = [((0.1, 0.1), 1), ((-0.1, -0.1), 1), ((0.1, -0.1), -1), ((-0.1, 0.1), -1)]
+    tables = lambda rs: "".join(f"[[rotor]]\nposition = [{x}, {y}, 0]\nspin = {s}\n" for (x, y), s in rs)
+    with pytest.raises(GreyboxInputError, match="rotor 5 has rotor 3's position and spin"):
+        load_airframe(write(tmp_path, base + tables(quad + [((0.1, -0.1), -1)])))
+    coax = quad + [((x, y), -s) for (x, y), s in quad]
+    assert load_airframe(write(tmp_path, base + tables(coax))).n_rotors == 8
 
 
 def test_file_errors(tmp_path):
