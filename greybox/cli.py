@@ -20,8 +20,8 @@ import numpy as np
 from . import __version__
 from . import effects as fx
 from .airframe import load_airframe
-from .data import (FlightLog, atomic_write, check_rotor_speed_units, check_sample_times, read_csv_table,
-                   rotor_speed_magnitudes, save_log)
+from .data import (FlightLog, atomic_write, check_distinct_flights, check_rotor_speed_units, check_sample_times,
+                   read_csv_table, rotor_speed_magnitudes, save_log)
 from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, forget_signals, interrupt_status, raise_interrupted, raise_terminated, signal_received
 from .integrate import simulate
 from .model import QuadrotorModel
@@ -530,6 +530,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
         # separate flights validate: all of each LOG is estimation data (as diagnose's)
         vals = [_load_model_log(model, path, p0, args.input_noise, args.outliers, args.held)
                 for path in args.validation]
+        # an estimation flight given as validation too reads its in-sample error as validation
+        # (a blind audit's; diagnose refused it)
+        check_distinct_flights(logs + vals, "estimation and validation flights")
         parts = [(log, None) for log in logs]
     else:
         parts = [log.split(0.8) for log in logs]

@@ -699,6 +699,10 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
             raise GreyboxInputError(f"{where}: missing required rotor speed columns 'w1'..'w4'" +
                                     (_case_hint(header, "w1") or _format_hint(header)))
         idx = [i for i, _ in w_cols]
+        if 0 in idx:
+            # a blind audit's w0..w3 ended in an IndexError traceback
+            raise GreyboxInputError(f"{where}: column 'w0': rotor speeds are numbered from 1 (w1..wN, in the "
+                                    "airframe's rotor order); rename w0..w{} to w1..w{}".format(max(idx), max(idx) + 1))
         if idx != list(range(1, len(idx) + 1)):
             missing = sorted(set(range(1, max(idx) + 1)) - set(idx))
             raise GreyboxInputError(f"{where}: missing required column 'w{missing[0]}' "

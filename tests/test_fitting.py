@@ -198,6 +198,12 @@ def test_fit_cli_validates_on_a_separate_flight(paper_model, flight, tmp_path, p
     # 1-s windows over the 8-s flight, not over the last 20 % of the 16-s one (3.2 s)
     assert r["validation"]["windows"] >= 6 and r["validation"]["nrmse"] < 0.2, r["validation"]
     assert r["horizons"]["horizons"] and "x" in r["horizons"]["model"]
+    # an estimation flight given as validation too is refused, as diagnose does (a blind audit's
+    # in-sample error was reported as validation)
+    rc = main(["fit", str(tmp_path / "f.csv"), str(tmp_path / "g.csv"), "--validation", str(tmp_path / "g.csv"),
+               "--airframe", str(paper_airframe_path), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "the same flight as" in err and "estimation and validation flights" in err, err
 
 
 @pytest.mark.parametrize("rows, message", [

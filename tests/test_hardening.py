@@ -637,6 +637,16 @@ def test_negative_rotor_speeds_get_a_note(tmp_path):
     assert log.inputs[19, 1] < 0                     # one row: a rotor turning backwards, kept
 
 
+def test_rotor_columns_numbered_from_zero_are_refused_in_words(tmp_path, capsys):
+    """w0..w3 (a blind audit's) ended in an IndexError traceback, exit 1."""
+    lines = _lines(DEMO)[:100]
+    lines[0] = lines[0].replace("w1", "w0").replace("w2", "w1").replace("w3", "w2").replace("w4", "w3")
+    path = _write(tmp_path / "w0.csv", lines)
+    rc, err = _cli(capsys, "fit", str(path), "--airframe", PAPER)
+    line = _one_error(err)
+    assert rc == 2 and "column 'w0': rotor speeds are numbered from 1" in line and "w0..w3 to w1..w4" in line, line
+
+
 def test_rotor_speeds_signed_by_their_spin_are_read_as_magnitudes(tmp_path):
     """Columns negative on every row are speeds whose sign encodes the spin direction: fitted
     signed, the gyroscopic torque took the sign twice (a blind audit's fit was certified with
