@@ -517,8 +517,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting.imu import is_imu_only
     from . import plotting
     from .controller_law import closed_loop_or_why
-    from .validation import check_validation_length, horizon_errors_after, predict, prediction_options
-    from .validation import validation_vectors
+    from .validation import (check_validation_length, horizon_errors_after, predict, prediction_options,
+                             validation_vectors)
     model, p0, logs = _load_fit_inputs(args)
     free, fixed = _parameter_names(model, args.free, "--free"), _parameter_names(model, args.fixed, "--fixed")
     if any(is_imu_only(log) for log in logs):
@@ -655,10 +655,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
     for path in args.model or []:
         fm = load(path)
         entries.append((Path(path).name, fm.model, fm.p, prediction_options(fm)))
+    # each file read once; prepared for each model (its rotors checked), its notes said once
+    from .data import load_log
+    raw = [load_log(path, inputs="rotor_speeds") for path in args.log]
     preds = []
-    for label, model, p, options in entries:
-        logs = [_load_model_log(model, path, p, held=args.held) for path in args.log]
+    for k, (label, model, p, options) in enumerate(entries):
+        logs = [model_log(model, log, p, path, held=args.held) for log, path in zip(raw, args.log)]
         for log in logs:
+            if k == 0:
+                for note in log.notes:
+                    print(f"note: {note}", file=sys.stderr)
             check_validation_length(log)
         preds.append(predict_flights(model, p, logs, horizon=args.horizon, **options))
     channels = list(preds[0].nrmse)

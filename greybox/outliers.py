@@ -29,6 +29,7 @@ the whole pose); up to three passes find a second glitch beside a first.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -104,7 +105,7 @@ def _cubic_at(t: np.ndarray, y: np.ndarray, i: np.ndarray, nodes: np.ndarray) ->
     return pred
 
 
-_END_NOISE_GAIN = 1.3944 / 2.4495
+_END_NOISE_GAIN = math.sqrt(1 + 34 / 36) / math.sqrt(6)
 """White noise's residual against the interior cubic (``sqrt(1 + 2 (1/6)^2 + 2 (2/3)^2)``)
 over its residual against the line through the next two samples (``sqrt(1 + 2^2 + 1)``): an
 end sample's residual is scaled by it, so that noise gives both the same spread."""
