@@ -404,7 +404,12 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
         # added bends its parameters (a blind audit's hidden motor lag: the baseline's Kd[2]
         # 4.6 std off, the final model's right, and no tau_m in the summary)
         out.update(_parameter_columns(diag.fitted_model.parameters, "final_"))
-    if base.converged:
+    if base.converged and diag.null_reason in _NOT_A_FLIGHT_OF_THE_FLEET:
+        # the diagnosis refused to test (rotor columns in another order, a layout turned, a rotor
+        # that changed in flight): its certified fit holds that as physics, so the flight stays
+        # out of the joint fit (a blind audit's swapped columns read "ok" here and joined it)
+        out.update(status="failed", reason=diag.verdict_text())
+    elif base.converged:
         out.update(status="ok", reason="")
     else:
         # rotor columns in another order, or a layout read wrong, named first, in the fit
@@ -414,6 +419,11 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
         said = fit_warnings(base, [log.split(0.8)[0]])
         out.update(status="failed", reason=f"fit did not converge: {'; '.join(said + [base.status])}")
     return out
+
+
+#: null reasons of a diagnosis that tested nothing because the flight's rotors are not the
+#: airframe's as given (or not the same through the flight): such a flight is ``failed``
+_NOT_A_FLIGHT_OF_THE_FLEET = ("rotor_order", "rotor_layout", "rotor_changed")
 
 
 def _parameter_columns(parameters: Mapping[str, Mapping[str, Any]], prefix: str = "") -> dict[str, float | None]:

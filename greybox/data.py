@@ -23,7 +23,7 @@ import numpy as np
 
 from .errors import GreyboxInputError
 
-__all__ = ["FlightLog", "check_distinct_flights", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write",
+__all__ = ["FlightLog", "check_distinct_flights", "flight_label", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write",
            "ATOMIC_NAME_EXTRA", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "rotor_speed_magnitudes",
@@ -541,6 +541,12 @@ def check_distinct_flights(logs: Sequence[FlightLog], what: str = "flights") -> 
             if a is b or a.same_flight(b):
                 raise GreyboxInputError(f"{b.source or 'log'}: the same flight as {a.source or 'another log'} "
                                         f"(the same samples): give each of the {what} once")
+
+
+def flight_label(log: FlightLog, k: int) -> str:
+    """A flight in words: the file it was read from, else its place among several (``flight 2``
+    for ``k = 1``)."""
+    return log.source or f"flight {k + 1}"
 
 
 def median_row_interval(logs: Iterable[FlightLog]) -> float:

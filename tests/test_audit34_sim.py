@@ -31,3 +31,58 @@ def test_honest_flights_are_not_refused_as_frame_or_unit_errors(tmp_path, name):
     sim.write_log(str(path), o, sim.np.random.default_rng(seed + 1000))
     log = load_log(path)                    # refused before: "turned by 59 degrees", "psi in degrees?"
     assert len(log) > 2000 and log.measures("x")
+
+
+def _write(tmp_path, name, swap=None, vehicle=None):
+    plan = {p[0]: p for p in sim.CASE1 + sim.CASE2}[name]
+    _, kind, dur, seed, *rest = plan
+    wind, gust, sag = rest if rest else ((0.0, 0.0), 0.0, (0.0, 0.0))
+    o = sim.fly(vehicle or sim.TRUTH, kind, dur, seed, wind0=wind, gust=gust, sag=sag)
+    path = tmp_path / f"{name}{'_swap' if swap else ''}.csv"
+    sim.write_log(str(path), o, sim.np.random.default_rng(seed + 1000), swap=swap)
+    return path
+
+
+def test_a_flight_with_swapped_rotor_columns_among_honest_ones_is_named_and_kept_out_of_the_fleet(tmp_path, capsys):
+    """The audit's c2_f3 again with its w2 and w4 columns swapped, among honest flights: fitted
+    together it was "certified" with nothing said (p 3.1x the noise); in a batch its own fit was
+    certified, its diagnosis said ``rotor_order``, and its summary row read ``ok`` and it joined
+    the joint fit. Now the fit names the flight first, and the batch records it failed."""
+    import json
+    from greybox.batch import batch
+    from greybox.cli import main
+    sim.airframe(str(tmp_path / "plus16.toml"), sim.TRUTH)
+    honest = [_write(tmp_path, n) for n in ("c1_f1", "c1_f2")]
+    swapped = _write(tmp_path, "c2_f3", swap=(1, 3))
+    rc = main(["fit", *map(str, honest), str(swapped), "--airframe", str(tmp_path / "plus16.toml"), "--quiet",
+               "--json", str(tmp_path / "r.json")])
+    capsys.readouterr()
+    assert rc == 0
+    warnings = json.loads((tmp_path / "r.json").read_text())["warnings"]
+    assert warnings[0].startswith(f"in {swapped} (judged alone; the other flights as given): the logged rotor speeds "
+                                  "act as the airframe's rotors in another order: w1 as rotor 1, w2 as rotor 4, "
+                                  "w3 as rotor 3, w4 as rotor 2"), warnings
+    recs = {r["flight"]: r for r in batch([*honest, swapped], tmp_path / "b", airframe=tmp_path / "plus16.toml",
+                                          workers=1, progress=False).records}
+    assert json.loads((tmp_path / "b" / "c2_f3_swap" / "fit.json").read_text())["converged"]   # certified alone
+    assert recs["c2_f3_swap"]["status"] == "failed" and "in another order" in recs["c2_f3_swap"]["reason"], recs
+    assert recs["c1_f1"]["status"] == "ok" and recs["c1_f2"]["status"] == "ok", recs
+
+
+def test_another_vehicles_log_among_the_flights_is_named(tmp_path, capsys):
+    """The audit's c3_other (a 2.1-kg vehicle, K_T 1.75e-5) among four of the 1.6-kg one's: the
+    shared fit moved K_T -1.2 % and Kd[2] +21 %, and the warning listed each flight's share of
+    the weight (98 % four times, 107 %) without saying which stood apart. It is named now."""
+    import json
+    from greybox.cli import main
+    sim.airframe(str(tmp_path / "plus16.toml"), sim.TRUTH)
+    own = [_write(tmp_path, n) for n in ("c1_f1", "c1_f2", "c1_f3", "c1_f4")]
+    o = sim.fly(sim.OTHER, "eight", 12, 32, wind0=(0.7, 0.9), gust=0.1, sag=(-0.0015, -1e-5))
+    other = tmp_path / "c3_other.csv"
+    sim.write_log(str(other), o, sim.np.random.default_rng(1032))
+    rc = main(["fit", *map(str, own), str(other), "--airframe", str(tmp_path / "plus16.toml"), "--quiet",
+               "--json", str(tmp_path / "r.json")])
+    capsys.readouterr()
+    assert rc == 0
+    said = [w for w in json.loads((tmp_path / "r.json").read_text())["warnings"] if "stands apart" in w]
+    assert len(said) == 1 and f"{other} stands apart (107 % where the others carry 98 %)" in said[0], said

@@ -273,6 +273,9 @@ class Diagnosis:
     # the angle (rad) the airframe's rotors would have to turn about the body's z for the logged
     # speeds' moments to match them (diagnosis.analysis.layout_rotation): nothing is tested then
     layout_rotation: float | None = None
+    # of several flights, the one whose rotor columns act in another order or turned when the
+    # others do not (diagnosis.analysis.odd_flight_geometry); None for all of them or one flight
+    geometry_flight: str | None = None
     # the log's timing settled before the candidates (rotor speeds sampled between rows):
     # effect, s_lead, s_lead_std, nrmse_before, nrmse_after, text; None when the hold stands
     input_timing: dict | None = None
@@ -368,6 +371,8 @@ class Diagnosis:
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
                "null_reason": self.null_reason,
+               # the one flight of several whose rotor columns act in another order or turned
+               "geometry_flight": self.geometry_flight,
                # the gyro read against the attitude's turning, per axis read, when some axis is off
                "gyro_scale": None if self.gyro_scale is None else
                {a: {"value": _num(k), "std": _num(self.gyro_scale.std[a])} for a, k in self.gyro_scale.scale.items()},
@@ -576,9 +581,10 @@ class Diagnosis:
                           "leaves)")
             return f"{self.verdict}{share}"
         order = ", ".join(f"{c} as rotor {j + 1}" for c, j in zip(self.model.command_names, self.rotor_order or ()))
-        return {"rotor_order": f"null -- the logged rotor speeds act as the airframe's rotors in another order "
+        of = f" of {self.geometry_flight}" if self.geometry_flight else ""
+        return {"rotor_order": f"null -- the logged rotor speeds{of} act as the airframe's rotors in another order "
                                f"({order}): nothing was tested; reorder the columns",
-                "rotor_layout": f"null -- the logged rotor speeds act as the airframe's rotors turned by "
+                "rotor_layout": f"null -- the logged rotor speeds{of} act as the airframe's rotors turned by "
                                 f"{math.degrees(self.layout_rotation or 0.0):+.0f} degrees about the body's z axis: "
                                 "nothing was tested; check the airframe's layout and rotor positions",
                 "rotor_changed": self._rotor_changed_words(),

@@ -28,7 +28,8 @@ from ..shooting import attitude_gyro_disagreement
 from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
 from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import (ThrustAtTop, below_ground_words, command_imbalance, estimation_residuals, log_moment_words,
-                       residual_analysis, rotor_geometry, rotor_geometry_warnings, thrust_at_top)
+                       residual_analysis, odd_flight_geometry, rotor_geometry, rotor_geometry_warnings,
+                       thrust_at_top)
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
@@ -138,8 +139,11 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                         "in for that: diagnose again with the speeds interpolated between their fresh rows "
                         "(--held interpolate; greybox.io.interpolate_held_inputs)")
     remaining = list(candidates) if tested else []
-    order, turned = rotor_geometry(model, est)
-    geometry = rotor_geometry_warnings(model, order, turned)
+    # one flight among several in another order is named (pooled, the others dilute it)
+    odd = odd_flight_geometry(model, est)
+    order, turned = odd[1:] if odd is not None else rotor_geometry(model, est)
+    geometry_flight = odd[0] if odd is not None else None
+    geometry = rotor_geometry_warnings(model, order, turned, flight=geometry_flight)
     # the highest commands against the thrust they gave (motors at the end of their range):
     # said below, and beside a final model that lowers the thrust at the top
     top_thrust = None if geometry else thrust_at_top(model, est)
@@ -360,6 +364,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                      command_predictability=predictability, rates_from_input_noise=by_inputs,
                      input_noise_corrected=corrected, final_spread=spread, final_validation_spread=val_spread,
                      timing_bound=timing_bound, rotor_order=order, layout_rotation=turned,
+                     geometry_flight=geometry_flight,
                      thrust_over_weight={"baseline": thrust_ratio(res.model, est, res.p),
                                          "final": thrust_ratio(cur_res.model, est, cur_res.p)},
                      gyro_scale=next((g for g in map(gyro_scale, est) if g is not None and g.off()), None),
