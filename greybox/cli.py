@@ -517,8 +517,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from .fitting.imu import is_imu_only
     from . import plotting
     from .controller_law import closed_loop_or_why
-    from .validation import (check_validation_length, horizon_errors_after, predict, prediction_options,
-                             validation_vectors)
+    from .validation import (check_validation_length, horizon_errors_after, mean_value_words, predict,
+                             prediction_options, validation_vectors)
     model, p0, logs = _load_fit_inputs(args)
     free, fixed = _parameter_names(model, args.free, "--free"), _parameter_names(model, args.fixed, "--fixed")
     if any(is_imu_only(log) for log in logs):
@@ -558,6 +558,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     # battery sag); a separate flight with their mean (its wind was never seen)
     est = [e for e, _ in parts]
     val_ps = validation_vectors(res, est, vals)
+    res.warnings += mean_value_words(res, est, vals)
     preds = [predict(model, p, val, horizon=args.horizon, **prediction_options(res)) for p, val in zip(val_ps, vals)]
     print(res.summary())
     for val, pred in zip(vals, preds):

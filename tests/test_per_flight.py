@@ -240,3 +240,35 @@ def test_flights_whose_rotors_carry_different_shares_of_the_weight_are_told_to_g
     assert not [w for w in own.warnings if "--per-flight K_T" in w], own.warnings
     k_t = own.per_flight_["K_T"]["value"]
     assert k_t[0] == pytest.approx(veh.K_T, rel=0.01) and k_t[1] == pytest.approx(weak.K_T, rel=0.01)
+
+
+def test_a_separate_validation_flight_predicted_with_the_mean_wind_is_said():
+    """A blind audit's separate validation flight was predicted with the mean of the estimation
+    flights' winds (49 % off its own in y) and nothing said so: the words name it and the
+    values averaged; a flight's own tail (validated with its own wind) is not named."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+    from greybox.data import log_from_arrays
+    from greybox.validation import mean_value_words, validation_vectors
+    t = np.arange(0, 10, 0.01)
+    logs = [replace(log_from_arrays(t, np.full((t.size, 4), 500.0), np.zeros((t.size, 6))), source=f"f{k}.csv")
+            for k in range(2)]
+    parts = [lg.split(0.8) for lg in logs]
+    est = [e for e, _ in parts]
+    p = np.array([1.0, 0.3, 0.5])
+    each = {"wind[0]": {"value": [1.2, -0.6], "std": [0.03, 0.03]}, "wind[1]": {"value": [0.4, 1.5], "std": [0.03, 0.03]}}
+
+    def flight_p(i):
+        q = p.copy()
+        q[1], q[2] = each["wind[0]"]["value"][i], each["wind[1]"]["value"][i]
+        return q
+    res = SimpleNamespace(p=p, per_flight_=each, flight_p=flight_p)
+    tails = [v for _, v in parts]
+    assert mean_value_words(res, est, tails) == []                     # each tail with its own wind
+    assert [list(v) for v in validation_vectors(res, est, tails)] == [[1.0, 1.2, 0.4], [1.0, -0.6, 1.5]]
+    other = replace(logs[0], source="v.csv")
+    words = mean_value_words(res, est, [other])
+    assert len(words) == 1 and words[0].startswith("v.csv is predicted with the mean of the estimation flights' "
+                                                   "own values of wind[0], wind[1]"), words
+    assert "wind[0] 0.3 (flights: 1.2, -0.6); wind[1] 0.95 (flights: 0.4, 1.5)" in words[0], words
+    assert mean_value_words(SimpleNamespace(p=p, per_flight_={}), est, [other]) == []

@@ -24,7 +24,7 @@ from .input_noise import input_noise, simex_check
 from .results import UNEXPLAINED_RATIO, CandidateResult
 from .screening import (explained_fraction, held_on_bound, replaced_base_terms, lr_test, negligible_effect, null_on_bound,
                         physically_implausible, precompile_refits, queue_refit_builds, prediction_change, profile_log_likelihood, refit,
-                        fit_weights, screen, screen_jointly, within_row_timing)
+                        fit_weights, screen, screen_jointly, small_in_force_only, within_row_timing)
 
 __all__ = ["PARAMETER_SHIFT", "parameter_shifts", "ALPHA", "PARTNER_SCORE_SHARE", "MIN_VALIDATION_GAIN", "MAX_VALIDATION_LOSS", "validation_falls", "traded_channels", "geometric_rise", "confirmed_on_validation", "timing_stand_in", "MIN_EXPLAINED", "MIN_EXPLAINED_INADEQUATE", "N_REFIT", "COLD_SCREEN_ITER", "COLD_CONTINUE", "FAR_FROM_DATA",
            "rank_round", "order_refitted", "default_candidates", "far_channels", "lacking_signals", "missing_columns"]
@@ -185,7 +185,7 @@ class _Refits:
     def judge(self, cand: CandidateResult, ext: QuadrotorModel, fr: FitResult, pr: Prediction) -> None:
         """The candidate's statistics at its refit ``fr`` (validation ``pr``), and the verdict
         on it in words."""
-        cand.significant = cand.unconfirmable = cand.validation_tie = cand.not_confirmed = False
+        cand.significant = cand.unconfirmable = cand.validation_tie = cand.not_confirmed = cand.small_force = False
         cand.explained_beside_timing = None
         E = estimation_residuals(ext, fr, self.est)
         cand.lr, cand.p_value = lr_test(self.res, fr, E, cand.df, null_on_bound(ext, cand.effect), self.n_tests)
@@ -219,6 +219,7 @@ class _Refits:
                                                          f"{fr.value(n):.4g})" for n, z in moved.items()))
         elif negligible:
             cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but physically negligible: {negligible}"
+            cand.small_force = small_in_force_only(fr, cand.effect, self.est)
         elif implausible:
             cand.reason = f"significant in the fit (p = {cand.p_value:.2g}) but physically implausible: {implausible}"
         elif on_bound:

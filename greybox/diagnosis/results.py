@@ -22,13 +22,21 @@ from ..validation import HorizonErrors, Prediction, prediction_options
 from .analysis import CommandImbalance, Finding
 from .closed_loop import rate_levels
 from .predictability import ANGLE_OF_AXIS, CommandPredictability
+from .screening import MIN_FORCE_SHARE
 
 UNEXPLAINED_RATIO = 3.0
 """With a null verdict, channels whose residual RMS stays above this multiple of the sensor
 noise (and coloured) are reported as what the model misses beyond every candidate; below
 it, a misfit the certificate still finds (``small_misfit``) is too small to tell what it is."""
 
-__all__ = ["CandidateResult", "Round", "Diagnosis", "Discovered", "DiscoveredTerm", "UNEXPLAINED_RATIO"]
+MOVES_PREDICTIONS = 0.10
+"""A candidate refused only as small in force terms whose refit cuts the validation nrmse by
+this share or more is named beside a null verdict as possibly what is missing
+(:meth:`Diagnosis.small_but_moving`): it is not made the verdict, since on a flight whose
+accelerations dwarf it the data cannot say it apart from what else is small."""
+
+__all__ = ["CandidateResult", "Round", "Diagnosis", "Discovered", "DiscoveredTerm", "UNEXPLAINED_RATIO",
+           "MOVES_PREDICTIONS"]
 
 
 DISCOVERED_APART = 0.05
@@ -60,6 +68,9 @@ class CandidateResult:
     validation_tie: bool = False
     # significant in the fit and past the rules of size and plausibility, refused on validation only
     not_confirmed: bool = False
+    # significant in the fit, its parameters not negligible, refused as small in force terms
+    # only (screening.physically_small: below MIN_FORCE_SHARE of what the flight flies with)
+    small_force: bool = False
     explained: float | None = None      # fraction of the baseline's excess residual (above noise) removed
     # the validation nrmse with the windows started as the baseline's are (its start window):
     # a refit chooses its own, and two candidates compare alike only from the same start
@@ -371,6 +382,8 @@ class Diagnosis:
                "ranking": [c.as_dict() for c in self.ranking],
                "verdict": self.verdict,
                "null_reason": self.null_reason,
+               # refused only as small in force terms, yet cutting the validation error (null verdicts)
+               "small_but_moving": [c.effect for c in self.small_but_moving()] if not self.verdict else [],
                # the one flight of several whose rotor columns act in another order or turned
                "geometry_flight": self.geometry_flight,
                # the gyro read against the attitude's turning, per axis read, when some axis is off
@@ -500,6 +513,26 @@ class Diagnosis:
             return "small_misfit"
         return "nothing_missing"
 
+    def small_but_moving(self) -> list[CandidateResult]:
+        """Candidates of the first round refused only as small in force terms whose refit
+        still cuts the validation nrmse by :data:`MOVES_PREDICTIONS` or more: they may be part of
+        what is missing, too small against the flight's accelerations to be named (a blind
+        audit's aggressive 14-s flight: a 1.26 m/s wind and a 1.6 % battery sag, 1.9 % and 1.8 %
+        of its 7.6 m/s^2, cut the error by 13 % and 36 %, and the null said that no candidate
+        explains what is missing)."""
+        return [c for c in self.ranking if c.small_force and c.nrmse_after is not None
+                and np.isfinite(c.nrmse_before) and c.nrmse_after <= (1.0 - MOVES_PREDICTIONS) * c.nrmse_before]
+
+    def _small_but_moving_words(self) -> str:
+        moving = self.small_but_moving()
+        if not moving:
+            return ""
+        each = ", ".join(f"{c.effect} ({c.nrmse_before:.3g} -> {c.nrmse_after:.3g})" for c in moving)
+        return (f"; yet {each} cut{'s' if len(moving) == 1 else ''} the validation error, each refused only because "
+                f"its force stays below {100 * MIN_FORCE_SHARE:.0f} % of the accelerations this flight flies with: "
+                f"{'it' if len(moving) == 1 else 'they'} may be what is missing, too small against them to be named "
+                "(a gentler or longer flight, or several flights, would tell)")
+
     def _rotor_changed_words(self) -> str:
         step = self.rotor_changed or {}
         return (f"null -- rotor {step.get('rotor')} changed during the flight: its share of the squared speeds "
@@ -604,11 +637,12 @@ class Diagnosis:
                                # audit's own true climb-rate thrust loss on a 35 g vehicle)
                                + "".join(f"; {c.effect} explains part of it in the fit (LR {c.lr:.3g}) but is not "
                                          "confirmed on the validation data" for c in self.ranking
-                                         if c.not_confirmed and c.lr is not None),
+                                         if c.not_confirmed and c.lr is not None)
+                               + self._small_but_moving_words(),
                 "small_misfit": "null -- no catalogue effect is significant, and the model is not at the noise "
                                 f"in {', '.join(self.misfit())}: below {UNEXPLAINED_RATIO:g}x the noise (or the "
                                 "gaps' random part), too small for the candidates or discovery to tell what it is; "
-                                "it may be outside the catalogue",
+                                "it may be outside the catalogue" + self._small_but_moving_words(),
                 "gyro_scale": f"null -- no effect is confirmed missing, but "
                               f"{self.gyro_scale.reading() if self.gyro_scale else 'the gyro reads off'}: a gyro "
                               "scale error (or a measured attitude that under-reads the turns), which the fitted "
@@ -617,7 +651,7 @@ class Diagnosis:
                                  if any(c.effect == "gyro_scale" for r in self.rounds or [self] for c in r.ranking)
                                  else "the effect gyro_scale, not among the candidates, would fit it")
                               + " (or calibrate the gyro, or divide its columns by these factors, and diagnose again)",
-                "nothing_missing": "null (nothing significant is missing)"}[why]
+                "nothing_missing": "null (nothing significant is missing)" + self._small_but_moving_words()}[why]
 
     def summary(self) -> str:
         """Readable text of steps 1-4."""

@@ -24,7 +24,7 @@ from ..shooting import ShootingProblem, free_indices
 from ..validation import DEFAULT_HORIZON, Prediction, predict_after_fit
 
 __all__ = ["NEGLIGIBLE_FRACTION", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "negligible_effect", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
-           "explained_fraction", "screen_jointly", "JOINT_COST_TOLERANCE", "physically_negligible", "physically_implausible", "held_on_bound", "replaced_base_terms", "REPLACED_CLEAR_STD", "null_on_bound", "precompile_refits", "queue_refit_builds",
+           "explained_fraction", "screen_jointly", "JOINT_COST_TOLERANCE", "physically_negligible", "small_in_force_only", "physically_implausible", "held_on_bound", "replaced_base_terms", "REPLACED_CLEAR_STD", "null_on_bound", "precompile_refits", "queue_refit_builds",
            "HeldBeyondPlausible", "HELD_ITERATIONS", "within_row_timing", "row_timing_words", "TIMING_ALPHA", "fit_weights",
            "robust_screen", "one_step_estimate", "moment_scale_words", "MOMENT_SCALE_NOTICE"]
 
@@ -759,16 +759,32 @@ def negligible_effect(fr: FitResult, effect: str, logs: Sequence[FlightLog]) -> 
     small = physically_small(fr, effect, logs)
     if not small:
         return ""
+    undetermined = _undetermined_components(fr, effect)
+    if undetermined:
+        values = ", ".join(f"{c} = {v:.3g} ± {s:.2g}" for c, v, s in undetermined)
+        small += (f"; its parameters are not small but not determined either ({values}, each within 3 std of "
+                  "its null value): these flights show that it moves little here, not how large it is")
+    return small
+
+
+def small_in_force_only(fr: FitResult, effect: str, logs: Sequence[FlightLog]) -> bool:
+    """Whether :func:`negligible_effect` refuses ``effect`` only for its force: parameters
+    neither negligible nor undetermined, its force below :data:`MIN_FORCE_SHARE`."""
+    return not physically_negligible(fr, effect) and bool(physically_small(fr, effect, logs)) \
+        and not _undetermined_components(fr, effect)
+
+
+def _undetermined_components(fr: FitResult, effect: str) -> list[tuple[str, float, float]]:
+    """``(component, value, std)`` of ``effect``'s size parameters when every one lies within 3
+    std of its null value (none otherwise, or without any)."""
     std = dict(zip(fr.free_names, map(float, fr.std)))
     e = fr.model.effects.get(effect)
     shape = set(e.shape_parameters) if e is not None else set()     # a hub height is no size
     comps = [(c, fr.value(c), null) for par, c, null in fr.model.effect_components(effect)
              if c in std and par.name not in shape]
     if comps and all(np.isfinite(std[c]) and abs(v - null) < 3.0 * std[c] for c, v, null in comps):
-        values = ", ".join(f"{c} = {v:.3g} ± {std[c]:.2g}" for c, v, _ in comps)
-        small += (f"; its parameters are not small but not determined either ({values}, each within 3 std of "
-                  "its null value): these flights show that it moves little here, not how large it is")
-    return small
+        return [(c, v, std[c]) for c, v, _ in comps]
+    return []
 
 
 def physically_implausible(fr: FitResult, effect: str) -> str:

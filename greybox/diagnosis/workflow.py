@@ -25,7 +25,8 @@ from ..kinematics import gyro_scale, input_lead
 from ..model import QuadrotorModel
 from ..residuals import attitude_motion, flight_residuals
 from ..shooting import attitude_gyro_disagreement
-from ..validation import DEFAULT_HORIZON, horizon_errors_after, predict_after_fit, validation_vectors
+from ..validation import (DEFAULT_HORIZON, horizon_errors_after, mean_value_words, predict_after_fit,
+                          validation_vectors)
 from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import (ThrustAtTop, below_ground_words, command_imbalance, estimation_residuals, log_moment_words,
                        residual_analysis, odd_flight_geometry, rotor_geometry, rotor_geometry_warnings,
@@ -350,6 +351,8 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         words, spread, val_spread = _added_effect_checks(model, cur_model, cur_res, est, val, validation is None,
                                                          compile, say, top_thrust)
         warnings += words
+    # a separate validation flight predicted with the mean of the flights' own winds, charges
+    warnings += [w for w in mean_value_words(cur_res, est, val) if w not in warnings]
     # whether the logged commands' torque shows in the attitude at all (data only): why a model of
     # the vehicle may lose to the naive attitude predictor whatever its parameters
     predictability = command_predictability(model, logs + (val if validation is not None else []),
