@@ -259,20 +259,31 @@ OUTLIERS_HELP = ("isolated glitches in the position or attitude (a marker swap: 
 
 def _load_fit_inputs(args: argparse.Namespace):
     """Model, starting parameters (``--set``) and the logs, each checked before any work."""
+    window = _time_window(args)
     model, brought = model_from_args(args)
     p0 = _parameters(model, brought, args.set)
-    return model, p0, [_load_model_log(model, path, p0, args.input_noise, args.outliers, args.held)
+    return model, p0, [_load_model_log(model, path, p0, args.input_noise, args.outliers, args.held, window)
                        for path in args.log]
 
 
+def _time_window(args: argparse.Namespace) -> tuple[float | None, float | None] | None:
+    """``--time T0:T1`` read before any work, or None."""
+    from .data import parse_time_window
+    return parse_time_window(args.time) if getattr(args, "time", None) else None
+
+
 def _load_model_log(model: QuadrotorModel, path: str, p0: np.ndarray, input_noise: str = "smooth",
-                    outliers: str = "drop", held: str = "hold"):
+                    outliers: str = "drop", held: str = "hold",
+                    window: tuple[float | None, float | None] | None = None):
     """A rotor-speed log checked against ``model``'s rotors (and their plausible speeds with
     parameters ``p0``) and ready to fit; the speeds' noise that the vehicle does not follow
     taken out unless ``input_noise`` is ``"keep"``, the pose's glitches unless ``outliers`` is,
-    held speeds interpolated between their fresh rows where ``held`` is ``"interpolate"``."""
+    held speeds interpolated between their fresh rows where ``held`` is ``"interpolate"``; only
+    the rows within ``window`` (``--time``: :meth:`~greybox.data.FlightLog.between`)."""
     from .data import load_log
     log = load_log(path, inputs="rotor_speeds")
+    if window is not None:
+        log = log.between(*window, where=path)
     log = model_log(model, log, p0, path, input_noise, outliers, held)
     for note in log.notes:
         print(f"note: {note}", file=sys.stderr)
@@ -649,6 +660,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if not args.airframe and (args.effects or args.without or args.set):
         raise GreyboxInputError("--effects, --without and --set apply to --airframe's model; a saved model "
                                 "(--model) is compared as fitted")
+    window = _time_window(args)
     entries = []          # (label, model, parameter vector, prediction options)
     if args.airframe:
         model = build_model(args.airframe, args.effects, args.without)
@@ -659,6 +671,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     # each file read once; prepared for each model (its rotors checked), its notes said once
     from .data import load_log
     raw = [load_log(path, inputs="rotor_speeds") for path in args.log]
+    if window is not None:
+        raw = [log.between(*window, where=path) for log, path in zip(raw, args.log)]
     preds = []
     for k, (label, model, p, options) in enumerate(entries):
         logs = [model_log(model, log, p, path, held=args.held) for log, path in zip(raw, args.log)]
@@ -851,6 +865,15 @@ def _data_args(ap: argparse.ArgumentParser, per_flight_help: str, process_noise_
     ap.add_argument("--per-flight", metavar="auto|none|NAMES", help=per_flight_help)
 
 
+TIME_HELP = ("only the rows with T0 <= t <= T1 of each LOG (seconds, the log's own times; either end may be "
+             "left out: '20:', ':19.5'), e.g. the parts before and after a rotor changed in flight (not "
+             "applied to --validation flights)")
+
+
+def _time_arg(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--time", metavar="T0:T1", help=TIME_HELP)
+
+
 def _import_args(ap: argparse.ArgumentParser, file_help: str) -> None:
     """The options the Crazyflie importers share (NanoBench, uSD)."""
     ap.add_argument("file", help=file_help)
@@ -928,6 +951,7 @@ def _parser() -> argparse.ArgumentParser:
                   "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
                   "comma list of effects / parameters", process_noise_default=FIT_DEFAULTS["process_noise"])
     f.add_argument("--held", choices=["hold", "interpolate"], default="hold", help=HELD_HELP)
+    _time_arg(f)
     f.add_argument("--validation", metavar="LOGV", nargs="+",
                    help="separate flight(s) to validate on (then all of each LOG is estimation data; default: the "
                         "last 20 %% of each LOG)")
@@ -953,6 +977,7 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--without", help="comma list of effects to remove from the airframe's model")
     c.add_argument("--set", action="append", metavar="NAME=VALUE", help="a parameter of the airframe's model")
     c.add_argument("--held", choices=["hold", "interpolate"], default="hold", help=HELD_HELP)
+    _time_arg(c)
     c.add_argument("--horizon", type=_positive, default=FIT_DEFAULTS["horizon"],
                    help=f"prediction horizon, s (default {FIT_DEFAULTS['horizon']:g})")
     c.add_argument("--plots", help="folder for the compare plots (one per log)")
@@ -972,6 +997,7 @@ def _parser() -> argparse.ArgumentParser:
     _data_args(g, "with several logs, what each flight gets its own value of (as for fit; default auto: "
                   "wind, thrust_drift)")
     g.add_argument("--held", choices=["hold", "interpolate"], default="hold", help=HELD_HELP)
+    _time_arg(g)
     g.add_argument("--validation", metavar="LOGV", nargs="+",
                    help="separate flight(s) to validate on (then all of each LOG is estimation data; "
                         "default: the last 20 %% of each LOG)")

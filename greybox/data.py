@@ -23,7 +23,7 @@ import numpy as np
 
 from .errors import GreyboxInputError
 
-__all__ = ["FlightLog", "check_distinct_flights", "flight_label", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write",
+__all__ = ["FlightLog", "check_distinct_flights", "flight_label", "parse_time_window", "load_log", "is_log_column", "save_log", "read_csv_table", "read_text_file", "atomic_write",
            "ATOMIC_NAME_EXTRA", "log_from_table",
            "check_sample_times", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "MAX_ROTOR_SPEED",
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "rotor_speed_magnitudes",
@@ -166,6 +166,30 @@ class FlightLog:
                          list(self.output_names),
                          {k: v[start:stop].copy() for k, v in self.extras.items()},
                          list(self.notes), self.source, dict(self.input_noise_left))
+
+    def between(self, t0: float | None = None, t1: float | None = None, where: str = "") -> "FlightLog":
+        """The rows with ``t0 <= t <= t1`` (either end None: open), with a note; a window that
+        holds fewer than two rows is refused, naming ``where`` (or the log's source) and the
+        log's own time span. Diagnose the parts of a flight before and after a rotor changed
+        apart: ``log.between(None, 19.5)``, ``log.between(19.9)`` (``--time :19.5``)."""
+        name = where or self.source or "the log"
+        if t0 is not None and t1 is not None and not t0 < t1:
+            raise GreyboxInputError(f"{name}: --time {t0:g}:{t1:g} is empty (its start must come before its end)")
+        keep = np.ones(len(self), dtype=bool)
+        if t0 is not None:
+            keep &= self.t >= t0
+        if t1 is not None:
+            keep &= self.t <= t1
+        idx = np.flatnonzero(keep)
+        if idx.size < 2:
+            span = f"{self.t[0]:g}..{self.t[-1]:g} s" if len(self) else "no rows"
+            raise GreyboxInputError(f"{name}: --time {_window_text(t0, t1)} holds {idx.size} of its rows "
+                                    f"(its times run {span})")
+        out = self.slice(int(idx[0]), int(idx[-1]) + 1)
+        if idx.size < len(self):
+            out.notes.append(f"rows t = {out.t[0]:g}..{out.t[-1]:g} s kept ({idx.size} of {len(self)}; "
+                             f"--time {_window_text(t0, t1)})")
+        return out
 
     def same_flight(self, other: "FlightLog") -> bool:
         """Whether ``other`` holds the same samples (times, inputs and outputs, NaN for NaN):
@@ -541,6 +565,34 @@ def check_distinct_flights(logs: Sequence[FlightLog], what: str = "flights") -> 
             if a is b or a.same_flight(b):
                 raise GreyboxInputError(f"{b.source or 'log'}: the same flight as {a.source or 'another log'} "
                                         f"(the same samples): give each of the {what} once")
+
+
+def _window_text(t0: float | None, t1: float | None) -> str:
+    return f"{'' if t0 is None else format(t0, 'g')}:{'' if t1 is None else format(t1, 'g')}"
+
+
+def parse_time_window(text: str, option: str = "--time") -> tuple[float | None, float | None]:
+    """``"T0:T1"`` (seconds; either end may be left out: ``"20:"``, ``":19.5"``) as
+    ``(t0, t1)``, for :meth:`FlightLog.between`; one error naming ``option`` otherwise."""
+    parts = text.split(":")
+    if len(parts) != 2 or not any(p.strip() for p in parts):
+        raise GreyboxInputError(f"{option}: {text!r} is not T0:T1 (seconds; e.g. 5:30, 20: or :19.5)")
+    out = []
+    for p in parts:
+        p = p.strip()
+        if not p:
+            out.append(None)
+            continue
+        try:
+            v = float(p)
+        except ValueError:
+            raise GreyboxInputError(f"{option}: {p!r} in {text!r} is not a number of seconds") from None
+        if not np.isfinite(v):
+            raise GreyboxInputError(f"{option}: {p!r} in {text!r} is not a finite number of seconds")
+        out.append(v)
+    if out[0] is not None and out[1] is not None and not out[0] < out[1]:
+        raise GreyboxInputError(f"{option}: {text!r} is empty (its start must come before its end)")
+    return out[0], out[1]
 
 
 def flight_label(log: FlightLog, k: int) -> str:

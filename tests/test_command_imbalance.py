@@ -74,6 +74,39 @@ def test_a_diagnosis_of_a_flight_whose_rotor_changed_tests_nothing(base, tmp_pat
     from greybox.diagnosis.fit_checks import fit_warnings
     said = [w for w in fit_warnings(d.baseline, log) if "a rotor that changed during the flight" in w]
     assert said and said[0].startswith("Rotor w1's share") and "an average of the two" in said[0], said
+    # the parts before and after, as --time windows the command line takes
+    t = out["command_imbalance"]["share_step"]["t"]
+    windows = f"--time :{t - 0.5:.1f} and --time {t + 0.5:.1f}:"
+    assert windows in d.verdict_text() and windows in said[0], (windows, d.verdict_text())
+
+
+def test_the_part_before_a_rotor_changed_is_fitted_alone_with_time(base, tmp_path, capsys):
+    """``--time :5.5`` keeps the rows before the step of the flight above (rotor 1 weaker from
+    6 s): fitted alone the part is certified, adequate and says nothing of a changed rotor, with
+    K_T within 3 std of the vehicle's; windows that hold no rows or are not T0:T1 exit 2 with
+    one line naming the log or the option."""
+    import json
+    from greybox.cli import main
+    from greybox.data import save_log
+    m0, p0 = model_with_hidden_effects(base, [])
+    log = synthesize(m0, p0, 12.0, SensorSpec(rate=100.0, vision_rate=50.0), seed=3).log
+    log.inputs[log.t >= 6.0, 0] /= np.sqrt(0.85)
+    save_log(log, tmp_path / "changed.csv")
+    args = ["fit", str(tmp_path / "changed.csv"), "--airframe", str(AIRFRAMES / "x_quad.toml"), "--quiet"]
+    assert main(args + ["--time", ":5.5", "--json", str(tmp_path / "r.json")]) == 0
+    err = capsys.readouterr().err
+    assert "rows t = 0..5.5 s kept (551 of 1201; --time :5.5)" in err, err
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert r["converged"] and not any("changed during the flight" in w for w in r["warnings"]), r["warnings"]
+    k_t = r["parameters"]["K_T"]
+    assert abs(k_t["value"] - p0[m0.param_names.index("K_T")]) < 3 * k_t["std"], k_t
+    for window, words in ((":-1", "--time :-1 holds 0 of its rows (its times run 0..12 s)"),
+                          ("20:30", "--time 20:30 holds 0 of its rows"),
+                          ("5", "--time: '5' is not T0:T1"), ("a:3", "--time: 'a' in 'a:3' is not a number"),
+                          ("6:2", "--time: '6:2' is empty")):
+        assert main(args + ["--time", window]) == 2, window
+        err = capsys.readouterr().err
+        assert words in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, (window, err)
 
 
 def test_a_command_clipped_at_the_end_of_its_range_is_told(base):

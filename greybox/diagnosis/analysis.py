@@ -105,6 +105,16 @@ AT_LIMIT_NOTABLE = 0.01
 clipped there, not flown: an unclipped command reaches its maximum once."""
 
 
+STEP_MARGIN = 0.5
+"""Seconds left out on each side of a rotor's step when the parts before and after it are
+offered for fitting apart (the step's time is read from half-second windows of steady flight)."""
+
+
+def step_windows(step: dict) -> str:
+    """The ``--time`` windows of the parts before and after a rotor's step (``share_step``)."""
+    return f"--time :{step['t'] - STEP_MARGIN:.1f} and --time {step['t'] + STEP_MARGIN:.1f}:"
+
+
 @dataclass
 class CommandImbalance:
     """How unequally the logged rotor speeds share the work in steady flight (level, not
@@ -208,7 +218,7 @@ class CommandImbalance:
                 f"to {100 * step['after']:+.1f} % around {step['t']:.1f} s of {step['flight']} (t = "
                 f"{step['t_stat']:.0f}): a rotor that changed during the flight (a damaged propeller, a failing "
                 "motor or ESC), which no constant effect holds (motor_asymmetry would take an average of the "
-                "two); fit the parts before and after apart")
+                f"two); fit the parts before and after apart ({step_windows(step)})")
 
     def as_dict(self) -> dict:
         return {"share": dict(self.share), "spin": {str(k): v for k, v in self.spin.items()},

@@ -19,7 +19,7 @@ from ..model import OUTPUTS, QuadrotorModel
 from ..residuals import ANGLE_OF_RATE, AttitudeMotion
 from ..controller_law import ClosedLoopReport, reported_horizons
 from ..validation import HorizonErrors, Prediction, prediction_options
-from .analysis import CommandImbalance, Finding
+from .analysis import CommandImbalance, Finding, step_windows
 from .closed_loop import rate_levels
 from .predictability import ANGLE_OF_AXIS, CommandPredictability
 from .screening import MIN_FORCE_SHARE
@@ -539,7 +539,7 @@ class Diagnosis:
                 f"steps from {100 * step.get('before', 0.0):+.1f} % to {100 * step.get('after', 0.0):+.1f} % around "
                 f"{step.get('t', 0.0):.1f} s of {step.get('flight')} (a damaged propeller, a failing motor or ESC); "
                 "no constant effect holds that, so nothing was tested: diagnose the parts before and after it "
-                "apart (FlightLog.slice, or the log's rows cut there)")
+                f"apart ({step_windows(step)}, FlightLog.between)")
 
     def _random_torque_words(self) -> str:
         """The null of a model that holds what it misses as a disturbance torque. Turbulence, or
