@@ -114,6 +114,8 @@ def _verdict_words(d: "Diagnosis") -> str:
                          "rotor_layout": "null (the logged rotor speeds act as the airframe's rotors turned about the "
                                          "body's z axis: nothing was tested)",
                          "uncertified": "null (cannot tell: the baseline fit is not certified)",
+                         "attitude_uncertain": "null (cannot tell: the verdicts stood only with the attitude weighed "
+                                               "by its sample-to-sample noise)",
                          "input_noise": "null (the rates are missed by a random torque that the noise on the logged "
                                         "rotor speeds gives: cannot tell a turbulence from it)",
                          "outside_catalogue": "null (what is missing is outside the catalogue: see the discovered "

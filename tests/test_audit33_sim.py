@@ -71,7 +71,9 @@ def test_an_onboard_filters_attitude_with_noise_on_it_is_said_beside_the_verdict
     """The logged roll and pitch are a complementary filter's (k_P 0.25 rad/s) with 1 mrad of
     white noise on it: weighed by that noise, the diagnosis named a position delay (22 ms, 13 std
     from none) and said nothing. Now the disagreement with the gyro is said (in the warnings, the
-    verdict's lines and the JSON) with the accuracy to give, and given, the verdict is null."""
+    verdict's lines and the JSON) with the accuracy to give; the verdict is judged again with the
+    attitude weighed by that disagreement, where the delay goes to none (LR 0): it is left out,
+    the verdict null (``attitude_uncertain``: cannot tell); given the accuracy, null too."""
     _case(tmp_path, "estimator")
     d = _diagnose(tmp_path, "estimator")
     off = d["attitude_gyro_disagreement"]
@@ -79,6 +81,11 @@ def test_an_onboard_filters_attitude_with_noise_on_it_is_said_beside_the_verdict
     assert all(v["disagreement"] > 10 * v["noise"] for v in off.values()), off
     note = next(w for w in d["warnings"] if "disagree with the gyro's integral" in w)
     assert "--noise phi=" in note and "--noise theta=" in note, note
+    assert d["verdict"] is None and d["null_reason"] == "attitude_uncertain", (d["verdict"], d["null_reason"])
+    assert d["attitude_demoted"] == ["position_delay"] and d["added"] == [], d["added"]
+    said = next(w for w in d["warnings"] if w.startswith("position_delay stands only with roll and pitch weighed"))
+    assert "it does not" in said and "leaves it out" in said, said
+    assert "tau_pos" not in d["model"]["parameters"]
     # the accuracy it gives: the verdict is then null
     given = [a for ch in ("phi", "theta") for a in ("--noise", f"{ch}={off[ch]['disagreement']:.2g}")]
     d2 = _diagnose(tmp_path, "estimator", *given)

@@ -287,6 +287,11 @@ class Diagnosis:
     # of several flights, the one whose rotor columns act in another order or turned when the
     # others do not (diagnosis.analysis.odd_flight_geometry); None for all of them or one flight
     geometry_flight: str | None = None
+    # verdicts that stood only with roll and pitch weighed by their sample-to-sample noise, not
+    # by their disagreement with the gyro's integral: left out of the final model
+    attitude_demoted: list[str] = field(default_factory=list)
+    # whether the verdicts were judged at those weights too (a certified refit there)
+    attitude_judged: bool = False
     # the log's timing settled before the candidates (rotor speeds sampled between rows):
     # effect, s_lead, s_lead_std, nrmse_before, nrmse_after, text; None when the hold stands
     input_timing: dict | None = None
@@ -386,6 +391,8 @@ class Diagnosis:
                "small_but_moving": [c.effect for c in self.small_but_moving()] if not self.verdict else [],
                # the one flight of several whose rotor columns act in another order or turned
                "geometry_flight": self.geometry_flight,
+               # verdicts left out: they stood only with the attitude weighed at its own noise
+               "attitude_demoted": list(self.attitude_demoted),
                # the gyro read against the attitude's turning, per axis read, when some axis is off
                "gyro_scale": None if self.gyro_scale is None else
                {a: {"value": _num(k), "std": _num(self.gyro_scale.std[a])} for a, k in self.gyro_scale.scale.items()},
@@ -470,7 +477,9 @@ class Diagnosis:
         nothing was tested), ``"rotor_changed"`` (a rotor's share of the work steps during an
         estimation flight, :attr:`CommandImbalance.share_step`: a propeller damaged in flight,
         which no constant effect holds; nothing was tested), ``"uncertified"`` (the baseline
-        fit is not certified, nothing was tested), ``"input_timing"`` (the logged rotor speeds
+        fit is not certified, nothing was tested), ``"attitude_uncertain"`` (the verdicts stood only
+        with roll and pitch weighed by their sample-to-sample noise, not by their disagreement
+        with the gyro's integral: left out), ``"input_timing"`` (the logged rotor speeds
         are stamped late against the gyro: what the model misses may be that timing,
         :func:`~greybox.kinematics.input_lead`), ``"outside_catalogue"`` (the catalogue's best were set aside for discovered
         physics), ``"random_torque"`` (what is missing acts as a random torque, turbulence, which
@@ -494,6 +503,8 @@ class Diagnosis:
             return "rotor_changed"
         if not self.baseline_certified:
             return "uncertified"
+        if self.attitude_demoted:
+            return "attitude_uncertain"
         if self.input_lead is not None and self.input_lead.late():
             return "input_timing"
         if self.outside_catalogue:
@@ -534,10 +545,12 @@ class Diagnosis:
                 "(a gentler or longer flight, or several flights, would tell)")
 
     def _rotor_changed_words(self) -> str:
-        step = self.rotor_changed or {}
+        step = self.rotor_changed
+        if not step:
+            return ""      # verdict_text builds every reason's words: this one only with a step
         return (f"null -- rotor {step.get('rotor')} changed during the flight: its share of the squared speeds "
-                f"steps from {100 * step.get('before', 0.0):+.1f} % to {100 * step.get('after', 0.0):+.1f} % around "
-                f"{step.get('t', 0.0):.1f} s of {step.get('flight')} (a damaged propeller, a failing motor or ESC); "
+                f"steps from {100 * step['before']:+.1f} % to {100 * step['after']:+.1f} % around "
+                f"{step['t']:.1f} s of {step['flight']} (a damaged propeller, a failing motor or ESC); "
                 "no constant effect holds that, so nothing was tested: diagnose the parts before and after it "
                 f"apart ({step_windows(step)}, FlightLog.between)")
 
@@ -622,6 +635,12 @@ class Diagnosis:
                                 "nothing was tested; check the airframe's layout and rotor positions",
                 "rotor_changed": self._rotor_changed_words(),
                 "uncertified": "null (cannot tell: the baseline fit is not certified)",
+                "attitude_uncertain": f"null (cannot tell: {', '.join(self.attitude_demoted)} "
+                                      f"{'stands' if len(self.attitude_demoted) == 1 else 'stand'} only with roll and "
+                                      "pitch weighed by their sample-to-sample noise, not by their disagreement with "
+                                      "the gyro's integral: an onboard estimate's slow error, or the gyro's scale or "
+                                      "timing, which the log cannot tell apart; give the attitude's accuracy, "
+                                      "--noise phi=..., theta=..., and diagnose again)",
                 "input_timing": f"null -- {self.input_lead.words() if self.input_lead else ''}, and diagnose "
                                 "again: what the model misses may be that timing, not physics",
                 "outside_catalogue": f"null -- {self.outside_catalogue}",
@@ -684,11 +703,16 @@ class Diagnosis:
         lines.append(f"   verdict: {self.verdict_text()}")
         if self.verdict and self.attitude_gyro_disagreement:
             # a blind audit's onboard filter with noise on it: position_delay named, 13 std from none
+            # judged again at the disagreement's weights (workflow): what stands, stands at both
             lines.append("   judged with " + " and ".join(self.attitude_gyro_disagreement) + " weighed by their "
                          "sample-to-sample noise, which they disagree with the gyro's integral by " +
                          ", ".join(f"{k / max(h, 1e-4):.0f}" for k, h in self.attitude_gyro_disagreement.values())
-                         + " times: if the attitude is an onboard estimate, the verdict may stand in for its slow "
-                         "error (see the warnings)")
+                         + (" times, and again weighed by that disagreement: the verdicts stand at both weights"
+                            + (f" ({', '.join(self.attitude_demoted)}, which did not, left out)"
+                               if self.attitude_demoted else "") if self.attitude_judged else
+                            " times (not judged again at that disagreement: its refit was not certified): if the "
+                            "attitude is an onboard estimate, the verdict may stand in for its slow error (see the "
+                            "warnings)"))
         if self.verdict and (self.unexplained or self.unexplained_gaps):
             lines.append(f"   and the model still misses something no candidate explains: {self._far_off()}")
         lines += self._later_round_lines()
