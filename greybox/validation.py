@@ -246,9 +246,16 @@ def estimate_states(model: QuadrotorModel, p: np.ndarray, log: FlightLog, starts
         mu = np.where(ok, np.maximum(mu / 5, 1e-9), mu * 10)
     if measured_start:
         meas = measured_outputs(log, model.ny)
+        # what the sensors' effects add to the attitude and rates at the estimate (a gyro's bias,
+        # an attitude offset): taken off the measurements the windows start from, as the state
+        # is the body's (a blind audit's gyro bias, added back on a start from the raw rates:
+        # r predicted 12 % worse with the bias fitted to 0.4 std of the truth)
+        Yx = np.asarray(model.output.map(nW)(xe.T, log.inputs[starts].T, np.repeat(p[:, None], nW, axis=1),
+                                              log.t[starts][None, :])).T
+        sensor = Yx[:, [OUTPUTS.index(n) for n in ("phi", "theta", "psi", "p", "q", "r")]] - xe[:, [3, 4, 5, 9, 10, 11]]
         for i, a in enumerate(starts):
             _, eul, _, om = naive_start(log, meas, int(a), xe[i])
-            xe[i, 3:6], xe[i, 9:12] = eul, om
+            xe[i, 3:6], xe[i, 9:12] = eul - sensor[i, :3], om - sensor[i, 3:]
     return xe
 
 

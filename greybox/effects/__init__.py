@@ -46,13 +46,13 @@ from .registry import (DISTURBANCE_MODELS, ENTRY_POINT_GROUP, by_name, confusabl
                        effect_class, example_values, known_effects, load_effects_file, measurement_only,
                        parse_effect_names, per_flight, register, registered_effects, unregister, user_hook)
 from .rotor import Gyroscopic, MomentGain, MotorLag, ThrustCurve, YawTorque
-from .sensors import AccelBias, AttitudeBias, GyroScaleError, PositionDelay, PositionOffset
+from .sensors import AccelBias, AttitudeBias, GyroBias, GyroScaleError, PositionDelay, PositionOffset
 
 __all__ = [
     "Effect", "EffectLibrary", "ModelContext", "CATALOGUE", "BASE_EFFECTS", "by_name",
     "parse_effect_names", "YawTorque", "LinearDrag", "Gyroscopic", "QuadraticDrag", "RotorDrag",
     "HubRotorDrag", "DragMoment", "GroundEffect", "MotorLag", "CogOffset", "MotorAsymmetry", "Wind", "ThrustDrift",
-    "PositionDelay", "PositionOffset", "AttitudeBias", "AccelBias", "GyroScaleError", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
+    "PositionDelay", "PositionOffset", "AttitudeBias", "AccelBias", "GyroBias", "GyroScaleError", "RotorMap", "BatteryVoltage", "SIGNAL_EFFECTS",
     "APPLY_ORDER", "register", "load_effects_file", "known_effects", "registered_effects",
     "effect_class", "confusable", "measurement_only", "per_flight", "distinguishing_manoeuvre", "ENTRY_POINT_GROUP",
     "example_values", "DiscoveredEffect",

@@ -1,6 +1,6 @@
 """What the sensors report: latency of the position measurement, where the position sensor
 sits on the vehicle, offsets of the measured roll and pitch, the accelerometer's bias, the
-gyro's scale."""
+gyro's bias and scale."""
 from __future__ import annotations
 
 from typing import Sequence
@@ -10,7 +10,7 @@ from ..kinematics import gyro_scale
 from ..parameters import Parameter
 from .base import Effect
 
-__all__ = ["PositionDelay", "PositionOffset", "AttitudeBias", "AccelBias", "GyroScaleError"]
+__all__ = ["PositionDelay", "PositionOffset", "AttitudeBias", "AccelBias", "GyroBias", "GyroScaleError"]
 
 
 class PositionDelay(Effect):
@@ -138,6 +138,48 @@ class AccelBias(Effect):
     def modify_measurement(self, ctx, y):
         b = ctx.params["acc_bias"]
         for i, ch in enumerate(("ax", "ay", "az")):     # the model's outputs always hold all three
+            y[ch] = y[ch] + b[i]
+
+
+class GyroBias(Effect):
+    """Constant biases of the gyro per body axis (a MEMS gyro's zero-rate offset that its
+    power-up calibration left, or drifted with temperature: 0.005-0.05 rad/s is common):
+    ``p_meas = p + gyro_bias[0]`` and likewise ``q``, ``r`` (rad/s). It changes what the gyro
+    reports, not how the vehicle moves; the attitude, which does not turn with it, tells it
+    apart from a torque. Without it, the model takes the offset for a turning the vehicle does
+    not do (a blind audit's 250 g vehicle with 0.02 rad/s on p: "a roll torque the model lacks
+    ... outside the catalogue", its control flight never adequate). Considered by the diagnosis
+    when the log measures the rates (``p``); shared by the flights of a joint fit (one sensor;
+    a bias that changes between power-ups calls for separate fits).
+    """
+
+    name = "gyro_bias"
+    summary = "constant gyro biases (body p, q, r)"
+    excited_by = "any flight with the gyro and an independent attitude logged (a bias does not move the vehicle)"
+    fit_advice = "hover and turns with the attitude measured independently of the gyro"
+    channels = ("p", "q", "r")
+    considered_when_logged = ("p",)
+    distinguish = {"cog_offset": "a centre of gravity off is a torque the controller trims (the commands show "
+                                 "it); a gyro bias turns nothing: the attitude does not follow the gyro's integral"}
+
+    def parameters(self, airframe):
+        return [Parameter("gyro_bias", 3, 0.0, "rad/s", -0.5, 0.5, 0.01, 0.0, True,
+                          "gyro biases, body p, q, r (measured = true rate + gyro_bias)", self.name)]
+
+    def plausible_values(self, airframe, K_T):
+        return {"gyro_bias": [0.01, -0.01, 0.01]}
+
+    def negligible_size(self, airframe):
+        # a calibrated MEMS gyro's residual offset: a tenth of a degree per second
+        return {"gyro_bias": 0.002}
+
+    def plausible_limits(self, airframe):
+        # consumer MEMS gyros' zero-rate offsets before calibration: a few degrees per second
+        return {"gyro_bias": 0.15}
+
+    def modify_measurement(self, ctx, y):
+        b = ctx.params["gyro_bias"]
+        for i, ch in enumerate(("p", "q", "r")):
             y[ch] = y[ch] + b[i]
 
 

@@ -267,6 +267,9 @@ class HeldInputs:
     every: float        # mean rows between fresh samples (runs of a command that stayed put left out)
     rate: float         # fresh samples per second
     row_rate: float     # rows per second (from the median row interval)
+    # each input refreshed on rows of its own (ESC telemetry per motor, phases staggered): the
+    # rows as a whole are fresh on most rows, each column on few (figures: the columns' mean)
+    staggered: bool = False
 
     @property
     def late_ms(self) -> float:
@@ -275,8 +278,11 @@ class HeldInputs:
 
     def text(self, names: str = "the rotor speeds") -> str:
         """What was found, in words."""
-        return (f"{names} repeat the previous row exactly on {100 * self.share:.0f} % of the rows (a fresh value "
-                f"every {self.every:.3g} rows: {self.rate:.3g} Hz on {self.row_rate:.3g} Hz rows)")
+        each = "each of " if self.staggered else ""
+        own = ", each on rows of its own" if self.staggered else ""
+        return (f"{each}{names} repeat{'s' if self.staggered else ''} the previous row exactly on "
+                f"{100 * self.share:.0f} % of the rows (a fresh value every {self.every:.3g} rows: {self.rate:.3g} Hz on "
+                f"{self.row_rate:.3g} Hz rows{own})")
 
 
 def held_inputs(log: FlightLog) -> HeldInputs | None:
@@ -287,7 +293,24 @@ def held_inputs(log: FlightLog) -> HeldInputs | None:
     than 20 rows are fresh, or where an importer marked the fresh rows (``motor_fresh``)."""
     if "motor_fresh" in log.extras or len(log) < 40 or not log.inputs.size:
         return None
-    fresh = fresh_rows(log.inputs)
+    dt = float(np.median(np.diff(log.t)))
+    together = _held_spacing(fresh_rows(log.inputs))
+    if together is not None:
+        share, every = together
+        return HeldInputs(share=share, every=every, rate=1.0 / (every * dt), row_rate=1.0 / dt)
+    # each column on rows of its own (a blind audit's ESC telemetry at 100 Hz per motor, phases
+    # staggered, on 200-Hz rows: some column changed on most rows, and nothing was said)
+    columns = [_held_spacing(fresh_rows(log.inputs[:, j])) for j in range(log.inputs.shape[1])]
+    if log.inputs.shape[1] < 2 or any(c is None for c in columns):
+        return None
+    share, every = float(np.mean([c[0] for c in columns])), float(np.mean([c[1] for c in columns]))
+    return HeldInputs(share=share, every=every, rate=1.0 / (every * dt), row_rate=1.0 / dt, staggered=True)
+
+
+def _held_spacing(fresh: np.ndarray) -> tuple[float, float] | None:
+    """``(share of rows repeated, mean rows between fresh ones)`` of a fresh-row mask whose
+    fresh rows lie :data:`HELD_EVERY` rows apart or more in the median (long runs, a command
+    that stayed put, left out: :data:`HELD_RUN_LIMIT`); None otherwise or with under 20."""
     k = np.flatnonzero(fresh)
     if k.size < 20:
         return None
@@ -296,9 +319,7 @@ def held_inputs(log: FlightLog) -> HeldInputs | None:
     if typical < HELD_EVERY:
         return None
     gaps = gaps[gaps <= HELD_RUN_LIMIT * typical]
-    dt = float(np.median(np.diff(log.t)))
-    every = float(np.mean(gaps)) if gaps.size else typical
-    return HeldInputs(share=1.0 - k.size / len(log), every=every, rate=1.0 / (every * dt), row_rate=1.0 / dt)
+    return 1.0 - k.size / fresh.size, (float(np.mean(gaps)) if gaps.size else typical)
 
 
 def interpolate_held_inputs(log: FlightLog) -> FlightLog:
@@ -312,8 +333,16 @@ def interpolate_held_inputs(log: FlightLog) -> FlightLog:
     held = held_inputs(log)
     if held is None:
         return log
-    fresh = fresh_rows(log.inputs)
-    inputs = commands_on_grid(log.t, log.t[fresh], log.inputs[fresh], "interpolate", off=0.0, repeated_between=True)
+    if held.staggered:
+        # each column between its own fresh rows; a row is fresh where any column is
+        cols = [fresh_rows(log.inputs[:, j]) for j in range(log.inputs.shape[1])]
+        inputs = np.column_stack([commands_on_grid(log.t, log.t[f], log.inputs[f, j], "interpolate", off=0.0,
+                                                   repeated_between=True)[:, 0] for j, f in enumerate(cols)])
+        fresh = np.any(np.column_stack(cols), axis=1)
+    else:
+        fresh = fresh_rows(log.inputs)
+        inputs = commands_on_grid(log.t, log.t[fresh], log.inputs[fresh], "interpolate", off=0.0,
+                                  repeated_between=True)
     extras = dict(log.extras)
     extras["motor_fresh"] = fresh.astype(float)
     note = f"{held.text(', '.join(log.input_names))}: interpolated between the fresh rows (held inputs: interpolate)"
