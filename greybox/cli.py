@@ -266,6 +266,21 @@ def _load_fit_inputs(args: argparse.Namespace):
                        for path in args.log]
 
 
+def _check_rotor_geometry(model: QuadrotorModel, logs) -> None:
+    """Rotor-speed columns that act as the airframe's rotors in another order, or turned about
+    the body's z (an "x" airframe for a "plus" log), found from the logs alone before any fit:
+    one error naming the flight. A fit of such a log holds the columns' moments as physics (a
+    blind audit's Betaflight motor order: "optimum certified", b on its bound at 0, exit 0,
+    with the order said only among the warnings)."""
+    from .diagnosis.analysis import odd_flight_geometry, rotor_geometry, rotor_geometry_warnings
+    odd = odd_flight_geometry(model, logs)
+    words = (rotor_geometry_warnings(model, odd[1], odd[2], flight=odd[0]) if odd is not None else
+             rotor_geometry_warnings(model, *rotor_geometry(model, logs)))
+    if words:
+        where = "" if odd is not None or len(logs) > 1 or not logs[0].source else f"{logs[0].source}: "
+        raise GreyboxInputError(where + words[0])
+
+
 def _time_window(args: argparse.Namespace) -> tuple[float | None, float | None] | None:
     """``--time T0:T1`` read before any work, or None."""
     from .data import parse_time_window
@@ -537,6 +552,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             raise GreyboxInputError("--validation: a log without positions is fitted with its own validation "
                                     "(the IMU's channels), not a separate flight's")
         return _fit_imu_only(args, model, logs)
+    _check_rotor_geometry(model, logs)
     if args.validation:
         # separate flights validate: all of each LOG is estimation data (as diagnose's)
         vals = [_load_model_log(model, path, p0, args.input_noise, args.outliers, args.held)

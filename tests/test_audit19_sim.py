@@ -128,8 +128,8 @@ def test_the_control_flight_is_null_and_its_copy_with_two_motors_swapped_is_name
                  "--held", "hold"]) == 0
     rc = main(["fit", str(tmp_path / "swap.csv"), "--airframe", str(tmp_path / "cf_off.toml"), "--quiet", "--json",
                str(tmp_path / "r.json")])
-    capsys.readouterr()
-    assert rc == 0
-    warnings = json.loads((tmp_path / "r.json").read_text())["warnings"]
-    assert warnings[0].startswith("the logged rotor speeds act as the airframe's rotors in another order: "
-                                  "w1 as rotor 1, w2 as rotor 4, w3 as rotor 3, w4 as rotor 2"), warnings
+    err = capsys.readouterr().err
+    # refused before any fit (it had been "certified" with the order among the warnings)
+    assert rc == 2 and not (tmp_path / "r.json").exists()
+    assert (f"{tmp_path / 'swap.csv'}: the logged rotor speeds act as the airframe's rotors in another order: "
+            "w1 as rotor 1, w2 as rotor 4, w3 as rotor 3, w4 as rotor 2") in err, err

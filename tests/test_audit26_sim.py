@@ -32,7 +32,7 @@ def test_two_neighbouring_rotor_columns_swapped_are_named(flights, capsys):
     "uncertified" with words on the thrust and the speeds' unit; the fit now names the order."""
     rc = main(["fit", *_est(flights, "D"), "--airframe", str(flights / "hexa.toml"), "--quiet"])
     err = capsys.readouterr().err
-    assert rc == 1 and ("the logged rotor speeds act as the airframe's rotors in another order: w1 as rotor 1, "
+    assert rc == 2 and ("the logged rotor speeds act as the airframe's rotors in another order: w1 as rotor 1, "
                         "w2 as rotor 3, w3 as rotor 2, w4 as rotor 4, w5 as rotor 5, w6 as rotor 6") in err, err
 
 

@@ -47,7 +47,8 @@ def test_a_flight_with_swapped_rotor_columns_among_honest_ones_is_named_and_kept
     """The audit's c2_f3 again with its w2 and w4 columns swapped, among honest flights: fitted
     together it was "certified" with nothing said (p 3.1x the noise); in a batch its own fit was
     certified, its diagnosis said ``rotor_order``, and its summary row read ``ok`` and it joined
-    the joint fit. Now the fit names the flight first, and the batch records it failed."""
+    the joint fit. Now the fit refuses, naming the flight (exit 2), and the batch records it
+    failed."""
     import json
     from greybox.batch import batch
     from greybox.cli import main
@@ -56,12 +57,10 @@ def test_a_flight_with_swapped_rotor_columns_among_honest_ones_is_named_and_kept
     swapped = _write(tmp_path, "c2_f3", swap=(1, 3))
     rc = main(["fit", *map(str, honest), str(swapped), "--airframe", str(tmp_path / "plus16.toml"), "--quiet",
                "--json", str(tmp_path / "r.json")])
-    capsys.readouterr()
-    assert rc == 0
-    warnings = json.loads((tmp_path / "r.json").read_text())["warnings"]
-    assert warnings[0].startswith(f"in {swapped} (judged alone; the other flights as given): the logged rotor speeds "
-                                  "act as the airframe's rotors in another order: w1 as rotor 1, w2 as rotor 4, "
-                                  "w3 as rotor 3, w4 as rotor 2"), warnings
+    err = capsys.readouterr().err
+    assert rc == 2 and not (tmp_path / "r.json").exists()
+    assert (f"in {swapped} (judged alone; the other flights as given): the logged rotor speeds act as the airframe's "
+            "rotors in another order: w1 as rotor 1, w2 as rotor 4, w3 as rotor 3, w4 as rotor 2") in err, err
     recs = {r["flight"]: r for r in batch([*honest, swapped], tmp_path / "b", airframe=tmp_path / "plus16.toml",
                                           workers=1, progress=False).records}
     assert json.loads((tmp_path / "b" / "c2_f3_swap" / "fit.json").read_text())["converged"]   # certified alone

@@ -219,8 +219,10 @@ def test_rotor_columns_logged_in_another_order_are_told(base):
                          ids=["fit", "fit_and_batch"])
 def test_a_fit_whose_rotor_columns_are_in_another_order_says_so(base, tmp_path, capsys, batch_too):
     """A nineteenth blind audit's NanoBench flight with M2 and M4 swapped was fitted "certified"
-    with p and q 1.7 times their noise and nothing said of why (its IMU-only fit named it): the
-    fit's inadequate certificate now asks the rotor geometry, and the warning names the order."""
+    with p and q 1.7 times their noise and nothing said of why (its IMU-only fit named it); a
+    thirty-fifth's Betaflight order was "certified" with b on its bound, exit 0, the order
+    among the warnings. ``greybox fit`` now reads the rotor geometry from the log before any
+    fit and refuses with one line naming the order (exit 2, no file written)."""
     from dataclasses import replace
     from greybox.cli import main
     from greybox.data import save_log
@@ -235,21 +237,16 @@ def test_a_fit_whose_rotor_columns_are_in_another_order_says_so(base, tmp_path, 
     said = capsys.readouterr()
     words = ("the logged rotor speeds act as the airframe's rotors in another order: "
              "w1 as rotor 1, w2 as rotor 4, w3 as rotor 3, w4 as rotor 2")
-    if rc == 0:      # certified but not adequate (the audit's flight): the first warning
-        import json
-        warnings = json.loads((tmp_path / "r.json").read_text())["warnings"]
-        assert warnings[0].startswith(words), warnings
-    else:            # not certified (this one, today): the error says why, the order first
-        assert rc == 1 and f"fit did not converge: {words}" in said.err, said.err
-        if batch_too:
-            # a batch records the same reason, the order first (its reason held the thrust's
-            # words alone: "is the airframe this vehicle's, are the rotor speeds in rad/s?")
-            from greybox.batch import batch
-            rec = batch([tmp_path / "swapped.csv"], tmp_path / "b", airframe=AIRFRAMES / "x_quad.toml", workers=1,
-                        progress=False).records[0]
-            assert rec["status"] == "failed" and rec["reason"].startswith(
-                "fit did not converge: the logged rotor speeds act as the airframe's rotors in another order") \
-                and "w2 as rotor 4, w3 as rotor 3, w4 as rotor 2" in rec["reason"], rec
+    assert rc == 2 and f"{tmp_path / 'swapped.csv'}: {words}" in said.err, said.err
+    assert len(said.err.strip().splitlines()) == 1 and not (tmp_path / "r.json").exists()
+    if batch_too:
+        # a batch records the same reason, the order first (its reason held the thrust's
+        # words alone: "is the airframe this vehicle's, are the rotor speeds in rad/s?")
+        from greybox.batch import batch
+        rec = batch([tmp_path / "swapped.csv"], tmp_path / "b", airframe=AIRFRAMES / "x_quad.toml", workers=1,
+                    progress=False).records[0]
+        assert rec["status"] == "failed" and "the logged rotor speeds act as the airframe's rotors in another order" \
+            in rec["reason"] and "w2 as rotor 4, w3 as rotor 3, w4 as rotor 2" in rec["reason"], rec
 
 
 def test_two_neighbouring_rotors_of_a_hexacopter_swapped_are_told(tmp_path):

@@ -254,11 +254,17 @@ def test_a_log_fitted_with_another_vehicles_airframe_is_not_certified(tmp_path, 
     doc["airframe"]["mass"] = 1.6          # hover 4.2 times below the logged speeds
     save_log(small.log, tmp_path / "cf.csv")
     (tmp_path / "big.toml").write_text(airframe_toml(doc))
-    rc = main(["fit", str(tmp_path / "cf.csv"), "--airframe", str(tmp_path / "big.toml"), "--quiet",
+    doc["airframe"]["layout"] = "x"        # the Crazyflie's layout: the mass is what is off
+    (tmp_path / "big_x.toml").write_text(airframe_toml(doc))
+    rc = main(["fit", str(tmp_path / "cf.csv"), "--airframe", str(tmp_path / "big_x.toml"), "--quiet",
                "--json", str(tmp_path / "r.json")])
     err = capsys.readouterr().err
     assert rc == 1 and "of the weight" in err and "mass 1.6 kg" in err and "rad/s" in err, err
     assert not (tmp_path / "r.json").exists()
+    # with the plus layout the fit refuses before fitting: the rotors turned by 45 degrees
+    rc = main(["fit", str(tmp_path / "cf.csv"), "--airframe", str(tmp_path / "big.toml"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "turned by" in err and "layout 'plus'" in err and len(err.strip().splitlines()) == 1, err
     # diagnosed: the plus airframe's layout is told before anything is tested (an x quad read
     # as plus), and the verdict's words name it (they raised a KeyError in repr)
     from greybox import QuadrotorModel, diagnose, load_airframe
@@ -317,7 +323,6 @@ def test_one_flight_of_several_with_swapped_rotor_columns_is_named(tmp_path, cap
     while its own diagnosis said ``rotor_order``, and it joined the joint fit. Pooled with the
     honest flights, its moments are diluted below the rule (here: nothing pooled); judged alone
     it shows the order. The foreign simulator's Crazyflie, three 10-s flights."""
-    import json
     from dataclasses import replace
     from greybox import QuadrotorModel
     from greybox.airframe import airframe_from_dict
@@ -343,8 +348,12 @@ def test_one_flight_of_several_with_swapped_rotor_columns_is_named(tmp_path, cap
     err = capsys.readouterr().err
     words = ("the logged rotor speeds act as the airframe's rotors in another order: "
              "w1 as rotor 1, w2 as rotor 4, w3 as rotor 3, w4 as rotor 2")
-    said = json.loads((tmp_path / "r.json").read_text())["warnings"] if rc == 0 else [err]
-    assert any("f2.csv (judged alone; the other flights as given): " + words in w for w in said), said
+    # refused before any fit, naming the flight, no file written
+    assert rc == 2 and "f2.csv (judged alone; the other flights as given): " + words in err, err
+    assert not (tmp_path / "r.json").exists() and len(err.strip().splitlines()) == 1
+    # all three swapped alike: the pooled order, no one flight named
+    swapped = [replace(lg, inputs=lg.inputs[:, [0, 3, 2, 1]]) for lg in logs]
+    assert odd_flight_geometry(model, swapped) is None and rotor_geometry(model, swapped) == ((0, 3, 2, 1), None)
     if batch_too:
         from greybox.batch import batch
         recs = {r["flight"]: r for r in batch([tmp_path / f"f{k}.csv" for k in (1, 2, 3)], tmp_path / "b",

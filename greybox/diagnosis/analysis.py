@@ -620,17 +620,19 @@ def odd_flight_geometry(model: QuadrotorModel, logs: Sequence[FlightLog]
                         ) -> tuple[str, tuple[int, ...] | None, float | None] | None:
     """Of several flights, the first whose rotor columns, judged alone, act as the airframe's
     rotors in another order or turned (:func:`rotor_geometry`'s rule on its own rows):
-    ``(its name, order, angle)``; None for one flight or when none does. Pooled with honest
+    ``(its name, order, angle)``; None for one flight, when none does, or when every flight
+    does alike (the pooled answer then says it of them all). Pooled with honest
     flights, one flight's swapped columns are diluted below the rule: a blind audit's w2/w4
     swapped in one of five flights was fitted "certified", p 3.1x the noise, and in a batch it
     joined the joint fit."""
     if len(logs) < 2:
         return None
-    for k, lg in enumerate(logs):
-        order, angle = _pooled_geometry(model, [lg])
-        if order is not None or angle is not None:
-            return (flight_label(lg, k), order, angle)
-    return None
+    found = [(flight_label(lg, k), *_pooled_geometry(model, [lg])) for k, lg in enumerate(logs)]
+    odd = [f for f in found if f[1] is not None or f[2] is not None]
+    # every flight alike (all logged in one other order): the pooled answer, not one flight's
+    if not odd or len(odd) == len(found) and len({(f[1], f[2]) for f in odd}) == 1:
+        return None
+    return odd[0]
 
 
 def _pooled_geometry(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]
