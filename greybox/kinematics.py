@@ -18,7 +18,7 @@ the speeds that turn it says the speeds are stamped late.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -26,7 +26,7 @@ import numpy as np
 from .data import FlightLog
 from .rotations import euler_rate_matrices
 
-__all__ = ["GyroScale", "gyro_scale", "SPAN", "SCALE_NOTABLE", "SCALE_SIGMAS", "HINT_SIGMAS", "heading_spread",
+__all__ = ["GyroScale", "gyro_scale", "gyro_bias_reading", "SPAN", "SCALE_NOTABLE", "SCALE_SIGMAS", "HINT_SIGMAS", "heading_spread",
            "HEADING_SPREAD", "InputLead", "input_lead", "LEAD_BAND", "LEAD_UNEXPLAINED_RATIO"]
 
 SPAN = 1.0
@@ -57,6 +57,9 @@ class GyroScale:
     std: dict[str, float]
     delay: float
     spans: int
+    # the constant gyro bias fitted beside (rad/s, gyro = rate + bias) and its std, per axis
+    bias: dict[str, float] = field(default_factory=dict)
+    bias_std: dict[str, float] = field(default_factory=dict)
 
     def off(self) -> dict[str, float]:
         """The axes whose scale is off by at least :data:`SCALE_NOTABLE` and
@@ -113,6 +116,27 @@ def gyro_scale(log: FlightLog) -> GyroScale | None:
     return again if again is not None and again.scale else None
 
 
+def gyro_bias_reading(log: FlightLog) -> dict[str, tuple[float, float]] | None:
+    """The gyro's constant bias against the attitude's turning, per body axis, ``{axis: (bias,
+    std)}`` (rad/s; gyro = rate + bias), read as :func:`gyro_scale` reads the scale (beside it,
+    over spans of :data:`SPAN` s), also where the flight turns too little to read the scale;
+    None without a gyro, roll and pitch, or enough spans. The data's own word on a fitted
+    ``gyro_bias``, which the predictions hardly test."""
+    if not all(log.measures(c) for c in ("phi", "theta") + AXES):
+        return None
+    t = log.t
+    G = np.column_stack([log.output(c) for c in AXES])
+    E = np.column_stack([log.output(c) if c in log.output_names else np.full(t.size, np.nan)
+                         for c in ("phi", "theta", "psi")])
+    gk, ek = np.isfinite(G).all(axis=1), np.isfinite(E[:, :2]).all(axis=1)
+    if gk.sum() < 20 or ek.sum() < 20:
+        return None
+    read = _spans(log, G, E, gk, ek, 0.0)
+    if read is None or not read.bias:
+        return None
+    return {a: (read.bias[a], read.bias_std[a]) for a in read.bias}
+
+
 def _spans(log: FlightLog, G: np.ndarray, E: np.ndarray, gk: np.ndarray, ek: np.ndarray, shift: float
            ) -> GyroScale | None:
     """:func:`gyro_scale` with the gyro read ``shift`` seconds late."""
@@ -151,8 +175,13 @@ def _spans(log: FlightLog, G: np.ndarray, E: np.ndarray, gk: np.ndarray, ek: np.
     # the halves' spread as well: an attitude error correlated from span to span makes the
     # formal std too small (the real NanoBench flights, which hardly turn: 0.91 +- 0.03)
     halves = [_regression(X[part], D[part]) for part in (slice(0, m // 2), slice(m // 2, m))]
-    scale, std = {}, {}
+    scale, std, bias, bias_std = {}, {}, {}, {}
     for a, name in enumerate(AXES):
+        bb, sb = float(coef[3 + a]), math.sqrt(max(float(cov[3 + a, 3 + a]), 0.0))
+        if halves[0] is not None and halves[1] is not None:
+            sb = max(sb, 0.5 * abs(float(halves[0][0][3 + a]) - float(halves[1][0][3 + a])))
+        if np.isfinite(bb) and np.isfinite(sb):
+            bias[name], bias_std[name] = bb, sb
         c, s = float(coef[a]), math.sqrt(max(float(cov[a, a]), 0.0))
         if halves[0] is not None and halves[1] is not None:
             s = max(s, 0.5 * abs(float(halves[0][0][a]) - float(halves[1][0][a])))
@@ -162,7 +191,7 @@ def _spans(log: FlightLog, G: np.ndarray, E: np.ndarray, gk: np.ndarray, ek: np.
             continue            # an axis the flight hardly turns about: not read
         scale[name] = 1.0 / (1.0 + c)                                  # gyro = scale x the attitude's rate
         std[name] = s / (1.0 + c) ** 2
-    return GyroScale(scale=scale, std=std, delay=shift + float(coef[6]), spans=int(m))
+    return GyroScale(scale=scale, std=std, delay=shift + float(coef[6]), spans=int(m), bias=bias, bias_std=bias_std)
 
 
 def _regression(X: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

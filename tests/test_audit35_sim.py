@@ -7,8 +7,9 @@ own Mahony filter's attitude and a biased gyro; 200-Hz rows with 3 % jitter; mot
 
 Right there: a swinging payload said to be outside the catalogue; an IMU mounted tilted named
 ``attitude_bias``; 16 of 19 bad inputs refused. Wrong, and mended: a constant gyro bias (no
-effect held it) read as "a roll torque the model lacks"; the inertia reading ``fit`` gave
-dropped by the diagnosis; the staggered telemetry not found held; a true quadratic drag
+effect held it) read as "a roll torque the model lacks" (now ``gyro_bias``, confirmed by the
+validation flight's own gyro against its attitude); the inertia reading ``fit`` gave dropped
+by the diagnosis; the staggered telemetry not found held; a true quadratic drag
 refused as a sliver (4 % of a misfit the filter's tilt error and the gyro bias dominated)
 while the final Kd carried it 53-83 % high, unsaid."""
 import json
@@ -61,23 +62,25 @@ def test_a_quadratic_drag_refused_as_a_sliver_is_said_to_bend_the_final_drag(tmp
         assert abs(v["value"] - 0.012) < 3 * v["std"], (j, v)
 
 
-def test_a_gyro_bias_and_a_cad_inertia_are_read_and_the_held_telemetry_found(tmp_path, capsys):
+def test_a_gyro_bias_and_a_cad_inertia_are_named_and_the_held_telemetry_found(tmp_path, capsys):
     """The control flight: a gyro biased (0.020, -0.015, 0.012) rad/s and the CAD inertia
-    (Jx, Jy 15 %, 12 % high). The diagnosis fits ``gyro_bias`` within 3 std of the truth (LR in
-    the thousands; the validation's one-second predictions hardly move with a sensor's offset,
-    so the null names it with its values), gives the fit's moment-scale reading (k_M about
-    1.1: Jx, Jy within 5 % of the truth) and says the speeds are held per motor. With the true
-    inertia, the bias and the speeds interpolated, ``fit`` is at the noise and ``b`` within
-    3 std of the truth."""
+    (Jx, Jy 15 %, 12 % high). It was "a roll torque the model lacks ... outside the catalogue".
+    The diagnosis now names ``gyro_bias`` first, within 3 std of the truth, confirmed by the
+    validation flight's own gyro against its attitude (its predictions hardly move with a
+    sensor's offset), then ``moment_gain`` (k_M about 1.11: the inertia given over the true);
+    it says the speeds are held per motor. With the true inertia, the bias and the speeds
+    interpolated, ``fit`` is at the noise and ``b`` within 3 std of the truth."""
     _given_airframe(tmp_path / "af.toml")
     _flights(tmp_path, "a_control", {}, (11, 12))
     d = _diagnose(tmp_path, "a_control")
-    g = next(c for c in d["ranking"] if c["effect"] == "gyro_bias")
+    assert d["verdict"] == "gyro_bias" and d["added"][:2] == ["gyro_bias", "moment_gain"], d["added"]
+    p = d["model"]["parameters"]
     for j, truth in enumerate(sim.TRUTH["gyro_bias"]):
-        v = g["parameters"][f"gyro_bias[{j}]"]
+        v = p[f"gyro_bias[{j}]"]
         assert abs(v["value"] - truth) < 3 * v["std"] + 0.001, (j, v)
-    k_m = next(w for w in d["warnings"] if w.startswith("the roll and pitch turn about"))
-    assert "k_M ≈ 1.1" in k_m, k_m
+    assert 1.05 < p["k_M"]["value"] < 1.2, p["k_M"]
+    g = next(c for c in d["ranking"] if c["effect"] == "gyro_bias")
+    assert "confirmed where the predictions cannot: the validation flights' own gyro" in g["reason"], g["reason"]
     assert any("each of the rotor speeds repeats the previous row" in w for w in d["warnings"]), d["warnings"]
     _given_airframe(tmp_path / "true.toml", inertia=list(sim.TRUTH["J"]))
     out = tmp_path / "fit.json"

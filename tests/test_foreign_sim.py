@@ -404,3 +404,22 @@ def test_a_gyro_bias_is_fitted_and_predictions_start_from_the_body_rates():
     for i, a in enumerate(starts):
         raw = naive_start(val, meas, int(a), xs[i])[3]
         np.testing.assert_allclose(xs[i, 9:12], raw - fitted, atol=1e-9)
+    # the validation part's own gyro against its attitude's turning reads the bias, without the
+    # model: the diagnosis's confirmation where the predictions hardly move (a sensor's offset)
+    from greybox.kinematics import gyro_bias_reading
+    other = simulate_flight(crazyflie(), duration=15.0, seed=8).log          # a flight of its own
+    out2 = other.outputs.copy()
+    for j, ch in enumerate(("p", "q", "r")):
+        out2[:, other.output_names.index(ch)] += bias[j]
+    val = replace(other, outputs=out2)
+    read = gyro_bias_reading(val)
+    for j, axis in enumerate("pqr"):
+        assert abs(read[axis][0] - bias[j]) < 3 * read[axis][1] + 1e-3, (axis, read[axis])
+    values = {"gyro_bias": [float(v) for v in fitted]}
+    stds = {"gyro_bias": [float(res.std[res.free_names.index(f"gyro_bias[{j}]")]) for j in range(3)]}
+    assert GyroBias().validation_reading([val], values, stds).startswith(
+        "the validation flights' own gyro against their attitude's turning reads a bias of p +0.02")
+    # an honest gyro's flight shows none: no confirmation
+    clean = other
+    assert all(abs(v) < 3 * s + 1e-3 for v, s in gyro_bias_reading(clean).values())
+    assert GyroBias().validation_reading([clean], values, stds) == ""

@@ -202,6 +202,14 @@ class Effect:
         something else. Default ``{}``: no limit known."""
         return {}
 
+    def validation_reading(self, logs: Sequence["FlightLog"], values: dict, std: dict) -> str:
+        """Words saying that the validation flights ``logs``' own data, read without the model,
+        show this effect as fitted (``values``, ``std``: the refit's parameters by name), for an
+        effect whose fitted values move the predictions too little for their error to confirm
+        it (a sensor's offset); "" when it has no such reading or the data do not show it
+        (default). ``gyro_bias``: the validation flights' gyro against their attitude's turning."""
+        return ""
+
     def negligible_size(self, airframe: "Airframe") -> dict[str, float]:
         """The magnitude ``|value - null|`` below which each parameter is physically negligible
         on this airframe (``{name: size}``), where a share of :meth:`plausible_values` is not

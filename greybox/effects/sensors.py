@@ -3,10 +3,13 @@ sits on the vehicle, offsets of the measured roll and pitch, the accelerometer's
 gyro's bias and scale."""
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
+import numpy as np
+
 from ..data import FlightLog
-from ..kinematics import gyro_scale
+from ..kinematics import gyro_bias_reading, gyro_scale
 from ..parameters import Parameter
 from .base import Effect
 
@@ -176,6 +179,32 @@ class GyroBias(Effect):
     def plausible_limits(self, airframe):
         # consumer MEMS gyros' zero-rate offsets before calibration: a few degrees per second
         return {"gyro_bias": 0.15}
+
+    def validation_reading(self, logs, values, std):
+        # the flights' own gyro against their attitude's turning (kinematics.gyro_bias_reading),
+        # pooled by inverse variance: each axis fitted beyond its negligible size must agree with
+        # it within 3 std of both, and one must show beyond 3 of its std in the data alone
+        reads = [r for r in map(gyro_bias_reading, logs) if r]
+        if not reads:
+            return ""
+        fitted, fitted_std = list(values["gyro_bias"]), list(std.get("gyro_bias", [0.0] * 3))
+        small = self.negligible_size(None)["gyro_bias"]
+        said, shown = [], False
+        for a, axis in enumerate(("p", "q", "r")):
+            pairs = [r[axis] for r in reads if axis in r and r[axis][1] > 0]
+            if not pairs:
+                continue
+            w = np.array([1.0 / s ** 2 for _, s in pairs])
+            b = float(np.dot(w, [v for v, _ in pairs]) / w.sum())
+            s = float(1.0 / np.sqrt(w.sum()))
+            if abs(fitted[a]) >= small and abs(b - fitted[a]) > 3.0 * math.hypot(s, fitted_std[a]):
+                return ""
+            shown = shown or (abs(b) > 3.0 * s and abs(fitted[a]) >= small)
+            said.append(f"{axis} {b:+.3g} ± {s:.1g}")
+        if not shown:
+            return ""
+        return ("the validation flights' own gyro against their attitude's turning reads a bias of "
+                + ", ".join(said) + " rad/s")
 
     def modify_measurement(self, ctx, y):
         b = ctx.params["gyro_bias"]
