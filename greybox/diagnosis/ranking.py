@@ -246,6 +246,7 @@ class _Refits:
                            "correlation with the unexplained rest can give (a controller answers an unmodelled "
                            "force or moment through the commands); cannot tell")
         elif not confirmed_on_validation(falls, best_ch, gain) and not (reading := self.data_reading(cand, fr)):
+            self.note_sliver_shifts(cand, fr)
             cand.reason = (f"significant in the fit but not confirmed on validation (best channel {best_ch} "
                            f"{-100 * falls[best_ch]:+.1f} %, total {-100 * gain:+.1f} %)")
             cand.validation_tie = gain >= -MAX_VALIDATION_LOSS
@@ -302,10 +303,11 @@ class _Refits:
         return e.validation_reading(self.val, values, stds)
 
     def note_sliver_shifts(self, cand: CandidateResult, fr: FitResult) -> None:
-        """What a candidate refused as a sliver does to the baseline's parameters (its refit
-        ``fr`` certified): a blind audit's quadratic drag, refused at 4 % of a misfit that an
-        onboard filter's tilt error and a gyro bias dominated, moved Kd 9-31 std, and the
-        final model's Kd carried it 53-83 % high with nothing said."""
+        """What a candidate significant in the fit but refused as a sliver or on validation does
+        to the baseline's parameters (its refit ``fr`` certified): a blind audit's quadratic
+        drag, refused at 4 % of a misfit that an onboard filter's tilt error and a gyro bias
+        dominated (and, with the gyro bias in, on a validation that cannot tell it), moved Kd
+        9-44 std, and the final model's Kd carried it 53-83 % high with nothing said."""
         if fr.converged:
             cand.sliver_shifts = {n: (self.res.value(n), fr.value(n), z)
                                   for n, z in parameter_shifts(self.res, fr).items()}

@@ -81,8 +81,8 @@ class CandidateResult:
     # refused as a lag under half a row (the log's timing cannot tell it): the baseline's
     # parameters its refit moves by more than PARAMETER_SHIFT std, {name: (without, with)}
     timing_shifts: dict[str, tuple[float, float]] = field(default_factory=dict)
-    # significant in the fit but refused as a sliver of what the model misses: the baseline's
-    # parameters its refit moves by more than PARAMETER_SHIFT std, {name: (without, with, shift)}
+    # significant in the fit but refused as a sliver of what the model misses or on validation:
+    # the parameters its refit moves by more than PARAMETER_SHIFT std, {name: (without, with, shift)}
     sliver_shifts: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict:

@@ -582,7 +582,7 @@ def _timing_shift_words(rounds: Sequence[Round], final: FitResult) -> list[str]:
 
 def _sliver_shift_words(rounds: Sequence[Round], final: FitResult) -> list[str]:
     """One warning on the final fit's parameters that candidates refused as a sliver of what
-    the model misses (significant in their certified refits) move beyond their std
+    the model misses or on validation (significant in their certified refits) move beyond their std
     (``CandidateResult.sliver_shifts``), from the round judged against the final fit itself,
     each parameter with its value beside each such candidate: how far the final values
     depend on a form the data could not name, which their std (the noise's) do not count. A
@@ -608,7 +608,7 @@ def _sliver_shift_words(rounds: Sequence[Round], final: FitResult) -> list[str]:
     names = ", ".join(f"{e} (LR {lr:.3g})" for e, lr in lrs.items())
     return [f"the final values depend on forms the data could not name: {said}. {names} "
             f"{'is' if len(lrs) == 1 else 'are each'} significant in {'its' if len(lrs) == 1 else 'their'} fit but "
-            "too small a share of what the model misses to be the verdict, and " +
+            "not named (too small a share of what the model misses, or not confirmed on the validation data), and " +
             ("moves these" if len(lrs) == 1 else "each moves some of these") + " beyond their std, which "
             "count the noise only: the values are this model's, and may carry part of what is missing (fit with "
             "--effects NAME to see them with one)"]
