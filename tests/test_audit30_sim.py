@@ -68,12 +68,17 @@ def test_an_inflow_law_discovery_found_but_could_not_confirm_bounds_the_drag_it_
 
 @pytest.mark.slow
 def test_a_diagnosis_behind_a_complementary_filter_says_what_it_weighed_the_attitude_by(tmp_path, capsys):
-    """The audit's filtered-attitude case (45-s estimation flight, 30-s validation): the
-    verdict null, none of the effects a tilt error could pass for, and the diagnosis now says,
-    as the fit does, that roll and pitch were weighed by their disagreement with the gyro,
-    and what that does to the horizontal drag."""
+    """The audit's filtered-attitude case (45-s estimation flight, 30-s validation): none of the
+    effects a tilt error could pass for, and the diagnosis now says, as the fit does, that roll
+    and pitch were weighed by their disagreement with the gyro, and what that does to the
+    horizontal drag. Its gyro is biased by 0.01 rad/s on each axis (the filter's case): since
+    the effect exists the verdict is ``gyro_bias``, each axis within 3 std (0.0101, 0.0099,
+    0.0104), and nothing else (the verdict had been null with nothing to name it by)."""
     sim.main("filtered_attitude", str(tmp_path))
     d = _diagnose(tmp_path, tmp_path, capsys)
-    assert d["verdict"] is None and not d["added"], (d["verdict"], d["added"])
+    assert d["verdict"] == "gyro_bias" and d["added"] == ["gyro_bias"], (d["verdict"], d["added"])
+    for j in range(3):
+        v = d["model"]["parameters"][f"gyro_bias[{j}]"]
+        assert abs(v["value"] - 0.01) < 3 * v["std"], (j, v)
     said = [w for w in d["warnings"] if "an attitude estimate propagated from the gyro" in w]
     assert len(said) == 1 and "the horizontal drag, which the tilt carries" in said[0], d["warnings"]
