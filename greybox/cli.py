@@ -272,12 +272,11 @@ def _check_rotor_geometry(model: QuadrotorModel, logs) -> None:
     one error naming the flight. A fit of such a log holds the columns' moments as physics (a
     blind audit's Betaflight motor order: "optimum certified", b on its bound at 0, exit 0,
     with the order said only among the warnings)."""
-    from .diagnosis.analysis import odd_flight_geometry, rotor_geometry, rotor_geometry_warnings
-    odd = odd_flight_geometry(model, logs)
-    words = (rotor_geometry_warnings(model, odd[1], odd[2], flight=odd[0]) if odd is not None else
-             rotor_geometry_warnings(model, *rotor_geometry(model, logs)))
+    from .diagnosis.analysis import flights_rotor_geometry, rotor_geometry_warnings
+    flight, order, turned = flights_rotor_geometry(model, logs)
+    words = rotor_geometry_warnings(model, order, turned, flight=flight)
     if words:
-        where = "" if odd is not None or len(logs) > 1 or not logs[0].source else f"{logs[0].source}: "
+        where = "" if flight is not None or len(logs) > 1 or not logs[0].source else f"{logs[0].source}: "
         raise GreyboxInputError(where + words[0])
 
 

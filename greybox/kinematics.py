@@ -98,15 +98,10 @@ class GyroScale:
 def gyro_scale(log: FlightLog) -> GyroScale | None:
     """The gyro's scale against the attitude (module doc), or None without a gyro, roll and
     pitch, or enough spans (12) that turn the vehicle."""
-    names = log.output_names
-    if not all(log.measures(c) for c in ("phi", "theta") + AXES):
+    sensors = _gyro_and_attitude(log)
+    if sensors is None:
         return None
-    t = log.t
-    G = np.column_stack([log.output(c) for c in AXES])
-    E = np.column_stack([log.output(c) if c in names else np.full(t.size, np.nan) for c in ("phi", "theta", "psi")])
-    gk, ek = np.isfinite(G).all(axis=1), np.isfinite(E[:, :2]).all(axis=1)
-    if gk.sum() < 20 or ek.sum() < 20:
-        return None
+    G, E, gk, ek = sensors
     first = _spans(log, G, E, gk, ek, 0.0)
     if first is None or not first.scale:
         return None
@@ -116,12 +111,10 @@ def gyro_scale(log: FlightLog) -> GyroScale | None:
     return again if again is not None and again.scale else None
 
 
-def gyro_bias_reading(log: FlightLog) -> dict[str, tuple[float, float]] | None:
-    """The gyro's constant bias against the attitude's turning, per body axis, ``{axis: (bias,
-    std)}`` (rad/s; gyro = rate + bias), read as :func:`gyro_scale` reads the scale (beside it,
-    over spans of :data:`SPAN` s), also where the flight turns too little to read the scale;
-    None without a gyro, roll and pitch, or enough spans. The data's own word on a fitted
-    ``gyro_bias``, which the predictions hardly test."""
+def _gyro_and_attitude(log: FlightLog) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The gyro ``G`` (n, 3) and the attitude ``E`` (n, 3; psi NaN when not logged) with the
+    rows where each is measured, ``(G, E, gyro rows, roll-and-pitch rows)``; None without a
+    gyro, roll and pitch, or 20 rows of each."""
     if not all(log.measures(c) for c in ("phi", "theta") + AXES):
         return None
     t = log.t
@@ -131,7 +124,19 @@ def gyro_bias_reading(log: FlightLog) -> dict[str, tuple[float, float]] | None:
     gk, ek = np.isfinite(G).all(axis=1), np.isfinite(E[:, :2]).all(axis=1)
     if gk.sum() < 20 or ek.sum() < 20:
         return None
-    read = _spans(log, G, E, gk, ek, 0.0)
+    return G, E, gk, ek
+
+
+def gyro_bias_reading(log: FlightLog) -> dict[str, tuple[float, float]] | None:
+    """The gyro's constant bias against the attitude's turning, per body axis, ``{axis: (bias,
+    std)}`` (rad/s; gyro = rate + bias), read as :func:`gyro_scale` reads the scale (beside it,
+    over spans of :data:`SPAN` s), also where the flight turns too little to read the scale;
+    None without a gyro, roll and pitch, or enough spans. The data's own word on a fitted
+    ``gyro_bias``, which the predictions hardly test."""
+    sensors = _gyro_and_attitude(log)
+    if sensors is None:
+        return None
+    read = _spans(log, *sensors, 0.0)
     if read is None or not read.bias:
         return None
     return {a: (read.bias[a], read.bias_std[a]) for a in read.bias}

@@ -884,13 +884,16 @@ def validation_vectors(res, est: Sequence[FlightLog], val: Sequence[FlightLog]) 
     ``res.per_flight_``) is validated with them when the validation flight is its tail
     (:meth:`FlightLog.split`: same log, starting at the estimation part's last sample); any
     other flight gets their mean, ``res.p`` (its wind was never seen)."""
-    out = []
-    for i, v in enumerate(val):
-        e = est[i] if i < len(est) else None
-        tail = (e is not None and getattr(res, "per_flight_", None) and len(v) and len(e)
+    return [res.flight_p(i) if _own_tail(res, est, i, v) else res.p for i, v in enumerate(val)]
+
+
+def _own_tail(res, est: Sequence[FlightLog], i: int, v: FlightLog) -> bool:
+    """Whether validation flight ``v`` (the ``i``-th) is estimation flight ``i``'s tail, fitted
+    with its own values of per-flight parameters (:meth:`FlightLog.split`: same log, starting at
+    the estimation part's last sample)."""
+    e = est[i] if i < len(est) else None
+    return bool(e is not None and getattr(res, "per_flight_", None) and len(v) and len(e)
                 and v.source == e.source and v.t[0] == e.t[-1])
-        out.append(res.flight_p(i) if tail else res.p)
-    return out
 
 
 def mean_value_words(res, est: Sequence[FlightLog], val: Sequence[FlightLog]) -> list[str]:
@@ -902,8 +905,7 @@ def mean_value_words(res, est: Sequence[FlightLog], val: Sequence[FlightLog]) ->
     each = getattr(res, "per_flight_", None) or {}
     if not each:
         return []
-    vectors = validation_vectors(res, est, val)
-    mean = [k for k, (v, pv) in enumerate(zip(val, vectors)) if pv is res.p]
+    mean = [k for k, v in enumerate(val) if not _own_tail(res, est, k, v)]
     if not mean:
         return []
     values = "; ".join(f"{n} {float(np.mean(d['value'])):.3g} (flights: "

@@ -609,11 +609,17 @@ def rotor_geometry(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]
     regression of the moments per column (at most one of them is not None). Of several
     flights, each is also judged alone (:func:`odd_flight_geometry`): one flight logged in
     another order among honest ones is the first such flight's answer."""
+    return flights_rotor_geometry(model, log)[1:]
+
+
+def flights_rotor_geometry(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]
+                           ) -> tuple[str | None, tuple[int, ...] | None, float | None]:
+    """``(flight, order, angle)``: of several flights the one that alone acts in another
+    order or turned (:func:`odd_flight_geometry`) with its answer, else ``None`` and the
+    flights' pooled answer (:func:`rotor_geometry`'s)."""
     logs = [log] if isinstance(log, FlightLog) else list(log)
     odd = odd_flight_geometry(model, logs)
-    if odd is not None:
-        return odd[1], odd[2]
-    return _pooled_geometry(model, logs)
+    return odd if odd is not None else (None, *_pooled_geometry(model, logs))
 
 
 def odd_flight_geometry(model: QuadrotorModel, logs: Sequence[FlightLog]

@@ -8,8 +8,8 @@ from typing import Sequence
 
 from ..data import FlightLog
 from ..fitting import FitResult
-from .analysis import (below_ground_words, command_imbalance, log_moment_words, odd_flight_geometry, rotor_geometry,
-                       rotor_geometry_warnings, steady_torque_words, thrust_at_top_words)
+from .analysis import (below_ground_words, command_imbalance, flights_rotor_geometry, log_moment_words,
+                       odd_flight_geometry, rotor_geometry_warnings, steady_torque_words, thrust_at_top_words)
 from .screening import moment_scale_words, row_timing_words
 
 __all__ = ["fit_warnings"]
@@ -44,19 +44,14 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
     """
     logs = [logs] if isinstance(logs, FlightLog) else list(logs)
     model = res.model
-    geometry: list[str] = []
     moments = top = changed = ""
-    # one flight among several logged in another order: said whatever the fit (pooled with
-    # honest flights a blind audit's swapped w2/w4 left a fit "certified" and adequate)
-    odd = odd_flight_geometry(model, logs)
-    odd_name = odd[0] if odd is not None else None
-    if odd is not None:
-        geometry = rotor_geometry_warnings(model, odd[1], odd[2], flight=odd_name)
-    elif not res.converged or (res.certificate is not None and not res.certificate.adequate):
+    inadequate = not res.converged or (res.certificate is not None and not res.certificate.adequate)
+    if inadequate:
         # a blind audit's M2/M4 swapped: "certified", p and q 1.7x the noise, nothing said; an
         # inertia a fifth of the vehicle's: "line search failed", or certified at 53 % of the
         # weight blaming a torque it lacked
-        geometry = rotor_geometry_warnings(model, *rotor_geometry(model, logs))
+        flight, order, turned = flights_rotor_geometry(model, logs)
+        geometry = rotor_geometry_warnings(model, order, turned, flight=flight)
         moments = "" if geometry else log_moment_words(model, logs)
         # commands beyond what the motors turn: a blind audit's, diagnosed as a thrust curve
         top = "" if geometry else thrust_at_top_words(model, logs)
@@ -67,6 +62,11 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
         if changed:
             changed = (changed[0].upper() + changed[1:] + ": the parameters fitted across it are an average "
                        "of the two")
+    else:
+        # one flight among several logged in another order: said whatever the fit (pooled with
+        # honest flights a blind audit's swapped w2/w4 left a fit "certified" and adequate)
+        odd = odd_flight_geometry(model, logs)
+        geometry = rotor_geometry_warnings(model, *odd[1:], flight=odd[0]) if odd is not None else []
     ground = below_ground_words(model, logs)
     if not res.converged:
         torque = "" if geometry or changed else steady_torque_words(model, logs, res)

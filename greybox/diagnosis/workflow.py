@@ -29,8 +29,7 @@ from ..validation import (DEFAULT_HORIZON, horizon_errors_after, mean_value_word
                           validation_vectors)
 from .discovery import discover as discover_beyond_catalogue, refit_with
 from .analysis import (ThrustAtTop, below_ground_words, command_imbalance, estimation_residuals, log_moment_words,
-                       residual_analysis, odd_flight_geometry, rotor_geometry, rotor_geometry_warnings,
-                       thrust_at_top)
+                       residual_analysis, flights_rotor_geometry, rotor_geometry_warnings, thrust_at_top)
 from .predictability import command_predictability
 from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_noise, simex
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
@@ -141,9 +140,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
                         "(--held interpolate; greybox.io.interpolate_held_inputs)")
     remaining = list(candidates) if tested else []
     # one flight among several in another order is named (pooled, the others dilute it)
-    odd = odd_flight_geometry(model, est)
-    order, turned = odd[1:] if odd is not None else rotor_geometry(model, est)
-    geometry_flight = odd[0] if odd is not None else None
+    geometry_flight, order, turned = flights_rotor_geometry(model, est)
     geometry = rotor_geometry_warnings(model, order, turned, flight=geometry_flight)
     # the highest commands against the thrust they gave (motors at the end of their range):
     # said below, and beside a final model that lowers the thrust at the top
