@@ -256,6 +256,29 @@ def test_height_sentence_says_what_the_error_does_near_the_ground():
     assert "but is not concentrated at the lowest heights" in s and "largest" not in s
 
 
+def test_lowest_heights_beyond_the_grounds_reach_are_said_not_to_be_the_ground():
+    """A blind audit's slung payload, flown no lower than 0.88 m: "ay error is largest at the
+    lowest heights flown: below 0.96 m" pointed a reader at the ground. On its airframe (1 kg,
+    0.225 m arms, "x": hubs 0.318 m apart) the ground's reach is two rotor diameters of the
+    largest rotors that fit, 4 x 0.159 m; (R/4)^2/h^2 is 1/256 there, a 0.4 % thrust change."""
+    from greybox import effects as fx
+    from greybox.airframe import Airframe, rotors_for_layout
+    from greybox.diagnosis.analysis import regime_sentence
+    af = Airframe(mass=1.0, inertia=np.diag([0.011, 0.0115, 0.021]), rotors=rotors_for_layout("x", 0.225))
+    nearest = 2 * 0.225 / np.sqrt(2)                   # neighbouring hubs of an "x"
+    assert fx.GroundEffect.reach(af) == pytest.approx(4 * nearest / 2, rel=1e-9)     # 4 R, R = nearest / 2
+    assert fx.GroundEffect.reach(af) == pytest.approx(0.6364, abs=1e-4)
+    h = np.linspace(0.88, 2.0, 2000)
+    env = np.where(h < 0.96, 2.0, 1.0)
+    s = regime_sentence("ay", "height above ground", -0.5, env, h, ground_reach=fx.GroundEffect.reach(af))
+    assert s.startswith("ay error is largest at the lowest heights flown") and "not the ground" in s, s
+    assert "never comes below 0.88 m" in s and "0.64 m" in s, s
+    # low passes within reach keep the plain words
+    h = np.linspace(0.2, 2.0, 2000)
+    s = regime_sentence("z", "height above ground", -0.6, np.where(h < 0.35, 3.0, 1.0), h, ground_reach=0.6364)
+    assert s.startswith("z error is largest at the lowest heights flown") and "not the ground" not in s, s
+
+
 def test_every_catalogue_effect_has_a_manoeuvre_that_excites_it():
     """A confusion warning always says what to fly: a named pair, or each effect's manoeuvre.
     What the diagnosis knows about an effect lives on its class."""

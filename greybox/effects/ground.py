@@ -47,6 +47,14 @@ class GroundEffect(Effect):
         nearest = float(np.min(d[~np.eye(len(P), dtype=bool)]))
         return {"k_ge": (nearest / 4) ** 2} if nearest > 0 else {}
 
+    @staticmethod
+    def reach(airframe) -> float | None:
+        """Height (m) above which the ground adds no thrust worth a word on ``airframe``: two
+        rotor diameters of the largest rotors that fit between its hubs (0.4 % there, by the
+        form above); ``None`` for a single rotor."""
+        limit = GroundEffect().plausible_limits(airframe).get("k_ge")
+        return None if limit is None else 8.0 * float(np.sqrt(limit))     # 4 R, R = nearest hub / 2
+
     def interpretation_notes(self, values, std, airframe):
         # k_ge is tied to the heights the airframe gives its rotors: a fit with the hubs in the
         # CoG's plane while they sit higher is right for its model but reads low as a rotor size
