@@ -579,7 +579,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from .diagnosis.fit_checks import fit_warnings
     checks = fit_warnings(res, [est for est, _ in parts])
     if not res.converged:
-        raise GreyboxError(f"fit did not converge: {'; '.join(checks + [res.status])}")
+        # what to do next (a blind audit's slung payload: two failures, and nothing said)
+        raise GreyboxError(f"fit did not converge: {'; '.join(checks + [res.status])}. A model that misses something "
+                           "large may not settle: `greybox diagnose` with the same log says what it lacks; "
+                           f"--max-iter raises the iterations of each solve (now {args.max_iter})")
     res.warnings[:0] = checks
     # each flight's tail validated with its own values of the per-flight parameters (wind,
     # battery sag); a separate flight with their mean (its wind was never seen)
@@ -962,7 +965,9 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--fixed", help="comma list of parameters to hold at their starting values")
     f.add_argument("--interval", type=_positive_int, help="samples per shooting interval (default: nearest 50 ms)")
     f.add_argument("--max-iter", type=_positive_int, default=FIT_DEFAULTS["max_iter"],
-                   help=f"Gauss-Newton iteration limit (default {FIT_DEFAULTS['max_iter']})")
+                   help=f"Gauss-Newton iterations of each solve (default {FIT_DEFAULTS['max_iter']}); a fit may "
+                        "solve several times (process noise or weights estimated again, a restart), each "
+                        "with this limit")
     _data_args(f, "with several logs, what each flight gets its own value of: 'auto' (default: the "
                   "effects that belong to a flight, wind and thrust_drift), 'none' (all shared) or a "
                   "comma list of effects / parameters", process_noise_default=FIT_DEFAULTS["process_noise"])
