@@ -642,3 +642,17 @@ def test_a_refit_never_ends_worse_than_the_baseline_it_extends(paper, normal_fli
     _, cold, _ = refit(paper, base, [normal_flight.log], None, "wind", base.sigma, "auto", cold=True, max_iter=1)
     assert profile_log_likelihood(cold) >= profile_log_likelihood(base) - 1e-6
     assert abs(cold.value("wind[0]")) < 0.05 and cold.value("K_T") == pytest.approx(base.value("K_T"), rel=1e-3)
+
+
+def test_a_channel_the_final_model_predicts_worse_is_said_beside_the_total():
+    """A blind audit's climb inflow, named hub_rotor_drag (its linear form): the total 0.298 ->
+    0.154 while r went 0.026 -> 0.041 (+59 %), shown only in the channel table. Channels within
+    2 % of their motion (psi 0.012 -> 0.016) or that rise less than a quarter are not said."""
+    from greybox.diagnosis.workflow import worse_channel_words
+    before = {"x": 0.156, "z": 0.045, "psi": 0.012, "p": 0.242, "r": 0.026, "az": 0.063}
+    after = {"x": 0.050, "z": 0.011, "psi": 0.016, "p": 0.045, "r": 0.041, "az": 0.075}
+    words = worse_channel_words(before, after, 0.298, 0.154)
+    assert len(words) == 1, words
+    assert "r 0.026 -> 0.041 (+58 %)" in words[0] and "0.298 -> 0.154" in words[0], words
+    assert "psi" not in words[0] and "az" not in words[0], words          # under 2 %; +19 %
+    assert worse_channel_words(before, before, 0.298, 0.298) == []
