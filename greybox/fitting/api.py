@@ -1126,7 +1126,7 @@ class _Solves:
         left at their gaps' random part, the joint optimum over states and parameters makes
         those gaps cheap by raising the gains they act through (a blind audit's Crazyflie,
         speeds logged slower than its controller: k_M 1.59 +- 0.13 for 1, tau_m 0.056 for
-        0.030; at the floor 0.96 +- 0.08). The logged inputs' own noise, read from the inputs,
+        0.030; at the floor 0.96 +- 0.07). The logged inputs' own noise, read from the inputs,
         stays as its floor. Gaps mostly systematic say the law does not hold there (motors that
         slew slower than their lag: held at the floor, Kd 2-4 % and b 5 % low): they keep
         their process noise, and the certificate says so."""
