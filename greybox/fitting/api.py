@@ -1203,34 +1203,33 @@ class _Solves:
             if gap > CANNOT_FOLLOW_GAP:
                 raise _CannotFollow(f"its first solve stopped ({status}) with shooting gaps open up to "
                                     f"{gap:.3g} times the states' noise scale")
+        def solve_at(q_new: np.ndarray, words: str) -> bool:
+            """Solve on at the process noise ``q_new``; whether it converged (if not, the last
+            end point and process noise are kept)."""
+            nonlocal X, th, mu, converged, status, blocks, total_iters
+            kept = (X, th, mu, converged, status, blocks, ses.q)
+            ses.q = q_new
+            say(words + _q_text(self.model, ses))
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
+            total_iters += iters
+            if converged:
+                return True
+            # a process noise this low lets the solve no longer converge (a model that misses a
+            # torque for good, with gaps alike from one interval to the next): the last
+            # certified one is where it stops
+            say(f"fit: with that process noise the solve stopped ({status}); keeping the last one")
+            X, th, mu, converged, status, blocks, ses.q = kept
+            return False
+
         for _ in range(Q_ROUNDS if soft and self.process_noise == "auto" else 0):
             if not converged:
                 break
             q_new = self.estimate_q(X, th)
-            if np.all(np.abs(q_new / ses.q - 1) < 0.2):
-                break
-            kept = (X, th, mu, converged, status, blocks, ses.q)
-            ses.q = q_new
-            say("fit: process noise re-estimated: " + _q_text(self.model, ses))
-            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
-            total_iters += iters
-            if not converged:
-                # a process noise this low lets the solve no longer converge (a model that
-                # misses a torque for good, with gaps alike from one interval to the next):
-                # the last certified one is where it stops
-                say(f"fit: with that process noise the solve stopped ({status}); keeping the last one")
-                X, th, mu, converged, status, blocks, ses.q = kept
+            if np.all(np.abs(q_new / ses.q - 1) < 0.2) or not solve_at(q_new, "fit: process noise re-estimated: "):
                 break
         q_settled = self.settled_effect_q(X, th) if converged and soft and self.process_noise == "auto" else None
         if q_settled is not None:
-            kept = (X, th, mu, converged, status, blocks, ses.q)
-            ses.q = q_settled
-            say("fit: the effect states' gaps are random: their process noise to the floor: " + _q_text(self.model, ses))
-            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
-            total_iters += iters
-            if not converged:
-                say(f"fit: with that process noise the solve stopped ({status}); keeping the last one")
-                X, th, mu, converged, status, blocks, ses.q = kept
+            solve_at(q_settled, "fit: the effect states' gaps are random: their process noise to the floor: ")
         for _ in range(3 if reweight and not soft else 0):
             if not converged:
                 break
