@@ -32,8 +32,7 @@ from ..shooting import (NOISE_FLOOR, attitude_gyro_disagreement, default_interva
                         free_indices, noise_levels)
 from ..shooting import sensor_noise as estimated_sensor_noise
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
-from .certificate import (FILTERED_SENSOR_RATIO, GAP_FORCE_SHARE, GAP_VISIBLE, NOISE_RATIO_ADEQUATE, NOISE_RATIO_COLOURED,
-                          Certificate)
+from .certificate import FILTERED_SENSOR_RATIO, GAP_FORCE_SHARE, GAP_VISIBLE, NOISE_RATIO_COLOURED, Certificate
 from .gauss_newton import FitSession, Solver, budget_spent
 from .input_errors import INPUT_NOISE_SHARE, input_noise_process_scale, output_input_noise
 from .robust import long_run_covariance, upper_covariance
@@ -1119,47 +1118,6 @@ class _Solves:
                 q = np.maximum(q, inputs_floor[ses.flight_of_interval] if len(self.logs) > 1 else inputs_floor[0])
         return q
 
-    def settled_effect_q(self, X_: np.ndarray, th_: np.ndarray) -> np.ndarray | None:
-        """The process noise with the effect states integrated from the inputs (a motor lag's
-        effective speeds) at the floor where their gaps are random, or ``None`` if none is
-        above it. Their soft start (:meth:`estimate_q`) is a way into the basin, not a model:
-        left at their gaps' random part, the joint optimum over states and parameters makes
-        those gaps cheap by raising the gains they act through (a blind audit's Crazyflie,
-        speeds logged slower than its controller: k_M 1.59 +- 0.13 for 1, tau_m 0.056 for
-        0.030; at the floor 0.96 +- 0.07). The logged inputs' own noise, read from the inputs,
-        stays as its floor. Gaps mostly systematic say the law does not hold there (motors that
-        slew slower than their lag: held at the floor, Kd 2-4 % and b 5 % low): they keep
-        their process noise, and the certificate says so."""
-        ses, model = self.ses, self.model
-        names = model.state_names
-        # per effect: one of its states off its law is the effect's law not holding there
-        groups = [[names.index(n) for n in e.state_names(model.airframe)] for e in model.effects]
-        groups = [[h for h in g if h not in ses.disturbance_sources and names[h] not in self.q_given] for g in groups]
-        groups = [g for g in groups if g]
-        if not groups:
-            return None
-        gaps = ses.gaps(X_, ses.evaluate(X_, th_, blocks=False)[0])
-        floor = 1e-6 * (np.abs(X_).max(axis=0) + 1e-3)
-        q = np.array(ses.q, dtype=float, copy=True)
-        per_interval = q.ndim == 2
-        changed = False
-        for f, sl in enumerate(ses.interval_slices):
-            for hidden in groups:
-                g = gaps[sl][:, hidden]
-                if np.any(np.sqrt(np.mean(g ** 2, axis=0)) > NOISE_RATIO_ADEQUATE * process_noise_scale(g)):
-                    continue
-                target = floor[hidden]
-                if self.inputs_floor is not None:
-                    target = np.maximum(target, self.inputs_floor[f, hidden])
-                if per_interval:
-                    now = q[sl][:, hidden]
-                    q[sl, hidden] = np.minimum(target, now)
-                else:
-                    now = q[hidden]
-                    q[hidden] = np.minimum(target, now)
-                changed = changed or bool(np.any(target < now))
-        return q if changed else None
-
     def check(self, X_: np.ndarray, th_: np.ndarray, blocks_):
         """``(P, s2, optimality)`` at an end point."""
         ses = self.ses
@@ -1203,33 +1161,24 @@ class _Solves:
             if gap > CANNOT_FOLLOW_GAP:
                 raise _CannotFollow(f"its first solve stopped ({status}) with shooting gaps open up to "
                                     f"{gap:.3g} times the states' noise scale")
-        def solve_at(q_new: np.ndarray, words: str) -> bool:
-            """Solve on at the process noise ``q_new``; whether it converged (if not, the last
-            end point and process noise are kept)."""
-            nonlocal X, th, mu, converged, status, blocks, total_iters
-            kept = (X, th, mu, converged, status, blocks, ses.q)
-            ses.q = q_new
-            say(words + _q_text(self.model, ses))
-            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
-            total_iters += iters
-            if converged:
-                return True
-            # a process noise this low lets the solve no longer converge (a model that misses a
-            # torque for good, with gaps alike from one interval to the next): the last
-            # certified one is where it stops
-            say(f"fit: with that process noise the solve stopped ({status}); keeping the last one")
-            X, th, mu, converged, status, blocks, ses.q = kept
-            return False
-
         for _ in range(Q_ROUNDS if soft and self.process_noise == "auto" else 0):
             if not converged:
                 break
             q_new = self.estimate_q(X, th)
-            if np.all(np.abs(q_new / ses.q - 1) < 0.2) or not solve_at(q_new, "fit: process noise re-estimated: "):
+            if np.all(np.abs(q_new / ses.q - 1) < 0.2):
                 break
-        q_settled = self.settled_effect_q(X, th) if converged and soft and self.process_noise == "auto" else None
-        if q_settled is not None:
-            solve_at(q_settled, "fit: the effect states' gaps are random: their process noise to the floor: ")
+            kept = (X, th, mu, converged, status, blocks, ses.q)
+            ses.q = q_new
+            say("fit: process noise re-estimated: " + _q_text(self.model, ses))
+            X, th, mu, iters, converged, status, blocks = ses.solve(X, th, 1e-4, max_iter, tol)
+            total_iters += iters
+            if not converged:
+                # a process noise this low lets the solve no longer converge (a model that
+                # misses a torque for good, with gaps alike from one interval to the next):
+                # the last certified one is where it stops
+                say(f"fit: with that process noise the solve stopped ({status}); keeping the last one")
+                X, th, mu, converged, status, blocks, ses.q = kept
+                break
         for _ in range(3 if reweight and not soft else 0):
             if not converged:
                 break
