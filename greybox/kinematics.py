@@ -180,18 +180,22 @@ def _spans(log: FlightLog, G: np.ndarray, E: np.ndarray, gk: np.ndarray, ek: np.
     # the halves' spread as well: an attitude error correlated from span to span makes the
     # formal std too small (the real NanoBench flights, which hardly turn: 0.91 +- 0.03)
     halves = [_regression(X[part], D[part]) for part in (slice(0, m // 2), slice(m // 2, m))]
+    both = halves[0] is not None and halves[1] is not None
+
+    def read(i: int) -> tuple[float, float, float | None]:
+        """Coefficient ``i``: its value, formal std and half the halves' difference (None
+        without both halves)."""
+        spread = 0.5 * abs(float(halves[0][0][i]) - float(halves[1][0][i])) if both else None
+        return float(coef[i]), math.sqrt(max(float(cov[i, i]), 0.0)), spread
+
     scale, std, bias, bias_std = {}, {}, {}, {}
     for a, name in enumerate(AXES):
-        bb, sb = float(coef[3 + a]), math.sqrt(max(float(cov[3 + a, 3 + a]), 0.0))
-        if halves[0] is not None and halves[1] is not None:
-            sb = max(sb, 0.5 * abs(float(halves[0][0][3 + a]) - float(halves[1][0][3 + a])))
+        bb, sb, spread = read(3 + a)
+        sb = sb if spread is None else max(sb, spread)
         if np.isfinite(bb) and np.isfinite(sb):
             bias[name], bias_std[name] = bb, sb
-        c, s = float(coef[a]), math.sqrt(max(float(cov[a, a]), 0.0))
-        if halves[0] is not None and halves[1] is not None:
-            s = max(s, 0.5 * abs(float(halves[0][0][a]) - float(halves[1][0][a])))
-        else:
-            s = math.inf
+        c, s, spread = read(a)
+        s = math.inf if spread is None else max(s, spread)       # a scale is read only with both halves
         if not (np.isfinite(c) and np.isfinite(s)) or 1 + c <= 0 or s > 0.05:
             continue            # an axis the flight hardly turns about: not read
         scale[name] = 1.0 / (1.0 + c)                                  # gyro = scale x the attitude's rate

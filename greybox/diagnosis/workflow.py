@@ -150,6 +150,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
     # no constant effect holds it, and a blind audit's diagnosis stacked constant stand-ins for
     # over 15 minutes (a weak rotor, a moment gain, a centre of gravity off): nothing is tested
     changed = imbalance.share_step if imbalance is not None and not geometry else None
+    moments = top_words = ""
     if geometry or changed:
         # nothing is tested: read in the wrong order or turned, what the columns do is "physics"
         # no effect holds; a rotor that changed, a step no constant effect holds
@@ -332,9 +333,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
             warnings.append(timed)
     warnings += _timing_shift_words(rounds, cur_res)
     warnings += _sliver_shift_words(rounds, cur_res)
-    if cur_res.converged and not geometry and not changed and not (top_thrust is not None and top_thrust.words()) and \
-            not any(w.startswith(("the roll and pitch turn about", "the log's roll and pitch accelerations are"))
-                    for w in warnings):
+    if cur_res.converged and not geometry and not changed and not top_words and not moments:
         # what greybox fit says of the airframe's moments (an inertia off): a blind audit's CAD
         # inertia read right by fit (k_M 1.11), and the diagnosis, which set moment_gain aside
         # as a sliver, left it unsaid
@@ -558,24 +557,27 @@ def _baseline_warnings(model: QuadrotorModel, res: FitResult, timing: dict | Non
     return warnings
 
 
+def _judged_against(rounds: Sequence[Round], final: FitResult):
+    """The candidates of the round(s) judged against the fit ``final`` itself (none after a
+    later refit changed it)."""
+    return (cand for rnd in rounds if rnd.fit is final for cand in rnd.ranking)
+
+
 def _timing_shift_words(rounds: Sequence[Round], final: FitResult) -> list[str]:
     """Words on the final fit's parameters that a candidate refused as a lag under half a row
     (the log's timing cannot tell it) moves beyond their std (``CandidateResult.timing_shifts``),
     from the round judged against the final fit itself (none after a later refit changed it)."""
     out = []
     std = dict(zip(final.free_names, map(float, final.std)))
-    for rnd in rounds:
-        if rnd.fit is not final:
+    for cand in _judged_against(rounds, final):
+        if not cand.timing_shifts:
             continue
-        for cand in rnd.ranking:
-            if not cand.timing_shifts:
-                continue
-            said = ", ".join(f"{n} {a:.4g} ± {std.get(n, float('nan')):.2g} without it, {b:.4g} with it"
-                             for n, (a, b) in cand.timing_shifts.items())
-            it, its = ("them", "their") if len(cand.timing_shifts) > 1 else ("it", "its")
-            out.append(f"{said}: {cand.effect} (a lag under half a row of the logged inputs, which the log's timing "
-                       f"cannot tell) moves {it} beyond {its} std; what the data say of {it} is that range, not the "
-                       "std (log the inputs faster to tell the lag)")
+        said = ", ".join(f"{n} {a:.4g} ± {std.get(n, float('nan')):.2g} without it, {b:.4g} with it"
+                         for n, (a, b) in cand.timing_shifts.items())
+        it, its = ("them", "their") if len(cand.timing_shifts) > 1 else ("it", "its")
+        out.append(f"{said}: {cand.effect} (a lag under half a row of the logged inputs, which the log's timing "
+                   f"cannot tell) moves {it} beyond {its} std; what the data say of {it} is that range, not the "
+                   "std (log the inputs faster to tell the lag)")
     return out
 
 
@@ -591,15 +593,12 @@ def _sliver_shift_words(rounds: Sequence[Round], final: FitResult) -> list[str]:
     std = dict(zip(final.free_names, map(float, final.std)))
     moved: dict[str, list[tuple[str, float]]] = {}
     lrs: dict[str, float] = {}
-    for rnd in rounds:
-        if rnd.fit is not final:
+    for cand in _judged_against(rounds, final):
+        if not cand.sliver_shifts or cand.effect in final.model.effect_names:
             continue
-        for cand in rnd.ranking:
-            if not cand.sliver_shifts or cand.effect in final.model.effect_names:
-                continue
-            lrs[cand.effect] = cand.lr
-            for n, (_a, b, _z) in cand.sliver_shifts.items():
-                moved.setdefault(n, []).append((cand.effect, b))
+        lrs[cand.effect] = cand.lr
+        for n, (_a, b, _z) in cand.sliver_shifts.items():
+            moved.setdefault(n, []).append((cand.effect, b))
     if not moved:
         return []
     said = "; ".join(f"{n} {final.value(n):.4g} ± {std.get(n, float('nan')):.2g} (" +
@@ -895,9 +894,9 @@ def worse_channel_words(before: Mapping[str, float], after: Mapping[str, float],
     (its linear form): the total fell 48 % while r rose 59 % (0.026 -> 0.041), and the
     channel table alone showed it."""
     # a channel predicted to within a few per cent of its motion either way is not said
-    worse = {ch: after[ch] / b - 1 for ch, b in before.items()
-             if ch in after and b > 0 and math.isfinite(after[ch]) and after[ch] >= WORSE_CHANNEL_FLOOR
-             and after[ch] / b - 1 >= WORSE_CHANNEL}
+    rise = {ch: after[ch] / b - 1 for ch, b in before.items()
+            if ch in after and b > 0 and math.isfinite(after[ch]) and after[ch] >= WORSE_CHANNEL_FLOOR}
+    worse = {ch: r for ch, r in rise.items() if r >= WORSE_CHANNEL}
     if not worse:
         return []
     said = ", ".join(f"{ch} {before[ch]:.3g} -> {after[ch]:.3g} ({100 * r:+.0f} %)" for ch, r in
