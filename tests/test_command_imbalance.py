@@ -268,3 +268,51 @@ def test_two_neighbouring_rotors_of_a_hexacopter_swapped_are_told(tmp_path):
     inputs = log.inputs.copy()
     inputs[:, [1, 2]] = log.inputs[:, [2, 1]]
     assert rotor_order(hexa, replace(log, inputs=inputs)) == (0, 2, 1, 3, 4, 5)
+
+
+def test_a_validation_flight_in_another_order_and_spins_the_wrong_way_round_are_refused(base, tmp_path, capsys):
+    """A thirty-seventh blind audit: ``greybox fit`` refused its Betaflight-ordered log, but the
+    same order given as ``--validation`` read as a model that fails (nrmse 3.69 against 0.07),
+    ``compare`` said nothing, and ``diagnose`` fitted for a minute first; an airframe with
+    every spin flipped was fitted "optimum certified" with b on its bound at 0, and its
+    diagnosis added a torque that predicted worse. Each is now one line before any fit (exit
+    2), naming the flight or the spins; the same flights as given pass."""
+    from dataclasses import replace
+    from greybox.cli import main
+    from greybox.data import save_log
+
+    m0, p0 = model_with_hidden_effects(base, [])
+    est = synthesize(m0, p0, 20.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=3).log
+    val = synthesize(m0, p0, 12.0, SensorSpec(rate=200.0, vision_rate=50.0), seed=4).log
+    save_log(est, tmp_path / "est.csv")
+    save_log(val, tmp_path / "val.csv")
+    inputs = val.inputs.copy()
+    inputs[:, :4] = val.inputs[:, [0, 3, 2, 1]]      # M2 and M4 swapped
+    save_log(replace(val, inputs=inputs), tmp_path / "swapped.csv")
+    af = str(AIRFRAMES / "x_quad.toml")
+    order = "the logged rotor speeds act as the airframe's rotors in another order: "
+    for argv in (["fit", str(tmp_path / "est.csv"), "--validation", str(tmp_path / "swapped.csv")],
+                 ["diagnose", str(tmp_path / "est.csv"), "--validation", str(tmp_path / "swapped.csv")],
+                 ["compare", str(tmp_path / "swapped.csv")]):
+        rc = main(argv + ["--airframe", af] + (["--quiet"] if argv[0] != "compare" else []))
+        err = capsys.readouterr().err
+        assert rc == 2 and order in err and "swapped.csv" in err, (argv[0], err)
+        assert len([ln for ln in err.splitlines() if ln.startswith("greybox: error")]) == 1
+    # every spin flipped: the x layout's spins [+1, +1, -1, -1] written as rotor tables the other way round
+    a = 0.2 / np.sqrt(2)
+
+    def rotor_tables(sign):
+        return "".join(f"[[rotor]]\nposition = [{x:.6f}, {y:.6f}, 0.0]\nspin = {sign * s}\n\n"
+                       for (x, y), s in zip(((a, a), (-a, -a), (a, -a), (-a, a)), (1, 1, -1, -1)))
+    text = (AIRFRAMES / "x_quad.toml").read_text().replace('layout = "x"\n', "")
+    (tmp_path / "flipped.toml").write_text(text.replace("[parameters]", rotor_tables(-1) + "[parameters]"))
+    for argv in (["fit", str(tmp_path / "est.csv"), "--quiet"], ["diagnose", str(tmp_path / "est.csv"), "--quiet"],
+                 ["compare", str(tmp_path / "val.csv")]):
+        rc = main(argv + ["--airframe", str(tmp_path / "flipped.toml")])
+        err = capsys.readouterr().err
+        assert rc == 2 and "turn the body in yaw against the airframe's spin directions (cosine -1.00" in err, err
+        assert "spins -1, -1, +1, +1" in err, err
+    # as given (and the rotor tables with the layout's own spins): no word of either
+    (tmp_path / "right.toml").write_text(text.replace("[parameters]", rotor_tables(1) + "[parameters]"))
+    assert main(["compare", str(tmp_path / "val.csv"), "--airframe", str(tmp_path / "right.toml")]) == 0
+    assert main(["compare", str(tmp_path / "val.csv"), "--airframe", af]) == 0

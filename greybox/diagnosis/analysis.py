@@ -574,6 +574,15 @@ def _moments_per_column(model: QuadrotorModel, log: FlightLog | Sequence[FlightL
     body's angular accelerations (from the measured rates, smoothed) regressed on every
     column's ``w^2``, each flight about its own means; None without the data to tell (no gyro
     or attitude, rotor speeds not the inputs, more than eight rotors)."""
+    found = _accelerations_per_column(model, log)
+    return None if found is None else found[0][:2]
+
+
+def _accelerations_per_column(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]
+                              ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The roll, pitch and yaw angular accelerations per logged column's ``w^2`` (3, rotors)
+    and the share of each axis's acceleration the columns explain (R², 3) (see
+    :func:`_moments_per_column`)."""
     n = model.airframe.n_rotors
     if model.inputs != "rotor_speeds" or n > 8:
         return None
@@ -581,7 +590,7 @@ def _moments_per_column(model: QuadrotorModel, log: FlightLog | Sequence[FlightL
     for lg in ([log] if isinstance(log, FlightLog) else list(log)):
         if len(lg) < 50:
             continue
-        acc = _states_and_angular_acceleration(model, lg)[1][:, :2]
+        acc = _states_and_angular_acceleration(model, lg)[1][:, :3]
         w2 = lg.inputs[:, :n].astype(float) ** 2
         ok = np.all(np.isfinite(w2), axis=1) & np.all(np.isfinite(acc), axis=1)
         if ok.sum() < 50:
@@ -594,7 +603,48 @@ def _moments_per_column(model: QuadrotorModel, log: FlightLog | Sequence[FlightL
     D, acc = np.vstack(rows_d), np.vstack(rows_a)
     if np.linalg.matrix_rank(D) < D.shape[1]:
         return None
-    return np.linalg.lstsq(D, acc, rcond=None)[0].T
+    C = np.linalg.lstsq(D, acc, rcond=None)[0]
+    total = np.sum(acc ** 2, axis=0)
+    explained = 1.0 - np.sum((acc - D @ C) ** 2, axis=0) / np.where(total > 0, total, np.inf)
+    return C.T, explained
+
+
+SPIN_OPPOSED = -0.8
+"""Cosine between the yaw accelerations the logged speeds move and the airframe's spins at or
+below which the spins are read as given the wrong way round (:func:`spins_opposed`): greybox's
+own and audits' flights give +1, the ten real NanoBench flights 0.73-0.98, a blind audit's
+airframe with every spin flipped -1.00."""
+SPIN_EXPLAINED = 0.2
+"""...when the columns explain at least this share of the yaw acceleration (R²), and the roll
+and pitch match the airframe as given (to :data:`ROTOR_ORDER_MATCH`)."""
+
+
+def spins_opposed(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> float | None:
+    """The cosine between the yaw accelerations per column's ``w^2`` and the airframe's spins
+    when it says they are given the wrong way round (at most :data:`SPIN_OPPOSED`, the yaw
+    explained to :data:`SPIN_EXPLAINED`, the roll and pitch as given to
+    :data:`ROTOR_ORDER_MATCH`); else None. A blind audit's airframe with every spin flipped
+    was fitted "optimum certified" with b on its bound at 0, and its diagnosis (265 s) added a
+    disturbance torque that predicted worse, the spins never named."""
+    found = _accelerations_per_column(model, log)
+    if found is None:
+        return None
+    C, explained = found
+    A = model.airframe.allocation_matrix()
+    if _cosines(C[:2], A[1:3]).min() < ROTOR_ORDER_MATCH or explained[2] < SPIN_EXPLAINED:
+        return None
+    yaw = float(np.dot(C[2], A[3]) / max(np.linalg.norm(C[2]) * np.linalg.norm(A[3]), 1e-300))
+    return yaw if yaw <= SPIN_OPPOSED else None
+
+
+def spin_words(model: QuadrotorModel, cosine: float) -> str:
+    """The words for :func:`spins_opposed`'s answer."""
+    spins = ", ".join(f"{int(s):+d}" for s in model.airframe.spins)
+    return (f"the logged rotor speeds turn the body in yaw against the airframe's spin directions (cosine "
+            f"{cosine:.2f} between the yaw each column's w^2 moves and the spins {spins}; their roll and pitch match "
+            "the airframe): check the spin directions (spin +1 for a rotor turning counter-clockwise seen from above, "
+            "-1 clockwise; the layouts' own are in the contract); given the wrong way round, a fit holds b at 0 and "
+            "reads the yaw as a torque the model lacks")
 
 
 def _cosines(C: np.ndarray, G: np.ndarray) -> np.ndarray:
