@@ -526,6 +526,36 @@ def test_positions_in_another_frame_than_the_attitudes_are_refused(manoeuvring_f
     assert rc == 2 and words in line and str(path) in line and not (tmp_path / "r.json").exists()
 
 
+@pytest.mark.parametrize("mistake, opposed", [
+    ("pitch negated", ["'theta' against 'q'"]),
+    ("gyro FLU", ["'theta' against 'q'", "'psi' against 'r'"]),
+    ("angles ENU/FLU", ["'theta' against 'q'", "'psi' against 'r'"]),
+])
+def test_an_attitude_turning_against_the_gyro_is_refused_as_such(manoeuvring_flight, mistake, opposed):
+    """A thirty-seventh blind audit: a negated pitch, FLU gyro rates and ENU/FLU Euler angles
+    passed the gyro's size check (it pools roll and pitch, unsigned) and were then refused as
+    the likeliest of other mistakes ("phi and theta swapped", "x and y swapped", "w1 as rotor
+    4"); doing what those said led to a certified fit with the drag 29-85 % low. Each angle's
+    rate against its gyro axis, signed, says it first: the real NanoBench flights correlate
+    0.49-0.95, these -0.9 and below. As given: nothing."""
+    from greybox.data import check_measurement_units
+    log = manoeuvring_flight
+    cols = {n: j for j, n in enumerate(log.output_names)}
+    Y = log.outputs.copy()
+    check_measurement_units(log.t, Y, list(log.output_names), "flight.csv", log.inputs)
+    if mistake == "pitch negated":
+        Y[:, cols["theta"]] *= -1
+    elif mistake == "gyro FLU":
+        Y[:, [cols["q"], cols["r"]]] *= -1
+    else:
+        Y[:, cols["theta"]] *= -1
+        Y[:, cols["psi"]] = np.pi / 2 - Y[:, cols["psi"]]
+    with pytest.raises(GreyboxInputError, match="the attitude turns against the gyro") as err:
+        check_measurement_units(log.t, Y, list(log.output_names), "flight.csv", log.inputs)
+    said = str(err.value).split("; one of them")[0]
+    assert [w for w in ("'phi' against 'p'", "'theta' against 'q'", "'psi' against 'r'") if w in said] == opposed
+
+
 def test_gnss_positions_swapped_to_enu_are_refused():
     """An outdoor flight's positions from a GNSS (0.3 m at 10 Hz) under a turning heading: the
     tilt explains their acceleration only in part even in the right frame (correlation 0.69),
