@@ -1346,14 +1346,14 @@ def _unsettled_process_noise_words(unsettled: tuple[np.ndarray, dict[str, float]
     move = T @ ((th_next - th) * scale)
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.abs(move) / std
-    moved = {n: (float(m), float(zz)) for n, m, zz in zip(free_names, move, z) if np.isfinite(zz) and zz > UNSETTLED_MOVE}
+    moved = {n: float(zz) for n, zz in zip(free_names, z) if np.isfinite(zz) and zz > UNSETTLED_MOVE}
     if not moved:
         return []
     steepest = sorted(falling.items(), key=lambda kv: kv[1])[:4]
     return ["the process noise was still falling when its re-estimates ended (the next would lower " +
             ", ".join(f"{n}'s to {r:.2g} of it" for n, r in steepest) +
             (", and more" if len(falling) > len(steepest) else "") + "; a Gauss-Newton step there moves " +
-            ", ".join(f"{n} by {zz:.2g} std" for n, (_, zz) in sorted(moved.items(), key=lambda kv: -kv[1][1])) +
+            ", ".join(f"{n} by {zz:.2g} std" for n, zz in sorted(moved.items(), key=lambda kv: -kv[1])) +
             "): these values depend on how low the process noise is taken, which these data do not settle, by more "
             "than their std say (a model that lacks something, or a flight without noise in its dynamics; "
             "process_noise={state: value} holds it where you choose)"]
