@@ -312,6 +312,13 @@ def test_a_validation_flight_in_another_order_and_spins_the_wrong_way_round_are_
         err = capsys.readouterr().err
         assert rc == 2 and "turn the body in yaw against the airframe's spin directions (cosine -1.00" in err, err
         assert "spins -1, -1, +1, +1" in err, err
+    # a script's fit hears it from fit_warnings (the fit is "certified" with b held at 0)
+    from greybox.diagnosis import fit_warnings
+    from greybox.fitting import fit
+    flipped = QuadrotorModel(load_airframe(tmp_path / "flipped.toml"))
+    res = fit(flipped, est, free=["K_T", "b"])
+    assert any(w.startswith("the logged rotor speeds turn the body in yaw against the airframe's spin directions")
+               for w in fit_warnings(res, [est])), res.warnings
     # as given (and the rotor tables with the layout's own spins): no word of either
     (tmp_path / "right.toml").write_text(text.replace("[parameters]", rotor_tables(1) + "[parameters]"))
     assert main(["compare", str(tmp_path / "val.csv"), "--airframe", str(tmp_path / "right.toml")]) == 0

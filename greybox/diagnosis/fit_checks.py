@@ -9,7 +9,8 @@ from typing import Sequence
 from ..data import FlightLog
 from ..fitting import FitResult
 from .analysis import (below_ground_words, command_imbalance, flights_rotor_geometry, log_moment_words,
-                       odd_flight_geometry, rotor_geometry_warnings, steady_torque_words, thrust_at_top_words)
+                       odd_flight_geometry, rotor_geometry_warnings, spin_words, spins_opposed, steady_torque_words,
+                       thrust_at_top_words)
 from .screening import moment_scale_words, row_timing_words
 
 __all__ = ["fit_warnings"]
@@ -21,7 +22,8 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
     First, whatever the fit: positions below the airframe's ground plane (a crash, or a ground
     plane elsewhere; :func:`~greybox.diagnosis.analysis.below_ground_words`).
     Where the fit failed or leaves residuals beyond the noise: rotor columns in another order
-    or a layout read wrong (:func:`~greybox.diagnosis.analysis.rotor_geometry_warnings`), else
+    or a layout read wrong (:func:`~greybox.diagnosis.analysis.rotor_geometry_warnings`), or
+    spins given the wrong way round (:func:`~greybox.diagnosis.analysis.spins_opposed`), else
     roll and pitch moments the log gives far off the airframe's
     (:func:`~greybox.diagnosis.analysis.log_moment_words`), and the highest commands giving
     less thrust than they ask (:func:`~greybox.diagnosis.analysis.thrust_at_top_words`: motors
@@ -52,6 +54,11 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
         # weight blaming a torque it lacked
         flight, order, turned = flights_rotor_geometry(model, logs)
         geometry = rotor_geometry_warnings(model, order, turned, flight=flight)
+        if not geometry:
+            # spins given the wrong way round (a blind audit's: "certified", b on its bound at 0;
+            # the command line refuses them before fitting, a script's fit hears it here)
+            opposed = spins_opposed(model, logs)
+            geometry = [spin_words(model, opposed)] if opposed is not None else []
         moments = "" if geometry else log_moment_words(model, logs)
         # commands beyond what the motors turn: a blind audit's, diagnosed as a thrust curve
         top = "" if geometry else thrust_at_top_words(model, logs)
