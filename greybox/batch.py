@@ -376,6 +376,12 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
     notes += log.notes[before:]
     if is_imu_only(log):
         return _process_imu_only(model, log, files)
+    # the airframe's spins the wrong way round: refused before the diagnosis, as the command
+    # line does (its fit holds b at 0 as physics, and the flight would join the joint fit)
+    from .diagnosis.analysis import spin_words, spins_opposed
+    opposed = spins_opposed(model, [log.split(0.8)[0]])
+    if opposed is not None:
+        raise GreyboxInputError(f"airframe {model.airframe.name!r}: {spin_words(model, opposed)}")
     diag = diagnose(model, log, candidates=list(opts.candidates) if opts.candidates is not None else None,
                     iterate=opts.iterate, p0=p0, process_noise=opts.process_noise, progress=False,
                     discover=opts.discover, noise=dict(opts.noise) or None, fixed=list(opts.fixed) or None)
@@ -404,17 +410,11 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
         # added bends its parameters (a blind audit's hidden motor lag: the baseline's Kd[2]
         # 4.6 std off, the final model's right, and no tau_m in the summary)
         out.update(_parameter_columns(diag.fitted_model.parameters, "final_"))
-    from .diagnosis.analysis import spin_words, spins_opposed
-    opposed = spins_opposed(model, [log.split(0.8)[0]])
     if base.converged and diag.null_reason in _NOT_A_FLIGHT_OF_THE_FLEET:
         # the diagnosis refused to test (rotor columns in another order, a layout turned, a rotor
         # that changed in flight): its certified fit holds that as physics, so the flight stays
         # out of the joint fit (a blind audit's swapped columns read "ok" here and joined it)
         out.update(status="failed", reason=diag.verdict_text())
-    elif opposed is not None:
-        # the airframe's spins the wrong way round (the command line refuses it): its fit holds
-        # b at 0, so the flight stays out of the joint fit too
-        out.update(status="failed", reason=spin_words(model, opposed))
     elif base.converged:
         out.update(status="ok", reason="")
     else:

@@ -282,10 +282,14 @@ def _check_rotor_geometry(model: QuadrotorModel, logs, validation=(), only_valid
     logs, validation = list(logs), list(validation)
     every = logs + validation
     flight, order, turned = flights_rotor_geometry(model, every)
-    if only_validation and flight not in {flight_label(v, len(logs) + k) for k, v in enumerate(validation)}:
+    validating = flight in {flight_label(v, len(logs) + k) for k, v in enumerate(validation)}
+    if only_validation and not validating:
         flight, order, turned = None, None, None
-    words = rotor_geometry_warnings(model, order, turned, flight=flight)
-    where = "" if flight is not None or len(every) > 1 or not every[0].source else f"{every[0].source}: "
+    # a validation flight is predicted, not fitted with the others: named, without the words
+    # on a joint fit's moments
+    words = rotor_geometry_warnings(model, order, turned, flight=None if validating else flight)
+    where = (f"{flight} (judged alone; the other flights as given): " if validating else
+             "" if flight is not None or len(every) > 1 or not every[0].source else f"{every[0].source}: ")
     if words:
         raise GreyboxInputError(where + words[0])
     # the spins are the airframe's, the same for every flight: judged on them all at once

@@ -270,7 +270,10 @@ def test_two_neighbouring_rotors_of_a_hexacopter_swapped_are_told(tmp_path):
     assert rotor_order(hexa, replace(log, inputs=inputs)) == (0, 2, 1, 3, 4, 5)
 
 
-def test_a_validation_flight_in_another_order_and_spins_the_wrong_way_round_are_refused(base, tmp_path, capsys):
+@pytest.mark.parametrize("batch_too", [False, pytest.param(True, marks=pytest.mark.slow)],
+                         ids=["cli", "cli_and_batch"])
+def test_a_validation_flight_in_another_order_and_spins_the_wrong_way_round_are_refused(base, tmp_path, capsys,
+                                                                                        batch_too):
     """A thirty-seventh blind audit: ``greybox fit`` refused its Betaflight-ordered log, but the
     same order given as ``--validation`` read as a model that fails (nrmse 3.69 against 0.07),
     ``compare`` said nothing, and ``diagnose`` fitted for a minute first; an airframe with
@@ -319,6 +322,13 @@ def test_a_validation_flight_in_another_order_and_spins_the_wrong_way_round_are_
     res = fit(flipped, est, free=["K_T", "b"])
     assert any(w.startswith("the logged rotor speeds turn the body in yaw against the airframe's spin directions")
                for w in fit_warnings(res, [est])), res.warnings
+    if batch_too:
+        # a batch records the flight as failed with the same words, before any diagnosis
+        from greybox.batch import batch
+        rec = batch([tmp_path / "est.csv"], tmp_path / "b", airframe=tmp_path / "flipped.toml", workers=1,
+                    progress=False).records[0]
+        assert rec["status"] == "failed" and "against the airframe's spin directions" in rec["reason"], rec
+        assert rec["wall_s"] < 60, rec
     # as given (and the rotor tables with the layout's own spins): no word of either
     (tmp_path / "right.toml").write_text(text.replace("[parameters]", rotor_tables(1) + "[parameters]"))
     assert main(["compare", str(tmp_path / "val.csv"), "--airframe", str(tmp_path / "right.toml")]) == 0
