@@ -378,10 +378,8 @@ def _process(flight: Flight, opts: Options, files: dict[str, bytes], notes: list
         return _process_imu_only(model, log, files)
     # the airframe's spins the wrong way round: refused before the diagnosis, as the command
     # line does (its fit holds b at 0 as physics, and the flight would join the joint fit)
-    from .diagnosis.analysis import spin_words, spins_opposed
-    opposed = spins_opposed(model, [log.split(0.8)[0]])
-    if opposed is not None:
-        raise GreyboxInputError(f"airframe {model.airframe.name!r}: {spin_words(model, opposed)}")
+    from .diagnosis.analysis import check_spins
+    check_spins(model, [log.split(0.8)[0]])
     diag = diagnose(model, log, candidates=list(opts.candidates) if opts.candidates is not None else None,
                     iterate=opts.iterate, p0=p0, process_noise=opts.process_noise, progress=False,
                     discover=opts.discover, noise=dict(opts.noise) or None, fixed=list(opts.fixed) or None)

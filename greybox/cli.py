@@ -277,7 +277,7 @@ def _check_rotor_geometry(model: QuadrotorModel, logs, validation=(), only_valid
     ``only_validation``: say it only of a validation flight (the diagnosis says the estimation
     flights' own as its verdict's reason). Then the airframe's spin directions, judged on
     every flight at once (:func:`~greybox.diagnosis.analysis.spins_opposed`)."""
-    from .diagnosis.analysis import flights_rotor_geometry, rotor_geometry_warnings, spin_words, spins_opposed
+    from .diagnosis.analysis import check_spins, flights_rotor_geometry, rotor_geometry_warnings
     from .data import flight_label
     logs, validation = list(logs), list(validation)
     every = logs + validation
@@ -293,9 +293,7 @@ def _check_rotor_geometry(model: QuadrotorModel, logs, validation=(), only_valid
     if words:
         raise GreyboxInputError(where + words[0])
     # the spins are the airframe's, the same for every flight: judged on them all at once
-    opposed = spins_opposed(model, every)
-    if opposed is not None:
-        raise GreyboxInputError(f"airframe {model.airframe.name!r}: {spin_words(model, opposed)}")
+    check_spins(model, every)
 
 
 def _time_window(args: argparse.Namespace) -> tuple[float | None, float | None] | None:

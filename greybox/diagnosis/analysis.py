@@ -22,7 +22,8 @@ from ..shooting import initial_node_states
 from ..validation import Prediction
 
 __all__ = ["Finding", "CommandImbalance", "command_imbalance", "steady_torque_words", "log_moment_scale", "log_moment_words", "LOG_MOMENT_FAR", "ThrustAtTop", "thrust_at_top", "thrust_at_top_words", "THRUST_AT_TOP_LOW", "below_ground_words", "BELOW_GROUND", "rotor_order", "layout_rotation", "rotor_geometry", "rotor_geometry_warnings", "ROTOR_ORDER_MATCH", "ROTOR_ORDER_MISMATCH", "residual_analysis", "regime_sentence",
-           "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE"]
+           "flight_residuals", "estimation_residuals", "IMBALANCE_NOTABLE", "flights_rotor_geometry",
+           "odd_flight_geometry", "spins_opposed", "spin_words", "check_spins", "SPIN_OPPOSED", "SPIN_EXPLAINED"]
 
 
 @dataclass
@@ -645,6 +646,14 @@ def spin_words(model: QuadrotorModel, cosine: float) -> str:
             "the airframe): check the spin directions (spin +1 for a rotor turning counter-clockwise seen from above, "
             "-1 clockwise; the layouts' own are in the contract); given the wrong way round, a fit holds b at 0 and "
             "reads the yaw as a torque the model lacks")
+
+
+def check_spins(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog]) -> None:
+    """Refuse, naming the airframe, spins the logs say are given the wrong way round
+    (:func:`spins_opposed`): before any fit, on the command line and in a batch alike."""
+    opposed = spins_opposed(model, log)
+    if opposed is not None:
+        raise GreyboxInputError(f"airframe {model.airframe.name!r}: {spin_words(model, opposed)}")
 
 
 def _cosines(C: np.ndarray, G: np.ndarray) -> np.ndarray:
