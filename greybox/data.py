@@ -1146,6 +1146,26 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
             judge("yaw gyro", slope(parts[0], parts[1], 0.1),
                   "'psi' against 'r': the heading changes {} times as fast as the yaw gyro says",
                   "psi in degrees? rad = deg * pi/180", "the gyro's r in deg/s? rad/s = deg/s * pi/180")
+    # z against the rotors' thrust, read before the horizontal frame so that a z-up world's
+    # mirrored y is said with its z (a blind audit's NWU log: "y mirrored", then, once y was
+    # mended, "z points up")
+    vertical: tuple[float, float, float] | None = None
+    if (inputs is not None and {"z", "phi", "theta"} <= set(col) and inputs.shape[1] >= 1
+            and np.isfinite(Y[:, col["z"]]).any() and np.isfinite(Y[:, col["phi"]] + Y[:, col["theta"]]).any()):
+        # NED: more thrust accelerates the vehicle up, toward negative z
+        # (the rotors' sum of w^2 along the vertical, over its median: about -g per unit in hover)
+        thrust = np.sum(inputs.astype(float) ** 2, axis=1) * np.cos(Y[:, col["phi"]]) * np.cos(Y[:, col["theta"]])
+        scale = float(np.median(thrust[np.isfinite(thrust)]))
+        derived["thrust"] = thrust / scale if scale > 0 else thrust
+        best = None
+        for window in _TILT_WINDOWS:
+            parts = [on_grid("z", window, 2), on_grid("thrust", window, 0), on_grid("z", window, 1)]
+            if all(v is not None for v in parts):
+                fit = slope(parts[0], parts[1], window, parts[2])
+                if fit is not None and (best is None or abs(fit[2]) > abs(best[2])):
+                    best = fit
+        vertical = best
+    z_up = vertical is not None and vertical[0] - 3 * vertical[1] > 0 and vertical[2] > _UNIT_MIN_CORRELATION
     psi = Y[:, col["psi"]] if "psi" in col else np.array([np.nan])
     # per reading of the positions' frame and the heading, the best smoothing window's
     # (complex slope, correlation, real fit): a hover's slight drifts need a second, a
@@ -1227,9 +1247,13 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
                     f"and pitch swapped {shown}: phi and theta swapped (and p and q with them?){also}; greybox's "
                     "body axes are FRD: phi about x (forward), theta about y (right)")
             turn = math.degrees(float(np.angle(c_o)))
-            how = ("x and y swapped (ENU: x east, y north, z up?)" if abs(abs(turn) - 90) < 30 else
-                   "y mirrored (y to the left: a z-up frame?)" if abs(turn) < 30 else
-                   "x mirrored" if abs(turn) > 150 else f"mirrored and turned by {turn:.0f} degrees")
+            up = (f" and z up (z accelerates toward positive values as the rotors speed up, correlation "
+                  f"{vertical[2]:.2f})" if z_up else "")
+            how = ((f"x and y swapped{up} (ENU: x east, y north, z up: NED = (y, x, -z))" if z_up else
+                    "x and y swapped (ENU: x east, y north, z up?)") if abs(abs(turn) - 90) < 30 else
+                   (f"y mirrored{up} (NWU: x north, y west, z up: NED = (x, -y, -z))" if z_up else
+                    "y mirrored (y to the left: a z-up frame?)") if abs(turn) < 30 else
+                   f"x mirrored{up}" if abs(turn) > 150 else f"mirrored and turned by {turn:.0f} degrees{up}")
             also = (f"; or phi and theta swapped (and p and q with them: correlation "
                     f"{readings['roll and pitch swapped'][1]:.2f}), {steady}" if alike("roll and pitch swapped") else "")
             raise GreyboxInputError(
@@ -1247,26 +1271,12 @@ def check_measurement_units(t: np.ndarray, Y: np.ndarray, names: list[str], wher
               "tilt gives with a thrust near the weight",
               "x and y in mm (1000) or cm (100)? positions are in metres",
               "phi, theta, psi in degrees? (or x, y in km)")
-    if (inputs is not None and {"z", "phi", "theta"} <= set(col) and inputs.shape[1] >= 1
-            and np.isfinite(Y[:, col["z"]]).any() and np.isfinite(Y[:, col["phi"]] + Y[:, col["theta"]]).any()):
-        # NED: more thrust accelerates the vehicle up, toward negative z
-        # (the rotors' sum of w^2 along the vertical, over its median: about -g per unit in hover)
-        thrust = np.sum(inputs.astype(float) ** 2, axis=1) * np.cos(Y[:, col["phi"]]) * np.cos(Y[:, col["theta"]])
-        scale = float(np.median(thrust[np.isfinite(thrust)]))
-        derived["thrust"] = thrust / scale if scale > 0 else thrust
-        best = None
-        for window in _TILT_WINDOWS:
-            parts = [on_grid("z", window, 2), on_grid("thrust", window, 0), on_grid("z", window, 1)]
-            if all(v is not None for v in parts):
-                fit = slope(parts[0], parts[1], window, parts[2])
-                if fit is not None and (best is None or abs(fit[2]) > abs(best[2])):
-                    best = fit
-        if best is not None:
-            judged["vertical"] = best
-            if best[0] - 3 * best[1] > 0 and best[2] > _UNIT_MIN_CORRELATION:
-                raise GreyboxInputError(
-                    f"{where}: column 'z': z accelerates toward positive values as the rotors speed up "
-                    f"(correlation {best[2]:.2f}): z points up? greybox's world is NED, z down: z = -height")
+    if vertical is not None:
+        judged["vertical"] = vertical
+        if z_up:
+            raise GreyboxInputError(
+                f"{where}: column 'z': z accelerates toward positive values as the rotors speed up "
+                f"(correlation {vertical[2]:.2f}): z points up? greybox's world is NED, z down: z = -height")
     # last: positions in another unit are named by the tilt check first
     if {"ax", "ay", "az"} <= set(col):
         f = np.linalg.norm(Y[:, [col["ax"], col["ay"], col["az"]]], axis=1)

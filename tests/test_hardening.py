@@ -485,8 +485,11 @@ def test_a_heading_and_yaw_gyro_in_degrees_are_told_by_the_tilt(manoeuvring_flig
 
 
 @pytest.mark.parametrize("frame, words", [
-    ("ENU", "x and y swapped (ENU"),
-    ("y to the left", "y mirrored"),
+    ("ENU", "x and y swapped and z up (z accelerates toward positive values as the rotors speed up"),
+    ("ENU", "(ENU: x east, y north, z up: NED = (y, x, -z))"),
+    ("y to the left", "y mirrored and z up ("),
+    ("y to the left", "(NWU: x north, y west, z up: NED = (x, -y, -z))"),
+    ("y to the left, z down", "y mirrored (y to the left: a z-up frame?)"),
     ("x backwards", "x mirrored"),
     ("turned 40 degrees", "turned by 4"),
     ("turned 180 degrees", "turned by"),
@@ -499,7 +502,8 @@ def test_positions_in_another_frame_than_the_attitudes_are_refused(manoeuvring_f
     the tilt's, turned by the heading (and in z, the rotors' thrust's): read as a complex slope
     its angle says how the axes are turned; a mirror image that explains four times more says
     they are mirrored (the real flights: turned by 4 degrees at most, mirror images explaining
-    less)."""
+    less). A z-up world's mirrored or swapped axes are said with its z in one line (a blind
+    audit's NWU log was refused for y, and only once y was mended for z)."""
     log = manoeuvring_flight
     cols = {n: j for j, n in enumerate(log.output_names)}
     Y = log.outputs
@@ -509,6 +513,8 @@ def test_positions_in_another_frame_than_the_attitudes_are_refused(manoeuvring_f
         x, y, z = y, x, -z
     elif frame == "y to the left":
         y, z = -y, -z
+    elif frame == "y to the left, z down":
+        y = -y
     elif frame == "x backwards":
         x = -x
     elif frame == "z up":
