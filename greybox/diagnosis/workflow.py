@@ -35,7 +35,7 @@ from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_no
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency, half_spread, undetermined_parameters, validation_spread
 from .elimination import backward_elimination, fit_without, judge_removal
-from .screening import lr_test, moment_scale_words, negligible_effect, null_on_bound
+from .screening import lr_test, moment_scale_words, negligible_effect, null_on_bound, smoothed_lag_words
 from .ranking import (ALPHA, MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
                       lacking_signals, parameter_shifts, missing_columns, rank_round, tie_explanation, tie_numbers, validation_ties)
 from .results import UNEXPLAINED_RATIO, Diagnosis, Round
@@ -331,6 +331,10 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         timed, timing_bound = _timing_caveat(cur_model, cur_res, est, timing_refit if same else None)
         if timed:
             warnings.append(timed)
+    lags = _free_input_timed(cur_model, cur_res)
+    smoothed = smoothed_lag_words(est) if lags else ""
+    if smoothed:
+        warnings.append(", ".join(f"{n} = {1e3 * cur_res.value(n):.3g} ms" for n in lags) + f": {smoothed}")
     warnings += _timing_shift_words(rounds, cur_res)
     warnings += _sliver_shift_words(rounds, cur_res)
     if cur_res.converged and not geometry and not changed and not top_words and not moments:
