@@ -6,12 +6,12 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from ..data import FlightLog
+from ..data import FlightLog, median_row_interval
 from ..fitting import FitResult
 from .analysis import (below_ground_words, command_imbalance, flights_rotor_geometry, log_moment_words,
                        odd_flight_geometry, rotor_geometry_warnings, spin_words, spins_opposed, steady_torque_words,
                        thrust_at_top_words)
-from .screening import moment_scale_words, row_timing_words
+from .screening import lag_timing_words, moment_scale_words, row_timing_words, smoothed_lag_words
 
 __all__ = ["fit_warnings"]
 
@@ -32,7 +32,8 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
     flight, which no constant parameter holds). A fit that failed: then a steady
     torque the model lacks (:func:`~greybox.diagnosis.analysis.steady_torque_words`) — the
     reasons before its status. A certified fit: then the rows' timing, where held speeds lag a
-    varying signal (:func:`~greybox.diagnosis.screening.row_timing_words`), and a moment gain
+    varying signal (:func:`~greybox.diagnosis.screening.row_timing_words`), what a fitted lag's
+    std leaves out (the log's timing; smoothed speeds: :func:`_lag_words`), and a moment gain
     off the airframe's that ``K_T``, ``b`` and ``Kd`` carry silently
     (:func:`~greybox.diagnosis.screening.moment_scale_words`; not beside highest commands the
     motors did not follow, which take the moments down too). ``greybox fit`` puts them
@@ -80,5 +81,32 @@ def fit_warnings(res: FitResult, logs: FlightLog | Sequence[FlightLog], compile:
         return [w for w in (ground, *geometry, changed, torque, moments, top) if w]
     # a moment gain's reading (an inertia, an arm, a mass off) is not offered beside commands
     # the motors did not follow: the saturated audit's fit read k_M 0.48 as an inertia 2x off
-    return ([w for w in (ground, *geometry, changed, moments, top) if w] + row_timing_words(res, logs, compile)
+    timing = row_timing_words(res, logs, compile)
+    return ([w for w in (ground, *geometry, changed, moments, top) if w] + timing + _lag_words(res, logs, timing)
             + ([] if moments or top else moment_scale_words(res, logs, compile)))
+
+
+def _lag_words(res: FitResult, logs: Sequence[FlightLog], timing: list[str]) -> list[str]:
+    """What a certified fit's lags and delays (:attr:`~greybox.effects.Effect.input_timed`)
+    count and what they do not, as the diagnosis says of its final model: the log's timing
+    (how a row's logged value holds within the row) moves them by up to half a row beyond
+    their std, where that std is below half a row and no timing was found or modelled
+    (:func:`~greybox.diagnosis.screening.lag_timing_words`; a blind audit's 3-ms motors behind
+    commands logged at 200 Hz: ``tau_m`` 3.074 ± 0.0019 ms, 40 std off, certified and silent);
+    and, fitted to speeds smoothed since they were logged, that the smoother shortens them
+    (:func:`~greybox.diagnosis.screening.smoothed_lag_words`)."""
+    model = res.model
+    lags = [n for e in model.effects for n in e.input_timed if n in res.free_names]
+    if not lags:
+        return []
+    out = []
+    half = 0.5 * median_row_interval(logs)
+    below = any(float(res.std[res.free_names.index(n)]) < half for n in lags)
+    if not timing and below and not any(e.describes_sampling for e in model.effects):
+        words = lag_timing_words(model, res, logs)[0]
+        if words:
+            out.append(words)
+    smoothed = smoothed_lag_words(logs)
+    if smoothed:
+        out.append(", ".join(f"{n} = {1e3 * res.value(n):.3g} ms" for n in lags) + f": {smoothed}")
+    return out

@@ -6,6 +6,7 @@ likelihood ratio, the share of the excess residual it explains, its physical siz
 much it moves the validation predictions."""
 from __future__ import annotations
 
+import math
 import warnings as _warnings
 from typing import Sequence
 
@@ -23,7 +24,7 @@ from ..residuals import long_run_factor
 from ..shooting import ShootingProblem, free_indices
 from ..validation import DEFAULT_HORIZON, Prediction, predict_after_fit
 
-__all__ = ["NEGLIGIBLE_FRACTION", "SMOOTHED_LAG_WORDS", "smoothed_lag_words", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "negligible_effect", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
+__all__ = ["NEGLIGIBLE_FRACTION", "SMOOTHED_LAG_WORDS", "smoothed_lag_words", "SETTLED_SHARE", "lag_timing_words", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "negligible_effect", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
            "explained_fraction", "screen_jointly", "JOINT_COST_TOLERANCE", "physically_negligible", "small_in_force_only", "physically_implausible", "held_on_bound", "replaced_base_terms", "REPLACED_CLEAR_STD", "null_on_bound", "precompile_refits", "queue_refit_builds",
            "HeldBeyondPlausible", "HELD_ITERATIONS", "within_row_timing", "row_timing_words", "TIMING_ALPHA", "fit_weights",
            "robust_screen", "one_step_estimate", "moment_scale_words", "MOMENT_SCALE_NOTICE"]
@@ -731,6 +732,51 @@ def smoothed_lag_words(logs: Sequence[FlightLog]) -> str:
     to them is shortened by what the smoother took (a blind audit's 0.5 kg vehicle, commands
     logged exactly at 200 Hz: tau_m 14.1 ms for 15 on every seed, 8 std low on average)."""
     return SMOOTHED_LAG_WORDS if any(lg.input_noise_left for lg in logs) else ""
+
+
+SETTLED_SHARE = 0.1
+"""A lag's std with the log's timing free, as a share of half a row, below which the data
+settle the timing for it (:func:`lag_timing_words` then says nothing, when the lag also stays
+within 3 combined std of its value with the rows held)."""
+
+
+def lag_timing_words(model: QuadrotorModel, fr, est: Sequence[FlightLog],
+                   timing_refit=None) -> tuple[str, dict[str, float]]:
+    """Words for the final fit's lags and delays (:attr:`~greybox.effects.Effect.input_timed`)
+    when the log's timing was not found (the held rows stood): their std count the noise, not
+    whether a row's logged value holds for the whole row; that moves them by up to half a
+    row. ``timing_refit``: the certified refit of ``fr``'s model with the timing free as well;
+    its std of a lag count both, and where they are all below :data:`SETTLED_SHARE` of half a
+    row and every lag stays within 3 combined std of ``fr``'s, the data settle it and there are
+    no words (a blind audit's 100 Hz log of commands held at the controller's rate: tau_m
+    24.99 ms for 25, yet the words said 5 ms). A lag the timing moves further is not settled,
+    however small its std: the words give both values. Returns the words and the bound they
+    give, half a row per lag they name (:attr:`Diagnosis.timing_bound`); ``("", {})`` when the
+    final model has none or the data settle them."""
+    names = [n for e in model.effects for n in e.input_timed if n in fr.free_names]
+    if not names:
+        return "", {}
+    half = 0.5 * median_row_interval(est)
+
+    def ms(f, n):
+        return f"{n} = {1e3 * f.value(n):.3g} ± {1e3 * f.std[f.free_names.index(n)]:.2g} ms"
+
+    values = ", ".join(ms(fr, n) for n in names)
+    if timing_refit is not None and all(n in timing_refit.free_names for n in names):
+        free_std = [float(timing_refit.std[timing_refit.free_names.index(n)]) for n in names]
+        # settled: the timing free, the lags' std are a small share of half a row, and they stay
+        # within 3 combined std of where the held rows put them (an undetermined std: moved)
+        moved = [not abs(timing_refit.value(n) - fr.value(n))
+                 <= 3 * math.hypot(v, float(fr.std[fr.free_names.index(n)]))
+                 for n, v in zip(names, free_std)]
+        if all(np.isfinite(v) and v < SETTLED_SHARE * half for v in free_std) and not any(moved):
+            return "", {}
+        values += f" (with the log's timing free as well: {', '.join(ms(timing_refit, n) for n in names)})"
+    return ((f"{values} count{'s' if len(names) == 1 else ''} the measurement noise only: whether each row's "
+            f"rotor speeds hold for the whole row or are samples of a signal that varies within it (the log's "
+            f"timing, which these data do not settle) moves a lag or a delay by up to half a row, "
+            f"{1e3 * half:.2g} ms here; log the rotor speeds at the rate the controller sets them to remove it"),
+            {n: half for n in names})
 
 
 def within_row_timing(model: QuadrotorModel, effect: str, values: dict[str, float],

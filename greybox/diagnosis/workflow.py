@@ -14,7 +14,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from .. import effects as fx
-from ..data import FlightLog, check_distinct_flights, median_row_interval
+from ..data import FlightLog, check_distinct_flights
 from ..io.base import held_inputs
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..controller_law import closed_loop_or_why
@@ -35,7 +35,7 @@ from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_no
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency, half_spread, undetermined_parameters, validation_spread
 from .elimination import backward_elimination, fit_without, judge_removal
-from .screening import lr_test, moment_scale_words, negligible_effect, null_on_bound, smoothed_lag_words
+from .screening import lag_timing_words, lr_test, moment_scale_words, negligible_effect, null_on_bound, smoothed_lag_words
 from .ranking import (ALPHA, MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
                       lacking_signals, parameter_shifts, missing_columns, rank_round, tie_explanation, tie_numbers, validation_ties)
 from .results import UNEXPLAINED_RATIO, Diagnosis, Round
@@ -328,7 +328,7 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         # refit with the timing free tells how much it moves the lags when it is of this model
         same = timing_refit is not None and \
             set(timing_refit.model.effect_names) - {timing_candidate} == set(cur_model.effect_names)
-        timed, timing_bound = _timing_caveat(cur_model, cur_res, est, timing_refit if same else None)
+        timed, timing_bound = lag_timing_words(cur_model, cur_res, est, timing_refit if same else None)
         if timed:
             warnings.append(timed)
     lags = _free_input_timed(cur_model, cur_res)
@@ -1123,51 +1123,6 @@ def _timing_without(fr: FitResult, name: str, added: Sequence[str], est: Sequenc
 def _free_input_timed(model: QuadrotorModel, fr) -> list[str]:
     """The lags and delays (:attr:`~greybox.effects.Effect.input_timed`) ``fr`` fits."""
     return [n for e in model.effects for n in e.input_timed if n in fr.free_names]
-
-
-SETTLED_SHARE = 0.1
-"""A lag's std with the log's timing free, as a share of half a row, below which the data
-settle the timing for it (:func:`_timing_caveat` then says nothing, when the lag also stays
-within 3 combined std of its value with the rows held)."""
-
-
-def _timing_caveat(model: QuadrotorModel, fr, est: Sequence[FlightLog],
-                   timing_refit=None) -> tuple[str, dict[str, float]]:
-    """Words for the final fit's lags and delays (:attr:`~greybox.effects.Effect.input_timed`)
-    when the log's timing was not found (the held rows stood): their std count the noise, not
-    whether a row's logged value holds for the whole row; that moves them by up to half a
-    row. ``timing_refit``: the certified refit of ``fr``'s model with the timing free as well;
-    its std of a lag count both, and where they are all below :data:`SETTLED_SHARE` of half a
-    row and every lag stays within 3 combined std of ``fr``'s, the data settle it and there are
-    no words (a blind audit's 100 Hz log of commands held at the controller's rate: tau_m
-    24.99 ms for 25, yet the words said 5 ms). A lag the timing moves further is not settled,
-    however small its std: the words give both values. Returns the words and the bound they
-    give, half a row per lag they name (:attr:`Diagnosis.timing_bound`); ``("", {})`` when the
-    final model has none or the data settle them."""
-    names = _free_input_timed(model, fr)
-    if not names:
-        return "", {}
-    half = 0.5 * median_row_interval(est)
-
-    def ms(f, n):
-        return f"{n} = {1e3 * f.value(n):.3g} ± {1e3 * f.std[f.free_names.index(n)]:.2g} ms"
-
-    values = ", ".join(ms(fr, n) for n in names)
-    if timing_refit is not None and all(n in timing_refit.free_names for n in names):
-        free_std = [float(timing_refit.std[timing_refit.free_names.index(n)]) for n in names]
-        # settled: the timing free, the lags' std are a small share of half a row, and they stay
-        # within 3 combined std of where the held rows put them (an undetermined std: moved)
-        moved = [not abs(timing_refit.value(n) - fr.value(n))
-                 <= 3 * math.hypot(v, float(fr.std[fr.free_names.index(n)]))
-                 for n, v in zip(names, free_std)]
-        if all(np.isfinite(v) and v < SETTLED_SHARE * half for v in free_std) and not any(moved):
-            return "", {}
-        values += f" (with the log's timing free as well: {', '.join(ms(timing_refit, n) for n in names)})"
-    return ((f"{values} count{'s' if len(names) == 1 else ''} the measurement noise only: whether each row's "
-            f"rotor speeds hold for the whole row or are samples of a signal that varies within it (the log's "
-            f"timing, which these data do not settle) moves a lag or a delay by up to half a row, "
-            f"{1e3 * half:.2g} ms here; log the rotor speeds at the rate the controller sets them to remove it"),
-            {n: half for n in names})
 
 
 def _unexplained(fr) -> tuple[dict[str, float], dict[str, float]]:
