@@ -106,7 +106,5 @@ def _lag_words(res: FitResult, logs: Sequence[FlightLog], timing: list[str]) -> 
         words = lag_timing_words(model, res, logs)[0]
         if words:
             out.append(words)
-    smoothed = smoothed_lag_words(logs)
-    if smoothed:
-        out.append(", ".join(f"{n} = {1e3 * res.value(n):.3g} ms" for n in lags) + f": {smoothed}")
-    return out
+    smoothed = smoothed_lag_words(logs, res)
+    return out + ([smoothed] if smoothed else [])

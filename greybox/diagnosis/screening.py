@@ -719,19 +719,26 @@ SMOOTHED_LAG_WORDS = (
     "controller's commands logged exactly look like that noise behind motors slower than the rows: the smoother "
     "then takes out what the motors filter, and the lag comes out short (a blind audit's 15-ms motors: 14.1 ms, "
     "8 std low; its 3-ms motors: 2.45 ms, under half a row; fitted as logged 15.0 and 2.97 ms). If the speeds "
-    "are commands logged as sent, diagnose again with --input-noise keep (in Python: without denoise_inputs)")
+    "are commands logged as sent, fit or diagnose again with --input-noise keep (in Python: without denoise_inputs)")
 """Said beside a lag or delay fitted to rotor speeds smoothed as noisy (:func:`smoothed_lag_words`)."""
 
 
-def smoothed_lag_words(logs: Sequence[FlightLog]) -> str:
+def smoothed_lag_words(logs: Sequence[FlightLog], fr: FitResult | None = None) -> str:
     """:data:`SMOOTHED_LAG_WORDS` when some log's inputs were smoothed since they were logged
     (:attr:`~greybox.data.FlightLog.input_noise_left`, set by
-    :func:`~greybox.fitting.denoise_inputs`), else "". The smoother's noise is what the gyro
-    does not follow of the speeds' row-to-row changes; behind a motor lag of a few rows the
-    gyro follows little of a command's, so exact commands are smoothed too, and a lag fitted
-    to them is shortened by what the smoother took (a blind audit's 0.5 kg vehicle, commands
-    logged exactly at 200 Hz: tau_m 14.1 ms for 15 on every seed, 8 std low on average)."""
-    return SMOOTHED_LAG_WORDS if any(lg.input_noise_left for lg in logs) else ""
+    :func:`~greybox.fitting.denoise_inputs`), else "". With a fit ``fr``, only where it fits a
+    lag or delay (:attr:`~greybox.effects.Effect.input_timed`), and the words start with their
+    values. The smoother's noise is what the gyro does not follow of the speeds' row-to-row
+    changes; behind a motor lag of a few rows the gyro follows little of a command's, so exact
+    commands are smoothed too, and a lag fitted to them is shortened by what the smoother took
+    (a blind audit's 0.5 kg vehicle, commands logged exactly at 200 Hz: tau_m 14.1 ms for 15
+    on every seed, 8 std low on average)."""
+    if not any(lg.input_noise_left for lg in logs):
+        return ""
+    if fr is None:
+        return SMOOTHED_LAG_WORDS
+    lags = [n for e in fr.model.effects for n in e.input_timed if n in fr.free_names]
+    return ", ".join(f"{n} = {1e3 * fr.value(n):.3g} ms" for n in lags) + f": {SMOOTHED_LAG_WORDS}" if lags else ""
 
 
 SETTLED_SHARE = 0.1
@@ -741,7 +748,7 @@ within 3 combined std of its value with the rows held)."""
 
 
 def lag_timing_words(model: QuadrotorModel, fr, est: Sequence[FlightLog],
-                   timing_refit=None) -> tuple[str, dict[str, float]]:
+                     timing_refit=None) -> tuple[str, dict[str, float]]:
     """Words for the final fit's lags and delays (:attr:`~greybox.effects.Effect.input_timed`)
     when the log's timing was not found (the held rows stood): their std count the noise, not
     whether a row's logged value holds for the whole row; that moves them by up to half a

@@ -331,10 +331,9 @@ def diagnose(model: QuadrotorModel, log: FlightLog | Sequence[FlightLog], *, can
         timed, timing_bound = lag_timing_words(cur_model, cur_res, est, timing_refit if same else None)
         if timed:
             warnings.append(timed)
-    lags = _free_input_timed(cur_model, cur_res)
-    smoothed = smoothed_lag_words(est) if lags else ""
+    smoothed = smoothed_lag_words(est, cur_res)
     if smoothed:
-        warnings.append(", ".join(f"{n} = {1e3 * cur_res.value(n):.3g} ms" for n in lags) + f": {smoothed}")
+        warnings.append(smoothed)
     warnings += _timing_shift_words(rounds, cur_res)
     warnings += _sliver_shift_words(rounds, cur_res)
     if cur_res.converged and not geometry and not changed and not top_words and not moments:
