@@ -187,6 +187,10 @@ def model_log(model: QuadrotorModel, log: FlightLog, p0: np.ndarray, where: str,
     log = airborne_log(log, where)
     model.check_rotor_speeds(log.inputs[:, :model.airframe.n_rotors], p0, where)
     log = _held_speeds(log, held)
+    from .fitting.input_errors import combination_noise_words
+    noisy = combination_noise_words(model, model.prepare_log(log), p0)
+    if noisy:
+        log = replace(log, notes=list(log.notes) + [noisy])
     if input_noise == "smooth":
         from .fitting.input_errors import denoise_inputs
         log, _ = denoise_inputs(model, log, p0)
