@@ -17,6 +17,7 @@ from .. import effects as fx
 from ..data import FlightLog, median_row_interval
 from ..errors import ConvergenceWarning, GreyboxInputError
 from ..fitting import FitResult, FitSession, GaussNewton, fit, per_flight_positions
+from ..fitting.input_errors import mixer_noise_shares
 from ..fitting.robust import long_run_covariance
 from ..integrate import Substeps, integrate_states_along
 from ..model import BASE_STATES, OUTPUTS, QuadrotorModel
@@ -331,6 +332,18 @@ def moment_scale_words(res: FitResult, logs: Sequence[FlightLog], compile: str =
     lag = ("; or a lag between the logged speeds and the thrust that the model lacks (motor_lag, "
            "command_delay) lowers the moment's gain at the manoeuvres' frequencies"
            if k < 1 and not any(e.input_timed for e in model.effects) else "")
+    # noise on the speeds' roll and pitch combinations takes the gain read from them down by up
+    # to its share (errors in variables): a blind audit's slow flight, 57 % noise in the roll
+    # combination, read 0.874 as an inertia 14 % off where the airframe was exact
+    shares = [c for c in (mixer_noise_shares(model, lg) for lg in logs) if c is not None]
+    noisy = max((float(max(c[1], c[2])) for c in shares), default=0.0)
+    if k < 1 and noisy >= 1 - k:
+        return [f"the roll and pitch turn about {k:.3g} times as much per rotor-speed difference as the airframe's "
+                f"inertia, arm and mass give (one Gauss–Newton step of {name} from this fit: k_M ≈ {k:.3g} ± "
+                f"{std:.2g}), but white noise makes up {100 * noisy:.0f} % of the speeds' roll or pitch combination "
+                "on this flight, and noise on the speeds takes the gain read from them down by up to that share "
+                "(errors in variables): this flight cannot tell an airframe off from that; one that turns more, "
+                "or speeds logged with less noise, can"]
     return [f"the roll and pitch turn about {k:.3g} times as much per rotor-speed difference as the airframe's "
             f"inertia, arm and mass give (one Gauss–Newton step of {name} from this fit: k_M ≈ {k:.3g} ± "
             f"{std:.2g}), which K_T and Kd (a mass) or b (an inertia about z) may carry: "
