@@ -24,17 +24,22 @@ from greybox.fitting.input_errors import combination_noise_words, mixer_noise_sh
 import audit39_sim as sim
 
 
-@pytest.fixture(scope="module")
-def flights(tmp_path_factory) -> Path:
-    """The vertical and rich estimation flights and the airframe (10 s each to simulate)."""
-    out = tmp_path_factory.mktemp("audit39")
+def _simulate(out: Path, *names: str) -> Path:
+    """The audit's flights ``names`` and its airframe written to ``out`` (its ``main`` reads the
+    flights to write from the command line)."""
     argv = sys.argv
     try:
-        sys.argv = ["audit39_sim.py", str(out), "vertical_est", "rich_est"]
+        sys.argv = ["audit39_sim.py", str(out), *names]
         sim.main(str(out))
     finally:
         sys.argv = argv
     return out
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory) -> Path:
+    """The vertical and rich estimation flights and the airframe (10 s each to simulate)."""
+    return _simulate(tmp_path_factory.mktemp("audit39"), "vertical_est", "rich_est")
 
 
 def test_the_flights_are_the_audits(flights):
@@ -75,14 +80,7 @@ def test_b_on_a_flight_without_yaw_is_low_within_the_share_said(flights, tmp_pat
 @pytest.fixture(scope="module")
 def slow_flights(tmp_path_factory) -> Path:
     """The slow flight (everything below 0.3 m/s) and its validation flight."""
-    out = tmp_path_factory.mktemp("audit39_slow")
-    argv = sys.argv
-    try:
-        sys.argv = ["audit39_sim.py", str(out), "slow_est", "slow_val"]
-        sim.main(str(out))
-    finally:
-        sys.argv = argv
-    return out
+    return _simulate(tmp_path_factory.mktemp("audit39_slow"), "slow_est", "slow_val")
 
 
 @pytest.mark.slow
