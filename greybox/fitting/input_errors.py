@@ -48,8 +48,8 @@ def input_column_noise(model: QuadrotorModel, log: FlightLog) -> tuple[np.ndarra
     """Per steady input (:attr:`QuadrotorModel.steady_input_names`) of the prepared ``log``, its
     white-noise standard deviation (robust second differences of its fresh samples,
     :func:`input_noise_sd`; 0 where it cannot be told), and the largest share of an input's
-    variance that this noise makes up (of the combinations the mixer makes:
-    :func:`mixer_noise_shares`)."""
+    variance that this noise makes up (the combinations of the speeds that the mixer makes
+    have their own: :func:`mixer_noise_shares`)."""
     names = model.steady_input_names
     sigma = np.zeros(len(names))
     share = 0.0
