@@ -391,6 +391,24 @@ def test_a_covariance_that_is_not_all_numbers_is_said_not_raised():
     assert any("not all numbers" in w for w in out)
 
 
+def test_near_singular_information_names_the_manoeuvre_that_would_help():
+    """A blind audit's vertical flight: "near-singular information ...; weakest combination
+    involves Kd[1]" and nothing to fly, where the README promised each such warning names the
+    manoeuvre. A covariance with one direction 1e12 times the other (along Kd[1]): the warning
+    names Kd[1] and the manoeuvre the other words give for it."""
+    from greybox import QuadrotorModel
+    from greybox.fitting.api import _identifiability_warnings
+    from greybox.fitting import manoeuvre_advice
+    from conftest import make_airframe
+    model = QuadrotorModel(make_airframe("x"))
+    names = ["K_T", "Kd[1]"]
+    P = np.diag([1.0, 1e12])
+    out = [w for w in _identifiability_warnings(model, names, np.array([2e-5, 0.1]), np.array([1e-9, 1e-3]),
+                                                np.eye(2), P) if w.startswith("near-singular")]
+    assert len(out) == 1 and "involves Kd[1]" in out[0], out
+    assert out[0].endswith(f"; fly {manoeuvre_advice(model, 'Kd[1]')}"), out
+
+
 @pytest.mark.slow
 def test_a_thrust_held_from_the_weight_by_torques_the_fit_explains_says_a_force_is_missing(paper_model):
     """A constant upward force of a quarter of the weight (a lift, a tether) that the model

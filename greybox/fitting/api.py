@@ -1646,8 +1646,11 @@ def _identifiability_warnings(model: QuadrotorModel, names: list[str], values: n
     if w.size and w[-1] > 0 and w[0] > 0 and w[-1] / w[0] > 1e10:
         v = V[:, -1]
         top = [names[k] for k in np.argsort(-np.abs(v))[:3] if abs(v[k]) > 0.3]
+        # the manoeuvre, as the other identifiability words give it (a blind audit read the
+        # README's promise of one and found none here)
+        fly = " / ".join(dict.fromkeys(advice(n) for n in top))
         out.append(f"near-singular information (condition {w[-1] / w[0]:.1e}); weakest combination "
-                   f"involves {', '.join(top)}")
+                   f"involves {', '.join(top)}" + (f"; fly {fly}" if fly else ""))
     return out
 
 
