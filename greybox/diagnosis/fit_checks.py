@@ -11,7 +11,7 @@ from ..fitting import FitResult
 from .analysis import (below_ground_words, command_imbalance, flights_rotor_geometry, log_moment_words,
                        odd_flight_geometry, rotor_geometry_warnings, spin_words, spins_opposed, steady_torque_words,
                        thrust_at_top_words)
-from .screening import lag_timing_words, moment_scale_words, row_timing_words, smoothed_lag_words
+from .screening import free_input_timed, lag_timing_words, moment_scale_words, row_timing_words, smoothed_lag_words
 
 __all__ = ["fit_warnings"]
 
@@ -96,7 +96,7 @@ def _lag_words(res: FitResult, logs: Sequence[FlightLog], timing: list[str]) -> 
     and, fitted to speeds smoothed since they were logged, that the smoother shortens them
     (:func:`~greybox.diagnosis.screening.smoothed_lag_words`)."""
     model = res.model
-    lags = [n for e in model.effects for n in e.input_timed if n in res.free_names]
+    lags = free_input_timed(model, res)
     if not lags:
         return []
     out = []

@@ -25,7 +25,7 @@ from ..residuals import long_run_factor
 from ..shooting import ShootingProblem, free_indices
 from ..validation import DEFAULT_HORIZON, Prediction, predict_after_fit
 
-__all__ = ["NEGLIGIBLE_FRACTION", "SMOOTHED_LAG_WORDS", "smoothed_lag_words", "SETTLED_SHARE", "lag_timing_words", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "negligible_effect", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
+__all__ = ["NEGLIGIBLE_FRACTION", "SMOOTHED_LAG_WORDS", "smoothed_lag_words", "SETTLED_SHARE", "lag_timing_words", "free_input_timed", "MIN_FORCE_SHARE", "effect_accelerations", "physically_small", "negligible_effect", "extended_model", "screen", "refit", "prediction_change", "lr_test", "profile_log_likelihood",
            "explained_fraction", "screen_jointly", "JOINT_COST_TOLERANCE", "physically_negligible", "small_in_force_only", "physically_implausible", "held_on_bound", "replaced_base_terms", "REPLACED_CLEAR_STD", "null_on_bound", "precompile_refits", "queue_refit_builds",
            "HeldBeyondPlausible", "HELD_ITERATIONS", "within_row_timing", "row_timing_words", "TIMING_ALPHA", "fit_weights",
            "robust_screen", "one_step_estimate", "moment_scale_words", "MOMENT_SCALE_NOTICE"]
@@ -727,6 +727,12 @@ def physically_negligible(fr: FitResult, effect: str) -> str:
     return f"{', '.join(parts)} (below {100 * NEGLIGIBLE_FRACTION:.0f} % of a plausible size for this airframe)"
 
 
+def free_input_timed(model: QuadrotorModel, fr: FitResult) -> list[str]:
+    """The lags and delays (:attr:`~greybox.effects.Effect.input_timed`) of ``model``'s effects
+    that the fit ``fr`` fits."""
+    return [n for e in model.effects for n in e.input_timed if n in fr.free_names]
+
+
 SMOOTHED_LAG_WORDS = (
     "the logged rotor speeds were smoothed before the fit as white noise the gyro does not follow, and a "
     "controller's commands logged exactly look like that noise behind motors slower than the rows: the smoother "
@@ -750,7 +756,7 @@ def smoothed_lag_words(logs: Sequence[FlightLog], fr: FitResult | None = None) -
         return ""
     if fr is None:
         return SMOOTHED_LAG_WORDS
-    lags = [n for e in fr.model.effects for n in e.input_timed if n in fr.free_names]
+    lags = free_input_timed(fr.model, fr)
     return ", ".join(f"{n} = {1e3 * fr.value(n):.3g} ms" for n in lags) + f": {SMOOTHED_LAG_WORDS}" if lags else ""
 
 
@@ -773,7 +779,7 @@ def lag_timing_words(model: QuadrotorModel, fr, est: Sequence[FlightLog],
     however small its std: the words give both values. Returns the words and the bound they
     give, half a row per lag they name (:attr:`Diagnosis.timing_bound`); ``("", {})`` when the
     final model has none or the data settle them."""
-    names = [n for e in model.effects for n in e.input_timed if n in fr.free_names]
+    names = free_input_timed(model, fr)
     if not names:
         return "", {}
     half = 0.5 * median_row_interval(est)

@@ -35,7 +35,7 @@ from .input_noise import RATE_STEP_NOTABLE, input_noise, rates_moved_by_input_no
 from .closed_loop import can_hold_disturbance, closed_loop_yaw, disturbance_baseline, rate_levels, rates_missing_a_torque
 from .consistency import half_consistency, half_spread, undetermined_parameters, validation_spread
 from .elimination import backward_elimination, fit_without, judge_removal
-from .screening import lag_timing_words, lr_test, moment_scale_words, negligible_effect, null_on_bound, smoothed_lag_words
+from .screening import free_input_timed, lag_timing_words, lr_test, moment_scale_words, negligible_effect, null_on_bound, smoothed_lag_words
 from .ranking import (ALPHA, MIN_EXPLAINED_INADEQUATE, MIN_VALIDATION_GAIN, N_REFIT, default_candidates,
                       lacking_signals, parameter_shifts, missing_columns, rank_round, tie_explanation, tie_numbers, validation_ties)
 from .results import UNEXPLAINED_RATIO, Diagnosis, Round
@@ -1063,7 +1063,7 @@ def _input_timing(model: QuadrotorModel, res, pred, est: Sequence[FlightLog], va
     # left tau_m at 15.6 ms for the motors' 20, the timing free gives 18.9). Without a lag there
     # is no ridge, and a tie is no confirmation (a real flight's final model of a CoG offset,
     # drag moment, battery and accelerometer bias: LR 1694, validation 8.207 -> 8.203).
-    settled_by_fit = bool(against) and bool(_free_input_timed(model, res)) and cand is not None \
+    settled_by_fit = bool(against) and bool(free_input_timed(model, res)) and cand is not None \
         and cand.validation_tie
     if cand is None or not (cand.significant or settled_by_fit) or cand.fit is None or not cand.fit.converged:
         if cand is not None:
@@ -1117,11 +1117,6 @@ def _timing_without(fr: FitResult, name: str, added: Sequence[str], est: Sequenc
              f"{lr:.3g}, p = {p:.2g}): it stood in for part of {'it' if len(added) == 1 else 'them'}, and the final "
              "model holds each row's speeds until the next row, as logged")
     return reduced, pred, words
-
-
-def _free_input_timed(model: QuadrotorModel, fr) -> list[str]:
-    """The lags and delays (:attr:`~greybox.effects.Effect.input_timed`) ``fr`` fits."""
-    return [n for e in model.effects for n in e.input_timed if n in fr.free_names]
 
 
 def _unexplained(fr) -> tuple[dict[str, float], dict[str, float]]:
