@@ -109,6 +109,8 @@ def _added(d: "Diagnosis") -> list[str]:
 
 
 def _verdict_words(d: "Diagnosis") -> str:
+    if not d.verdict and d.null_reason == "nothing_missing" and d.small_but_moving():
+        return "null (nothing missing is large enough to name)"
     return d.verdict or {"rotor_order": "null (the logged rotor speeds act as the airframe's rotors in another order: "
                                         "nothing was tested)",
                          "rotor_layout": "null (the logged rotor speeds act as the airframe's rotors turned about the "

@@ -317,9 +317,11 @@ def test_demo_finds_the_hidden_ground_effect(tmp_path, capsys):
 
 
 def test_a_physically_negligible_effect_is_judged_against_the_airframe_size(paper):
-    """A CoG offset of 50 um is nothing on the paper's 1 kg quad (plausible ~1 cm) but not on
-    a 30 g one with 46 mm arms (1 % of its plausible ~2.8 mm is 28 um); nanometres are nothing
-    anywhere. Such an effect is never the verdict, whatever its likelihood ratio."""
+    """A CoG offset is negligible up to the one that turns the vehicle in hover as much as one
+    rotor 0.08 % off (the others 0.027 % up): 0.0008 x 0.17 m / 3 = 45 um on the paper's 1 kg
+    quad, 12 um on a 30 g one with 46 mm arms; 30 um is nothing on the first and 50 um on
+    neither; nanometres are nothing anywhere. Such an effect is never the verdict, whatever
+    its likelihood ratio."""
     from types import SimpleNamespace
     from greybox import effects
     from greybox.airframe import airframe_from_dict
@@ -333,8 +335,11 @@ def test_a_physically_negligible_effect_is_judged_against_the_airframe_size(pape
         p = m.parameter_vector({"r_cog": r_cog})
         return SimpleNamespace(model=m, value=lambda n: float(p[m.param_names.index(n)]))
 
-    assert physically_negligible(fitted(paper, [5e-5, 0.0]), "cog_offset").startswith("r_cog[0] = 5e-05 m")
+    words = physically_negligible(fitted(paper, [3e-5, 0.0]), "cog_offset")
+    assert words.startswith("r_cog[0] = 3e-05 m") and "each below 4.53e-05 m in size" in words, words
+    assert physically_negligible(fitted(paper, [5e-5, 0.0]), "cog_offset") == ""
     assert physically_negligible(fitted(small, [5e-5, 0.0]), "cog_offset") == ""
+    assert physically_negligible(fitted(small, [1e-5, 0.0]), "cog_offset") != ""
     assert physically_negligible(fitted(small, [1e-9, -1e-9]), "cog_offset") != ""
     assert physically_negligible(fitted(paper, [0.01, 0.0]), "cog_offset") == ""
 

@@ -71,6 +71,8 @@ class CandidateResult:
     # significant in the fit, its parameters not negligible, refused as small in force terms
     # only (screening.physically_small: below MIN_FORCE_SHARE of what the flight flies with)
     small_force: bool = False
+    # significant in the fit, refused as negligible in its parameters (screening.physically_negligible)
+    small_parameters: bool = False
     explained: float | None = None      # fraction of the baseline's excess residual (above noise) removed
     # the validation nrmse with the windows started as the baseline's are (its start window):
     # a refit chooses its own, and two candidates compare alike only from the same start
@@ -554,18 +556,32 @@ class Diagnosis:
         audit's aggressive 14-s flight: a 1.26 m/s wind and a 1.6 % battery sag, 1.9 % and 1.8 %
         of its 7.6 m/s^2, cut the error by 13 % and 36 %, and the null said that no candidate
         explains what is missing)."""
-        return [c for c in self.ranking if c.small_force and c.nrmse_after is not None
+        return [c for c in self.ranking if (c.small_force or c.small_parameters) and c.nrmse_after is not None
                 and np.isfinite(c.nrmse_before) and c.nrmse_after <= (1.0 - MOVES_PREDICTIONS) * c.nrmse_before]
 
     def _small_but_moving_words(self) -> str:
         moving = self.small_but_moving()
         if not moving:
             return ""
-        each = ", ".join(f"{c.effect} ({c.nrmse_before:.3g} -> {c.nrmse_after:.3g})" for c in moving)
-        return (f"; yet {each} cut{'s' if len(moving) == 1 else ''} the validation error, each refused only because "
-                f"its force stays below {100 * MIN_FORCE_SHARE:.0f} % of the accelerations this flight flies with: "
-                f"{'it' if len(moving) == 1 else 'they'} may be what is missing, too small against them to be named "
-                "(a gentler or longer flight, or several flights, would tell)")
+        force = [c for c in moving if c.small_force]
+        size = [c for c in moving if not c.small_force]
+        out = []
+        if force:
+            each = ", ".join(f"{c.effect} ({c.nrmse_before:.3g} -> {c.nrmse_after:.3g})" for c in force)
+            out.append(f"; yet {each} cut{'s' if len(force) == 1 else ''} the validation error, each refused only "
+                       f"because its force stays below {100 * MIN_FORCE_SHARE:.0f} % of the accelerations this flight "
+                       f"flies with: {'it' if len(force) == 1 else 'they'} may be what is missing, too small against "
+                       "them to be named (a gentler or longer flight, or several flights, would tell)")
+        if size:
+            # a blind audit's rotor 0.1 % weak: significant (p = 4e-21), refused as below its
+            # negligible size, and "nothing significant is missing" said beside it
+            each = ", ".join(f"{c.effect} ({c.nrmse_before:.3g} -> {c.nrmse_after:.3g})" for c in size)
+            one = len(size) == 1
+            out.append(f"; {'yet ' if not force else ''}{each} cut{'s' if one else ''} the validation error, "
+                       f"refused only because {'its fitted size is' if one else 'their fitted sizes are'} physically "
+                       f"negligible: what these flights show of {'it' if one else 'them'} is real but too small to "
+                       f"matter for the vehicle ({'its reason gives' if one else 'their reasons give'} the sizes)")
+        return "".join(out)
 
     def _rotor_changed_words(self) -> str:
         step = self.rotor_changed
@@ -691,7 +707,8 @@ class Diagnosis:
                                  if any(c.effect == "gyro_scale" for r in self.rounds or [self] for c in r.ranking)
                                  else "the effect gyro_scale, not among the candidates, would fit it")
                               + " (or calibrate the gyro, or divide its columns by these factors, and diagnose again)",
-                "nothing_missing": "null (nothing significant is missing)" + self._small_but_moving_words()}[why]
+                "nothing_missing": ("null (nothing missing is large enough to name)" if self.small_but_moving()
+                                    else "null (nothing significant is missing)") + self._small_but_moving_words()}[why]
 
     def summary(self) -> str:
         """Readable text of steps 1-4."""

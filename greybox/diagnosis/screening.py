@@ -710,7 +710,10 @@ def physically_negligible(fr: FitResult, effect: str) -> str:
     e = model.effects.get(effect)
     shape = set(e.shape_parameters) if e is not None else set()
     own = e.negligible_size(model.airframe) if e is not None else {}
-    parts = []
+    def quantity(value: float, unit: str) -> str:
+        return f"{value:.3g}" + ("" if unit in ("", "1") else f" {unit}")   # "1": a pure number
+
+    parts, units = [], {}
     for par, comp, null in model.effect_components(effect):
         if par.name in shape:
             continue    # a hub height does not make a drag of zero
@@ -718,11 +721,12 @@ def physically_negligible(fr: FitResult, effect: str) -> str:
         ref = float(np.max(np.abs(np.atleast_1d(np.asarray(plausible.get(par.name, 0.1 * par.scale), dtype=float)))))
         if abs(fr.value(comp) - null) >= own.get(par.name, NEGLIGIBLE_FRACTION * ref):
             return ""
-        parts.append(f"{comp} = {fr.value(comp):.3g} {par.unit}".rstrip())
+        parts.append(f"{comp} = {quantity(fr.value(comp), par.unit)}")
+        units[par.name] = par.unit
     if not parts:
         return ""
     if own:
-        return f"{', '.join(parts)} (each below " + ", ".join(f"{v:.3g}" for v in own.values()) + \
+        return f"{', '.join(parts)} (each below " + ", ".join(quantity(v, units.get(n, "")) for n, v in own.items()) + \
             f" in size: negligible for {effect})"
     return f"{', '.join(parts)} (below {100 * NEGLIGIBLE_FRACTION:.0f} % of a plausible size for this airframe)"
 
