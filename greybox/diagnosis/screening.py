@@ -1018,6 +1018,12 @@ TIMING_ALPHA = 0.01
 of a signal varying between rows (the diagnosis's own level, ``ranking.ALPHA``)."""
 
 
+NOTHING_BEHIND = 0.5
+"""p-value of the blend toward the previous row above which :func:`row_timing_words` takes it
+to explain nothing: noise on the speeds, which it would average as the blend toward the next row
+does, is then not what makes the next row significant."""
+
+
 def row_timing_words(res: FitResult, logs: Sequence[FlightLog], compile: str = "cached") -> list[str]:
     """Words for a certified fit of a model without the log's timing (``sampled_inputs``) on
     rotor-speed logs, when the timing's score test at the fit's optimum says the logged speeds
@@ -1033,7 +1039,8 @@ def row_timing_words(res: FitResult, logs: Sequence[FlightLog], compile: str = "
     the previous one (:meth:`~greybox.effects.SampledInputs.toward_previous_row`) and the blend
     along the speeds' central difference
     (:meth:`~greybox.effects.SampledInputs.toward_central_difference`) is significant, with its
-    scale taken from the data (:func:`robust_screen`). ``[]`` otherwise."""
+    scale taken from the data (:func:`robust_screen`), or the previous row explains nothing
+    (:data:`NOTHING_BEHIND`: no noise to average). ``[]`` otherwise."""
     model = res.model
     timed = [n for e in model.effects for n in e.input_timed if any(c.startswith(n) for c in res.free_names)]
     off = res.certificate is not None and not res.certificate.adequate
@@ -1067,7 +1074,13 @@ def row_timing_words(res: FitResult, logs: Sequence[FlightLog], compile: str = "
     # both: the next row beyond the previous, and the central difference (each alone has let
     # noise through: the difference on greybox's own held flights, 357 against 119; the central
     # statistic, 6.98, on a blind audit's held speeds under 5 rad/s of noise, 3.9e4 against 1.8e5)
-    if not (stats.chi2.sf(stat - behind, max(df, 1)) < TIMING_ALPHA and stats.chi2.sf(central, 1) < TIMING_ALPHA):
+    # Or the previous row explains nothing at all: then no noise is there to average, which either
+    # blend would (a blind audit's ESC telemetry, smoothed: the next row 1193, the previous 0,
+    # the central statistic 5.6 on what the smoother left; the diagnosis's refit s_lead 0.525 ±
+    # 0.022, Kd[2] 3.4 std high with the rows held and nothing said)
+    nothing_behind = stats.chi2.sf(behind, max(df, 1)) > NOTHING_BEHIND
+    if not (stats.chi2.sf(stat - behind, max(df, 1)) < TIMING_ALPHA
+            and (stats.chi2.sf(central, 1) < TIMING_ALPHA or nothing_behind)):
         return []
     half_row = 0.5 * median_row_interval(logs)
     takes = (f"the fitted {', '.join(timed)} takes the difference beyond its std" if timed else
@@ -1080,6 +1093,7 @@ def row_timing_words(res: FitResult, logs: Sequence[FlightLog], compile: str = "
              if stats.chi2.sf(behind, max(df, 1)) < TIMING_ALPHA else "")
     return [f"the logged rotor speeds look like samples of a signal that varies between the log's rows, not "
             f"values held until the next row (score test of {name}: {stat:.3g}, p = {p:.2g}; along the speeds' central "
-            f"difference, scaled by the data: {central:.3g}{noise}): held, they lag it "
+            f"difference, scaled by the data: {central:.3g}{noise}"
+            f"{'; toward the previous row: nothing, so no noise to average' if nothing_behind else ''}): held, they lag it "
             f"by up to half a row ({1e3 * half_row:.3g} ms), and {takes}; add the effect {name} "
             f"(--effects {name}), or diagnose, which judges the log's timing first"]
