@@ -748,12 +748,18 @@ def validation_ties(ranking: Sequence[CandidateResult]) -> list[CandidateResult]
     if not ranking or not _certified_significant(ranking[0]):
         return []
     first = ranking[0]
-
-    def within(a: float | None, b: float | None) -> bool:
-        return a is not None and b is not None and math.isfinite(a) and math.isfinite(b) and \
-            max(a, b) <= (1 + MIN_VALIDATION_GAIN) * min(a, b)
     return [c for c in ranking[1:] if _certified_significant(c) and fx.confusable(first.effect, c.effect)
-            and (within(c.nrmse_after, first.nrmse_after) or within(c.nrmse_common_start, first.nrmse_common_start))]
+            and _validate_alike(c, first)]
+
+
+def _validate_alike(a: CandidateResult, b: CandidateResult) -> bool:
+    """Whether two refitted candidates' validation nrmse are within :data:`MIN_VALIDATION_GAIN`
+    of each other (either way), each predicted from its own start window or both from the
+    baseline's (``nrmse_common_start``)."""
+    def within(x: float | None, y: float | None) -> bool:
+        return x is not None and y is not None and math.isfinite(x) and math.isfinite(y) and \
+            max(x, y) <= (1 + MIN_VALIDATION_GAIN) * min(x, y)
+    return within(a.nrmse_after, b.nrmse_after) or within(a.nrmse_common_start, b.nrmse_common_start)
 
 
 def _certified_significant(c: CandidateResult) -> bool:
@@ -867,12 +873,8 @@ def small_partner_words(top: CandidateResult, refitted: Sequence[CandidateResult
     other: a blind audit's 2 kg vehicle with its CoG 0.1 mm off had the offset refused for a
     moment of 1.9 % of the flight's and the rotor gains in its pattern, whose reaction
     torques add a little yaw, named as a rotor 0.09 % weak."""
-    def within(a: float | None, b: float | None) -> bool:
-        return a is not None and b is not None and math.isfinite(a) and math.isfinite(b) and \
-            max(a, b) <= (1 + MIN_VALIDATION_GAIN) * min(a, b)
     small = [c for c in refitted if c is not top and (c.small_force or c.small_parameters) and c.fit is not None
-             and c.fit.converged and fx.confusable(top.effect, c.effect)
-             and (within(c.nrmse_after, top.nrmse_after) or within(c.nrmse_common_start, top.nrmse_common_start))]
+             and c.fit.converged and fx.confusable(top.effect, c.effect) and _validate_alike(c, top)]
     reduced = reduced_to_simpler(top, small) if small else None
     if reduced is None:
         return ""
