@@ -80,15 +80,16 @@ the held rows left Kd 0.8 % high, 8-12 std, while the timing's force was 0.2 % o
 flight's; with it, 0.5-3.3 std."""
 
 
-def parameter_shifts(base: FitResult, alt: FitResult) -> dict[str, float]:
+def parameter_shifts(base: FitResult, alt: FitResult, threshold: float = PARAMETER_SHIFT) -> dict[str, float]:
     """The parameters shared by the fits ``base`` and ``alt`` that ``alt`` moves by more than
-    :data:`PARAMETER_SHIFT` of ``base``'s std: ``{name: shift in std}``, largest first."""
+    ``threshold`` (:data:`PARAMETER_SHIFT`) of ``base``'s std: ``{name: shift in std}``, largest
+    first."""
     out = {}
     for j, n in enumerate(base.free_names):
         s = float(base.std[j])
         if n in alt.free_names and s > 0 and np.isfinite(s):
             z = abs(alt.value(n) - base.value(n)) / s
-            if z > PARAMETER_SHIFT:
+            if z > threshold:
                 out[n] = z
     return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 

@@ -582,13 +582,8 @@ def _held_rows_shift_words(final: FitResult, timing_refit: FitResult, names: Seq
     (p = 1.5e-186), predicted the validation flight worse (0.056 -> 0.059) and was left out;
     the final model's Kd[2] was 4 std high, certified and silent; the timing free moves it 2.4
     std toward the truth (0.3729 -> 0.3592, truth 0.35)."""
-    moved = {}
-    for j, n in enumerate(final.free_names):
-        s = float(final.std[j])
-        if n in names and n in timing_refit.free_names and s > 0 and np.isfinite(s):
-            z = abs(timing_refit.value(n) - final.value(n)) / s
-            if z > HELD_ROWS_SHIFT:
-                moved[n] = z
+    shifts = parameter_shifts(final, timing_refit, threshold=HELD_ROWS_SHIFT)
+    moved = {n: shifts[n] for n in final.free_names if n in shifts and n in names}   # in the fit's order
     if not moved:
         return []
     std = dict(zip(final.free_names, map(float, final.std)))

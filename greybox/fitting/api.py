@@ -1338,24 +1338,23 @@ def _parameter_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], free_n
     warnings += _thrust_balance_warnings(model, logs, values, p_out)
     warnings += _speed_scale_warnings(model, values, free_names)
     warnings += _thrust_spread_warnings(model, logs, vectors, [free_names[j] for j in spread])
-    if inputs_noise_notable and not any(all(lg.measures(c) for c in ("p", "q", "r")) for lg in logs):
-        # without a gyro nothing tells the noise from fast commands logged exactly, and nothing is
-        # smoothed (a blind audit's gyro-less logs of noisy ESC telemetry were told "the gyro
-        # tells" and that greybox fit smooths them, which it had not)
-        warnings.append("the logged inputs carry white noise (all of their row-to-row scatter counts: without a "
-                        "gyro nothing tells what the vehicle follows): fed to the model it is a random force and "
-                        "torque, and the gains that pass it on come out small (errors in variables); the process "
-                        "noise was held at least at the random walk it gives the states. greybox fit and diagnose "
-                        "smooth such speeds only where a gyro (p, q, r) tells the noise from fast commands logged "
-                        "exactly, so these were fed as logged: log the gyro, or smooth them yourself if they are "
-                        "telemetry")
-    elif inputs_noise_notable:
-        warnings.append("the logged inputs carry white noise the vehicle does not follow (the gyro tells): fed to "
-                        "the model it is a random force and torque, and the gains that pass it on come out small "
-                        "(errors in variables); the process noise was held at least at the random walk it gives "
-                        "the states. Smoothing takes it out before a fit (greybox.fitting.denoise_inputs, which "
-                        "greybox fit and diagnose apply where the whole log's noise makes up "
-                        f"{100 * INPUT_NOISE_SHARE:g} % of a speed's variance)")
+    if inputs_noise_notable:
+        bias = ("fed to the model it is a random force and torque, and the gains that pass it on come out small "
+                "(errors in variables); the process noise was held at least at the random walk it gives the states")
+        if not any(all(lg.measures(c) for c in ("p", "q", "r")) for lg in logs):
+            # without a gyro nothing tells the noise from fast commands logged exactly, and nothing
+            # is smoothed (a blind audit's gyro-less logs of noisy ESC telemetry were told "the
+            # gyro tells" and that greybox fit smooths them, which it had not)
+            warnings.append("the logged inputs carry white noise (all of their row-to-row scatter counts: without a "
+                            f"gyro nothing tells what the vehicle follows): {bias}. greybox fit and diagnose smooth "
+                            "such speeds only where a gyro (p, q, r) tells the noise from fast commands logged "
+                            "exactly, so these were fed as logged: log the gyro, or smooth them yourself if they are "
+                            "telemetry")
+        else:
+            warnings.append(f"the logged inputs carry white noise the vehicle does not follow (the gyro tells): {bias}. "
+                            "Smoothing takes it out before a fit (greybox.fitting.denoise_inputs, which greybox fit "
+                            "and diagnose apply where the whole log's noise makes up "
+                            f"{100 * INPUT_NOISE_SHARE:g} % of a speed's variance)")
     return warnings
 
 
