@@ -34,7 +34,7 @@ from ..shooting import sensor_noise as estimated_sensor_noise
 from ..validation import INIT_WINDOWS, choose_init_window, choose_start
 from .certificate import FILTERED_SENSOR_RATIO, GAP_FORCE_SHARE, GAP_VISIBLE, NOISE_RATIO_COLOURED, Certificate
 from .gauss_newton import FitSession, Solver, budget_spent
-from .input_errors import INPUT_NOISE_SHARE, input_noise_process_scale, output_input_noise
+from .input_errors import INPUT_NOISE_SHARE, has_rates, input_noise_process_scale, output_input_noise
 from .robust import long_run_covariance, upper_covariance
 
 __all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS", "THRUST_IMPOSSIBLE",
@@ -1341,7 +1341,7 @@ def _parameter_warnings(model: QuadrotorModel, logs: Sequence[FlightLog], free_n
     if inputs_noise_notable:
         bias = ("fed to the model it is a random force and torque, and the gains that pass it on come out small "
                 "(errors in variables); the process noise was held at least at the random walk it gives the states")
-        if not any(all(lg.measures(c) for c in ("p", "q", "r")) for lg in logs):
+        if not any(has_rates(lg) for lg in logs):
             # without a gyro nothing tells the noise from fast commands logged exactly, and nothing
             # is smoothed (a blind audit's gyro-less logs of noisy ESC telemetry were told "the
             # gyro tells" and that greybox fit smooths them, which it had not)

@@ -27,7 +27,7 @@ from ..shooting import estimate_noise
 
 __all__ = ["INPUT_NOISE_SHARE", "input_noise_sd", "mixer_directions", "wiener_smooth_along", "wiener_left_noise",
            "wiener_left_noise_along", "input_column_noise", "mixer_noise_shares", "combination_noise_words", "COMBINATION_NOISE_NOTABLE", "input_jacobian", "followed_share", "state_steps",
-           "unfollowed_input_noise", "input_noise_process_scale", "ProcessNoiseFloor", "output_input_noise", "InputDenoising", "denoise_inputs",
+           "unfollowed_input_noise", "has_rates", "input_noise_process_scale", "ProcessNoiseFloor", "output_input_noise", "InputDenoising", "denoise_inputs",
            "wiener_smooth"]
 
 INPUT_NOISE_SHARE = 0.01
@@ -170,7 +170,7 @@ def unfollowed_input_noise(model: QuadrotorModel, log: FlightLog, p: np.ndarray
     only the rest counts (all of it without a gyro to tell). Returns the per-input noise, its
     largest share of an input's variance, and the followed share (None where not told)."""
     sigma, share = input_column_noise(model, log)
-    if share <= 0 or not _has_rates(log):
+    if share <= 0 or not has_rates(log):
         return sigma, share, None
     followed = followed_share(model, log, p)
     unfollowed = 0.0 if followed is None else float(np.clip(1.0 - followed, 0.0, 1.0))
@@ -202,7 +202,7 @@ def combination_noise_words(model: QuadrotorModel, log: FlightLog, p: np.ndarray
     if shares is None:
         return ""
     p = model.default_parameters() if p is None else np.asarray(p, dtype=float)
-    followed = followed_share(model, log, p) if _has_rates(log) else None
+    followed = followed_share(model, log, p) if has_rates(log) else None
     unfollowed = 1.0 if followed is None else float(np.clip(1.0 - followed, 0.0, 1.0))
     noisy = [(name, gain, share * unfollowed) for (name, gain), share in zip(_COMBINATIONS, shares)
              if share * unfollowed >= COMBINATION_NOISE_NOTABLE]
@@ -310,7 +310,9 @@ def output_input_noise(model: QuadrotorModel, log: FlightLog, p: np.ndarray, sta
     return np.sqrt(np.mean(np.einsum("ock,c->ok", J ** 2, s2), axis=1))
 
 
-def _has_rates(log: FlightLog) -> bool:
+def has_rates(log: FlightLog) -> bool:
+    """Whether ``log`` measures a body rate (a gyro): what tells the speeds' noise from what the
+    vehicle follows (:func:`followed_share`); without it nothing is smoothed."""
     return any(log.measures(c) for c in ("p", "q", "r"))
 
 
