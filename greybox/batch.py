@@ -457,8 +457,12 @@ def _process_imu_only(model, log, files: dict[str, bytes]) -> dict:
                                           "ranking": [], "verdict": None, "null_reason": "imu_only",
                                           "warnings": [IMU_ONLY_REASON], "imu_only": True})
     files["report/summary.txt"] = (res.summary() + "\n").encode()
+    # what the fit found missing, where a row of the summary shows it (a blind audit's weak rotor
+    # read like its control in summary.csv: the NOT ADEQUATE was in its fit.json alone)
+    missing = [n.split(": ")[1] for n in res.notes if n.startswith("NOT ADEQUATE: ")]
     out: dict[str, Any] = {"verdict": None, "nrmse_before": None, "nrmse_after": None, "added": "",
-                           "status": "ok", "reason": IMU_ONLY_REASON}
+                           "status": "ok", "adequate": res.adequate,
+                           "reason": IMU_ONLY_REASON + "".join(f"; NOT ADEQUATE: {m}" for m in missing)}
     for name, (v, s) in res.parameters.items():
         out[name] = _num(v)
         out[f"{name}_std"] = _num(s)
@@ -1107,6 +1111,8 @@ def _columns(model, records: Sequence[dict], joint: bool) -> list[str]:
     for n in names:
         cols += [n, f"{n}_std"]
     cols += ["added", "input"]
+    if any("adequate" in r for r in records):        # an IMU-only fit's adequacy
+        cols.append("adequate")
     # the final models' values, where a diagnosis added effects (empty on the other rows)
     final = list(dict.fromkeys(k for r in records for k in r if k.startswith("final_") and not k.endswith("_std")))
     for n in final:

@@ -391,7 +391,8 @@ class FlightLog:
                            "alone (README, 'Fitting an IMU-only log')"))
                 raise GreyboxInputError(
                     need + "; this log has gyro and accelerometer, so `greybox fit` (greybox.fitting.fit_imu) "
-                    "identifies what its IMU alone can: K_T, b, tau_m (README, 'Fitting an IMU-only log')" if not imu
+                    "identifies what its IMU alone can: K_T, b, tau_m and the torque gains g_x, g_y (README, "
+                    "'Fitting an IMU-only log')" if not imu
                     else need + "; a log without position is fitted from its IMU alone when it has the gyro p, q, r "
                     f"and the accelerometer az (missing here: {', '.join(imu)})")
             est, _ = self.split()

@@ -161,6 +161,18 @@ the noise's RMS, plain over the thousands of samples of a log (without one the r
 two blind audits' vehicles with drag gave 1.6-6; at 2.0 a 3 kg vehicle's K_T was 5 std low
 and a ratio of 3 said nothing)."""
 
+THRUST_CHANGE_NOTABLE = 0.02
+"""Relative change of ``K_T`` over the fitted part of an IMU-only log (the thrust equation
+refitted with ``K_T`` linear in time) from which the fit says the thrust per w^2 changed over
+the flight (a battery that sags) and is NOT ADEQUATE, when it is also beyond 3 of its std:
+twice the largest that the vertical drag and the accelerometer's bias, which the thrust
+equation lacks, gave a control flight (a blind audit's three vehicles, 30 g to 3 kg: up to
+1.1 %, at up to 6 std; their 7.5 % battery sag read 5.8-6.0 % over the fitted 20 s)."""
+
+ACCEL_BIAS_TYPICAL = 0.05
+"""m/s^2: the residual bias of a calibrated MEMS accelerometer (about 5 mg), which an IMU-only
+fit's ``K_T`` takes in full: said where it moves ``K_T`` by more than 3 of its std."""
+
 WINDOW_SPACING_S = 0.05
 """s between the starts of the prediction windows of an IMU-only fit's ``horizons``."""
 
@@ -195,13 +207,50 @@ class ImuFit:
     systematic_share: dict[str, float] = field(default_factory=dict)
     """Per torque equation, the residual's part beyond the noise over the RMS of the fitted
     torque, both averaged over :data:`ADEQUACY_WINDOW_S`."""
+    tau_at_end: bool = False
+    """Whether ``tau_m`` ended at the long end of its profile, where the optimum may lie beyond."""
+    thrust_change: tuple[float, float] = (0.0, float("nan"))
+    """``K_T``'s relative change over the fitted part (end over start, less 1) with the thrust
+    equation refitted with ``K_T`` linear in time, and its std (:data:`THRUST_CHANGE_NOTABLE`)."""
+
+    @property
+    def thrust_changes(self) -> bool:
+        """Whether the thrust per w^2 changed over the flight beyond what the thrust equation's
+        missing drag and bias give (:data:`THRUST_CHANGE_NOTABLE`) and beyond 3 of its std."""
+        v, s = self.thrust_change
+        return abs(v) >= THRUST_CHANGE_NOTABLE and math.isfinite(s) and abs(v) > 3 * s
+
+    @property
+    def converged(self) -> bool:
+        """Whether the optimum is certified. The coefficients are a linear least-squares
+        solution at each ``tau_m`` (exact, no iteration to stop short), and ``tau_m`` the
+        minimum of its profile: certified unless that minimum is the profile's long end (the
+        optimum may lie beyond it) or a coefficient has no finite std (the log does not
+        determine it). A ``tau_m`` of 0 is the lag's lower bound, an optimum on it."""
+        return not self.tau_at_end and all(math.isfinite(s) for n, (_, s) in self.parameters.items()
+                                           if n not in ("tau_m", "s_lead"))
+
+    @property
+    def certificate_text(self) -> str:
+        """The certificate in words."""
+        if self.tau_at_end:
+            return (f"optimum NOT certified: tau_m is at the long end of its profile "
+                    f"({self.parameters['tau_m'][0]:g} s), and the optimum may lie beyond it")
+        loose = [n for n, (_, s) in self.parameters.items() if n not in ("tau_m", "s_lead") and not math.isfinite(s)]
+        if loose:
+            return f"optimum NOT certified: {', '.join(loose)} not determined by this log (no finite std)"
+        return ("optimum certified: the coefficients are the exact least-squares solution of the equations at "
+                "each tau_m, and tau_m is the minimum of its profile"
+                + (" (on its lower bound, 0)" if self.parameters["tau_m"][0] == 0 else ""))
 
     @property
     def adequate(self) -> bool | None:
         """Whether no torque equation leaves a systematic torque beyond the gyro's noise that is
-        physically non-negligible (:data:`SYSTEMATIC_SHARE` of the fitted torque); None when
+        physically non-negligible (:data:`SYSTEMATIC_SHARE` of the fitted torque), and the
+        thrust per w^2 did not change over the flight (:attr:`thrust_changes`); None when
         not judged (no torque to compare with, or a gyro noise that could not be read)."""
-        if any(_misses(v, self.systematic_share.get(eq, 0.0)) for eq, v in self.residual_over_noise.items()):
+        if self.thrust_changes or any(_misses(v, self.systematic_share.get(eq, 0.0))
+                                      for eq, v in self.residual_over_noise.items()):
             return False
         judged = self.residual_over_noise and all(math.isfinite(v) for v in self.residual_over_noise.values())
         return True if judged else None
@@ -228,6 +277,12 @@ class ImuFit:
                     i = h.horizons.index(target)
                     lines.append(f"  {target:g} s ahead, RMS error model / naive: " + ", ".join(
                         f"{ch} {h.model[ch][i]:.3g}/{h.naive[ch][i]:.3g}" for ch in h.model))
+        v, sd = self.thrust_change
+        if math.isfinite(sd):
+            lines.append(f"  K_T's change from the start of the fitted part to its end (K_T linear in time): "
+                         f"{100 * v:+.2f} ± {100 * sd:.2f} %" + ("  (NOT ADEQUATE: see the note)" if self.thrust_changes
+                                                              else ""))
+        lines.append(f"  {self.certificate_text}")
         lines.append("  not identified from an IMU-only log: drag (needs the velocity), absolute inertia, "
                      "position and attitude")
         if self.residual_over_noise:
@@ -246,7 +301,10 @@ class ImuFit:
                 "validation": {"nrmse": num(self.total), "channels": {k: num(v) for k, v in self.nrmse.items()},
                                "yardstick": "equation error: specific force and angular acceleration"},
                 **({"horizons": self.horizons.as_dict()} if self.horizons is not None else {}),
-                "imu_only": True, "tau_profile": [[t, c] for t, c in self.tau_profile],
+                "imu_only": True, "converged": self.converged,
+                "certificate": {"optimal": self.converged, "adequate": self.adequate, "text": self.certificate_text},
+                "thrust_change": {"value": num(self.thrust_change[0]), "std": num(self.thrust_change[1])},
+                "tau_profile": [[t, c] for t, c in self.tau_profile],
                 "adequate": self.adequate,
                 "residual_over_noise": {k: num(v) for k, v in self.residual_over_noise.items()},
                 "systematic_share": {k: num(v) for k, v in self.systematic_share.items()},
@@ -632,6 +690,20 @@ class _ImuEquations:
         return params, nrmse, coef, tau, k, profile, (y_eq, X)
 
 
+def _thrust_drift(t: np.ndarray, y: np.ndarray, A: np.ndarray, rows: np.ndarray) -> tuple[float, float]:
+    """The thrust equation refitted with K_T changing linearly in time: its relative change
+    over the fitted rows' span and that change's std (coloured residuals widened by their
+    long-run factor)."""
+    tt = t[rows] - t[rows].mean()
+    B = np.column_stack([A[rows], A[rows][:, 0] * tt])
+    c, *_ = np.linalg.lstsq(B, y[rows], rcond=None)
+    r = y[rows] - B @ c
+    s2 = float(r @ r) / max(rows.sum() - B.shape[1], 1) * long_run_factor(r)
+    cov = s2 * np.linalg.pinv(B.T @ B)
+    span = float(tt.max() - tt.min())
+    return float(c[-1] / c[0] * span), float(np.sqrt(cov[-1, -1]) / abs(c[0]) * span)
+
+
 def _torque_adequacy(eqs: _ImuEquations, log: FlightLog, fitted: np.ndarray, coef, y_eq, X):
     """The torque equations' residual over the gyro's noise, both averaged over
     :data:`ADEQUACY_WINDOW_S`: ``(over_noise, share, gyro_noise, how)``, per equation the RMS
@@ -754,6 +826,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
     K_T = params["K_T"][0]
     _check_signs_and_units(params, where)
     fitted = eqs.rows(tau)
+    change = _thrust_drift(0.5 * (eqs.grid[:-1] + eqs.grid[1:]), y_eq["az"], X["az"], fitted)
     over_noise, share, gyro_noise, how = _torque_adequacy(eqs, log, fitted, coef, y_eq, X)
     notes = _imu_notes(gyro_noise, how, over_noise, share, lead, k, grid_tau, tau, params, K_T)
     # the measured samples, not the smoothed ones, start and score the predictions
@@ -771,10 +844,26 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
                      "velocity, can go into K_T beyond its std (a blind audit's 30 g vehicle at 2.5 m/s, drag "
                      "0.33 of its mass per s: K_T 0.6 % low, 7 std; its 3 kg vehicle at 1 kHz: 0.17 %, 5 std); "
                      "g_x, g_y are torques over this K_T")
+    if abs(change[0]) >= THRUST_CHANGE_NOTABLE and abs(change[0]) > 3 * change[1]:
+        notes.append(f"NOT ADEQUATE: the thrust per w^2 changes over the flight: K_T "
+                     f"{'falls' if change[0] < 0 else 'rises'} by {100 * abs(change[0]):.1f} ± {100 * change[1]:.1f} % "
+                     f"from the start of the fitted part to its end (the thrust equation refitted with K_T linear in "
+                     f"time), beyond the {100 * THRUST_CHANGE_NOTABLE:.0f} % the vertical drag and the accelerometer's "
+                     "bias it lacks can give: a battery that sags (in a log with position: thrust_drift, "
+                     "battery_voltage with vbat logged), or a motor that heats; K_T is the flight's mean, and g_x, "
+                     "g_y, torques over it, are the mean's")
+    K_T_std = params["K_T"][1]
+    bias_share = ACCEL_BIAS_TYPICAL / max(float(np.nanmean(np.abs(eqs.az[:-1][fitted]))), 1e-9)   # per step, at its start
+    if math.isfinite(K_T_std) and bias_share * K_T > 3 * K_T_std:
+        notes.append(f"K_T's std ({100 * K_T_std / K_T:.2g} %) counts the noise only: a bias of the accelerometer "
+                     f"along z goes into K_T in full ({ACCEL_BIAS_TYPICAL:g} m/s^2, a calibrated MEMS "
+                     f"accelerometer's, moves it by {100 * bias_share:.2g} %, {bias_share * K_T / K_T_std:.0f} of its "
+                     "std), and g_x, g_y, torques over K_T, with it; so does the vertical drag; a log with position "
+                     "tells them apart (accel_bias)")
     if any(log.measures(c) for c in ("phi", "theta", "psi")):
         notes.append("the logged attitude is not used: without position the velocity, and with it the "
                      "translational equations, are not determined by the data")
     effects = (["yaw_torque"] + [e for e in model.effect_names if e in KNOWN_TORQUE_EFFECTS] + ["motor_lag"]
                + (["sampled_inputs"] if lead > 0 else []))    # the catalogue's name for s_lead
     return ImuFit(params, nrmse, [(float(a), float(b)) for a, b in profile], eqs.m, int(fitted.sum()), notes,
-                  horizons, effects, over_noise, share)
+                  horizons, effects, over_noise, share, tau_at_end=k == len(grid_tau) - 1, thrust_change=change)
