@@ -68,8 +68,10 @@ def test_a_usd_log_with_a_command_on_the_ground_gives_the_lag_and_the_gains(tmp_
         K_T, sK = res.parameters["K_T"]
         assert abs(K_T / truth["K_T"] - 1) < 0.01, (held, K_T)     # the vertical drag's bias: 0.6 %
         for g in ("g_x", "g_y"):
+            # the gains are torques over K_T: K_T's bias (the vertical drag's, said in a note) is
+            # theirs too, beyond their std, which count the noise (the sandwich's since audit 42)
             v, s = res.parameters[g]
-            assert abs(v - 1.0) < 3 * s, (held, g, v, s)
+            assert abs(v - 1.0) < 3 * s + abs(K_T / truth["K_T"] - 1), (held, g, v, s, K_T / truth["K_T"])
         tau, s = res.parameters["tau_m"]
         if held == "hold":
             assert abs(tau - truth["tau_m"]) < 2 * s, (tau, s)

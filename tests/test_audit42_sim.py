@@ -12,6 +12,7 @@ one vehicle of three; and the fit's JSON held no certificate."""
 import hashlib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from greybox import QuadrotorModel, load_airframe, load_log
@@ -66,3 +67,16 @@ def test_a_battery_that_sags_is_not_adequate_and_the_control_is(flights, vehicle
         assert res.converged and res.as_dict()["certificate"]["optimal"] is True
     assert any(n.startswith("K_T's std") and "accelerometer along z goes into K_T" in n for n in control.notes), \
         control.notes
+
+
+@pytest.mark.slow
+def test_the_yaw_coefficients_std_is_not_many_times_too_wide(flights):
+    """b's std came from the residuals' long-run factor alone, as if every regressor were as
+    slow as the residual's colour: over the audit's twelve flights without a weak rotor b's
+    z-scores had an RMS of 0.11 (its std 9x too wide); the sandwich of the residuals with their
+    own regressors gives 0.41. On these six flights: RMS 0.13 before, 0.48 now, none beyond
+    3 std."""
+    truth = {"cf": 1.1e-10, "q1kg": 1.9e-7, "h3kg": 1.0e-6}
+    z = [(res.value("b") - truth[v]) / res.parameters["b"][1]
+         for v in VEHICLES for res in (_fit(flights, v, "control"), _fit(flights, v, "battery_sag"))]
+    assert max(abs(x) for x in z) < 3 and 0.25 < float(np.sqrt(np.mean(np.square(z)))) < 1.5, z
