@@ -45,14 +45,15 @@ from ..data import FlightLog
 from ..errors import GreyboxInputError
 from ..model import QuadrotorModel
 from ..residuals import long_run_factor
-from .robust import long_run_covariance
 from ..shooting import difference_noise, estimate_noise
 from ..validation import DEFAULT_HORIZONS, HorizonErrors
 from .certificate import NOISE_RATIO_COLOURED
+from .robust import long_run_covariance
 
 __all__ = ["ImuFit", "fit_imu", "is_imu_only", "IMU_EQUATIONS", "TAU_GRID", "HORIZON_CHANNELS",
            "KNOWN_TORQUE_EFFECTS", "DRAG_NOTE_RATIO", "LEAD_GRID", "LEAD_SHIFT", "SETTLE_TAUS", "ADEQUACY_WINDOW_S",
-           "SYSTEMATIC_SHARE", "WHITE_DIFFERENCES", "FILTERED_NOISE_SPACING_S", "gyro_noise_on_average"]
+           "SYSTEMATIC_SHARE", "WHITE_DIFFERENCES", "FILTERED_NOISE_SPACING_S", "gyro_noise_on_average",
+           "THRUST_CHANGE_NOTABLE", "ACCEL_BIAS_TYPICAL", "HAC_LAGS"]
 
 KNOWN_TORQUE_EFFECTS = ("gyroscopic",)
 """Effects whose torque depends on the body rates and rotor speeds alone, with parameters the
@@ -220,10 +221,8 @@ class ImuFit:
 
     @property
     def thrust_changes(self) -> bool:
-        """Whether the thrust per w^2 changed over the flight beyond what the thrust equation's
-        missing drag and bias give (:data:`THRUST_CHANGE_NOTABLE`) and beyond 3 of its std."""
-        v, s = self.thrust_change
-        return abs(v) >= THRUST_CHANGE_NOTABLE and math.isfinite(s) and abs(v) > 3 * s
+        """Whether the thrust per w^2 changed over the flight (:func:`_thrust_changes`)."""
+        return _thrust_changes(*self.thrust_change)
 
     @property
     def converged(self) -> bool:
@@ -708,9 +707,17 @@ def _thrust_drift(t: np.ndarray, y: np.ndarray, A: np.ndarray, rows: np.ndarray)
     c, *_ = np.linalg.lstsq(B, y[rows], rcond=None)
     r = y[rows] - B @ c
     Bi = np.linalg.pinv(B.T @ B)
-    cov = Bi @ long_run_covariance(B * r[:, None], bandwidth=HAC_LAGS) @ Bi * rows.sum() / max(rows.sum() - B.shape[1], 1)
+    cov = Bi @ long_run_covariance(B * r[:, None], bandwidth=HAC_LAGS) @ Bi \
+        * rows.sum() / max(rows.sum() - B.shape[1], 1)
     span = float(tt.max() - tt.min())
     return float(c[-1] / c[0] * span), float(np.sqrt(cov[-1, -1]) / abs(c[0]) * span)
+
+
+def _thrust_changes(change: float, std: float) -> bool:
+    """Whether ``K_T``'s relative ``change`` over the fitted part (± ``std``) is beyond what the
+    thrust equation's missing drag and bias give (:data:`THRUST_CHANGE_NOTABLE`) and beyond 3
+    of its std."""
+    return abs(change) >= THRUST_CHANGE_NOTABLE and math.isfinite(std) and abs(change) > 3 * std
 
 
 def _torque_adequacy(eqs: _ImuEquations, log: FlightLog, fitted: np.ndarray, coef, y_eq, X):
@@ -853,7 +860,7 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
                      "velocity, can go into K_T beyond its std (a blind audit's 30 g vehicle at 2.5 m/s, drag "
                      "0.33 of its mass per s: K_T 0.6 % low, 7 std; its 3 kg vehicle at 1 kHz: 0.17 %, 5 std); "
                      "g_x, g_y are torques over this K_T")
-    if abs(change[0]) >= THRUST_CHANGE_NOTABLE and abs(change[0]) > 3 * change[1]:
+    if _thrust_changes(*change):
         notes.append(f"NOT ADEQUATE: the thrust per w^2 changes over the flight: K_T "
                      f"{'falls' if change[0] < 0 else 'rises'} by {100 * abs(change[0]):.1f} ± {100 * change[1]:.1f} % "
                      f"from the start of the fitted part to its end (the thrust equation refitted with K_T linear in "
@@ -862,7 +869,8 @@ def fit_imu(model: QuadrotorModel, log: FlightLog, split: float = 0.8,
                      "battery_voltage with vbat logged), or a motor that heats; K_T is the flight's mean, and g_x, "
                      "g_y, torques over it, are the mean's")
     K_T_std = params["K_T"][1]
-    bias_share = ACCEL_BIAS_TYPICAL / max(float(np.nanmean(np.abs(eqs.az[:-1][fitted]))), 1e-9)   # per step, at its start
+    # the specific force at each fitted step's start
+    bias_share = ACCEL_BIAS_TYPICAL / max(float(np.nanmean(np.abs(eqs.az[:-1][fitted]))), 1e-9)
     if math.isfinite(K_T_std) and bias_share * K_T > 3 * K_T_std:
         notes.append(f"K_T's std ({100 * K_T_std / K_T:.2g} %) counts the noise only: a bias of the accelerometer "
                      f"along z goes into K_T in full ({ACCEL_BIAS_TYPICAL:g} m/s^2, a calibrated MEMS "
