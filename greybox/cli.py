@@ -614,6 +614,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
             ("last 20 %" + (f" of {val.source}" if len(logs) > 1 else ""))
         print(f"validation ({pred.horizon_label}, {where}): nrmse {pred.total:.4f}  " +
               "  ".join(f"{c}={v:.3f}" for c, v in pred.nrmse.items()))
+        above = pred.above_spread_words()
+        if above:
+            print(f"  note: {above}")
     # the error-against-horizon report predicts the validation part again from many starts:
     # only when a file shows it
     he = horizon_errors_after(res, preds, val_ps, est=est) if args.json or args.plots else None

@@ -401,3 +401,27 @@ def test_error_relative_to_naive_by_hand():
     he.model["x"][2] = float("inf")
     assert he.relative_error() == float("inf")
     assert np.isnan(he.relative_error(horizons=(0.3,)))
+
+
+def test_an_nrmse_above_one_says_what_it_measures():
+    """A blind audit's certified exact model read nrmse 2.10 (y 7.48) with nothing said while it
+    beat the naive predictor 0.25 and 0.5 s ahead: y barely moved in the validation windows.
+    Worked by hand: y = 0.01 sin (RMS 0.00707 m about its mean) predicted 0.05 m off everywhere
+    is nrmse 7.07, said with both numbers; x moving 1 m RMS, 0.1 m off (0.1), is not."""
+    from greybox.data import FlightLog
+    from greybox.model import OUTPUTS
+    from greybox.validation import Prediction
+    t = np.arange(200) * 0.01
+    outputs = np.full((200, len(OUTPUTS)), np.nan)
+    outputs[:, 0] = np.sqrt(2) * np.sin(2 * np.pi * t)           # x: 1 m RMS
+    outputs[:, 1] = 0.01 * np.sin(2 * np.pi * t)                 # y: 0.00707 m RMS
+    log = FlightLog(t, np.full((200, 4), 100.0), ["w1", "w2", "w3", "w4"], outputs, list(OUTPUTS))
+    errors = np.full_like(outputs, np.nan)
+    errors[:, 0], errors[:, 1] = 0.1, 0.05
+    pred = Prediction(log, outputs - errors, [(0, 100), (100, 200)], ["x", "y"],
+                      {"x": 0.1, "y": 0.05 / (0.01 / np.sqrt(2))}, 3.6, 1.0, errors)
+    said = pred.above_spread_words()
+    assert said.startswith("nrmse above 1 on y 7.07 (error 0.05 m RMS where y moves 0.00707 m about its mean)"), said
+    assert "x " not in said.split(":")[0] and "over 1 s the prediction drifts further than the channel moves" in said
+    pred.nrmse["y"] = 0.9
+    assert pred.above_spread_words() == ""
