@@ -80,19 +80,16 @@ class Prediction:
         if self.parts:
             return ""
         meas = measured_outputs(self.log, self.errors.shape[1])
-        covered = np.zeros(meas.shape[0], dtype=bool)
-        for a, b in self.windows:
-            covered[a:b] = True
+        covered = _window_rows(meas.shape[0], self.windows)
         said = []
         for name in self.channels:
             if not math.isfinite(self.nrmse[name]) or self.nrmse[name] <= 1.0:
                 continue
             c = OUTPUTS.index(name)
             k = covered & np.isfinite(meas[:, c])
-            ref = np.unwrap(meas[k, c]) if c == PSI else meas[k, c]
             unit = OUTPUT_LIMITS[name][1]
             said.append(f"{name} {self.nrmse[name]:.3g} (error {float(np.sqrt(np.mean(self.errors[k, c] ** 2))):.3g} "
-                        f"{unit} RMS where {name} moves {float(np.std(ref)):.3g} {unit} about its mean)")
+                        f"{unit} RMS where {name} moves {_spread(meas[k, c], c):.3g} {unit} about its mean)")
         if not said:
             return ""
         return (f"nrmse above 1 on {', '.join(said)}: over {self.horizon:g} s the prediction drifts further than "
@@ -383,19 +380,14 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
     err[:, PSI] = np.arctan2(np.sin(err[:, PSI]), np.cos(err[:, PSI]))
     # a prediction that diverged (NaN, inf) where there is a measurement is an infinite error,
     # not a sample left out: scoring the finite rest would make a blown-up model look good
-    covered = np.zeros(t.size, dtype=bool)
-    for a, b in wins:
-        covered[a:b] = True
+    covered = _window_rows(t.size, wins)
     err[covered[:, None] & np.isfinite(meas) & ~np.isfinite(pred)] = np.inf
     scores, channels = {}, []
     for c, name in enumerate(OUTPUTS):
         k = covered & np.isfinite(meas[:, c])
         if k.sum() < 3:
             continue
-        ref = meas[k, c]
-        if c == PSI:
-            ref = np.unwrap(ref)
-        spread = float(np.sqrt(np.mean((ref - ref.mean()) ** 2)))
+        spread = _spread(meas[k, c], c)
         with np.errstate(over="ignore"):   # a prediction that blew up to 1e200 scores inf
             rms = float(np.sqrt(np.mean(err[k, c] ** 2)))
         scores[name] = rms / spread if spread > 0 else float("inf")
@@ -404,6 +396,21 @@ def predict(model: QuadrotorModel, p: np.ndarray, log: FlightLog, horizon: float
         raise GreyboxInputError(f"{log.source or 'log'}: no measured channel to validate against")
     total = float(np.mean(list(scores.values())))
     return Prediction(log, pred, wins, channels, scores, total, horizon, err, start_states=x0)
+
+
+def _window_rows(n: int, windows: Sequence[tuple[int, int]]) -> np.ndarray:
+    """(n,) True on the rows inside the ``[start, stop)`` windows."""
+    covered = np.zeros(n, dtype=bool)
+    for a, b in windows:
+        covered[a:b] = True
+    return covered
+
+
+def _spread(values: np.ndarray, channel: int) -> float:
+    """The RMS of a channel's measured ``values`` about their mean (psi unwrapped): the
+    denominator of its nrmse."""
+    ref = np.unwrap(values) if channel == PSI else values
+    return float(np.sqrt(np.mean((ref - ref.mean()) ** 2)))
 
 
 DEFAULT_HORIZONS = (0.05, 0.1, 0.25, 0.5, 1.0)

@@ -196,6 +196,7 @@ def simex(fr: FitResult, logs: Sequence[FlightLog], noise: InputNoise, names: Se
     extrapolant. None when a refit fails or is not certified."""
     model = fr.model
     rng = np.random.default_rng(seed)
+    fit_var = {n: float(fr.std[fr.free_names.index(n)]) ** 2 for n in names}
     refits: dict[float, list[FitResult]] = {level: [] for level in LEVELS}
     while True:
         try:
@@ -211,10 +212,8 @@ def simex(fr: FitResult, logs: Sequence[FlightLog], noise: InputNoise, names: Se
             return None
         values = {n: _extrapolated(fr, n, refits) for n in names}
         drawn = len(refits[LEVELS[0]])
-        if drawn + DRAWS > MAX_DRAWS or all(mc <= MONTE_CARLO_SHARE * float(fr.std[fr.free_names.index(n)]) ** 2
-                                            for n, (*_, mc) in values.items()):
-            return {n: v[:4] + (float(np.sqrt(float(fr.std[fr.free_names.index(n)]) ** 2 + v[4])),)
-                    for n, v in values.items()}
+        if drawn + DRAWS > MAX_DRAWS or all(mc <= MONTE_CARLO_SHARE * fit_var[n] for n, (*_, mc) in values.items()):
+            return {n: v[:4] + (float(np.sqrt(fit_var[n] + v[4])),) for n, v in values.items()}
 
 
 def _extrapolated(fr: FitResult, name: str, refits: dict[float, list[FitResult]]

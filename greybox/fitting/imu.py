@@ -225,14 +225,19 @@ class ImuFit:
         return _thrust_changes(*self.thrust_change)
 
     @property
+    def undetermined(self) -> list[str]:
+        """The coefficients without a finite std: the log does not determine them (``tau_m``
+        and ``s_lead`` are profiled, not solved for)."""
+        return [n for n, (_, s) in self.parameters.items() if n not in ("tau_m", "s_lead") and not math.isfinite(s)]
+
+    @property
     def converged(self) -> bool:
         """Whether the optimum is certified. The coefficients are a linear least-squares
         solution at each ``tau_m`` (exact, no iteration to stop short), and ``tau_m`` the
         minimum of its profile: certified unless that minimum is the profile's long end (the
-        optimum may lie beyond it) or a coefficient has no finite std (the log does not
-        determine it). A ``tau_m`` of 0 is the lag's lower bound, an optimum on it."""
-        return not self.tau_at_end and all(math.isfinite(s) for n, (_, s) in self.parameters.items()
-                                           if n not in ("tau_m", "s_lead"))
+        optimum may lie beyond it) or a coefficient is :attr:`undetermined`. A ``tau_m`` of 0
+        is the lag's lower bound, an optimum on it."""
+        return not self.tau_at_end and not self.undetermined
 
     @property
     def certificate_text(self) -> str:
@@ -240,9 +245,8 @@ class ImuFit:
         if self.tau_at_end:
             return (f"optimum NOT certified: tau_m is at the long end of its profile "
                     f"({self.parameters['tau_m'][0]:g} s), and the optimum may lie beyond it")
-        loose = [n for n, (_, s) in self.parameters.items() if n not in ("tau_m", "s_lead") and not math.isfinite(s)]
-        if loose:
-            return f"optimum NOT certified: {', '.join(loose)} not determined by this log (no finite std)"
+        if self.undetermined:
+            return f"optimum NOT certified: {', '.join(self.undetermined)} not determined by this log (no finite std)"
         return ("optimum certified: the coefficients are the exact least-squares solution of the equations at "
                 "each tau_m, and tau_m is the minimum of its profile"
                 + (" (on its lower bound, 0)" if self.parameters["tau_m"][0] == 0 else ""))
@@ -675,9 +679,7 @@ class _ImuEquations:
             # the sandwich (Newey-West) of coloured residuals: widened by how they correlate with
             # their own regressors' colour, not by the residuals' alone (which made b's std 9x
             # too wide on a blind audit's twelve flights: RMS z 0.11; 0.41 with it)
-            Ai = np.linalg.pinv(A.T @ A)
-            cov = Ai @ long_run_covariance(A * r[:, None], bandwidth=HAC_LAGS) @ Ai \
-                * est.sum() / max(est.sum() - A.shape[1], 1)
+            cov = _sandwich_covariance(A, r)
             std = np.sqrt(np.clip(np.diag(cov), 0, None))
             rv = y[val] - X[eq][val] @ c
             spread = float(np.sqrt(np.mean((y[val] - y[val].mean()) ** 2)))
@@ -698,6 +700,15 @@ class _ImuEquations:
         return params, nrmse, coef, tau, k, profile, (y_eq, X)
 
 
+def _sandwich_covariance(A: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """The least-squares coefficients' covariance for the regressors ``A`` (n, k) and their
+    residuals ``r`` (n,), correlated over :data:`HAC_LAGS` rows: the sandwich (Newey-West,
+    Bartlett weights) with the small-sample factor n / (n - k)."""
+    Ai = np.linalg.pinv(A.T @ A)
+    n, k = A.shape
+    return Ai @ long_run_covariance(A * r[:, None], bandwidth=HAC_LAGS) @ Ai * n / max(n - k, 1)
+
+
 def _thrust_drift(t: np.ndarray, y: np.ndarray, A: np.ndarray, rows: np.ndarray) -> tuple[float, float]:
     """The thrust equation refitted with K_T changing linearly in time: its relative change
     over the fitted rows' span and that change's std (the sandwich of coloured residuals, as
@@ -706,9 +717,7 @@ def _thrust_drift(t: np.ndarray, y: np.ndarray, A: np.ndarray, rows: np.ndarray)
     B = np.column_stack([A[rows], A[rows][:, 0] * tt])
     c, *_ = np.linalg.lstsq(B, y[rows], rcond=None)
     r = y[rows] - B @ c
-    Bi = np.linalg.pinv(B.T @ B)
-    cov = Bi @ long_run_covariance(B * r[:, None], bandwidth=HAC_LAGS) @ Bi \
-        * rows.sum() / max(rows.sum() - B.shape[1], 1)
+    cov = _sandwich_covariance(B, r)
     span = float(tt.max() - tt.min())
     return float(c[-1] / c[0] * span), float(np.sqrt(cov[-1, -1]) / abs(c[0]) * span)
 
