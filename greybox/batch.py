@@ -459,10 +459,9 @@ def _process_imu_only(model, log, files: dict[str, bytes]) -> dict:
     files["report/summary.txt"] = (res.summary() + "\n").encode()
     # what the fit found missing, where a row of the summary shows it (a blind audit's weak rotor
     # read like its control in summary.csv: the NOT ADEQUATE was in its fit.json alone)
-    missing = [n.split(": ")[1] for n in res.notes if n.startswith("NOT ADEQUATE: ")]
     out: dict[str, Any] = {"verdict": None, "nrmse_before": None, "nrmse_after": None, "added": "",
                            "status": "ok", "adequate": res.adequate,
-                           "reason": IMU_ONLY_REASON + "".join(f"; NOT ADEQUATE: {m}" for m in missing)}
+                           "reason": IMU_ONLY_REASON + "".join(f"; NOT ADEQUATE: {m}" for m in res.inadequacies)}
     for name, (v, s) in res.parameters.items():
         out[name] = _num(v)
         out[f"{name}_std"] = _num(s)

@@ -490,7 +490,8 @@ def test_imu_only_flights_get_the_imu_only_fit_and_stay_out_of_the_joint_fit(tmp
     assert [r["status"] for r in rows] == ["ok", "ok"] and all("IMU-only" in r["reason"] for r in rows)
     assert [r["adequate"] for r in rows] == ["true", "false"], [r["reason"] for r in rows]
     assert "NOT ADEQUATE" not in rows[0]["reason"]
-    assert "; NOT ADEQUATE: over 100 ms the torque equations leave a systematic torque" in rows[1]["reason"]
+    assert "; NOT ADEQUATE: a systematic torque the model lacks (" in rows[1]["reason"]
+    assert "x the gyro's noise" in rows[1]["reason"] and "% of its torque)" in rows[1]["reason"]
     for r in rows:
         assert float(r["K_T"]) == pytest.approx(veh.K_T, rel=0.01)
         assert r["verdict"] == ""

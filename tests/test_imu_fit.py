@@ -345,8 +345,11 @@ def test_a_battery_that_sags_makes_the_imu_only_fit_inadequate_and_says_so(tmp_p
     assert res.thrust_changes and res.adequate is False
     assert any(n.startswith("NOT ADEQUATE: the thrust per w^2 changes over the flight: K_T falls by")
                for n in res.notes), res.notes
+    # the short phrase a batch row carries, with its numbers (it used to be cut at the note's second colon)
+    assert res.inadequacies == [f"the thrust per w^2 changes over the flight (K_T {100 * change:+.2f} ± {100 * std:.2f} %)"]
     doc = res.as_dict()
     assert doc["adequate"] is False and doc["thrust_change"]["value"] == pytest.approx(change)
+    assert doc["inadequacies"] == res.inadequacies
     assert doc["converged"] is True and doc["certificate"]["optimal"] is True
     assert doc["certificate"]["text"].startswith("optimum certified")
     assert "K_T's change from the start of the fitted part to its end" in res.summary()

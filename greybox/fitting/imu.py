@@ -252,13 +252,27 @@ class ImuFit:
                 + (" (on its lower bound, 0)" if self.parameters["tau_m"][0] == 0 else ""))
 
     @property
+    def inadequacies(self) -> list[str]:
+        """What makes the fit inadequate, one short phrase each (empty when nothing does): a
+        torque equation that leaves a systematic torque beyond the gyro's noise, physically
+        non-negligible (:data:`SYSTEMATIC_SHARE` of the fitted torque), and a thrust per w^2
+        that changed over the flight (:attr:`thrust_changes`). The notes say each at length."""
+        out = []
+        off = [(eq, v, self.systematic_share.get(eq, 0.0)) for eq, v in self.residual_over_noise.items()
+               if _misses(v, self.systematic_share.get(eq, 0.0))]
+        if off:
+            out.append("a systematic torque the model lacks (" + "; ".join(
+                f"{eq} {v:.3g}x the gyro's noise, {100 * sh:.0f} % of its torque" for eq, v, sh in off) + ")")
+        if self.thrust_changes:
+            change, std = self.thrust_change
+            out.append(f"the thrust per w^2 changes over the flight (K_T {100 * change:+.2f} ± {100 * std:.2f} %)")
+        return out
+
+    @property
     def adequate(self) -> bool | None:
-        """Whether no torque equation leaves a systematic torque beyond the gyro's noise that is
-        physically non-negligible (:data:`SYSTEMATIC_SHARE` of the fitted torque), and the
-        thrust per w^2 did not change over the flight (:attr:`thrust_changes`); None when
-        not judged (no torque to compare with, or a gyro noise that could not be read)."""
-        if self.thrust_changes or any(_misses(v, self.systematic_share.get(eq, 0.0))
-                                      for eq, v in self.residual_over_noise.items()):
+        """Whether nothing makes the fit inadequate (:attr:`inadequacies`); None when not
+        judged (no torque to compare with, or a gyro noise that could not be read)."""
+        if self.inadequacies:
             return False
         judged = self.residual_over_noise and all(math.isfinite(v) for v in self.residual_over_noise.values())
         return True if judged else None
@@ -313,7 +327,7 @@ class ImuFit:
                 "certificate": {"optimal": self.converged, "adequate": self.adequate, "text": self.certificate_text},
                 "thrust_change": {"value": num(self.thrust_change[0]), "std": num(self.thrust_change[1])},
                 "tau_profile": [[t, c] for t, c in self.tau_profile],
-                "adequate": self.adequate,
+                "adequate": self.adequate, "inadequacies": self.inadequacies,
                 "residual_over_noise": {k: num(v) for k, v in self.residual_over_noise.items()},
                 "systematic_share": {k: num(v) for k, v in self.systematic_share.items()},
                 "not_identified": ["Kd", "inertia (absolute)", "position", "attitude"],
