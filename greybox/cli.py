@@ -20,8 +20,8 @@ import numpy as np
 from . import __version__
 from . import effects as fx
 from .airframe import load_airframe
-from .data import (FlightLog, atomic_write, check_distinct_flights, check_rotor_speed_units, check_sample_times,
-                   read_csv_table, rotor_speed_magnitudes, save_log)
+from .data import (FLIP_MARGIN_S, FLIP_MIN_PIECE_S, FlightLog, atomic_write, check_distinct_flights,
+                   check_rotor_speed_units, check_sample_times, read_csv_table, rotor_speed_magnitudes, save_log)
 from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, forget_signals, interrupt_status, raise_interrupted, raise_terminated, signal_received
 from .integrate import simulate
 from .model import QuadrotorModel
@@ -70,7 +70,7 @@ FIT_DEFAULTS = {"horizon": 1.0, "max_iter": 60, "process_noise": "if_needed"}
 OUTPUT_OPTIONS = {"json": ("--json", "file"), "out": ("--out", "file"), "save": ("--save", "file"),
                   "airframe_out": ("--airframe-out", "file"), "plots": ("--plots", "folder"),
                   "report": ("--report", "folder"), "out_dir": ("--out-dir", "folder"),
-                  "write_effect": ("--write-effect", "file")}
+                  "write_effect": ("--write-effect", "file"), "split_out": ("--out", "folder")}
 """Options that name something the command writes: checked before any computation."""
 
 
@@ -364,6 +364,32 @@ def _log_json(log: FlightLog) -> dict:
     """What a written flight log holds, for a command's JSON: rows, duration, columns."""
     return {"samples": len(log), "duration_s": float(log.duration), "inputs": list(log.input_names),
             "outputs": [n for n in log.output_names if log.measures(n)], "extras": list(log.extras)}
+
+
+def cmd_split(args: argparse.Namespace) -> int:
+    from .data import split_flips
+    cut = split_flips(args.log, margin=args.margin, min_length=args.min_length)
+    t = cut.t
+    if not cut.passages:
+        print(f"{args.log}: no flip (the pitch stays within +-80 degrees): nothing to split, nothing written")
+        return 0
+    if not cut.pieces:
+        raise GreyboxInputError(f"{args.log}: {len(cut.passages)} flip(s), and no piece between them lasts "
+                                f"{args.min_length:g} s (--min-length): nothing to fit")
+    stem = Path(args.log).stem
+    out = Path(args.split_out)
+    names = [out / f"{stem}_{k + 1}.csv" for k in range(len(cut.pieces))]
+    write_outputs([(n, text) for n, (_, _, text) in zip(names, cut.pieces)])
+    print(f"{args.log}: {len(cut.passages)} flip(s) cut (" + ", ".join(
+        f"t {t[a]:.2f}-{t[b - 1]:.2f} s" for a, b in cut.passages) + f", {args.margin:g} s spare on each side)")
+    for n, (a, b, _) in zip(names, cut.pieces):
+        print(f"  {n}: t {t[a]:.2f}-{t[b - 1]:.2f} s, {b - a} rows")
+    if cut.dropped:
+        print("  left out, shorter than --min-length: " + ", ".join(f"t {t[a]:.2f}-{t[b - 1]:.2f} s"
+                                                                     for a, b in cut.dropped))
+    print(f"fit them together: greybox fit {out / (stem + '_*.csv')} --airframe A.toml (several flights: shared "
+          "parameters, each its own states; give validation flights split alike with --validation)")
+    return 0
 
 
 def cmd_import_nanobench(args: argparse.Namespace) -> int:
@@ -1200,6 +1226,19 @@ def _parser() -> argparse.ArgumentParser:
     rd.add_argument("--seed", type=_seed, default=0)
     rd.add_argument("--json", help="write what was rendered here (frames, times)")
     rd.set_defaults(func=cmd_render)
+
+    sp = sub.add_parser("split", help="cut a flight log at its flips (the pitch through +-90 degrees) into pieces",
+                        description="Write the pieces of LOG between its flips as LOG's own rows under its header "
+                                    "(OUT/<stem>_1.csv, ...), to fit together: the attitude is ZYX Euler angles, "
+                                    "singular at +-90 degrees of pitch, and a log with a flip is refused by the "
+                                    "other commands.")
+    sp.add_argument("log", help="flight log CSV")
+    sp.add_argument("--out", dest="split_out", required=True, metavar="DIR", help="folder for the pieces")
+    sp.add_argument("--margin", type=_non_negative, default=FLIP_MARGIN_S,
+                    help=f"time cut on each side of a flip, s (default {FLIP_MARGIN_S:g})")
+    sp.add_argument("--min-length", type=_positive, default=FLIP_MIN_PIECE_S,
+                    help=f"shortest piece kept, s (default {FLIP_MIN_PIECE_S:g})")
+    sp.set_defaults(func=cmd_split)
 
     e = sub.add_parser("effects", help="list every known effect: summary, parameters, units, null values",
                        description="List the catalogue's effects, the signal effects and those registered "

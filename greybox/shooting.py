@@ -134,7 +134,8 @@ def initial_node_states(model: QuadrotorModel, log: FlightLog, idx: np.ndarray,
     # audit's racer, its attitude at 200 Hz on 500 Hz rows: shooting gaps of 2 pi, its fit
     # uncertified with b 16 orders off)
     psi, _ = unwrap_heading(t, log.output("psi"), log.output("r") if log.measures("r") else None)
-    ang = np.column_stack([_fill(t, log.output(n)) for n in ("phi", "theta")] + [_fill(t, psi)])
+    phi, _ = unwrap_heading(t, log.output("phi"), log.output("p") if log.measures("p") else None)   # rolls too
+    ang = np.column_stack([_fill(t, phi), _fill(t, log.output("theta")), _fill(t, psi)])
     for i in range(3):
         X[:, 3 + i] = _smooth(t, ang[:, i], 0.03)
     if all(n in log.output_names for n in ("p", "q", "r")) and np.isfinite(log.output("p")).sum() > 5:

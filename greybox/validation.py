@@ -320,7 +320,9 @@ def _too_short(log: FlightLog, init_window: float, dt: float) -> GreyboxInputErr
     """The error for a log too short to start one validation window on."""
     span = float(log.t[-1] - log.t[0]) if log.t.size else 0.0
     return GreyboxInputError(f"{log.source or 'log'}: too short for validation: the rows validated on span "
-                             f"{span:.3f} s, need more than {init_window + 2 * dt:.3f} s")
+                             f"{span:.3f} s, need more than {init_window + 2 * dt:.3f} s (a fit validates on "
+                             "each flight's last 20 % unless given separate validation flights: --validation LOGV, "
+                             "then every LOG is estimation data whole)")
 
 
 def check_validation_length(log: FlightLog, init_window: float = DEFAULT_INIT_WINDOW) -> None:

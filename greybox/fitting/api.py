@@ -38,7 +38,7 @@ from .input_errors import INPUT_NOISE_SHARE, has_rates, input_noise_process_scal
 from .robust import long_run_covariance, upper_covariance
 
 __all__ = ["fit", "FitResult", "progress_printer", "manoeuvre_advice", "THRUST_ADVICE", "MAX_RESTARTS", "THRUST_IMPOSSIBLE",
-           "TRUST_REGION", "IF_NEEDED", "THRUST_SPREAD", "thrust_ratio"]
+           "TRUST_REGION", "IF_NEEDED", "THRUST_SPREAD", "thrust_ratio", "net_vertical_acceleration"]
 
 IF_NEEDED = "if_needed"
 """``fit``'s default ``process_noise``: output error, then soft continuity when output error
@@ -491,7 +491,9 @@ THRUST_ROWS = 4000
 
 
 def thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], p: np.ndarray) -> float | None:
-    """The mean vertical rotor thrust over the flights over the weight ``m g``, the model's own
+    """The mean vertical rotor thrust over the flights over what their net vertical motion asks
+    of it (the weight ``m g`` for flights that start and end at rest: ``m (g - a)`` with ``a``
+    each flight's :func:`net_vertical_acceleration`), the model's own
     at parameters ``p`` with every effect's part (a command-to-speed map's offset, the battery's
     voltage, a thrust curve, the ground): the specific force along the body's z axis it predicts
     at the measured position and attitude, at rest (no drag), effect states where their dynamics
@@ -503,10 +505,12 @@ def thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], p: np.ndarray
     if model.inputs == "controls" or not logs:
         return None
     iz, n_base = OUTPUTS.index("az"), 12
-    vertical = []
+    g = model.airframe.gravity
+    vertical, needed = [], []
     for lg in logs:
         lg = model.prepare_log(lg)     # the signals the model reads (vbat, earlier commands) as inputs
         rows = np.unique(np.linspace(0, len(lg) - 1, min(len(lg), THRUST_ROWS)).astype(int))
+        needed.append(np.full(rows.size, 1.0 - net_vertical_acceleration(lg) / g if g > 0 else 1.0))
         t = lg.t[rows]
         X = np.zeros((rows.size, model.nx))
         for j, name in enumerate(("x", "y", "z", "phi", "theta", "psi")):
@@ -525,8 +529,33 @@ def thrust_ratio(model: QuadrotorModel, logs: Sequence[FlightLog], p: np.ndarray
         az = np.asarray(model.output.map(rows.size)(X.T, U.T, p, t[None, :]))[iz]
         vertical.append(-az * np.cos(X[:, 3]) * np.cos(X[:, 4]))
     mean = float(np.nanmean(np.concatenate(vertical)))
-    g = model.airframe.gravity
-    return mean / g if g > 0 and np.isfinite(mean) and mean > 0 else None
+    share = float(np.mean(np.concatenate(needed)))
+    return mean / (g * share) if g > 0 and share > 0 and np.isfinite(mean) and mean > 0 else None
+
+
+def net_vertical_acceleration(log: FlightLog, window: float = 0.25) -> float:
+    """The flight's mean vertical acceleration (NED, m/s^2, positive down): its vertical
+    velocity at the end less that at the start (each the slope of the measured ``z`` over
+    ``window`` seconds) over its duration; 0 without positions. A flight that starts and ends
+    at rest has 0, and its rotors carry the weight on average; a piece cut between two flips
+    ends climbing from a punch (a blind audit's racer: pieces at 103-107 % of the weight with
+    the thrust right, read as "each flight needs its own K_T")."""
+    if "z" not in log.output_names or len(log) < 2:
+        return 0.0
+    z = log.output("z")
+    ok = np.flatnonzero(np.isfinite(z))
+    if ok.size < 6:
+        return 0.0
+    t = log.t[ok]
+    duration = float(t[-1] - t[0])
+    if duration <= 2 * window:
+        return 0.0
+    head, tail = t <= t[0] + window, t >= t[-1] - window
+    if head.sum() < 3 or tail.sum() < 3:
+        return 0.0
+    v0 = float(np.polyfit(t[head], z[ok][head], 1)[0])
+    v1 = float(np.polyfit(t[tail], z[ok][tail], 1)[0])
+    return (v1 - v0) / float(np.mean(t[tail]) - np.mean(t[head]))
 
 
 THRUST_IMPOSSIBLE = 4.0
