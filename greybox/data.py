@@ -1010,35 +1010,35 @@ def flip_passages(t: np.ndarray, phi: np.ndarray | None, theta: np.ndarray, psi:
     if phi is not None and psi is not None:
         both = k[np.isfinite(np.asarray(phi)[k]) & np.isfinite(np.asarray(psi)[k])]
         if both.size > 1:
-            d = lambda a: np.abs(np.angle(np.exp(1j * np.diff(np.asarray(a, dtype=float)[both]))))  # noqa: E731
-            jump = (d(phi) > np.pi / 2) & (d(psi) > np.pi / 2)
+            jump = (_angle_steps(np.asarray(phi)[both]) > np.pi / 2) & (_angle_steps(np.asarray(psi)[both]) > np.pi / 2)
             steep[both[1:][jump]] = True
             steep[both[:-1][jump]] = True
     if not steep.any():
         return []
-    tilted = np.zeros(t.size, dtype=bool)
-    tilted[k[np.abs(theta[k]) >= FLIP_CUT_PITCH]] = True
-    tilted |= steep
+    # the stretches of consecutive pitch samples tilted beyond the cut's pitch (or steep),
+    # those holding a steep one (a sparse attitude's rows between its samples are not looked at)
+    steep_k = steep[k]
+    tilted_k = steep_k | (np.abs(theta[k]) >= FLIP_CUT_PITCH)
+    edges = np.diff(np.concatenate([[0], tilted_k.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    held = np.concatenate([[0], np.cumsum(steep_k)])
     out: list[tuple[int, int]] = []
-    i = 0
-    while i < t.size:
-        if not steep[i]:
-            i += 1
+    for a, b in zip(starts, stops):
+        if held[b] == held[a]:
             continue
-        a = i
-        while a > 0 and tilted[a - 1]:
-            a -= 1
-        b = i
-        while b + 1 < t.size and (tilted[b + 1] or steep[b + 1]):
-            b += 1
-        start = int(np.searchsorted(t, t[a] - margin, side="left"))
-        stop = int(np.searchsorted(t, t[b] + margin, side="right"))
+        start = int(np.searchsorted(t, t[k[a]] - margin, side="left"))
+        stop = int(np.searchsorted(t, t[k[b - 1]] + margin, side="right"))
         if out and start <= out[-1][1]:
             out[-1] = (out[-1][0], max(out[-1][1], stop))
         else:
             out.append((start, stop))
-        i = b + 1
     return out
+
+
+def _angle_steps(a: np.ndarray) -> np.ndarray:
+    """The size of each step of the angle ``a`` between consecutive samples, wrapped into
+    [0, pi] (a wrap of 2 pi is no step)."""
+    return np.abs(np.angle(np.exp(1j * np.diff(a))))
 
 
 FLIP_MIN_PIECE_S = 1.0

@@ -71,6 +71,11 @@ def test_a_flip_is_found_by_the_pitch_or_by_the_euler_angles_jump():
     assert len(passages) == 2
     assert np.allclose([(turn[a], turn[b - 1]) for a, b in passages], [(60, 120), (240, 300)], atol=1.0), passages
     assert len(flip_passages(t, pitch[:, 0], pitch[:, 1], pitch[:, 2], margin=0.7)) == 1     # merged
+    # an attitude on every 5th row only: the same stretches, to within its spacing
+    every5 = np.full_like(pitch, np.nan)
+    every5[::5] = pitch[::5]
+    sparse_cut = flip_passages(t, every5[:, 0], every5[:, 1], every5[:, 2], margin=0.0)
+    assert np.abs(np.subtract(sparse_cut, passages)).max() <= 5, (sparse_cut, passages)
     # sampled at 78 and 102 degrees of the turn the pitch stays below 80 degrees (78, 78), and the
     # jumps of roll and yaw between the two tell
     sparse = np.full_like(pitch, np.nan)
