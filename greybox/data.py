@@ -29,7 +29,8 @@ __all__ = ["FlightLog", "check_distinct_flights", "flight_label", "parse_time_wi
            "MAX_MEDIAN_STEP", "MAX_GAP", "MAX_DURATION", "check_rotor_speed_units", "rotor_speed_magnitudes",
            "median_row_interval",
            "check_measurement_units", "unwrap_heading", "flip_passages", "FLIP_PITCH", "FLIP_CUT_PITCH",
-           "FLIP_MARGIN_S", "FLIP_MIN_PIECE_S", "ROLL_WRAP_TOLERANCE", "EULER_PITCH_RANGE", "FlipSplit", "split_flips", "UNIT_RATIO_LIMIT", "check_channel_noise", "RECORD_EXTRAS", "is_command_column"]
+           "FLIP_MARGIN_S", "FLIP_MIN_PIECE_S", "ROLL_WRAP_TOLERANCE", "EULER_PITCH_RANGE",
+           "CLIP_FLOORS", "CLIP_MIN_RUN", "clipped_samples", "inside_gaps", "FlipSplit", "split_flips", "UNIT_RATIO_LIMIT", "check_channel_noise", "RECORD_EXTRAS", "is_command_column"]
 
 REQUIRED_OUTPUTS = ["x", "y", "z", "phi", "theta", "psi"]
 OPTIONAL_OUTPUTS = ["p", "q", "r", "ax", "ay", "az"]
@@ -821,6 +822,20 @@ def log_from_table(header: list[str], data: np.ndarray, rows, where: str, inputs
             hint = " - is it in degrees?" if unit == "rad" and abs(Y[bad[0], j]) < 400 else ""
             raise GreyboxInputError(f"{where}: row {rows[bad[0]]}, column {name!r}: {Y[bad[0], j]:g} is not "
                                     f"plausible in {unit} (|{name}| <= {limit:g}){hint}")
+    for name in CLIP_FLOORS:
+        if name in out_names:
+            j = out_names.index(name)
+            clipped = clipped_samples(Y[:, j], CLIP_FLOORS[name])
+            if clipped.any():
+                # a MEMS sensor past its full scale logs its limit: fitted as data, a clipped
+                # accelerometer put K_T 4 std off and a clipped gyro read as a gyro scale of
+                # 0.87 (a blind audit's racer, +-4 g and +-2000 deg/s)
+                level = float(np.abs(Y[clipped, j]).max())
+                rows_at = np.flatnonzero(clipped)
+                Y[clipped, j] = np.nan
+                notes.append(f"{where}: column {name!r}: {rows_at.size} sample(s) flat at its range's end "
+                             f"(+-{level:.4g}, rows {rows[rows_at[0]]}-{rows[rows_at[-1]]}): a sensor past its full "
+                             "scale logs its limit, not the motion; left out as not measured")
     if flips == "refuse" and "theta" in out_names:
         passages = flip_passages(t, *(Y[:, out_names.index(n)] if n in out_names else None
                                       for n in ("phi", "theta", "psi")))
@@ -959,6 +974,52 @@ correlates 0.92 mirrored and 0.66 as given over 40 stretches (3.4 of them; a 3.7
 unexplained share, short of four), and was fitted, certified, with ``Kd[1]`` on its bound."""
 _FRAME_MAX_TURN = 30.0
 """Degrees the positions' axes may be turned from the heading's zero (the real flights: 4)."""
+
+
+CLIP_FLOORS = {"p": 4.0, "q": 4.0, "r": 4.0, "ax": 15.0, "ay": 15.0, "az": 15.0}
+"""Smallest magnitude (rad/s, m/s^2) at which a channel flat at its extreme is read as a sensor
+clipped at its full scale (:func:`clipped_samples`): just below the narrowest ranges MEMS
+parts are set to, +-250 deg/s (4.36 rad/s) and +-2 g."""
+CLIP_MIN_RUN = 3
+"""Consecutive measured samples exactly at a channel's extreme that make it clipped: a noisy
+sensor does not repeat its largest value; one past its full scale holds it."""
+
+
+def clipped_samples(y: np.ndarray, floor: float) -> np.ndarray:
+    """The samples of the channel ``y`` (NaN where not measured) at its largest or smallest
+    value, of magnitude at least ``floor``, where that value is held by at least
+    :data:`CLIP_MIN_RUN` consecutive measured samples: a sensor clipped at its full scale. A
+    boolean mask (all False when nothing is clipped)."""
+    y = np.asarray(y, dtype=float)
+    out = np.zeros(y.shape, dtype=bool)
+    k = np.flatnonzero(np.isfinite(y))
+    if k.size < 2 * CLIP_MIN_RUN:
+        return out
+    v = y[k]
+    for extreme in (v.max(), v.min()):
+        if abs(extreme) < floor:
+            continue
+        at = v == extreme
+        edges = np.diff(np.concatenate([[0], at.astype(np.int8), [0]]))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        if (stops - starts).max() >= CLIP_MIN_RUN:
+            out[k[at]] = True
+    return out
+
+
+def inside_gaps(t: np.ndarray, measured: np.ndarray, factor: float = 3.0) -> np.ndarray:
+    """The rows lying inside a gap of a channel (``measured``: the rows where it is) longer
+    than ``factor`` times its median spacing, as a boolean mask: there its integral or
+    interpolation stands for samples it does not have (a gyro's clipped samples left out, a
+    dropout)."""
+    k = np.flatnonzero(measured)
+    out = np.zeros(t.size, dtype=bool)
+    if k.size < 3:
+        return out
+    step = np.diff(t[k])
+    for a in np.flatnonzero(step > factor * float(np.median(step))):
+        out[k[a] + 1:k[a + 1]] = True
+    return out
 
 
 ROLL_WRAP_TOLERANCE = 1.0

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from . import codegen
-from .data import FlightLog, median_row_interval, unwrap_heading
+from .data import FlightLog, inside_gaps, median_row_interval, unwrap_heading
 from .errors import GreyboxInputError
 from .integrate import Substeps, integrate_states_along, parallel_map, rk4_step
 from .model import OUTPUTS, QuadrotorModel
@@ -683,12 +683,14 @@ def filtered_attitude_error(log: FlightLog) -> dict[str, float]:
     gyro_noise = np.where(np.isfinite(gyro_noise), gyro_noise, 0.0)
     dt = float(np.median(np.diff(t)))
     best = np.full(3, np.nan)
+    gap = np.concatenate([[0], np.cumsum(inside_gaps(t, gk))])    # spans across a gyro gap left out
     for span in KINEMATIC_WINDOWS:
         if span > 0.25 * (t[-1] - t[0]):
             continue
         i = np.arange(t.size)
         j = np.searchsorted(t, t + span)
         ok = j < t.size
+        ok[ok] &= gap[j[ok] + 1] == gap[i[ok] + 1]
         i, j = i[ok], j[ok]
         D = (ang[j] - ang[i]) - (integral[j] - integral[i])          # (m, 3)
         A = -(Wint[j] - Wint[i])                                     # (m, 3 angles, 3 bias components)
