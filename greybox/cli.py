@@ -20,7 +20,7 @@ import numpy as np
 from . import __version__
 from . import effects as fx
 from .airframe import load_airframe
-from .data import (FLIP_MARGIN_S, FLIP_MIN_PIECE_S, FlightLog, atomic_write, check_distinct_flights,
+from .data import (FLIP_MARGIN_S, FLIP_MIN_PIECE_S, FLIP_PITCH, FlightLog, atomic_write, check_distinct_flights,
                    check_rotor_speed_units, check_sample_times, read_csv_table, rotor_speed_magnitudes, save_log)
 from .errors import ConvergenceWarning, GreyboxError, GreyboxInputError, Terminated, forget_signals, interrupt_status, raise_interrupted, raise_terminated, signal_received
 from .integrate import simulate
@@ -371,7 +371,8 @@ def cmd_split(args: argparse.Namespace) -> int:
     cut = split_flips(args.log, margin=args.margin, min_length=args.min_length)
     t = cut.t
     if not cut.passages:
-        print(f"{args.log}: no flip (the pitch stays within +-80 degrees): nothing to split, nothing written")
+        print(f"{args.log}: no flip (the pitch stays within +-{np.degrees(FLIP_PITCH):.0f} degrees, roll and yaw "
+              "never jump together): nothing to split, nothing written")
         return 0
     if not cut.pieces:
         raise GreyboxInputError(f"{args.log}: {len(cut.passages)} flip(s), and no piece between them lasts "

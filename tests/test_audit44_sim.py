@@ -64,17 +64,21 @@ def test_a_clipped_gyro_is_left_out_on_load_with_a_note(tmp_path):
     assert note and "10 sample(s) flat at its range's end" in note[0] and f"rows {502}-{511}" in note[0], log.notes
 
 
-@pytest.fixture(scope="module")
-def flights(tmp_path_factory) -> Path:
-    """The racer's clipped-accelerometer flights (estimation and validation) and airframes."""
-    out = tmp_path_factory.mktemp("audit44")
+def _simulated(out: Path, case: str) -> Path:
+    """The audit's case ``case`` (estimation and validation flights) and airframes in ``out``."""
     argv = sys.argv
     try:
-        sys.argv = ["audit44_sim.py", str(out), "r3_accel"]
+        sys.argv = ["audit44_sim.py", str(out), case]
         sim.main()
     finally:
         sys.argv = argv
     return out
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory) -> Path:
+    """The racer's clipped-accelerometer flights (estimation and validation) and airframes."""
+    return _simulated(tmp_path_factory.mktemp("audit44"), "r3_accel")
 
 
 @pytest.mark.slow
@@ -105,13 +109,7 @@ def test_a_clipped_accelerometer_no_longer_biases_the_thrust(flights, tmp_path, 
 @pytest.fixture(scope="module")
 def gyro_flights(tmp_path_factory) -> Path:
     """The racer's clipped-gyro flights (flips too: split into pieces) and airframes."""
-    out = tmp_path_factory.mktemp("audit44_gyro")
-    argv = sys.argv
-    try:
-        sys.argv = ["audit44_sim.py", str(out), "r2_gyro"]
-        sim.main()
-    finally:
-        sys.argv = argv
+    out = _simulated(tmp_path_factory.mktemp("audit44_gyro"), "r2_gyro")
     for tag in ("est", "val"):
         assert main(["split", str(out / f"r2_gyro_{tag}.csv"), "--out", str(out / tag)]) == 0
     return out
